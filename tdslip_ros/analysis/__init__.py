@@ -1,0 +1,1 @@
+"""Offline analysis of recorded runs against the analytic apex return map (no rclpy)."""

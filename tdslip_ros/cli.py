@@ -1,0 +1,34 @@
+"""The ``tdslip`` command: one entry point, one sub-command per job.
+
+Each sub-command lives in its own module as ``main(argv: list[str]) -> int``; they are imported
+only when chosen, so ``tdslip --help`` stays fast and a missing optional dependency of one job
+does not break the others.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("tdslip_ros.model.demo", "plant-only simulation from the model core, printed as a table"),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if not args or args[0] in ("-h", "--help"):
+        print("usage: tdslip <command> [options]\n\ncommands:")
+        for name, (_, summary) in SUBCOMMANDS.items():
+            print(f"  {name:<10} {summary}")
+        return 0 if args else 2
+    name, rest = args[0], args[1:]
+    if name not in SUBCOMMANDS:
+        print(f"tdslip: unknown command {name!r}; try 'tdslip --help'", file=sys.stderr)
+        return 2
+    module = importlib.import_module(SUBCOMMANDS[name][0])
+    return int(module.main(rest))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

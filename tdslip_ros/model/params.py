@@ -1,0 +1,149 @@
+"""Physical parameters, apex states and stance commands of the TD-SLIP hopper.
+
+Everything here is SI. The dimensionless quantities of the paper (eq. 24) are
+produced only by :mod:`tdslip_ros.model.units`, the single conversion boundary.
+
+Sign convention (the one of the paper's eqs. 2, 6, 7; see shared/paper/NOTES.md):
+
+* body position relative to the toe: ``(x_b - x_toe, y_b) = (-r sin(theta), r cos(theta))``;
+* forward running (+x) touches down with ``theta_td = beta > 0`` and theta *decreases*
+  through stance (``thetadot < 0``);
+* hip power is ``tau * thetadot``, so forward thrust needs ``tau < 0``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+STANDARD_GRAVITY = 9.81
+"""m/s^2, the value the paper's human-like examples use."""
+
+
+class ParameterError(ValueError):
+    """A parameter, state or command value is out of its domain; the message names the field."""
+
+
+def _require_finite(name: str, value: float) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ParameterError(f"{name} must be a finite number, got {value!r}")
+    return value
+
+
+def _require_positive(name: str, value: float) -> float:
+    value = _require_finite(name, value)
+    if value <= 0.0:
+        raise ParameterError(f"{name} must be positive, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class HopperParams:
+    """Mass m [kg], leg stiffness k [N/m], rest length r0 [m], damping c [N s/m], gravity g [m/s^2]."""
+
+    m: float
+    k: float
+    r0: float
+    c: float
+    g: float = STANDARD_GRAVITY
+
+    def __post_init__(self) -> None:
+        for name in ("m", "k", "r0", "g"):
+            object.__setattr__(self, name, _require_positive(name, getattr(self, name)))
+        c = _require_finite("c", self.c)
+        if c < 0.0:
+            raise ParameterError(f"c (damping) must be non-negative, got {c!r}")
+        object.__setattr__(self, "c", c)
+
+    @classmethod
+    def from_dimensionless(
+        cls,
+        kbar: float,
+        zeta0: float,
+        m: float = 80.0,
+        r0: float = 1.0,
+        g: float = STANDARD_GRAVITY,
+    ) -> HopperParams:
+        """Build from the paper's kbar = k r0/(m g) and zeta0 = c/(2 sqrt(m k)) (eq. 24)."""
+        kbar = _require_positive("kbar", kbar)
+        zeta0 = _require_finite("zeta0", zeta0)
+        if zeta0 < 0.0:
+            raise ParameterError(f"zeta0 (damping ratio) must be non-negative, got {zeta0!r}")
+        m = _require_positive("m", m)
+        r0 = _require_positive("r0", r0)
+        g = _require_positive("g", g)
+        k = kbar * m * g / r0
+        return cls(m=m, k=k, r0=r0, c=2.0 * zeta0 * math.sqrt(m * k), g=g)
+
+    @property
+    def kbar(self) -> float:
+        """Dimensionless stiffness k r0 / (m g)."""
+        return self.k * self.r0 / (self.m * self.g)
+
+    @property
+    def zeta0(self) -> float:
+        """Damping ratio c / (2 sqrt(m k))."""
+        return self.c / (2.0 * math.sqrt(self.m * self.k))
+
+    @property
+    def omega0(self) -> float:
+        """Natural frequency sqrt(k/m) of the leg spring [rad/s]."""
+        return math.sqrt(self.k / self.m)
+
+
+@dataclass(frozen=True)
+class ApexState:
+    """Apex of flight: height y [m] and forward speed xdot [m/s] (vertical speed is zero)."""
+
+    y: float
+    xdot: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "y", _require_positive("apex height y", self.y))
+        object.__setattr__(self, "xdot", _require_finite("apex speed xdot", self.xdot))
+
+    def energy(self, params: HopperParams) -> float:
+        """Total mechanical energy m xdot^2/2 + m g y [J] (the spring is at rest in flight)."""
+        return 0.5 * params.m * self.xdot**2 + params.m * params.g * self.y
+
+    @classmethod
+    def from_height_energy(cls, params: HopperParams, y: float, energy: float) -> ApexState:
+        """The forward-running apex state with height y [m] and total energy [J] (eq. 23 coordinates)."""
+        y = _require_positive("apex height y", y)
+        energy = _require_finite("apex energy", energy)
+        kinetic = energy - params.m * params.g * y
+        if kinetic < 0.0:
+            raise ParameterError(
+                f"apex energy {energy!r} J is below the potential energy m g y = "
+                f"{params.m * params.g * y!r} J at height {y!r} m"
+            )
+        return cls(y=y, xdot=math.sqrt(2.0 * kinetic / params.m))
+
+
+@dataclass(frozen=True)
+class StanceCommand:
+    """What the hip does in the coming stance.
+
+    touchdown_angle [rad] is theta_td in (0, pi/2); the ramp torque of eq. 18 is
+    tau(t) = tau0 (1 - t/t_f) for 0 <= t <= t_f and 0 afterwards, tau0 in N m (negative
+    for forward thrust), t_f in s.
+    """
+
+    touchdown_angle: float
+    tau0: float
+    t_f: float
+
+    def __post_init__(self) -> None:
+        angle = _require_finite("touchdown_angle", self.touchdown_angle)
+        if not 0.0 < angle < math.pi / 2:
+            raise ParameterError(f"touchdown_angle must lie in (0, pi/2) rad, got {angle!r}")
+        object.__setattr__(self, "touchdown_angle", angle)
+        object.__setattr__(self, "tau0", _require_finite("tau0", self.tau0))
+        object.__setattr__(self, "t_f", _require_positive("t_f", self.t_f))
+
+    def torque(self, t: float) -> float:
+        """Hip torque [N m] at time t [s] after touchdown (eq. 18)."""
+        if t <= self.t_f:
+            return self.tau0 * (1.0 - t / self.t_f)
+        return 0.0
