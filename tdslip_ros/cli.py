@@ -11,7 +11,7 @@ import importlib
 import sys
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "simulate": ("tdslip_ros.model.demo", "plant-only simulation from the model core, printed as a table"),
+    "simulate": ("tdslip_ros.analysis.simulate", "plant-only simulation from the model core, printed as a table"),
 }
 
 
