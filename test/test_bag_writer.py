@@ -1,0 +1,462 @@
+"""RosbagMcapWriter output read back by independent readers: ``mcap`` + ``mcap-ros2-support`` and
+``rosbags`` (which also re-derives each type hash from the stored schema text and checks it)."""
+
+from __future__ import annotations
+
+import io
+import os
+import signal
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import pytest
+import yaml
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Vector3, Wrench, WrenchStamped
+from mcap.exceptions import EndOfFile, McapError
+from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+from mcap_ros2.decoder import DecoderFactory
+from mcap_ros2.reader import read_ros2_messages
+from rclpy.serialization import serialize_message
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header, String
+
+from tdslip_ros.bag import (
+    BagClosedError,
+    OfferedQos,
+    RosbagMcapWriter,
+    message_definition,
+    type_description_hash,
+)
+
+QOS_DEFAULT = OfferedQos()
+QOS_LATCHED = OfferedQos(history="unknown", depth=0, durability="transient_local", deadline_ns=1_500_000_000)
+TOPICS = {
+    "/chatter": ("std_msgs/msg/String", (QOS_DEFAULT,)),
+    "/tdslip/grf": ("geometry_msgs/msg/WrenchStamped", (QOS_DEFAULT, QOS_LATCHED)),
+    "/clock": ("rosgraph_msgs/msg/Clock", ()),
+}
+
+
+@dataclass(frozen=True)
+class Written:
+    topic: str
+    message: Any
+    log_time_ns: int
+    publish_time_ns: int
+
+
+def sample_message(topic: str, index: int) -> Any:
+    stamp = Time(sec=index // 1000, nanosec=(index % 1000) * 1_000_000)
+    if topic == "/chatter":
+        return String(data=f"message {index} ünïcode")
+    if topic == "/tdslip/grf":
+        return WrenchStamped(
+            header=Header(stamp=stamp, frame_id="world"),
+            wrench=Wrench(
+                force=Vector3(x=0.5 * index, y=-1.0 - index, z=1e-9 * index), torque=Vector3(z=-float(index))
+            ),
+        )
+    return Clock(clock=stamp)
+
+
+def write_sample_bag(
+    bag: RosbagMcapWriter, count: int, start_ns: int = 1_700_000_000_000_000_000
+) -> list[Written]:
+    for topic, (type_name, qos) in TOPICS.items():
+        bag.add_topic(topic, type_name, offered_qos=qos)
+    written = []
+    for index in range(count):
+        topic = list(TOPICS)[index % len(TOPICS)]
+        log_time = start_ns + 1_000_000 * index
+        entry = Written(topic, sample_message(topic, index), log_time, log_time - 250_000)
+        bag.write(topic, serialize_message(entry.message), entry.log_time_ns, entry.publish_time_ns)
+        written.append(entry)
+    return written
+
+
+def field_values(value: Any, template: Any) -> Any:
+    """The field values of a decoded message, walked along the fields of the rclpy ``template``."""
+    if hasattr(template, "get_fields_and_field_types"):
+        return {
+            name: field_values(getattr(value, name), getattr(template, name))
+            for name in template.get_fields_and_field_types()
+        }
+    return value
+
+
+def per_topic(written: list[Written]) -> dict[str, list[Written]]:
+    return {topic: [entry for entry in written if entry.topic == topic] for topic in TOPICS}
+
+
+@pytest.mark.parametrize(
+    ("compression", "chunk_compression"), [("none", ""), ("lz4", "lz4"), ("zstd", "zstd")]
+)
+def test_bag_directory_reads_back_in_mcap_ros2(
+    tmp_path: Path, compression: str, chunk_compression: str
+) -> None:
+    bag = RosbagMcapWriter(tmp_path / "run", compression=compression, chunk_size=4096)  # type: ignore[arg-type]
+    written = write_sample_bag(bag, 900)
+    bag.close()
+    expected = per_topic(written)
+    assert bag.message_counts == {topic: len(entries) for topic, entries in expected.items()}
+
+    with bag.mcap_path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        header = reader.get_header()
+        assert header.profile == "ros2"
+        assert header.library.startswith("tdslip_ros")
+        summary = reader.get_summary()
+        assert summary is not None
+        assert summary.statistics is not None
+        assert {schema.name for schema in summary.schemas.values()} == {t for t, _ in TOPICS.values()}
+        for schema in summary.schemas.values():
+            assert schema.encoding == "ros2msg"
+            assert schema.data.decode() == message_definition(schema.name)
+        channels = {channel.topic: channel for channel in summary.channels.values()}
+        assert set(channels) == set(TOPICS)
+        for topic, channel in channels.items():
+            type_name, _ = TOPICS[topic]
+            assert channel.message_encoding == "cdr"
+            assert set(channel.metadata) == {"offered_qos_profiles", "topic_type_hash"}
+            assert channel.metadata["topic_type_hash"] == type_description_hash(type_name)
+            assert summary.schemas[channel.schema_id].name == type_name
+            assert summary.statistics.channel_message_counts[channel.id] == len(expected[topic])
+        assert len(summary.chunk_indexes) > 3
+        assert {index.compression for index in summary.chunk_indexes} == {chunk_compression}
+
+        decoded: dict[str, list[tuple[int, int, int, Any]]] = {topic: [] for topic in TOPICS}
+        for _, channel, message, ros_message in reader.iter_decoded_messages(log_time_order=False):
+            decoded[channel.topic].append(
+                (message.log_time, message.publish_time, message.sequence, ros_message)
+            )
+    for topic, entries in expected.items():
+        assert [(log, publish, sequence) for log, publish, sequence, _ in decoded[topic]] == [
+            (entry.log_time_ns, entry.publish_time_ns, number)
+            for number, entry in enumerate(entries, start=1)
+        ]
+        for (_, _, _, ros_message), entry in zip(decoded[topic], entries, strict=True):
+            assert field_values(ros_message, entry.message) == field_values(entry.message, entry.message)
+
+
+def test_bag_directory_reads_back_in_rosbags(tmp_path: Path) -> None:
+    with RosbagMcapWriter(tmp_path / "run") as bag:
+        written = write_sample_bag(bag, 300)
+    expected = per_topic(written)
+    with AnyReader([tmp_path / "run"]) as reader:
+        connections = {connection.topic: connection for connection in reader.connections}
+        assert set(connections) == set(TOPICS)
+        for topic, connection in connections.items():
+            type_name, qos = TOPICS[topic]
+            assert connection.msgtype == type_name
+            assert connection.msgcount == len(expected[topic])
+            assert connection.digest == type_description_hash(type_name)
+            offered = connection.ext.offered_qos_profiles  # type: ignore[union-attr]
+            assert [(q.history.name.lower(), q.depth, q.durability.name.lower()) for q in offered] == [
+                (q.history, q.depth, q.durability) for q in qos
+            ]
+        seen: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in TOPICS}
+        for connection, timestamp, raw in reader.messages():
+            seen[connection.topic].append((timestamp, reader.deserialize(raw, connection.msgtype)))
+    for topic, entries in expected.items():
+        assert [timestamp for timestamp, _ in seen[topic]] == [entry.log_time_ns for entry in entries]
+        for (_, message), entry in zip(seen[topic], entries, strict=True):
+            assert field_values(message, entry.message) == field_values(entry.message, entry.message)
+
+
+def test_metadata_yaml_and_rosbag2_record_describe_the_bag(tmp_path: Path) -> None:
+    with RosbagMcapWriter(tmp_path / "run", ros_distro="kilted", custom_data={"policy": "energy"}) as bag:
+        written = write_sample_bag(bag, 30, start_ns=5_000_000)
+    assert bag.metadata_path is not None
+    information = yaml.safe_load(bag.metadata_path.read_text())["rosbag2_bagfile_information"]
+    log_times = [entry.log_time_ns for entry in written]
+    counts = {topic: len(entries) for topic, entries in per_topic(written).items()}
+    assert information["version"] == 9
+    assert information["storage_identifier"] == "mcap"
+    assert information["starting_time"] == {"nanoseconds_since_epoch": min(log_times)}
+    assert information["duration"] == {"nanoseconds": max(log_times) - min(log_times)}
+    assert information["message_count"] == len(written)
+    assert information["compression_format"] == information["compression_mode"] == ""
+    assert information["relative_file_paths"] == [bag.mcap_path.name]
+    assert (bag.metadata_path.parent / information["relative_file_paths"][0]) == bag.mcap_path
+    assert information["files"] == [
+        {
+            "path": bag.mcap_path.name,
+            "starting_time": {"nanoseconds_since_epoch": min(log_times)},
+            "duration": {"nanoseconds": max(log_times) - min(log_times)},
+            "message_count": len(written),
+        }
+    ]
+    assert information["custom_data"] == {"policy": "energy"}
+    assert information["ros_distro"] == "kilted"
+    topics = {entry["topic_metadata"]["name"]: entry for entry in information["topics_with_message_count"]}
+    for topic, (type_name, qos) in TOPICS.items():
+        metadata = topics[topic]["topic_metadata"]
+        assert topics[topic]["message_count"] == counts[topic]
+        assert metadata["type"] == type_name
+        assert metadata["serialization_format"] == "cdr"
+        assert metadata["type_description_hash"] == type_description_hash(type_name)
+        assert metadata["offered_qos_profiles"] == [q.to_yaml_mapping() for q in qos]
+
+    with bag.mcap_path.open("rb") as stream:
+        records = list(make_reader(stream).iter_metadata())
+    assert [(record.name, set(record.metadata)) for record in records] == [
+        ("rosbag2", {"serialized_metadata"})
+    ]
+    assert yaml.safe_load(records[0].metadata["serialized_metadata"]) == information
+
+
+def test_bare_mcap_file_has_no_metadata_yaml(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with RosbagMcapWriter(path, bag_directory=False) as bag:
+        written = write_sample_bag(bag, 12)
+    assert bag.metadata_path is None
+    assert list(tmp_path.iterdir()) == [path]
+    decoded = [message.ros_msg for message in read_ros2_messages(str(path))]
+    assert [field_values(m, e.message) for m, e in zip(decoded, written, strict=True)] == [
+        field_values(e.message, e.message) for e in written
+    ]
+
+
+def test_every_message_of_a_1khz_scale_run_is_kept(tmp_path: Path) -> None:
+    total = 60_000
+    payloads = {topic: serialize_message(sample_message(topic, 7)) for topic in TOPICS}
+    topics = list(TOPICS)
+    with RosbagMcapWriter(tmp_path / "run") as bag:
+        for topic, (type_name, qos) in TOPICS.items():
+            bag.add_topic(topic, type_name, offered_qos=qos)
+        for index in range(total):
+            topic = topics[index % 3]
+            bag.write(topic, payloads[topic], 1_000_000 * index)
+    expected = dict.fromkeys(TOPICS, total // 3)
+    assert bag.message_counts == expected
+
+    sequences: dict[int, list[int]] = {}
+    with bag.mcap_path.open("rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            sequences.setdefault(channel.id, []).append(message.sequence)
+    assert sorted(len(numbers) for numbers in sequences.values()) == [total // 3] * 3
+    assert all(numbers == list(range(1, total // 3 + 1)) for numbers in sequences.values())
+    with AnyReader([tmp_path / "run"]) as reader:
+        assert {connection.topic: connection.msgcount for connection in reader.connections} == expected
+        assert sum(1 for _ in reader.messages()) == total
+
+
+def read_message_count(path: Path) -> int:
+    with path.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    assert summary.statistics is not None
+    return summary.statistics.message_count
+
+
+def test_close_from_another_thread_while_writing_keeps_every_accepted_message(tmp_path: Path) -> None:
+    bag = RosbagMcapWriter(tmp_path / "run", chunk_size=4096)
+    bag.add_topic("/chatter", "std_msgs/msg/String")
+    accepted = 0
+    started = threading.Event()
+
+    def produce() -> None:
+        nonlocal accepted
+        while True:
+            try:
+                bag.write("/chatter", serialize_message(String(data=str(accepted))), accepted)
+            except BagClosedError:
+                return
+            accepted += 1
+            started.set()
+
+    producer = threading.Thread(target=produce)
+    producer.start()
+    assert started.wait(10)
+    threading.Event().wait(0.05)
+    bag.close()
+    producer.join(10)
+    assert not producer.is_alive()
+    assert accepted > 0
+    assert bag.message_counts == {"/chatter": accepted}
+    assert read_message_count(bag.mcap_path) == accepted
+    with AnyReader([tmp_path / "run"]) as reader:
+        assert [reader.deserialize(raw, "std_msgs/msg/String").data for _, _, raw in reader.messages()] == [
+            str(number) for number in range(accepted)
+        ]
+
+
+def test_close_requested_inside_a_write_completes_when_that_write_returns(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A signal handler runs on the writing thread between two bytecodes of write(); simulate one that
+    # arrives while the tenth message is being added.
+    bag = RosbagMcapWriter(tmp_path / "run")
+    bag.add_topic("/chatter", "std_msgs/msg/String")
+    add_message = bag._mcap.add_message
+    calls = 0
+
+    def add_message_interrupted(*args: Any, **kwargs: Any) -> None:
+        nonlocal calls
+        calls += 1
+        if calls == 10:
+            bag.close()
+            assert not bag.closed, "close must wait for the interrupted write"
+        add_message(*args, **kwargs)
+
+    monkeypatch.setattr(bag._mcap, "add_message", add_message_interrupted)
+    for number in range(10):
+        bag.write("/chatter", serialize_message(String(data=str(number))), number)
+    assert bag.closed
+    with pytest.raises(BagClosedError):
+        bag.write("/chatter", b"", 11)
+    assert read_message_count(bag.mcap_path) == 10
+
+
+def test_usage_errors_are_reported(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="compression"):
+        RosbagMcapWriter(tmp_path / "a", compression="gzip")  # type: ignore[arg-type]
+    bag = RosbagMcapWriter(tmp_path / "run")
+    with pytest.raises(FileExistsError):
+        RosbagMcapWriter(tmp_path / "run")
+    with pytest.raises(FileExistsError):
+        RosbagMcapWriter(bag.mcap_path, bag_directory=False)
+    channel = bag.add_topic("/chatter", "std_msgs/String")
+    assert bag.add_topic("/chatter", "std_msgs/msg/String") == channel
+    with pytest.raises(ValueError, match="already recorded"):
+        bag.add_topic("/chatter", "rosgraph_msgs/msg/Clock")
+    with pytest.raises(KeyError, match="add_topic"):
+        bag.write("/unknown", b"", 0)
+    with pytest.raises(ValueError, match="times"):
+        bag.write("/chatter", b"", 10, publish_time_ns=-1)
+    with pytest.raises(ValueError, match="sequence"):
+        bag.write("/chatter", b"", 10, sequence=2**32)
+    bag.close()
+    bag.close()
+    with pytest.raises(BagClosedError):
+        bag.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+    assert read_message_count(bag.mcap_path) == 0
+
+
+def scan_messages(stream: IO[bytes]) -> tuple[list[Message], McapError | None]:
+    """Every message record of a sequential scan, and the error that ended it, if any."""
+    messages = []
+    try:
+        for record in StreamReader(stream).records:
+            if isinstance(record, Message):
+                messages.append(record)
+    except McapError as error:
+        return messages, error
+    return messages, None
+
+
+def test_truncated_file_is_rejected_by_readers_and_complete_chunks_are_recoverable(tmp_path: Path) -> None:
+    with RosbagMcapWriter(tmp_path / "run", chunk_size=4096) as bag:
+        written = write_sample_bag(bag, 1500)
+    with bag.mcap_path.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    chunks = sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset)
+    cut_chunk = chunks[len(chunks) // 2]
+    data = bag.mcap_path.read_bytes()[: cut_chunk.chunk_start_offset + cut_chunk.chunk_length // 2]
+    bag.mcap_path.write_bytes(data)
+
+    with pytest.raises(McapError):
+        list(make_reader(io.BytesIO(data)).iter_messages())
+    with pytest.raises(McapError):
+        list(read_ros2_messages(str(bag.mcap_path)))
+    with pytest.raises(AnyReaderError, match="magic"), AnyReader([tmp_path / "run"]) as reader:
+        list(reader.messages())
+
+    recovered, error = scan_messages(io.BytesIO(data))
+    assert isinstance(error, EndOfFile)
+    last_complete = chunks[len(chunks) // 2 - 1].message_end_time
+    assert [message.log_time for message in recovered] == [
+        entry.log_time_ns for entry in written if entry.log_time_ns <= last_complete
+    ]
+
+
+def child_environment() -> dict[str, str]:
+    """Environment for a child Python that imports this checkout's tdslip_ros."""
+    repo = Path(__file__).resolve().parents[1]
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(repo), os.environ.get("PYTHONPATH", "")]))
+
+
+def test_hard_killed_writer_leaves_every_flushed_chunk_recoverable(tmp_path: Path) -> None:
+    script = tmp_path / "killed_writer.py"
+    script.write_text(
+        "import os, signal, sys\n"
+        "from pathlib import Path\n"
+        "from tdslip_ros.bag import RosbagMcapWriter\n"
+        "bag = RosbagMcapWriter(Path(sys.argv[1]), chunk_size=4096)\n"
+        "bag.add_topic('/chatter', 'std_msgs/msg/String')\n"
+        "payload = bytes([0, 1, 0, 0, 4, 0, 0, 0]) + b'abc\\0'\n"
+        "for number in range(3000):\n"
+        "    bag.write('/chatter', payload, number)\n"
+        "bag.flush()\n"
+        "for number in range(3000, 3050):\n"
+        "    bag.write('/chatter', payload, number)\n"
+        "os.kill(os.getpid(), signal.SIGKILL)\n"
+    )
+    run = tmp_path / "run"
+    result = subprocess.run(
+        [sys.executable, str(script), str(run)], env=child_environment(), timeout=60, check=False
+    )
+    assert result.returncode == -signal.SIGKILL
+    mcap_path = run / "run_0.mcap"
+    assert not (run / "metadata.yaml").exists()
+    with pytest.raises(McapError), mcap_path.open("rb") as stream:
+        list(make_reader(stream).iter_messages())
+    with mcap_path.open("rb") as stream:
+        recovered, error = scan_messages(stream)
+    assert isinstance(error, EndOfFile)
+    assert [(message.sequence, message.log_time) for message in recovered] == [
+        (number + 1, number) for number in range(3000)
+    ]
+
+
+def test_sigterm_handler_closing_the_writer_leaves_a_finalised_bag(tmp_path: Path) -> None:
+    script = tmp_path / "terminated_writer.py"
+    script.write_text(
+        "import signal, sys\n"
+        "from pathlib import Path\n"
+        "from rclpy.serialization import serialize_message\n"
+        "from std_msgs.msg import String\n"
+        "from tdslip_ros.bag import BagClosedError, RosbagMcapWriter\n"
+        "bag = RosbagMcapWriter(Path(sys.argv[1]), chunk_size=4096)\n"
+        "bag.add_topic('/chatter', 'std_msgs/msg/String')\n"
+        "signal.signal(signal.SIGTERM, lambda *_: bag.close())\n"
+        "accepted = 0\n"
+        "print('ready', flush=True)\n"
+        "while True:\n"
+        "    try:\n"
+        "        bag.write('/chatter', serialize_message(String(data=str(accepted))), accepted)\n"
+        "    except BagClosedError:\n"
+        "        break\n"
+        "    accepted += 1\n"
+        "print(accepted, flush=True)\n"
+    )
+    run = tmp_path / "run"
+    child = subprocess.Popen(
+        [sys.executable, str(script), str(run)], env=child_environment(), stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert child.stdout is not None
+        assert child.stdout.readline().strip() == "ready"
+        threading.Event().wait(0.3)
+        child.send_signal(signal.SIGTERM)
+        output, _ = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == 0
+    accepted = int(output.strip())
+    assert accepted > 0
+    assert read_message_count(run / "run_0.mcap") == accepted
+    with AnyReader([run]) as reader:
+        assert [reader.deserialize(raw, "std_msgs/msg/String").data for _, _, raw in reader.messages()] == [
+            str(number) for number in range(accepted)
+        ]
