@@ -1,0 +1,28 @@
+"""Shared fixtures of the test suite."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def repo_root() -> Path:
+    """The work tree under test (the directory holding package.xml)."""
+    return REPO_ROOT
+
+
+@pytest.fixture
+def ament_index(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Make the ament index searchable the way ros2cli searches it: through AMENT_PREFIX_PATH.
+
+    ./run.sh sets it to the venv; under a bare ``.venv/bin/python -m pytest`` it is set here to this
+    interpreter's prefix, as sourcing a ROS setup file would.
+    """
+    if not os.environ.get("AMENT_PREFIX_PATH"):
+        monkeypatch.setenv("AMENT_PREFIX_PATH", sys.prefix)
