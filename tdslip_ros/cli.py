@@ -11,7 +11,11 @@ import importlib
 import sys
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "simulate": ("tdslip_ros.analysis.simulate", "plant-only simulation from the model core, printed as a table"),
+    "simulate": (
+        "tdslip_ros.analysis.simulate",
+        "plant-only simulation from the model core, printed as a table",
+    ),
+    "run": ("tdslip_ros.nodes.runner", "run the plant, controller and recorder nodes for one hop, recorded"),
 }
 
 

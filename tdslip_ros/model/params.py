@@ -141,9 +141,3 @@ class StanceCommand:
         object.__setattr__(self, "touchdown_angle", angle)
         object.__setattr__(self, "tau0", _require_finite("tau0", self.tau0))
         object.__setattr__(self, "t_f", _require_positive("t_f", self.t_f))
-
-    def torque(self, t: float) -> float:
-        """Hip torque [N m] at time t [s] after touchdown (eq. 18)."""
-        if t <= self.t_f:
-            return self.tau0 * (1.0 - t / self.t_f)
-        return 0.0

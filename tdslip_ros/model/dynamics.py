@@ -1,0 +1,269 @@
+"""TD-SLIP equations of motion: the one home of the physics that every integrator here shares.
+
+Flight is ballistic (paper eq. 1) and solved in closed form. Stance (eq. 2) has the toe fixed on
+the ground, polar leg coordinates (r, theta) and the ramp hip torque of eq. 18:
+
+    m rddot          = m r thetadot^2 - m g cos(theta) - k (r - r0) - c rdot
+    d/dt(m r^2 thetadot) = m g r sin(theta) + tau(s),     s = time since touchdown,
+
+body = toe + (-r sin(theta), r cos(theta)) (the convention of :mod:`tdslip_ros.model.params`).
+The leg cannot pull: it lifts off when its force k (r0 - r) - c rdot crosses zero from above, and
+the spring energy it still holds then is lost with the massless leg.
+
+The functions below that an integrator calls inside its steps are plain arithmetic: they take
+sin(theta) and cos(theta) from the caller, so the same code serves Python floats (the 1 kHz
+stepper, where ``math`` is fastest) and numpy arrays (the batched engine).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+from tdslip_ros.model.events import FailureKind, HopperState, Phase
+from tdslip_ros.model.params import HopperParams
+
+FloatArray = npt.NDArray[np.float64]
+Real = TypeVar("Real", float, FloatArray)
+
+NO_LIFTOFF_SPRING_PERIODS = 10.0
+"""A stance longer than this many natural periods 2 pi sqrt(m/k) of the leg spring is a failure
+(no_liftoff). A hop's stance lasts about half a period; a body that sinks onto its leg and stays
+balanced (heavy damping, near-vertical leg, almost no speed) would otherwise never end."""
+
+
+def max_stance_duration(params: HopperParams) -> float:
+    """The no_liftoff bound [s]: NO_LIFTOFF_SPRING_PERIODS natural periods of the leg spring."""
+    return NO_LIFTOFF_SPRING_PERIODS * 2.0 * math.pi / params.omega0
+
+
+def touchdown_height(params: HopperParams, cos_touchdown: Real) -> Real:
+    """Body height [m] at which the leg, placed at rest length, touches the ground."""
+    return params.r0 * cos_touchdown
+
+
+def fall_time(y: Real, ydot: Real, y_target: Real, g: float) -> Real:
+    """Time [s] for a ballistic body at (y, ydot) to reach y_target while descending.
+
+    The caller guarantees y_target <= the apex height y + ydot^2 / (2 g).
+    """
+    root: Real = (ydot * ydot + 2.0 * g * (y - y_target)) ** 0.5
+    return (ydot + root) / g
+
+
+def ballistic(x: Real, y: Real, xdot: Real, ydot: Real, t: Real, g: float) -> tuple[Real, Real, Real, Real]:
+    """Flight state (x, y, xdot, ydot) after time t (eq. 1, exact)."""
+    return x + xdot * t, y + ydot * t - 0.5 * g * t * t, xdot, ydot - g * t
+
+
+def polar_velocity(r: Real, sin_t: Real, cos_t: Real, xdot: Real, ydot: Real) -> tuple[Real, Real]:
+    """(rdot, thetadot) of the body about the toe from its Cartesian velocity (eq. 6 at touchdown)."""
+    return -xdot * sin_t + ydot * cos_t, (-xdot * cos_t - ydot * sin_t) / r
+
+
+def cartesian_velocity(r: Real, sin_t: Real, cos_t: Real, rdot: Real, thetadot: Real) -> tuple[Real, Real]:
+    """(xdot, ydot) of the body from its polar velocity about the toe (eq. 7 at liftoff)."""
+    return -rdot * sin_t - r * thetadot * cos_t, rdot * cos_t - r * thetadot * sin_t
+
+
+def ramp_torque(tau0: Real, t_f: Real, s: Real) -> Real:
+    """Hip torque [N m] of eq. 18 at time s after touchdown: tau0 (1 - s/t_f) up to t_f, then 0.
+
+    Integrators split the stance at s = t_f, so no step straddles the kink.
+    """
+    return tau0 * (1.0 - s / t_f) * (s <= t_f)
+
+
+def leg_force(params: HopperParams, r: Real, rdot: Real) -> Real:
+    """Axial force [N] of the spring-damper leg, positive when it pushes the body away from the toe."""
+    return params.k * (params.r0 - r) - params.c * rdot
+
+
+def stance_accelerations(
+    params: HopperParams, r: Real, sin_t: Real, cos_t: Real, rdot: Real, thetadot: Real, tau: Real
+) -> tuple[Real, Real]:
+    """(rddot, thetaddot) of eq. 2 with hip torque tau [N m]."""
+    rddot = r * thetadot * thetadot - params.g * cos_t + leg_force(params, r, rdot) / params.m
+    thetaddot = (params.g * sin_t - 2.0 * rdot * thetadot) / r + tau / (params.m * r * r)
+    return rddot, thetaddot
+
+
+def stance_powers(params: HopperParams, rdot: Real, thetadot: Real, tau: Real) -> tuple[Real, Real]:
+    """(hip power tau thetadot, damper power c rdot^2) [W]; their integrals are the stride's energy flows."""
+    return tau * thetadot, params.c * rdot * rdot
+
+
+STANCE_EVENT_NAMES = ("bottom", "liftoff", "reversal", "fall")
+"""Stance events, in the order of :func:`stance_event_values`."""
+
+
+def stance_event_values(
+    params: HopperParams, r: Real, cos_t: Real, rdot: Real, thetadot: Real
+) -> tuple[Real, Real, Real, Real]:
+    """Event functions; each event happens when its value crosses from > 0 to <= 0.
+
+    bottom: -rdot (maximum compression); liftoff: the leg force; reversal: -thetadot (the body
+    swings back); fall: the body height r cos(theta).
+    """
+    return -rdot, leg_force(params, r, rdot), -thetadot, r * cos_t
+
+
+def stance_event_rates(
+    params: HopperParams,
+    r: Real,
+    sin_t: Real,
+    cos_t: Real,
+    rdot: Real,
+    thetadot: Real,
+    rddot: Real,
+    thetaddot: Real,
+) -> tuple[Real, Real, Real, Real]:
+    """Time derivatives of :func:`stance_event_values` along the motion, for Newton's method."""
+    return -rddot, -params.k * rdot - params.c * rddot, -thetaddot, rdot * cos_t - r * thetadot * sin_t
+
+
+def spring_energy(params: HopperParams, r: Real) -> Real:
+    return 0.5 * params.k * (r - params.r0) ** 2
+
+
+def stance_energy(params: HopperParams, r: Real, cos_t: Real, rdot: Real, thetadot: Real) -> Real:
+    """Total mechanical energy [J] in stance: kinetic + gravitational + spring."""
+    kinetic = 0.5 * params.m * (rdot * rdot + r * r * thetadot * thetadot)
+    return kinetic + params.m * params.g * r * cos_t + spring_energy(params, r)
+
+
+def flight_energy(params: HopperParams, y: Real, xdot: Real, ydot: Real) -> Real:
+    """Total mechanical energy [J] in flight (the massless leg holds none)."""
+    return 0.5 * params.m * (xdot * xdot + ydot * ydot) + params.m * params.g * y
+
+
+def ground_reaction_force(
+    params: HopperParams, r: Real, sin_t: Real, cos_t: Real, rdot: Real, tau: Real
+) -> tuple[Real, Real]:
+    """Force (F_x, F_y) [N] the ground exerts on the body through the leg in stance.
+
+    F = f_leg e_r + (tau / r) e_theta, e_r = (-sin, cos) from toe to body, e_theta = (-cos, -sin):
+    the hip torque acts on the body as a force normal to the leg with moment tau about the toe.
+    """
+    f_leg = leg_force(params, r, rdot)
+    f_normal = tau / r
+    return -f_leg * sin_t - f_normal * cos_t, f_leg * cos_t - f_normal * sin_t
+
+
+def stance_hopper_state(
+    params: HopperParams,
+    t: float,
+    stride: int,
+    toe_x: float,
+    r: float,
+    theta: float,
+    rdot: float,
+    thetadot: float,
+    tau: float,
+) -> HopperState:
+    """Full state record in stance, toe at (toe_x, 0), hip torque tau."""
+    sin_t, cos_t = math.sin(theta), math.cos(theta)
+    xdot, ydot = cartesian_velocity(r, sin_t, cos_t, rdot, thetadot)
+    grf_x, grf_y = ground_reaction_force(params, r, sin_t, cos_t, rdot, tau)
+    return HopperState(
+        t=t,
+        stride=stride,
+        phase=Phase.STANCE,
+        x=toe_x - r * sin_t,
+        y=r * cos_t,
+        xdot=xdot,
+        ydot=ydot,
+        toe_x=toe_x,
+        toe_y=0.0,
+        r=r,
+        theta=theta,
+        rdot=rdot,
+        thetadot=thetadot,
+        hip_torque=tau,
+        energy=stance_energy(params, r, cos_t, rdot, thetadot),
+        grf_x=grf_x,
+        grf_y=grf_y,
+    )
+
+
+def flight_hopper_state(
+    params: HopperParams,
+    t: float,
+    stride: int,
+    x: float,
+    y: float,
+    xdot: float,
+    ydot: float,
+    leg_angle: float,
+) -> HopperState:
+    """Full state record in flight, the leg held at rest length and at leg_angle [rad]."""
+    return HopperState(
+        t=t,
+        stride=stride,
+        phase=Phase.FLIGHT,
+        x=x,
+        y=y,
+        xdot=xdot,
+        ydot=ydot,
+        toe_x=x + params.r0 * math.sin(leg_angle),
+        toe_y=y - params.r0 * math.cos(leg_angle),
+        r=params.r0,
+        theta=leg_angle,
+        rdot=0.0,
+        thetadot=0.0,
+        hip_torque=0.0,
+        energy=flight_energy(params, y, xdot, ydot),
+        grf_x=0.0,
+        grf_y=0.0,
+    )
+
+
+# Failure rules shared by the integrators (the kinds are defined in :mod:`.events`).
+
+
+def toe_stubbing(highest_y: float, y_touchdown: float) -> tuple[FailureKind, str] | None:
+    """Touchdown is infeasible when the highest body height still ahead is below the touchdown height."""
+    if highest_y < y_touchdown:
+        return FailureKind.TOE_STUBBING, (
+            f"apex height {highest_y:.6g} m is below the touchdown height "
+            f"r0 cos(theta_td) = {y_touchdown:.6g} m"
+        )
+    return None
+
+
+def touchdown_reversal(thetadot_td: float) -> tuple[FailureKind, str] | None:
+    """A touchdown with thetadot >= 0 sends the body back over its toe."""
+    if thetadot_td >= 0.0:
+        return (
+            FailureKind.REVERSAL,
+            f"thetadot = {thetadot_td:.6g} rad/s >= 0 at touchdown: the body swings back",
+        )
+    return None
+
+
+def stance_failure(event_name: str, s: float) -> tuple[FailureKind, str]:
+    """The failure a terminal stance event other than liftoff means, s [s] after touchdown."""
+    if event_name == "reversal":
+        return FailureKind.REVERSAL, f"thetadot reached 0 at {s:.6g} s into stance: the body swings back"
+    if event_name == "fall":
+        return FailureKind.FALL, f"body height reached 0 at {s:.6g} s into stance"
+    raise ValueError(f"{event_name!r} is not a failure event")
+
+
+def no_liftoff(limit: float) -> tuple[FailureKind, str]:
+    return FailureKind.NO_LIFTOFF, f"no liftoff within {limit:.6g} s of stance (dynamics.max_stance_duration)"
+
+
+def takeoff_failure(xdot_lo: float, ydot_lo: float) -> tuple[FailureKind, str] | None:
+    """Failure decided by the liftoff velocity: no apex ahead (fall) or a backward apex (reversal)."""
+    if ydot_lo <= 0.0:
+        return FailureKind.FALL, f"liftoff with ydot = {ydot_lo:.6g} m/s <= 0: the flight has no apex"
+    if xdot_lo <= 0.0:
+        return (
+            FailureKind.REVERSAL,
+            f"liftoff with xdot = {xdot_lo:.6g} m/s <= 0: the apex speed is not forward",
+        )
+    return None

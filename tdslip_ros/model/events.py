@@ -1,0 +1,110 @@
+"""Records of the hopper's state, its hybrid events and its named failures (no physics here).
+
+Failures are data, never exceptions: an integrator that meets one returns it by name with a
+human-readable reason. Their meaning, shared by every integrator in this package:
+
+* ``toe_stubbing``: touchdown is infeasible, the body is below the touchdown height
+  ``r0 cos(theta_td)`` when the leg should be placed (the apex is too low for the commanded angle);
+* ``no_liftoff``: the stance lasts longer than
+  :func:`tdslip_ros.model.dynamics.max_stance_duration` without liftoff, fall or reversal;
+* ``fall``: the body height ``r cos(theta)`` reaches 0 in stance (leg horizontal or fully
+  compressed), or the leg lifts off with ``ydot <= 0`` so that the coming flight has no apex;
+* ``reversal``: the motion turns back: ``thetadot >= 0`` in stance (at touchdown or later, the
+  body swings back over the toe), or the leg lifts off with ``xdot <= 0`` (apex speed <= 0).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class EventKind(enum.Enum):
+    TOUCHDOWN = "touchdown"
+    BOTTOM = "bottom"
+    LIFTOFF = "liftoff"
+    APEX = "apex"
+    FAILURE = "failure"
+
+
+class FailureKind(enum.StrEnum):
+    TOE_STUBBING = "toe_stubbing"
+    NO_LIFTOFF = "no_liftoff"
+    FALL = "fall"
+    REVERSAL = "reversal"
+
+
+class Phase(enum.StrEnum):
+    FLIGHT = "flight"
+    STANCE = "stance"
+
+
+NO_FAILURE_CODE = -1
+"""Failure code of a lane that did not fail; other codes index :data:`FAILURE_KINDS`."""
+
+FAILURE_KINDS: tuple[FailureKind, ...] = tuple(FailureKind)
+
+
+def failure_code(kind: FailureKind | None) -> int:
+    """Integer code of a failure for numpy arrays: its index in FailureKind, or -1 for none."""
+    return NO_FAILURE_CODE if kind is None else FAILURE_KINDS.index(kind)
+
+
+def failure_from_code(code: int) -> FailureKind | None:
+    return None if code == NO_FAILURE_CODE else FAILURE_KINDS[code]
+
+
+@dataclass(frozen=True)
+class HopperState:
+    """Full state at one instant, SI units.
+
+    stride is the index of the latest apex (the initial apex is stride 0). In flight the massless
+    leg is shown at rest length and at the commanded touchdown angle (rdot = thetadot = 0), its toe
+    in the air; in stance the toe is fixed at (toe_x, 0). energy is the total mechanical energy,
+    spring energy included; (grf_x, grf_y) is the ground reaction force acting on the body.
+    """
+
+    t: float
+    stride: int
+    phase: Phase
+    x: float
+    y: float
+    xdot: float
+    ydot: float
+    toe_x: float
+    toe_y: float
+    r: float
+    theta: float
+    rdot: float
+    thetadot: float
+    hip_torque: float
+    energy: float
+    grf_x: float
+    grf_y: float
+
+
+@dataclass(frozen=True)
+class StrideEnergy:
+    """Energy flows of one stance [J]: hip work int(tau thetadot dt), damper loss int(c rdot^2 dt),
+    and the spring energy k (r_lo - r0)^2 / 2 left in the massless leg at liftoff, which is lost."""
+
+    hip_work: float
+    damping_loss: float
+    spring_loss: float
+
+    @property
+    def net_gain(self) -> float:
+        """E_{k+1} - E_k, the apex energy change these flows imply."""
+        return self.hip_work - self.damping_loss - self.spring_loss
+
+
+@dataclass(frozen=True)
+class Event:
+    """A hybrid event at time t [s]; failure and reason are set for EventKind.FAILURE only."""
+
+    kind: EventKind
+    t: float
+    stride: int
+    state: HopperState
+    failure: FailureKind | None = None
+    reason: str = ""

@@ -1,0 +1,178 @@
+"""The exact apex-to-apex return map P = P_a o P_s o P_d (paper eqs. 3-7), solved to high accuracy.
+
+Descent (P_d) and ascent (P_a) are ballistic and taken in closed form. Stance (P_s, eq. 2 with the
+ramp torque of eq. 18) is integrated by scipy's DOP853 with event location; the stance is split at
+the ramp end s = t_f so that no step straddles the kink of the torque.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from tdslip_ros.model import dynamics
+from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
+from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+
+
+@dataclass(frozen=True)
+class StrideResult:
+    """Outcome of one stride from an apex at t = 0, x = 0 (stride 0).
+
+    apex is the next apex (None on failure) reached at apex_time [s]; touchdown, bottom (the
+    first maximum compression) and liftoff are the event states, each with its time ``.t``, or None
+    where the stride did not get there. failure_state is the state at the failure. energy holds the
+    stance's energy flows whenever the leg lifted off.
+    """
+
+    apex: ApexState | None
+    failure: FailureKind | None
+    reason: str
+    touchdown: HopperState | None
+    bottom: HopperState | None
+    liftoff: HopperState | None
+    apex_time: float | None
+    failure_state: HopperState | None
+    energy: StrideEnergy | None
+
+
+def apex_return_map(
+    params: HopperParams,
+    apex: ApexState,
+    command: StanceCommand,
+    *,
+    rtol: float = 1e-12,
+    atol: float = 1e-12,
+    max_stance_time: float | None = None,
+) -> StrideResult:
+    """Next apex from ``apex`` under ``command``, or a named failure (see :mod:`.events`).
+
+    rtol and atol are DOP853's relative and absolute tolerances on the stance state (r [m],
+    theta [rad], rdot [m/s], thetadot [rad/s], hip work and damper loss [J]); the defaults give
+    apex states and event times to about 1e-12 relative. Events are located by scipy's root finder
+    on DOP853's 7th-order dense output. max_stance_time [s] is the no_liftoff bound
+    (default :func:`dynamics.max_stance_duration`).
+    """
+    t_limit = dynamics.max_stance_duration(params) if max_stance_time is None else max_stance_time
+    angle = command.touchdown_angle
+    sin_td, cos_td = math.sin(angle), math.cos(angle)
+    y_td = dynamics.touchdown_height(params, cos_td)
+
+    def result(
+        failure: FailureKind | None,
+        reason: str,
+        failure_state: HopperState | None,
+        touchdown: HopperState | None = None,
+        bottom: HopperState | None = None,
+        liftoff: HopperState | None = None,
+        energy: StrideEnergy | None = None,
+        next_apex: ApexState | None = None,
+        apex_time: float | None = None,
+    ) -> StrideResult:
+        return StrideResult(
+            next_apex, failure, reason, touchdown, bottom, liftoff, apex_time, failure_state, energy
+        )
+
+    stubbing = dynamics.toe_stubbing(apex.y, y_td)
+    if stubbing is not None:
+        state = dynamics.flight_hopper_state(params, 0.0, 0, 0.0, apex.y, apex.xdot, 0.0, angle)
+        return result(*stubbing, state)
+
+    t_td = dynamics.fall_time(apex.y, 0.0, y_td, params.g)
+    x_td, _, _, ydot_td = dynamics.ballistic(0.0, apex.y, apex.xdot, 0.0, t_td, params.g)
+    toe_x = x_td + params.r0 * sin_td
+    rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, apex.xdot, ydot_td)
+
+    def stance_state(s: float, y: np.ndarray) -> HopperState:
+        tau = dynamics.ramp_torque(command.tau0, command.t_f, s)
+        return dynamics.stance_hopper_state(
+            params, t_td + s, 0, toe_x, float(y[0]), float(y[1]), float(y[2]), float(y[3]), tau
+        )
+
+    y0 = np.array([params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0])
+    touchdown = stance_state(0.0, y0)
+    reversal = dynamics.touchdown_reversal(thetadot_td)
+    if reversal is not None:
+        return result(*reversal, touchdown, touchdown)
+
+    outcome = _integrate_stance(params, command, y0, t_limit, rtol, atol)
+    bottom = None if outcome.bottom is None else stance_state(*outcome.bottom)
+    end_state = stance_state(outcome.s_end, outcome.y_end)
+    if outcome.terminal is None:
+        return result(*dynamics.no_liftoff(t_limit), end_state, touchdown, bottom)
+    if outcome.terminal != "liftoff":
+        return result(*dynamics.stance_failure(outcome.terminal, outcome.s_end), end_state, touchdown, bottom)
+
+    r_lo = float(outcome.y_end[0])
+    energy = StrideEnergy(
+        hip_work=float(outcome.y_end[4]),
+        damping_loss=float(outcome.y_end[5]),
+        spring_loss=dynamics.spring_energy(params, r_lo),
+    )
+    liftoff = end_state
+    failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
+    if failure is not None:
+        return result(failure[0], failure[1], liftoff, touchdown, bottom, liftoff, energy)
+    t_rise = liftoff.ydot / params.g
+    _, y_apex, _, _ = dynamics.ballistic(liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, params.g)
+    next_apex = ApexState(y=y_apex, xdot=liftoff.xdot)
+    return result(None, "", None, touchdown, bottom, liftoff, energy, next_apex, liftoff.t + t_rise)
+
+
+@dataclass(frozen=True)
+class _StanceEvent:
+    """One of dynamics.stance_event_values in solve_ivp's event protocol (crossing from > 0 to <= 0)."""
+
+    params: HopperParams
+    index: int
+    terminal: bool
+    direction: float = -1.0
+
+    def __call__(self, s: float, y: np.ndarray) -> float:
+        r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
+        return dynamics.stance_event_values(self.params, r, math.cos(theta), rdot, thetadot)[self.index]
+
+
+@dataclass(frozen=True)
+class _StanceOutcome:
+    s_end: float
+    y_end: np.ndarray
+    terminal: str | None  # "liftoff", "reversal", "fall", or None when the time limit was reached
+    bottom: tuple[float, np.ndarray] | None
+
+
+def _integrate_stance(
+    params: HopperParams, command: StanceCommand, y0: np.ndarray, t_limit: float, rtol: float, atol: float
+) -> _StanceOutcome:
+    tau0, t_f = command.tau0, command.t_f
+
+    def rhs(s: float, y: np.ndarray) -> np.ndarray:
+        r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
+        tau = dynamics.ramp_torque(tau0, t_f, s)
+        rddot, thetaddot = dynamics.stance_accelerations(
+            params, r, math.sin(theta), math.cos(theta), rdot, thetadot, tau
+        )
+        hip_power, damper_power = dynamics.stance_powers(params, rdot, thetadot, tau)
+        return np.array([rdot, thetadot, rddot, thetaddot, hip_power, damper_power])
+
+    events = [
+        _StanceEvent(params, index, terminal=name != "bottom")
+        for index, name in enumerate(dynamics.STANCE_EVENT_NAMES)
+    ]
+    bottom: tuple[float, np.ndarray] | None = None
+    # The ramp and the torque-free rest of the stance are separate segments: the kink at t_f
+    # would otherwise cost DOP853 its order there.
+    boundaries = [0.0, t_f, t_limit] if t_f < t_limit else [0.0, t_limit]
+    y = y0
+    for s_start, s_stop in zip(boundaries[:-1], boundaries[1:], strict=True):
+        sol = solve_ivp(rhs, (s_start, s_stop), y, method="DOP853", rtol=rtol, atol=atol, events=events)
+        if bottom is None and sol.t_events[0].size:
+            bottom = (float(sol.t_events[0][0]), sol.y_events[0][0])
+        for index, name in enumerate(dynamics.STANCE_EVENT_NAMES[1:], start=1):
+            if sol.t_events[index].size:
+                return _StanceOutcome(float(sol.t_events[index][0]), sol.y_events[index][0], name, bottom)
+        y = sol.y[:, -1]
+    return _StanceOutcome(t_limit, y, None, bottom)

@@ -1,0 +1,71 @@
+"""``tdslip simulate``: its table is the stepper's run, its command replaces the first stride's losses."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from tdslip_ros.analysis.simulate import energy_neutral_command
+from tdslip_ros.cli import main as tdslip
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+
+PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+
+
+def _table(output: str) -> list[list[float]]:
+    rows = []
+    for line in output.splitlines():
+        fields = line.split()
+        if fields and fields[0].isdigit():
+            rows.append([float(value) for value in fields])
+    return rows
+
+
+def test_energy_neutral_command_replaces_the_first_strides_losses() -> None:
+    apex = ApexState(1.0, 5.5)
+    command = energy_neutral_command(PARAMS, apex, math.radians(22.0))
+    result = apex_return_map(PARAMS, apex, command)
+    assert result.apex is not None and result.energy is not None
+    assert result.energy.hip_work == pytest.approx(
+        result.energy.damping_loss + result.energy.spring_loss, abs=1e-6 * apex.energy(PARAMS)
+    )
+    assert result.liftoff is not None and result.touchdown is not None
+    assert command.t_f == pytest.approx(result.liftoff.t - result.touchdown.t, rel=1e-3)
+    assert command.tau0 < 0.0
+    with pytest.raises(ParameterError, match="give --tau0"):
+        energy_neutral_command(PARAMS, ApexState(1.2, 0.3), math.radians(26.0))
+
+
+def test_simulate_prints_the_steppers_apexes(capsys: pytest.CaptureFixture[str]) -> None:
+    assert tdslip(["simulate", "--strides", "3", "--tau0", "-335.5", "--t-f", "0.1227"]) == 0
+    rows = _table(capsys.readouterr().out)
+    assert [int(row[0]) for row in rows] == [0, 1, 2, 3]
+    command = StanceCommand(math.radians(22.0), -335.5, 0.1227)
+    apex, t = ApexState(1.0, 5.5), 0.0
+    for row in rows[1:]:
+        exact = apex_return_map(PARAMS, apex, command)
+        assert exact.apex is not None and exact.energy is not None and exact.apex_time is not None
+        t += exact.apex_time
+        stride, time, y, xdot, energy, hip, damper, spring, ybar, xdotbar, ebar = row
+        assert (time, y, xdot) == pytest.approx((t, exact.apex.y, exact.apex.xdot), abs=1e-4)
+        assert (hip, damper, spring) == pytest.approx(
+            (exact.energy.hip_work, exact.energy.damping_loss, exact.energy.spring_loss), abs=0.01
+        )
+        assert energy == pytest.approx(exact.apex.energy(PARAMS), abs=0.01)
+        assert (ybar, xdotbar, ebar) == pytest.approx(
+            (y, xdot / math.sqrt(PARAMS.g), energy / (PARAMS.m * PARAMS.g)), abs=2e-4
+        )
+        apex = exact.apex
+
+
+def test_simulate_defaults_hop_and_failures_are_named(capsys: pytest.CaptureFixture[str]) -> None:
+    assert tdslip(["simulate", "--strides", "5"]) == 0
+    out = capsys.readouterr().out
+    assert len(_table(out)) == 6 and "constant command" in out
+    assert tdslip(["simulate", "--beta-deg", "26", "--height", "1.2", "--speed", "3"]) == 1
+    out = capsys.readouterr().out
+    assert "reversal" in out and "failure at t" in out
+    assert tdslip(["simulate", "--zeta0", "-1"]) == 2
+    assert "zeta0" in capsys.readouterr().out
