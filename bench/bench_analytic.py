@@ -1,0 +1,118 @@
+"""Benchmark of the analytic apex return map, and its accuracy against the exact plant.
+
+    python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy]
+
+Times are CPU seconds of this single-threaded process (time.process_time), best of several runs.
+Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1; target >= 1e6),
+(2) the time per stride of the analytic map against the exact plant (exact_map.apex_return_map), measured
+side by side in this run, as a ratio, and (3) the accuracy table: mean and max relative errors of the next
+apex height and speed, analytic vs exact, for corrections 0 and 1, on a broad grid and on the operating
+region of the paper's energy-regulated gaits (kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from tdslip_ros.model.analytic import CommandArrays, ParamArrays, approximate_map
+from tdslip_ros.model.analytic_accuracy import BROAD_GRID, OPERATING_GRID, accuracy, exact_strides
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.params import ApexState, HopperParams
+
+PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+
+
+def _best_time(run: object, repeat: int) -> float:
+    assert callable(run)
+    best = np.inf
+    for _ in range(repeat):
+        # CPU time of this process: what one core spends, whatever else the shared machine runs.
+        start = time.process_time()
+        run()
+        best = min(best, time.process_time() - start)
+    return float(best)
+
+
+def _random_strides(lanes: int) -> tuple[np.ndarray, np.ndarray, CommandArrays]:
+    rng = np.random.default_rng(1)
+    y, xdot = rng.uniform(1.0, 1.2, lanes), rng.uniform(3.5, 5.5, lanes)
+    command = CommandArrays(
+        rng.uniform(np.radians(20.0), np.radians(30.0), lanes),
+        rng.uniform(-700.0, -400.0, lanes),
+        np.full(lanes, 0.14),
+    )
+    return y, xdot, command
+
+
+def throughput(lanes: int, repeat: int) -> None:
+    params = ParamArrays.of(PARAMS)
+    y, xdot, command = _random_strides(lanes)
+    print(f"analytic map, {lanes} lanes in one call, best of {repeat}:")
+    for corrections in (0, 1):
+        seconds = _best_time(lambda c=corrections: approximate_map(params, y, xdot, command, c), repeat)
+        print(f"  corrections={corrections}: {lanes / seconds:12.4g} evaluations/s")
+
+
+def speed_ratio(strides: int) -> None:
+    y, xdot, command = _random_strides(strides)
+    params = ParamArrays.of(PARAMS)
+    exact_seconds = _best_time(
+        lambda: [
+            apex_return_map(PARAMS, ApexState(y[i], xdot[i]), command.command(i)) for i in range(strides)
+        ],
+        1,
+    )
+    single_seconds = _best_time(
+        lambda: [approximate_map(params, y[i], xdot[i], command.command(i)) for i in range(strides)], 1
+    )
+    vector_seconds = _best_time(lambda: approximate_map(params, y, xdot, command), 5)
+    print(f"per stride, {strides} strides (exact plant: DOP853, rtol = atol = 1e-12):")
+    print(f"  exact plant                  {exact_seconds / strides * 1e6:10.2f} us")
+    for name, seconds in (("one call a stride", single_seconds), ("vectorised", vector_seconds)):
+        per_stride = seconds / strides * 1e6
+        print(
+            f"  analytic, {name:<18} {per_stride:10.4f} us   exact/analytic = {exact_seconds / seconds:8.1f}x"
+        )
+
+
+def accuracy_table() -> None:
+    print("accuracy of the analytic map vs the exact plant, |analytic/exact - 1| of the next apex")
+    print("(ramp t_f = the analytic liftoff time with 1 correction; 'eq7 speed' = liftoff speed of eq. 7)")
+    print("  grid        corr liftoff     lanes  height mean/max      speed mean/max", end="")
+    print("       eq7 speed mean/max  mismatches")
+    for name, grid in (("broad", BROAD_GRID), ("operating", OPERATING_GRID)):
+        exact = exact_strides(PARAMS, grid)
+        for corrections in (0, 1):
+            for liftoff in ("paper", "force_root"):
+                row = accuracy(PARAMS, exact, corrections, liftoff)
+                print(
+                    f"  {name:<11} {corrections:>4} {liftoff:<11} {row.lanes:>5}"
+                    f"  {row.mean_height_error:8.4f} {row.max_height_error:8.4f}"
+                    f"   {row.mean_speed_error:8.4f} {row.max_speed_error:8.4f}"
+                    f"   {row.mean_liftoff_speed_error:8.4f} {row.max_liftoff_speed_error:8.4f}"
+                    f"   {row.failure_mismatches:>5}"
+                )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--lanes", type=int, default=200_000, help="lanes of the throughput run")
+    parser.add_argument("--repeat", type=int, default=5, help="repetitions (best time counts)")
+    parser.add_argument("--strides", type=int, default=300, help="strides of the exact-vs-analytic timing")
+    parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy table")
+    args = parser.parse_args(argv)
+    throughput(args.lanes, args.repeat)
+    speed_ratio(args.strides)
+    if not args.no_accuracy:
+        accuracy_table()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
