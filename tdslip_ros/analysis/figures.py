@@ -1,0 +1,743 @@
+"""``tdslip figures``: the paper's figures 4-11 and 13 from the model core, as PNG plus the numbers as JSON.
+
+    tdslip figures --out DIR [--only fig04 fig10 ...] [--fine]
+
+Each figure is named after the paper's (fig04.png with fig04.json, ...); the JSON holds the numbers drawn
+(dimensionless, eq. 24; NaN as null) and the settings. Parameters: kbar = 36, zeta0 = 0.08, m = 80 kg,
+r0 = 1 m (figs 8-11, 13 and the paper's section V); the open-loop figures 4-7 use them too.
+
+* fig04: open loop, beta = 26 deg: (a) energy map E' vs E at alpha = 1.5 for several heights, with the
+  energy fixed points E*(y) (eq. 27); (b) the height section y' vs y on E*(y) for several alpha (eq. 28);
+  (c) the fixed points over alpha with the saddle-node bifurcations.
+* fig05: open-loop fixed points over (alpha, beta): apex height (a), energy (b) and largest eigenvalue
+  modulus (c) of the most stable fixed point; dark green where it is unstable, hatched where there are
+  three.
+* fig06: largest eigenvalue modulus at every open-loop fixed point over alpha, beta = 26 and 32 deg.
+* fig07: exact plant, open loop, beta = 26 deg, up to 150 strides from initial heights y0 on the energy
+  fixed point E*(y0) of eq. 27: outcome per (alpha, y0), analytic fixed points (black: solid stable,
+  dashed unstable) and the fixed points the exact plant reaches (red); (b), (c) convergence at alpha = 1
+  and 1.5 from the green crosses.
+* fig08: energy-regulated height map y' vs y for Ebar = 1..8 and its fixed points over Ebar, beta = 22
+  and 30 deg; grey: kinematically infeasible heights (y < r0 cos beta).
+* fig09: the eigenvalue dy'/dy at those fixed points.
+* fig10: beta = 26 deg, Ebar in [2, 6]: fixed points of the analytic map (black) and of the exact plant
+  under the paper's goal-energy regulator (red) in apex height (a) and speed (b); blue: the exact plant's
+  basin after 50 strides, lighter for slower convergence.
+* fig11: stable regulated fixed points (xdotbar*, ybar*) as beta, kbar or zeta0 vary (one curve over Ebar
+  per value, circles at its ends, the arrow from the smallest value to the largest).
+* fig13: deadbeat against the PD baseline on the exact plant, 50 strides per desired speed from the apex
+  (1 m, 5 m/s) towards (1 m, xdot*): final speed and height errors in percent; crosses where a controller
+  loses stability (fails, or does not converge to 1e-4).
+
+Defaults finish in minutes on two cores; ``--fine`` uses the paper's resolutions. Long sweeps report
+their progress on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+
+from tdslip_ros.analysis.report import to_json
+from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model.analytic import Array, CommandArrays, speed_from_energy
+from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
+from tdslip_ros.model.params import HopperParams
+
+DPI = 120
+PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+STABLE, UNSTABLE, EXACT, START = "black", "0.45", "tab:red", "tab:green"
+CONTROLLER_STYLE = {"deadbeat": ("tab:blue", "-"), "pd": ("tab:green", "--")}
+
+
+@dataclass(frozen=True)
+class Resolution:
+    """Grid sizes of the sweeps: the defaults and ``--fine`` (the paper's)."""
+
+    heights: int  # open-loop height scan (eq. 28)
+    alphas: int  # open-loop alpha trace
+    betas: int  # fig05 touchdown angles in [20, 32] deg
+    basin_alphas: int  # fig07
+    basin_heights: int  # fig07 and fig10 initial heights
+    energies: int  # regulated fixed points over Ebar
+    basin_energies: int  # fig10 initial energies
+    speed_step: float  # fig13 desired speeds
+
+
+DEFAULT = Resolution(80, 41, 7, 17, 20, 57, 21, 0.25)
+FINE = Resolution(160, 101, 13, 41, 60, 141, 81, 0.1)
+
+
+class Reporter:
+    """Progress of one figure's long sweeps on stderr, at most every ``interval`` seconds."""
+
+    def __init__(self, figure: str, interval: float = 5.0) -> None:
+        self.figure, self.interval, self.last = figure, interval, -math.inf
+
+    def stage(self, text: str) -> None:
+        print(f"{self.figure}: {text}", file=sys.stderr, flush=True)
+
+    def strides(self, what: str) -> basins.Progress:
+        def report(done: int, total: int) -> None:
+            now = time.monotonic()
+            if done == total or now - self.last >= self.interval:
+                self.last = now
+                print(f"{self.figure}: {what}: stride {done}/{total}", file=sys.stderr, flush=True)
+
+        return report
+
+
+def _bar_height(y: Array) -> Array:
+    return np.asarray(units.height_to_bar(PARAMS, y))
+
+
+def _bar_energy(energy: Array) -> Array:
+    return np.asarray(units.energy_to_bar(PARAMS, energy))
+
+
+def _bar_speed(xdot: Array) -> Array:
+    return np.asarray(units.speed_to_bar(PARAMS, xdot))
+
+
+def _plot_fixed_points(axes: Axes, x: Array, values: Array, stable: Array, label: str | None = None) -> None:
+    """Fixed points as markers: filled where stable, open where unstable."""
+    x_, values_, stable_ = np.broadcast_arrays(x, values, stable)
+    axes.plot(x_[stable_], values_[stable_], "o", color=STABLE, markersize=3, label=label)
+    unstable = ~stable_ & np.isfinite(values_)
+    axes.plot(x_[unstable], values_[unstable], "o", color=UNSTABLE, markersize=3, mfc="none")
+
+
+def _fixed_points_json(points: stability.FixedPoints, parameter: Array) -> dict[str, Any]:
+    return {
+        "parameter": parameter.tolist(),
+        "ybar": _bar_height(points.y).tolist(),
+        "xdotbar": _bar_speed(points.xdot).tolist(),
+        "Ebar": _bar_energy(points.energy).tolist(),
+        "eigenvalues": points.eigenvalues.tolist(),
+        "spectral_radius": points.spectral_radius.tolist(),
+        "stable": points.stable.tolist(),
+    }
+
+
+# --- Open loop (section III) -----------------------------------------------------------------------------
+
+
+def fig04(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    beta, alpha_a = math.radians(26.0), 1.5
+    scale = units.energy_scale(PARAMS)
+    figure = Figure(figsize=(13.5, 4.2))
+    left, middle, right = figure.subplots(1, 3)
+
+    heights_a = np.array([1.0, 1.2, 1.4, 1.6, 1.8, 2.0])
+    energies = np.linspace(0.0, 12.0, 241)[None, :] + heights_a[:, None]
+    _, next_energy = stability.open_loop_energy_map(
+        PARAMS, beta, alpha_a, heights_a[:, None], energies * scale
+    )
+    fixed_energy = stability.energy_fixed_point(PARAMS, beta, alpha_a, heights_a)
+    for y, e, e_next, e_star in zip(
+        heights_a, energies, _bar_energy(next_energy), _bar_energy(fixed_energy), strict=True
+    ):
+        (line,) = left.plot(e, e_next, lw=1, label=f"ybar = {y:.1f}")
+        left.plot(e_star, e_star, "o", color=EXACT, mfc="none")
+    left.plot([0, 14], [0, 14], ":", color="0.6")
+    left.set(
+        xlabel="Ebar[k]",
+        ylabel="Ebar[k+1]",
+        title=f"(a) energy map, alpha = {alpha_a}",
+        xlim=(0, 14),
+        ylim=(0, 14),
+    )
+    left.legend(fontsize=7)
+
+    reporter.stage("height sections (eq. 28)")
+    alphas_b = np.array([1.0, 1.25, 1.5, 1.75, 2.0])
+    heights = stability.height_grid(PARAMS, beta, points=resolution.heights)
+    section_energy, section_next = stability.height_section(PARAMS, beta, alphas_b[:, None], heights[None, :])
+    for alpha, y_next in zip(alphas_b, section_next, strict=True):
+        thick = alpha == alpha_a
+        middle.plot(
+            _bar_height(heights),
+            _bar_height(y_next),
+            color=EXACT if thick else None,
+            lw=2.5 if thick else 1,
+            label=f"alpha = {alpha}",
+        )
+    middle.plot([0.8, 2.8], [0.8, 2.8], ":", color="0.6")
+    middle.set(
+        xlabel="ybar[k]",
+        ylabel="ybar[k+1] on E*(y)",
+        title="(b) height section",
+        xlim=(0.85, 2.8),
+        ylim=(0.85, 2.8),
+    )
+    middle.legend(fontsize=7)
+
+    reporter.stage(f"fixed points over {resolution.alphas} alphas")
+    alphas = np.linspace(0.5, 2.5, resolution.alphas)
+    traced = stability.open_loop_fixed_points(
+        PARAMS, beta, alphas, stability.height_grid(PARAMS, beta, points=resolution.heights)
+    )
+    reporter.stage("saddle-node bifurcations")
+    bifurcations = stability.saddle_nodes(
+        PARAMS, beta, traced, stability.height_grid(PARAMS, beta, points=resolution.heights)
+    )
+    _plot_fixed_points(right, alphas[:, None], _bar_height(traced.y), traced.stable)
+    for alpha in bifurcations:
+        right.axvline(alpha, ls=":", color="0.5")
+    right.set(xlabel="alpha", ylabel="ybar*", title="(c) fixed points (open: unstable)")
+    data = {
+        "beta_deg": 26.0,
+        "a": {
+            "alpha": alpha_a,
+            "ybar": heights_a.tolist(),
+            "Ebar": energies.tolist(),
+            "Ebar_next": _bar_energy(next_energy).tolist(),
+            "Ebar_fixed": _bar_energy(fixed_energy).tolist(),
+        },
+        "b": {
+            "alpha": alphas_b.tolist(),
+            "ybar": _bar_height(heights).tolist(),
+            "Ebar_fixed": _bar_energy(section_energy).tolist(),
+            "ybar_next": _bar_height(section_next).tolist(),
+        },
+        "c": _fixed_points_json(traced, alphas) | {"saddle_node_alpha": bifurcations.tolist()},
+    }
+    return figure, data
+
+
+def _open_loop_trace(beta_deg: float, resolution: Resolution) -> tuple[Array, stability.FixedPoints, Array]:
+    beta = math.radians(beta_deg)
+    alphas = np.linspace(0.5, 2.5, resolution.alphas)
+    heights = stability.height_grid(PARAMS, beta, points=resolution.heights)
+    traced = stability.open_loop_fixed_points(PARAMS, beta, alphas, heights)
+    return alphas, traced, stability.saddle_nodes(PARAMS, beta, traced, heights)
+
+
+def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    betas = np.linspace(20.0, 32.0, resolution.betas)
+    alphas = np.linspace(0.5, 2.5, max(resolution.alphas // 2, 11))
+    radius = np.full((betas.size, alphas.size), np.nan)
+    height, energy, count = (
+        np.full_like(radius, np.nan),
+        np.full_like(radius, np.nan),
+        np.zeros(radius.shape, int),
+    )
+    for row, beta_deg in enumerate(betas):
+        reporter.stage(f"beta = {beta_deg:.1f} deg ({row + 1}/{betas.size})")
+        beta = math.radians(beta_deg)
+        points = stability.open_loop_fixed_points(
+            PARAMS, beta, alphas, stability.height_grid(PARAMS, beta, points=resolution.heights)
+        )
+        spectral = np.where(np.isfinite(points.spectral_radius), points.spectral_radius, np.inf)
+        best = np.argmin(spectral, axis=1)[:, None]
+        radius[row] = np.take_along_axis(points.spectral_radius, best, 1)[:, 0]
+        height[row] = np.take_along_axis(_bar_height(points.y), best, 1)[:, 0]
+        energy[row] = np.take_along_axis(_bar_energy(points.energy), best, 1)[:, 0]
+        count[row] = points.count
+    figure = Figure(figsize=(15, 4.5))
+    unstable = np.where(radius >= 1.0, 1.0, np.nan)
+    panels = (
+        (height, "viridis", "(a) ybar*"),
+        (energy, "viridis", "(b) Ebar*"),
+        (np.minimum(radius, 1.5), "Blues_r", "(c) max |lambda|"),
+    )
+    for axes, (values, colour_map, name) in zip(figure.subplots(1, 3), panels, strict=True):
+        mesh = axes.pcolormesh(alphas, betas, values, cmap=colour_map, shading="nearest")
+        figure.colorbar(mesh, ax=axes)
+        axes.pcolormesh(
+            alphas, betas, unstable, cmap=ListedColormap(["#005a32"]), alpha=0.55, shading="nearest"
+        )
+        axes.contourf(
+            alphas, betas, (count >= 3).astype(float), levels=[0.5, 1.5], hatches=["//"], colors="none"
+        )
+        axes.set(xlabel="alpha", ylabel="beta [deg]", title=f"{name}, most stable fixed point")
+    figure.suptitle("open loop: dark green = unstable, hatched = three fixed points, white = none found")
+    data = {
+        "beta_deg": betas.tolist(),
+        "alpha": alphas.tolist(),
+        "spectral_radius": radius.tolist(),
+        "ybar": height.tolist(),
+        "Ebar": energy.tolist(),
+        "fixed_point_count": count.tolist(),
+    }
+    return figure, data
+
+
+def fig06(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    figure = Figure(figsize=(7, 6))
+    data: dict[str, Any] = {}
+    for axes, beta_deg, label in zip(figure.subplots(2, 1), (26.0, 32.0), "ab", strict=True):
+        reporter.stage(f"beta = {beta_deg} deg")
+        alphas, traced, bifurcations = _open_loop_trace(beta_deg, resolution)
+        _plot_fixed_points(axes, alphas[:, None], traced.spectral_radius, traced.stable)
+        axes.axhline(1.0, color="0.6", lw=0.8)
+        for alpha in bifurcations:
+            axes.axvline(alpha, ls=":", color="0.5")
+        axes.set(
+            xlabel="alpha", ylabel="max |lambda|", title=f"({label}) beta = {beta_deg:g} deg", ylim=(0, 2)
+        )
+        data[label] = {
+            "beta_deg": beta_deg,
+            **_fixed_points_json(traced, alphas),
+            "saddle_node_alpha": bifurcations.tolist(),
+        }
+    return figure, data
+
+
+def _basin_colours(basin: basins.Basin, strides: int) -> Array:
+    """Colour index per lane: convergence stride (0..strides) where converged, strides + 1 sustained,
+    NaN for failures and impossible starts (drawn white)."""
+    colour = np.where(basin.outcome == basins.CONVERGED, basin.convergence_stride, np.nan)
+    return np.where(basin.outcome == basins.SUSTAINED, strides + 1, colour)
+
+
+def _basin_map(strides: int) -> ListedColormap:
+    shades = matplotlib.colormaps["Blues_r"](np.linspace(0.15, 0.85, strides + 1))
+    return ListedColormap(np.vstack([shades, [[0.85, 0.9, 0.95, 1.0]]]))
+
+
+def _settled_text(stride: int) -> str:
+    return "not settled" if stride < 0 else f"settled from stride {stride}"
+
+
+def _row_median(values: Array) -> Array:
+    """Median of the finite values of each row; NaN for rows without any."""
+    sorted_rows = np.sort(values, axis=1)  # NaN last
+    count = np.sum(np.isfinite(values), axis=1)
+    low = np.take_along_axis(sorted_rows, np.maximum((count - 1) // 2, 0)[:, None], 1)[:, 0]
+    high = np.take_along_axis(sorted_rows, np.maximum(count // 2, 0)[:, None], 1)[:, 0]
+    return np.where(count > 0, 0.5 * (low + high), np.nan)
+
+
+def _outcome_counts(basin: basins.Basin) -> dict[str, int]:
+    return {name: int(np.sum(basin.outcome == index)) for index, name in enumerate(basins.OUTCOMES)}
+
+
+def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    beta = math.radians(26.0)
+    alphas = np.linspace(0.5, 2.5, resolution.basin_alphas)
+    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.005, 2.4, resolution.basin_heights)
+    reporter.stage("initial energies on E*(y0) (eq. 27)")
+    alpha_grid, height_grid = np.meshgrid(alphas, heights, indexing="ij")
+    start_energy = stability.energy_fixed_point(PARAMS, beta, alpha_grid, height_grid)
+    crosses = {1.0: 2.0, 1.5: 1.05}  # (alpha, ybar0) of panels (b) and (c)
+    cross_alpha, cross_height = np.array(list(crosses)), np.array(list(crosses.values()))
+    cross_energy = stability.energy_fixed_point(PARAMS, beta, cross_alpha, cross_height)
+    everything = basins.open_loop_basin(
+        PARAMS,
+        beta,
+        np.concatenate([alpha_grid.ravel(), cross_alpha]),
+        np.concatenate([height_grid.ravel(), cross_height]),
+        np.concatenate([start_energy.ravel(), cross_energy]),
+        progress=reporter.strides(f"{alpha_grid.size + cross_alpha.size} lanes"),
+    )
+    grid = slice(0, alpha_grid.size)
+    outcome = everything.outcome[grid].reshape(alpha_grid.shape)
+    colour = _basin_colours(everything, basins.OPEN_LOOP_STRIDES)[grid].reshape(alpha_grid.shape)
+    reporter.stage("analytic fixed points")
+    analytic_alphas = np.linspace(0.5, 2.5, resolution.alphas)
+    traced = stability.open_loop_fixed_points(
+        PARAMS, beta, analytic_alphas, stability.height_grid(PARAMS, beta, points=resolution.heights)
+    )
+
+    figure = Figure(figsize=(12, 7.5))
+    top = figure.add_subplot(2, 1, 1)
+    top.pcolormesh(
+        alphas,
+        _bar_height(heights),
+        colour.T,
+        cmap=_basin_map(basins.OPEN_LOOP_STRIDES),
+        vmin=0,
+        vmax=basins.OPEN_LOOP_STRIDES + 1,
+        shading="nearest",
+    )
+    _plot_fixed_points(top, analytic_alphas[:, None], _bar_height(traced.y), traced.stable)
+    exact_y = everything.y[grid].reshape(alpha_grid.shape)
+    top.plot(alpha_grid.ravel(), _bar_height(exact_y).ravel(), ".", color=EXACT, markersize=4)
+    top.plot(cross_alpha, cross_height, "x", color=START, markersize=9, mew=2)
+    top.set(
+        xlabel="alpha",
+        ylabel="ybar0 (E0 = E*(y0))",
+        title="(a) exact plant, 150 strides (blue: converged, lighter later; pale: sustained; white: failed)",
+    )
+    cross_lanes = np.arange(alpha_grid.size, alpha_grid.size + cross_alpha.size)
+    for index, (lane, alpha) in enumerate(zip(cross_lanes, cross_alpha, strict=True)):
+        axes = figure.add_subplot(2, 2, 3 + index)
+        history = everything.history
+        y_bar, xdot_bar = _bar_height(history.y[:, lane]), _bar_speed(history.xdot[:, lane])
+        axes.plot(y_bar, label="ybar")
+        axes.plot(y_bar + 0.5 * xdot_bar**2, label="Ebar")
+        axes.set(
+            xlabel="stride",
+            title=f"({'bc'[index]}) alpha = {alpha:g}: "
+            + _settled_text(int(everything.convergence_stride[lane])),
+        )
+        axes.legend(fontsize=7)
+    data = {
+        "beta_deg": 26.0,
+        "strides": basins.OPEN_LOOP_STRIDES,
+        "alpha": alphas.tolist(),
+        "ybar0": _bar_height(heights).tolist(),
+        "Ebar0": _bar_energy(start_energy).tolist(),
+        "outcome": [[basins.OUTCOMES[o] for o in row] for row in outcome],
+        "convergence_stride": everything.convergence_stride[grid].reshape(alpha_grid.shape).tolist(),
+        "exact_fixed_ybar": _bar_height(exact_y).tolist(),
+        "exact_fixed_Ebar": _bar_energy(everything.energy[grid].reshape(alpha_grid.shape)).tolist(),
+        "outcome_counts": _outcome_counts(everything),
+        "analytic": _fixed_points_json(traced, analytic_alphas),
+        "runs": [
+            {
+                "alpha": float(alpha),
+                "ybar": _bar_height(everything.history.y[:, lane]).tolist(),
+                "xdotbar": _bar_speed(everything.history.xdot[:, lane]).tolist(),
+                "convergence_stride": int(everything.convergence_stride[lane]),
+            }
+            for lane, alpha in zip(cross_lanes, cross_alpha, strict=True)
+        ],
+    }
+    return figure, data
+
+
+# --- Energy regulation (section IV) ----------------------------------------------------------------------
+
+
+def _regulated(
+    beta_deg: float, resolution: Resolution, params: HopperParams = PARAMS
+) -> tuple[Array, stability.FixedPoints]:
+    energies_bar = np.linspace(1.0, 8.0, resolution.energies)
+    points = stability.regulated_fixed_points(
+        params, math.radians(beta_deg), units.energy_from_bar(params, energies_bar)
+    )
+    return energies_bar, points
+
+
+def _shade_infeasible(axes: Axes, bottom: float, horizontal: bool = True, vertical: bool = False) -> None:
+    if horizontal:
+        axes.axhspan(0.0, bottom, color="0.85", zorder=0)
+    if vertical:
+        axes.axvspan(0.0, bottom, color="0.85", zorder=0)
+
+
+def fig08(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    figure = Figure(figsize=(11, 8))
+    rows = figure.subplots(2, 2)
+    data: dict[str, Any] = {}
+    for (left, right), beta_deg in zip(rows, (22.0, 30.0), strict=True):
+        reporter.stage(f"beta = {beta_deg} deg")
+        beta = math.radians(beta_deg)
+        bottom = stability.infeasible_height(PARAMS, beta)
+        curves: dict[str, Any] = {}
+        for energy_bar in range(1, 9):
+            heights = np.linspace(bottom * (1 + 1e-6), energy_bar, 200)
+            y_next = stability.regulated_height_map(
+                PARAMS, beta, units.energy_from_bar(PARAMS, energy_bar), heights
+            )
+            left.plot(heights, y_next, lw=1, label=f"Ebar = {energy_bar}")
+            curves[str(energy_bar)] = {"ybar": heights.tolist(), "ybar_next": y_next.tolist()}
+        left.plot([0, 8], [0, 8], ":", color="0.6")
+        _shade_infeasible(left, bottom, horizontal=True, vertical=True)
+        left.set(
+            xlabel="ybar[k]",
+            ylabel="ybar[k+1]",
+            title=f"height map, beta = {beta_deg:g} deg",
+            xlim=(0.7, 3.0),
+            ylim=(0.7, 3.0),
+        )
+        left.legend(fontsize=7, ncol=2)
+        energies_bar, points = _regulated(beta_deg, resolution)
+        _plot_fixed_points(right, energies_bar[:, None], _bar_height(points.y), points.stable)
+        _shade_infeasible(right, bottom)
+        right.set(xlabel="Ebar", ylabel="ybar*", title="fixed points (open: unstable)", ylim=(0.7, 3.0))
+        data[f"beta_{beta_deg:g}"] = {
+            "infeasible_below_ybar": bottom,
+            "maps": curves,
+            "fixed_points": _fixed_points_json(points, energies_bar),
+        }
+    return figure, data
+
+
+def fig09(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    figure = Figure(figsize=(7, 6))
+    data: dict[str, Any] = {}
+    for axes, beta_deg, label in zip(figure.subplots(2, 1), (22.0, 30.0), "ab", strict=True):
+        reporter.stage(f"beta = {beta_deg} deg")
+        energies_bar, points = _regulated(beta_deg, resolution)
+        eigenvalue = np.real(points.eigenvalues[..., 0])
+        _plot_fixed_points(axes, energies_bar[:, None], eigenvalue, points.stable)
+        for level in (-1.0, 1.0):
+            axes.axhline(level, color="0.6", lw=0.8)
+        axes.set(
+            xlabel="Ebar", ylabel="lambda = dy'/dy", title=f"({label}) beta = {beta_deg:g} deg", ylim=(-3, 2)
+        )
+        data[label] = {"beta_deg": beta_deg, **_fixed_points_json(points, energies_bar)}
+    return figure, data
+
+
+def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    beta = math.radians(26.0)
+    energies_bar = np.linspace(2.0, 6.0, resolution.basin_energies)
+    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.002, 2.4, resolution.basin_heights)
+    lanes = energies_bar.size * heights.size
+    exact = basins.exact_regulated_fixed_points(
+        PARAMS,
+        beta,
+        units.energy_from_bar(PARAMS, energies_bar),
+        heights,
+        progress=reporter.strides(f"{lanes} lanes"),
+    )
+    fine_energies = np.linspace(2.0, 6.0, 4 * resolution.energies)
+    analytic = stability.regulated_fixed_points(PARAMS, beta, units.energy_from_bar(PARAMS, fine_energies))
+    exact_y, exact_xdot, exact_energy = (
+        _row_median(values) for values in (exact.y, exact.xdot, exact.energy)
+    )
+    colour = _basin_colours(exact, basins.REGULATED_STRIDES)
+    colour_map = _basin_map(basins.REGULATED_STRIDES)
+    figure = Figure(figsize=(12, 4.8))
+    left, right = figure.subplots(1, 2)
+    left.pcolormesh(
+        energies_bar,
+        _bar_height(heights),
+        colour.T,
+        cmap=colour_map,
+        vmin=0,
+        vmax=basins.REGULATED_STRIDES + 1,
+        shading="nearest",
+    )
+    start_speed = _bar_speed(speed_from_energy(PARAMS, exact.y0, exact.energy0))
+    right.scatter(
+        np.broadcast_to(energies_bar[:, None], colour.shape),
+        start_speed,
+        c=colour,
+        cmap=colour_map,
+        vmin=0,
+        vmax=basins.REGULATED_STRIDES + 1,
+        marker="s",
+        s=12,
+    )
+    for axes, analytic_values, exact_values, name in (
+        (left, _bar_height(analytic.y), _bar_height(exact_y), "ybar"),
+        (right, _bar_speed(analytic.xdot), _bar_speed(exact_xdot), "xdotbar"),
+    ):
+        _plot_fixed_points(axes, fine_energies[:, None], analytic_values, analytic.stable, label="analytic")
+        axes.plot(_bar_energy(exact_energy), exact_values, "-", color=EXACT, lw=2, label="exact plant")
+        axes.set(xlabel="Ebar", ylabel=f"{name} (fixed points; basin: initial {name}0)", xlim=(2, 6))
+        axes.legend(fontsize=7)
+    left.set_title("(a) apex height, beta = 26 deg (blue: basin after 50 strides)")
+    right.set_title("(b) apex speed")
+    converged = exact.outcome == basins.CONVERGED
+    data = {
+        "beta_deg": 26.0,
+        "strides": basins.REGULATED_STRIDES,
+        "Ebar0": energies_bar.tolist(),
+        "ybar0": _bar_height(heights).tolist(),
+        "outcome": [[basins.OUTCOMES[o] for o in row] for row in exact.outcome],
+        "convergence_stride": exact.convergence_stride.tolist(),
+        "outcome_counts": _outcome_counts(exact),
+        "converged_within_8_strides": int(np.sum(converged & (exact.convergence_stride <= 8))),
+        "exact_fixed_points": {
+            "Ebar_goal": energies_bar.tolist(),
+            "Ebar": _bar_energy(exact_energy).tolist(),
+            "ybar": _bar_height(exact_y).tolist(),
+            "xdotbar": _bar_speed(exact_xdot).tolist(),
+        },
+        "analytic": _fixed_points_json(analytic, fine_energies),
+    }
+    return figure, data
+
+
+def fig11(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    energies_bar = np.linspace(0.8, 14.0, 2 * resolution.energies)
+    studies = {
+        "beta_deg": [20.0, 22.0, 24.0, 26.0, 28.0, 30.0],
+        "kbar": [20.0, 28.0, 36.0, 44.0, 52.0],
+        "zeta0": [0.04, 0.08, 0.12, 0.16],
+    }
+    figure = Figure(figsize=(14, 4.5))
+    data: dict[str, Any] = {}
+    for axes, (name, values) in zip(figure.subplots(1, 3), studies.items(), strict=True):
+        reporter.stage(f"varying {name}")
+        ends = []
+        data[name] = []
+        for value in values:
+            kbar = value if name == "kbar" else 36.0
+            zeta0 = value if name == "zeta0" else 0.08
+            beta = math.radians(value if name == "beta_deg" else 26.0)
+            params = HopperParams.from_dimensionless(kbar, zeta0)
+            points = stability.regulated_fixed_points(
+                params, beta, units.energy_from_bar(params, energies_bar)
+            )
+            stable = points.stable
+            keep = stable.any(axis=1)
+            pick = np.argmax(stable, axis=1)[:, None]
+            y = np.take_along_axis(units.height_to_bar(params, points.y), pick, 1)[:, 0]
+            xdot = np.take_along_axis(units.speed_to_bar(params, points.xdot), pick, 1)[:, 0]
+            y, xdot = np.where(keep, y, np.nan), np.where(keep, xdot, np.nan)
+            (line,) = axes.plot(xdot, y, lw=1.2, label=f"{name} = {value:g}")
+            finite = np.flatnonzero(np.isfinite(y))
+            if finite.size:
+                axes.plot(xdot[finite[[0, -1]]], y[finite[[0, -1]]], "o", color=line.get_color(), mfc="none")
+                ends.append((float(np.mean(xdot[finite])), float(np.mean(y[finite]))))
+            stable_range = (
+                [float(energies_bar[finite[0]]), float(energies_bar[finite[-1]])] if finite.size else None
+            )
+            data[name].append(
+                {
+                    "value": value,
+                    "Ebar": energies_bar.tolist(),
+                    "ybar": y.tolist(),
+                    "xdotbar": xdot.tolist(),
+                    "stable_Ebar_range": stable_range,
+                }
+            )
+        if len(ends) >= 2:
+            axes.annotate("", xy=ends[-1], xytext=ends[0], arrowprops={"arrowstyle": "->", "color": "0.3"})
+        axes.set(xlabel="xdotbar*", ylabel="ybar*", title=f"stable fixed points, varying {name}")
+        axes.legend(fontsize=7)
+    return figure, data
+
+
+# --- Deadbeat against PD (section V) ---------------------------------------------------------------------
+
+
+def track_targets(
+    params: HopperParams,
+    controller: str,
+    target_y: float,
+    target_speeds: Array,
+    start: tuple[float, float],
+    strides: int,
+    progress: basins.Progress | None = None,
+) -> basins.Basin:
+    """Exact-plant runs from ``start`` (y [m], xdot [m/s]) towards (target_y, each target speed) [m, m/s]
+    under ``controller`` ("deadbeat" or "pd", its default gains), one lane per target speed."""
+    speeds = np.asarray(target_speeds, dtype=float)
+    previous = np.full(speeds.shape, start[1])
+
+    def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> CommandArrays:
+        if controller == "deadbeat":
+            return deadbeat(params, y, xdot, target_y, speeds[lanes])
+        command = pd_speed_energy_height(params, y, xdot, previous[lanes], target_y, speeds[lanes])
+        previous[lanes] = xdot
+        return command
+
+    y0 = np.full(speeds.shape, start[0])
+    energy0 = params.m * (params.g * y0 + 0.5 * start[1] ** 2)
+    return basins.basin(params, y0, energy0, policy, strides, progress)
+
+
+def fig13(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    speeds_bar = np.round(np.arange(0.5, 3.0 + 1e-9, resolution.speed_step), 3)
+    target_y, start = 1.0, (1.0, 5.0)
+    speeds = np.asarray(units.speed_from_bar(PARAMS, speeds_bar))
+    figure = Figure(figsize=(7, 6.5))
+    top, bottom = figure.subplots(2, 1, sharex=True)
+    data: dict[str, Any] = {
+        "target_ybar": target_y,
+        "start": {"ybar": start[0], "xdotbar": float(units.speed_to_bar(PARAMS, start[1]))},
+        "strides": basins.REGULATED_STRIDES,
+        "xdotbar_target": speeds_bar.tolist(),
+    }
+    for controller, (colour, style) in CONTROLLER_STYLE.items():
+        run = track_targets(
+            PARAMS,
+            controller,
+            target_y,
+            speeds,
+            start,
+            basins.REGULATED_STRIDES,
+            reporter.strides(controller),
+        )
+        final_y, final_xdot = run.history.y[-1], run.history.xdot[-1]
+        speed_error = 100.0 * (final_xdot - speeds) / speeds
+        height_error = 100.0 * (final_y - target_y) / target_y
+        stable = run.outcome == basins.CONVERGED
+        for axes, error in ((top, speed_error), (bottom, height_error)):
+            axes.plot(
+                speeds_bar[stable], np.abs(error[stable]), style, color=colour, marker=".", label=controller
+            )
+            # Losses of stability as crosses along the bottom of the (log) axes.
+            bottom_edge = np.full(np.sum(~stable), 0.04 if controller == "deadbeat" else 0.1)
+            axes.plot(
+                speeds_bar[~stable],
+                bottom_edge,
+                "x",
+                color=colour,
+                markersize=9,
+                mew=2,
+                transform=axes.get_xaxis_transform(),
+            )
+        data[controller] = {
+            "outcome": [basins.OUTCOMES[o] for o in run.outcome],
+            "stable": stable.tolist(),
+            "convergence_stride": run.convergence_stride.tolist(),
+            "speed_error_percent": speed_error.tolist(),
+            "height_error_percent": height_error.tolist(),
+            "stable_xdotbar_range": [float(speeds_bar[stable].min()), float(speeds_bar[stable].max())]
+            if stable.any()
+            else None,
+        }
+    top.set(ylabel="|speed error| [%]", yscale="log", title="deadbeat vs PD, 50 strides (x: loses stability)")
+    bottom.set(xlabel="xdotbar*", ylabel="|height error| [%]", yscale="log")
+    top.legend(fontsize=8)
+    return figure, data
+
+
+FIGURES: dict[str, Callable[[Resolution, Reporter], tuple[Figure, dict[str, Any]]]] = {
+    "fig04": fig04,
+    "fig05": fig05,
+    "fig06": fig06,
+    "fig07": fig07,
+    "fig08": fig08,
+    "fig09": fig09,
+    "fig10": fig10,
+    "fig11": fig11,
+    "fig13": fig13,
+}
+
+
+def write_figure(name: str, out: Path, resolution: Resolution) -> dict[str, Any]:
+    """Compute, draw and save one figure as OUT/<name>.png and OUT/<name>.json; returns its data."""
+    reporter = Reporter(name)
+    started = time.process_time()
+    figure, data = FIGURES[name](resolution, reporter)
+    figure.tight_layout()
+    figure.savefig(out / f"{name}.png", dpi=DPI)
+    document = {
+        "figure": name,
+        "params": {"kbar": PARAMS.kbar, "zeta0": PARAMS.zeta0, "m": PARAMS.m, "r0": PARAMS.r0, "g": PARAMS.g},
+        "resolution": vars(resolution),
+        **data,
+    }
+    (out / f"{name}.json").write_text(to_json(document))
+    reporter.stage(f"done in {time.process_time() - started:.1f} s CPU")
+    return document
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="tdslip figures", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--out", type=Path, required=True, help="directory for the PNG and JSON files")
+    parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures")
+    parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    resolution = FINE if args.fine else DEFAULT
+    for name in args.only or list(FIGURES):
+        write_figure(name, args.out, resolution)
+    return 0

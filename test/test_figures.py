@@ -1,0 +1,97 @@
+"""``tdslip figures``: the figure data checked by content on tiny grids (never by pixels)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tdslip_ros import cli
+from tdslip_ros.analysis import figures
+from tdslip_ros.model import stability, units
+
+TINY = figures.Resolution(
+    heights=24,
+    alphas=9,
+    betas=2,
+    basin_alphas=3,
+    basin_heights=3,
+    energies=8,
+    basin_energies=3,
+    speed_step=1.25,
+)
+PARAMS = figures.PARAMS
+
+
+def _quiet() -> figures.Reporter:
+    return figures.Reporter("test", interval=math.inf)
+
+
+def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(tmp_path: Path) -> None:
+    module, _ = cli.SUBCOMMANDS["figures"]
+    assert module == "tdslip_ros.analysis.figures"
+    assert cli.main(["figures", "--out", str(tmp_path), "--only", "fig09"]) == 0
+    assert (tmp_path / "fig09.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    document = json.loads((tmp_path / "fig09.json").read_text(), parse_constant=pytest.fail)
+    assert document["figure"] == "fig09" and document["params"]["kbar"] == pytest.approx(36.0)
+    assert document["resolution"] == vars(figures.DEFAULT)
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["fig09.json", "fig09.png"]
+
+
+def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
+    _, data = figures.fig08(TINY, _quiet())
+    for beta_deg in (22.0, 30.0):
+        panel = data[f"beta_{beta_deg:g}"]
+        beta = math.radians(beta_deg)
+        assert panel["infeasible_below_ybar"] == pytest.approx(math.cos(beta))
+        points = panel["fixed_points"]
+        energies = units.energy_from_bar(PARAMS, np.array(points["parameter"]))
+        y = units.height_from_bar(PARAMS, np.array(points["ybar"], dtype=float)[:, 0])
+        found = np.isfinite(y)
+        assert found.sum() >= 6
+        mapped = stability.regulated_height_map(PARAMS, beta, energies[found], y[found])
+        np.testing.assert_allclose(mapped, y[found], rtol=1e-9)
+        radius = np.array(points["spectral_radius"], dtype=float)[found, 0]
+        assert list(np.array(points["stable"])[found, 0]) == list(radius < 1.0)
+        curve = panel["maps"]["3"]
+        assert np.all(np.array(curve["ybar"]) > math.cos(beta))
+
+
+def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() -> None:
+    _, data = figures.fig10(TINY, _quiet())
+    lanes = TINY.basin_energies * TINY.basin_heights
+    assert sum(data["outcome_counts"].values()) == lanes
+    exact = data["exact_fixed_points"]
+    analytic = data["analytic"]
+    for goal, ybar in zip(exact["Ebar_goal"], exact["ybar"], strict=True):
+        if ybar is None or goal < 3.0:
+            continue
+        nearest = int(np.argmin(np.abs(np.array(analytic["parameter"]) - goal)))
+        assert ybar == pytest.approx(analytic["ybar"][nearest][0], rel=0.03)
+
+
+def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> None:
+    _, data = figures.fig13(TINY, _quiet())
+    assert data["xdotbar_target"] == [0.5, 1.75, 3.0]
+    deadbeat, pd = data["deadbeat"], data["pd"]
+    assert all(deadbeat["stable"])
+    assert np.max(np.abs(deadbeat["speed_error_percent"])) < 1.0
+    assert np.max(np.abs(deadbeat["height_error_percent"])) < 1.0
+    assert pd["stable"] == [False, True, False]
+    low, high = pd["stable_xdotbar_range"]
+    assert deadbeat["stable_xdotbar_range"][0] < low and high < deadbeat["stable_xdotbar_range"][1]
+
+
+def test_fig04_traces_the_open_loop_fixed_points_and_their_saddle_nodes() -> None:
+    _, data = figures.fig04(TINY, _quiet())
+    low, high = data["c"]["saddle_node_alpha"]
+    assert 1.1 < low < high < 1.45
+    section = data["a"]
+    beta = math.radians(data["beta_deg"])
+    energies = units.energy_from_bar(PARAMS, np.array(section["Ebar_fixed"]))
+    heights = units.height_from_bar(PARAMS, np.array(section["ybar"]))
+    _, mapped = stability.open_loop_energy_map(PARAMS, beta, section["alpha"], heights, energies)
+    np.testing.assert_allclose(mapped, energies, rtol=1e-10)
