@@ -16,6 +16,19 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "plant-only simulation from the model core, printed as a table",
     ),
     "run": ("tdslip_ros.nodes.runner", "run the plant, controller and recorder nodes for one hop, recorded"),
+    "analyze": (
+        "tdslip_ros.analysis.report",
+        "compare a recorded run with the analytic map: summary JSON, figures, report",
+    ),
+    "compare": (
+        "tdslip_ros.analysis.controller_comparison",
+        "deadbeat vs PD over desired speeds, recorded and analysed (paper fig. 13)",
+    ),
+    "replay": (
+        "tdslip_ros.nodes.replay",
+        "re-publish a recording on its topics with its timing (or --rate R)",
+    ),
+    "figures": ("tdslip_ros.analysis.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
 }
 
 

@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from ros_harness import RosGraph
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -26,3 +31,16 @@ def ament_index(monkeypatch: pytest.MonkeyPatch) -> None:
     """
     if not os.environ.get("AMENT_PREFIX_PATH"):
         monkeypatch.setenv("AMENT_PREFIX_PATH", sys.prefix)
+
+
+@pytest.fixture
+def ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[RosGraph]:
+    """A private, in-process ROS graph (own context, domain and executor), torn down after the test."""
+    from ros_harness import ros_graph
+
+    from tdslip_ros.nodes.isolation import process_settings
+
+    for name, value in process_settings().items():
+        monkeypatch.setenv(name, value)  # read when this process creates its first participant
+    with ros_graph() as graph:
+        yield graph

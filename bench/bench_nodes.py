@@ -1,0 +1,198 @@
+"""Benchmarks of the node suite as ``tdslip run`` runs it (plant here, controller and recorder in
+child processes, every run recorded and its counts checked). One command each:
+
+    .venv/bin/python bench/bench_nodes.py realtime [--duration 60] [--priority 50]
+        1 kHz tick against wall time: missed ticks (target 0) and the |period error| of the
+        plant's tick, p50 and p99 (target p99 < 0.3 ms); optionally with the tick thread at a
+        SCHED_FIFO priority (root).
+    .venv/bin/python bench/bench_nodes.py lockstep [--strides 100] [--record-clock]
+        simulated time over wall time with every 1 kHz sample recorded (target >= 5x), both until
+        the end of the run and until the recorder had acknowledged every message.
+    .venv/bin/python bench/bench_nodes.py latency [--mode realtime] [--duration 20]
+        per policy, apex-to-command latency (apex published -> its command received by the plant),
+        p50/p99 (target p99 < 2 ms), beside the policy's own planning time, measured in this
+        process on the same apexes, and the difference: what the nodes and DDS add.
+
+The machine's load average and the CPU time its hypervisor stole during each run are printed with
+the results: the numbers are only as good as the quiet (on a shared VM, steal comes in bursts and
+each burst shows as missed ticks).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+
+from tdslip_ros.model.params import ParameterError
+from tdslip_ros.nodes.controller_node import POLICIES, ControllerNode
+from tdslip_ros.nodes.entry import config_file
+from tdslip_ros.nodes.runner import RunOptions, RunReport, controller_overrides, counts_table, run
+
+REALTIME_TARGET_P99 = 0.3e-3  # s
+LOCKSTEP_TARGET = 5.0
+LATENCY_TARGET_P99 = 2e-3  # s
+
+
+def load() -> str:
+    return "load average " + " ".join(f"{value:.2f}" for value in os.getloadavg())
+
+
+def steal_seconds() -> float:
+    """CPU time the hypervisor gave to others while this VM wanted it (Linux /proc/stat, all CPUs)."""
+    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+    return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_seconds() -> tuple[float, float]:
+    """CPU time (user + system) of this process and of its finished children."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime, children.ru_utime + children.ru_stime
+
+
+def run_checked(options: RunOptions) -> RunReport:
+    """Run, fail loudly unless complete, print the CPU time of the plant's process and the children."""
+    before, steal = cpu_seconds(), steal_seconds()
+    report = run(options)
+    after, steal = cpu_seconds(), steal_seconds() - steal
+    if not report.ok:
+        print(counts_table(report))
+        sys.exit(f"the run failed: {report.outcome.kind}: {report.outcome.reason} {report.problems}")
+    plant_cpu, children_cpu = (b - a for a, b in zip(before, after, strict=True))
+    print(
+        f"  CPU: plant process {plant_cpu:.1f} s, controller + recorder {children_cpu:.1f} s"
+        f"; stolen by the hypervisor {steal:.1f} s"
+    )
+    return report
+
+
+def bench_realtime(arguments: argparse.Namespace, scratch: Path) -> None:
+    priority = f"SCHED_FIFO {arguments.priority}" if arguments.priority else "normal scheduling"
+    print(f"realtime, {arguments.duration:g} s, plant + controller + recorder, {priority} ({load()})")
+    options = RunOptions(
+        scratch / "realtime",
+        strides=0,
+        mode="realtime",
+        duration=arguments.duration,
+        realtime_priority=arguments.priority,
+    )
+    report = run_checked(options)
+    timing = report.tick_timing
+    assert timing is not None
+    p50, p99 = timing.period_error(0.5), timing.period_error(0.99)
+    print(
+        f"  ticks {timing.ticks} in {timing.firings} timer firings over {report.outcome.wall_time:.1f} s wall"
+    )
+    target = f"target p99 < {REALTIME_TARGET_P99 * 1e3} ms"
+    print(f"  missed ticks            {timing.missed:>8d}      target 0")
+    print(f"  period error p50 / p99  {p50 * 1e3:>8.3f} / {p99 * 1e3:.3f} ms   {target}")
+    print(f"  recorded == published on every topic: {report.recording_complete} ({load()})")
+
+
+def bench_lockstep(arguments: argparse.Namespace, scratch: Path) -> None:
+    print(f"lockstep, {arguments.strides} strides, energy policy, recording every sample ({load()})")
+    report = run_checked(
+        RunOptions(scratch / "lockstep", strides=arguments.strides, record_clock=arguments.record_clock)
+    )
+    outcome = report.outcome
+    samples = sum(
+        count
+        for topic, count in report.recorded.items()
+        if topic in ("/tdslip/state", "/tdslip/grf", "/clock")
+    )
+    run_ratio, delivered_ratio = outcome.sim_time / outcome.wall_time, outcome.sim_time / report.delivery_time
+    print(f"  simulated {outcome.sim_time:.3f} s; 1 kHz samples recorded {samples}")
+    print(f"  recorded == published on every topic: {report.recording_complete}")
+    print(f"  sim / wall to the end of the run       {run_ratio:>6.2f}x   target >= {LOCKSTEP_TARGET:g}x")
+    print(f"  sim / wall until all was acknowledged  {delivered_ratio:>6.2f}x ({load()})")
+
+
+def percentiles_ms(values_s: Sequence[float]) -> tuple[float, float]:
+    p50, p99 = np.percentile(np.asarray(values_s) * 1e3, [50, 99])
+    return float(p50), float(p99)
+
+
+def planning_times(options: RunOptions, report: RunReport, policy: str) -> list[float]:
+    """The controller node's planning, timed here on the run's apexes with the run's parameters."""
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        overrides = controller_overrides(options, report.params)
+        controller = ControllerNode(
+            context=context,
+            cli_args=["--ros-args", "--params-file", str(config_file("controller.yaml"))],
+            parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items() if v is not None],
+        )
+        times = []
+        for apex in report.apexes:
+            start = time.perf_counter()
+            try:
+                controller.plan(policy, apex.height, apex.forward_speed)
+            except ParameterError:
+                continue
+            times.append(time.perf_counter() - start)
+        controller.destroy_node()
+        return times
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
+    print(f"apex-to-command latency, {arguments.mode}, {arguments.duration:g} s per policy ({load()})")
+    header = ("policy", "strides", "latency p50/p99 ms", "planning p50/p99 ms", "added p50 ms")
+    print("  {:<10}{:>8}{:>22}{:>23}{:>14}".format(*header))
+    for policy in arguments.policies:
+        options = RunOptions(
+            scratch / f"latency-{policy}",
+            strides=0,
+            policy=policy,
+            mode=arguments.mode,
+            duration=arguments.duration,
+        )
+        report = run_checked(options)
+        latency = percentiles_ms([ns * 1e-9 for ns in report.command_latencies_ns])
+        planning = percentiles_ms(planning_times(options, report, policy))
+        print(
+            f"  {policy:<10}{len(report.command_latencies_ns):>8d}{latency[0]:>12.3f} / {latency[1]:<7.3f}"
+            f"{planning[0]:>13.3f} / {planning[1]:<7.3f}{latency[0] - planning[0]:>12.3f}"
+        )
+    print(f"  target: latency p99 < {LATENCY_TARGET_P99 * 1e3:g} ms ({load()})")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    realtime = commands.add_parser("realtime")
+    realtime.add_argument("--duration", type=float, default=60.0, help="s of wall time")
+    realtime.add_argument("--priority", type=int, default=0, help="SCHED_FIFO priority of the tick (0: none)")
+    lockstep = commands.add_parser("lockstep")
+    lockstep.add_argument("--strides", type=int, default=100)
+    lockstep.add_argument(
+        "--record-clock", action="store_true", help="record /clock too (a third 1 kHz topic)"
+    )
+    latency = commands.add_parser("latency")
+    latency.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
+    latency.add_argument("--duration", type=float, default=20.0, help="s of wall time per policy")
+    latency.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES))
+    arguments = parser.parse_args(argv)
+    benches: dict[str, Callable[[argparse.Namespace, Path], None]] = {
+        "realtime": bench_realtime,
+        "lockstep": bench_lockstep,
+        "latency": bench_latency,
+    }
+    with tempfile.TemporaryDirectory() as scratch:
+        benches[arguments.command](arguments, Path(scratch))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,169 @@
+"""The apex controller node: answers every apex event with a stance command from a model policy.
+
+The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.model.controllers`):
+
+* ``open_loop``: fixed touchdown angle and fixed hip power at touchdown (section III, eq. 26),
+  ``touchdown_angle`` [rad] and ``touchdown_power`` [W] (the paper's alpha = C / (m g sqrt(g r0)));
+* ``energy``: energy regulation at a fixed ``touchdown_angle`` (section IV.A, eq. 32), the torque
+  planned so that the analytic map's next apex has the energy ``target_energy`` [J];
+* ``deadbeat``: inversion of the analytic map towards the apex (``target_height`` [m],
+  ``target_speed`` [m/s]) in one stride (section V.A, eqs. 33-34);
+* ``pd``: the PD baseline, foot placement on speed with gains ``pd_kp``, ``pd_kd`` [rad/(m/s)]
+  and energy towards the target apex.
+
+Policy, targets and gains are read at every apex, so ``ros2 param set`` changes them at runtime
+(values are checked against their ranges and choices first). The controller plans with the same
+SI hopper parameters as the plant (``mass``, ``stiffness``, ``rest_length``, ``damping``,
+``gravity``): give it the plant's values, as config/controller.yaml does for the defaults.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+from rclpy.node import Node
+from tdslip_msgs.msg import ApexEvent, StanceCommand
+
+from tdslip_ros.model import controllers, units
+from tdslip_ros.model.analytic import CommandArrays
+from tdslip_ros.model.params import ParameterError
+from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.nodes import parameters, topics
+from tdslip_ros.nodes.entry import run_node
+from tdslip_ros.nodes.parameters import ParameterSpec
+
+POLICIES = ("open_loop", "energy", "deadbeat", "pd")
+DEFAULT_TARGET_ENERGY = parameters.PAPER_PARAMS.m * (
+    parameters.PAPER_PARAMS.g * parameters.DEFAULT_APEX_HEIGHT + 0.5 * parameters.DEFAULT_APEX_SPEED**2
+)
+"""J, the energy of the default initial apex: energy regulation then keeps the hopper's energy."""
+
+TUNABLE: tuple[ParameterSpec, ...] = (
+    ParameterSpec("policy", "energy", "stance policy answering each apex", choices=POLICIES),
+    ParameterSpec(
+        "touchdown_angle",
+        parameters.DEFAULT_TOUCHDOWN_ANGLE,
+        "open_loop, energy: touchdown angle beta [rad]",
+        1e-6,
+        1.5707953,
+    ),
+    ParameterSpec("touchdown_power", 925.0, "open_loop: hip power C at touchdown [W]", 0.0, 1e7),
+    ParameterSpec("target_energy", DEFAULT_TARGET_ENERGY, "energy: apex energy to hold [J]", 1e-6, 1e9),
+    ParameterSpec(
+        "target_height", parameters.DEFAULT_APEX_HEIGHT, "deadbeat, pd: target apex height [m]", 1e-3, 1e2
+    ),
+    ParameterSpec(
+        "target_speed", parameters.DEFAULT_APEX_SPEED, "deadbeat, pd: target apex speed [m/s]", 0.0, 1e2
+    ),
+    ParameterSpec("pd_kp", 0.06, "pd: proportional gain on speed error [rad/(m/s)]", 0.0, 10.0),
+    ParameterSpec("pd_kd", 0.03, "pd: derivative gain on speed change per stride [rad/(m/s)]", 0.0, 10.0),
+    ParameterSpec(
+        "corrections", 1, "correction iterations of the analytic map the policies plan with", 0, 10
+    ),
+)
+SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *TUNABLE)
+
+
+class ControllerNode(Node):
+    """Subscribes /tdslip/apex, publishes one /tdslip/command per apex it can answer."""
+
+    def __init__(self, **node_options: object) -> None:
+        super().__init__("controller", **node_options)  # type: ignore[arg-type]
+        self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
+        self.hopper = parameters.hopper_params(parameters.declare(self, SPECS))
+        self.published = 0
+        self._previous_speed: float | None = None
+        self._policies: dict[str, Callable[[float, float], CommandArrays]] = {
+            "open_loop": self._open_loop,
+            "energy": self._energy,
+            "deadbeat": self._deadbeat,
+            "pd": self._pd,
+        }
+        self._publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
+        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.QOS)
+
+    def _value(self, name: str) -> float:
+        return float(self.get_parameter(name).value)
+
+    def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
+        """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
+        ParameterError if the policy has none (e.g. the leg cannot be placed from this apex)."""
+        return self._policies[policy](y, xdot).command()
+
+    def _on_apex(self, apex: ApexEvent) -> None:
+        if apex.stride == 0:
+            self._previous_speed = None  # a new run: no previous apex for the PD's derivative term
+        policy = str(self.get_parameter("policy").value)
+        try:
+            command = self.plan(policy, apex.height, apex.forward_speed)
+        except ParameterError as error:
+            self.get_logger().error(
+                f"{policy}: no command for apex {apex.stride} (y = {apex.height:.6g} m, "
+                f"xdot = {apex.forward_speed:.6g} m/s): {error}"
+            )
+            return
+        finally:
+            self._previous_speed = apex.forward_speed
+        msg = StanceCommand(
+            stride=apex.stride,
+            touchdown_angle=command.touchdown_angle,
+            tau0=command.tau0,
+            t_f=command.t_f,
+            policy=policy,
+        )
+        msg.header = apex.header
+        self._publisher.publish(msg)
+        self.published += 1
+
+    def _corrections(self) -> int:
+        return int(self.get_parameter("corrections").value)
+
+    def _open_loop(self, y: float, xdot: float) -> CommandArrays:
+        alpha = units.power_to_alpha(self.hopper, self._value("touchdown_power"))
+        return controllers.fixed_power(
+            self.hopper, y, xdot, self._value("touchdown_angle"), alpha, self._corrections()
+        )
+
+    def _energy(self, y: float, xdot: float) -> CommandArrays:
+        return controllers.energy_regulation(
+            self.hopper,
+            y,
+            xdot,
+            self._value("touchdown_angle"),
+            self._value("target_energy"),
+            self._corrections(),
+        )
+
+    def _deadbeat(self, y: float, xdot: float) -> CommandArrays:
+        return controllers.deadbeat(
+            self.hopper,
+            y,
+            xdot,
+            self._value("target_height"),
+            self._value("target_speed"),
+            self._corrections(),
+        )
+
+    def _pd(self, y: float, xdot: float) -> CommandArrays:
+        previous = xdot if self._previous_speed is None else self._previous_speed
+        return controllers.pd_speed_energy_height(
+            self.hopper,
+            y,
+            xdot,
+            previous,
+            self._value("target_height"),
+            self._value("target_speed"),
+            kp=self._value("pd_kp"),
+            kd=self._value("pd_kd"),
+            corrections=self._corrections(),
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``controller_node [--ros-args ...]``: serve until SIGINT/SIGTERM, config/controller.yaml by default."""
+    return run_node(ControllerNode, "controller.yaml", sys.argv if argv is None else argv, lambda node: False)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,111 @@
+"""ROS parameters of the nodes: one spec per parameter, declared with a description and a range.
+
+rclpy enforces the numeric ranges itself (for YAML overrides at start-up and for runtime
+``set_parameters``); string choices are checked by :func:`validate`, which every node installs
+as its on-set-parameters callback, so a bad value is refused with a reason and never taken.
+
+The hopper's physical parameters (:data:`HOPPER`) are SI and shared by the plant and the
+controller, which needs the same values to plan; both YAML files carry them under the same keys.
+Their defaults are the paper's figures 8-10: kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from tdslip_ros.model.params import HopperParams
+
+ParameterValue = bool | int | float | str
+
+PAPER_PARAMS = HopperParams.from_dimensionless(kbar=36.0, zeta0=0.08, m=80.0, r0=1.0)
+DEFAULT_TOUCHDOWN_ANGLE = math.radians(20.0)
+"""rad; under energy regulation the default apex (1 m, 5 m/s) converges fast (exact |lambda| = 0.08)."""
+DEFAULT_APEX_HEIGHT = 1.0
+DEFAULT_APEX_SPEED = 5.0
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """A node parameter: name, default (its type is the parameter's type), description, limits.
+
+    low/high bound numbers (inclusive, rclpy's ranges); choices restrict strings.
+    """
+
+    name: str
+    default: ParameterValue
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        descriptor = ParameterDescriptor(
+            name=self.name, description=self.description, read_only=self.read_only
+        )
+        if self.choices:
+            descriptor.additional_constraints = "one of: " + ", ".join(self.choices)
+        if self.low is not None and self.high is not None:
+            if isinstance(self.default, bool):
+                raise TypeError(f"{self.name}: a bool parameter has no range")
+            if isinstance(self.default, int):
+                descriptor.integer_range = [
+                    IntegerRange(from_value=int(self.low), to_value=int(self.high), step=1)
+                ]
+            else:
+                descriptor.floating_point_range = [
+                    FloatingPointRange(from_value=float(self.low), to_value=float(self.high), step=0.0)
+                ]
+        return descriptor
+
+
+def _hopper(name: str, default: float, description: str, low: float, high: float) -> ParameterSpec:
+    return ParameterSpec(name, default, description, low, high, read_only=True)
+
+
+HOPPER: tuple[ParameterSpec, ...] = (
+    _hopper("mass", PAPER_PARAMS.m, "body mass m [kg]", 1e-3, 1e5),
+    _hopper("stiffness", PAPER_PARAMS.k, "leg spring stiffness k [N/m]", 1e-3, 1e9),
+    _hopper("rest_length", PAPER_PARAMS.r0, "leg rest length r0 [m]", 1e-3, 1e2),
+    _hopper("damping", PAPER_PARAMS.c, "leg damping c [N s/m] (zeta0 = c / (2 sqrt(m k)) < 1)", 0.0, 1e7),
+    _hopper("gravity", PAPER_PARAMS.g, "gravitational acceleration g [m/s^2]", 1e-3, 1e3),
+)
+
+
+def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, ParameterValue]:
+    """Declare every spec on ``node`` (overrides from YAML/CLI apply) and return the values by name."""
+    specs = tuple(specs)
+    parameters = node.declare_parameters("", [(spec.name, spec.default, spec.descriptor()) for spec in specs])
+    return {parameter.name: parameter.value for parameter in parameters}
+
+
+def validate(specs: Sequence[ParameterSpec], parameters: Sequence[Parameter[Any]]) -> SetParametersResult:
+    """On-set-parameters check beyond rclpy's own (types and ranges): string choices."""
+    by_name = {spec.name: spec for spec in specs}
+    for parameter in parameters:
+        spec = by_name.get(parameter.name)
+        if spec is None:
+            continue
+        if spec.choices and parameter.value not in spec.choices:
+            return SetParametersResult(
+                successful=False, reason=f"{spec.name} must be one of {', '.join(spec.choices)}"
+            )
+    return SetParametersResult(successful=True)
+
+
+def hopper_params(values: dict[str, ParameterValue]) -> HopperParams:
+    """The HopperParams of declared :data:`HOPPER` values (ParameterError names a bad one)."""
+    return HopperParams(
+        m=float(values["mass"]),
+        k=float(values["stiffness"]),
+        r0=float(values["rest_length"]),
+        c=float(values["damping"]),
+        g=float(values["gravity"]),
+    )

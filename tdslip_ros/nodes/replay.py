@@ -1,0 +1,230 @@
+"""``tdslip replay RUN [--rate R]``: re-publish a recording on its original topics, like ``ros2 bag play``.
+
+Every message of the recording (a bag directory or a bare ``.mcap``, checked by
+:func:`tdslip_ros.analysis.reader.open_recording`) is published as the raw CDR bytes it was
+recorded as, in the order of its log (receive) time, and spaced as it was recorded: message i goes
+out ``(log_time_i - log_time_0) / R`` after the first (``--rate inf``: as fast as possible). Each
+topic gets a publisher of its recorded message type with the QoS recorded as offered
+(``offered_qos_profiles``: history, depth, reliability, durability), so reliable KEEP_ALL topics
+stay lossless. Publishers are reliable within one process and topic, so every subscriber receives
+each topic's messages in the recorded order. Before the first message the replay can wait for
+subscribers (``--wait-for-subscribers N``: N on every topic), since volatile topics are not kept for
+late joiners; at the end it waits until reliable subscribers have acknowledged everything.
+
+It publishes on the ROS domain of the environment (``ROS_DOMAIN_ID``), as any ROS tool does.
+SIGINT or SIGTERM stops it between two messages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import rclpy
+import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from rclpy.context import Context
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from tdslip_ros.analysis.reader import Recording, RunReadError, TopicInfo, open_recording
+from tdslip_ros.bag.schema import split_type_name
+from tdslip_ros.nodes.entry import SPIN_SLICE, stop_on_signals
+
+ACK_TIMEOUT = 10.0  # s for reliable subscribers to acknowledge the last messages
+_NS_PER_S = 1_000_000_000
+_HISTORY = {"keep_all": HistoryPolicy.KEEP_ALL, "keep_last": HistoryPolicy.KEEP_LAST}
+_RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {"volatile": DurabilityPolicy.VOLATILE, "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
+
+
+class ReplayError(RuntimeError):
+    """The recording cannot be replayed (unreadable, unknown message type, no subscribers in time)."""
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    published: dict[str, int]
+    duration: float
+    """s of wall time from the first message to the last."""
+    acknowledged: bool
+    stopped: bool
+
+
+def message_class(type_name: str) -> type:
+    """The generated Python class of ``pkg/msg/Type`` (the package must be installed)."""
+    package, name = split_type_name(type_name)
+    try:
+        return getattr(importlib.import_module(f"{package}.msg"), name)  # type: ignore[no-any-return]
+    except (ImportError, AttributeError):
+        raise ReplayError(f"message type {type_name} is not installed (no {package}.msg.{name})") from None
+
+
+def offered_qos(topic: TopicInfo) -> QoSProfile:
+    """The first offered QoS profile recorded for ``topic`` (rclpy's defaults where it has none)."""
+    try:
+        profiles = yaml.safe_load(topic.metadata.get("offered_qos_profiles", "")) or []
+    except yaml.YAMLError as error:
+        raise ReplayError(f"{topic.topic}: unreadable offered_qos_profiles ({error})") from None
+    profile: dict[str, object] = profiles[0] if profiles else {}
+    history = _HISTORY.get(str(profile.get("history")), HistoryPolicy.KEEP_LAST)
+    return QoSProfile(
+        history=history,
+        depth=int(str(profile.get("depth", 10))) if history is HistoryPolicy.KEEP_LAST else 0,
+        reliability=_RELIABILITY.get(str(profile.get("reliability")), ReliabilityPolicy.RELIABLE),
+        durability=_DURABILITY.get(str(profile.get("durability")), DurabilityPolicy.VOLATILE),
+    )
+
+
+def check_rate(rate: float) -> float:
+    if not rate > 0.0:
+        raise ValueError(f"rate must be positive (inf: as fast as possible), got {rate}")
+    return rate
+
+
+def send_offset(log_time_ns: int, first_log_time_ns: int, rate: float) -> float:
+    """Seconds after the first message at which a message logged at ``log_time_ns`` is published."""
+    return 0.0 if math.isinf(rate) else (log_time_ns - first_log_time_ns) / _NS_PER_S / rate
+
+
+class ReplayNode(Node):
+    """Publishers for the topics of a recording; :meth:`play` sends its messages."""
+
+    def __init__(self, recording: Recording, topics: list[str] | None = None, **node_options: object) -> None:
+        super().__init__("replay", **node_options)  # type: ignore[arg-type]
+        chosen = list(recording.topics) if topics is None else topics
+        unknown = [topic for topic in chosen if topic not in recording.topics]
+        if unknown:
+            raise ReplayError(f"{recording.mcap_path}: no topic {', '.join(unknown)} in the recording")
+        self.recording = recording
+        self.topic_publishers: dict[str, Publisher[Any]] = {
+            topic: self.create_publisher(
+                message_class(recording.topics[topic].type_name), topic, offered_qos(recording.topics[topic])
+            )
+            for topic in chosen
+        }
+
+    def wait_for_subscribers(self, count: int, timeout: float, stop: Callable[[], bool]) -> None:
+        """Until every publisher has ``count`` matched subscriptions; ReplayError after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while not all(p.get_subscription_count() >= count for p in self.topic_publishers.values()):
+            if stop():
+                return
+            if time.monotonic() > deadline:
+                missing = [t for t, p in self.topic_publishers.items() if p.get_subscription_count() < count]
+                raise ReplayError(
+                    f"fewer than {count} subscriber(s) on {', '.join(missing)} after {timeout} s"
+                )
+            time.sleep(SPIN_SLICE / 10)
+
+    def play(self, rate: float = 1.0, stop: Callable[[], bool] = lambda: False) -> ReplayResult:
+        """Publish the recording's messages (module docstring); returns the counts per topic."""
+        check_rate(rate)
+        published = dict.fromkeys(self.topic_publishers, 0)
+        start, first, stopped = time.monotonic(), None, False
+        with open(self.recording.mcap_path, "rb") as stream:
+            messages = make_reader(stream).iter_messages(
+                topics=list(self.topic_publishers), log_time_order=True
+            )
+            try:
+                for _, channel, message in messages:
+                    if stop():
+                        stopped = True
+                        break
+                    if first is None:
+                        start, first = time.monotonic(), message.log_time
+                    delay = start + send_offset(message.log_time, first, rate) - time.monotonic()
+                    if delay > 0.0:
+                        time.sleep(delay)
+                    self.topic_publishers[channel.topic].publish(message.data)
+                    published[channel.topic] += 1
+            except McapError as error:
+                raise ReplayError(f"{self.recording.mcap_path}: unreadable ({error})") from None
+        duration = time.monotonic() - start
+        acknowledged = all(
+            p.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT)) for p in self.topic_publishers.values()
+        )
+        return ReplayResult(published, duration, acknowledged, stopped)
+
+
+def replay(
+    path: Path,
+    rate: float = 1.0,
+    *,
+    topics: list[str] | None = None,
+    wait_for_subscribers: int = 0,
+    wait_timeout: float = 30.0,
+    context: Context | None = None,
+    stop: Callable[[], bool] = lambda: False,
+) -> ReplayResult:
+    """Replay the recording at ``path`` in ``context`` (an initialised rclpy context, default rclpy's)."""
+    try:
+        recording = open_recording(path, required={})
+    except RunReadError as error:
+        raise ReplayError(str(error)) from None
+    node = ReplayNode(recording, topics, context=context)
+    try:
+        if wait_for_subscribers:
+            node.wait_for_subscribers(wait_for_subscribers, wait_timeout, stop)
+        return node.play(rate, stop)
+    finally:
+        node.destroy_node()
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tdslip replay", description="Re-publish a recording on its original topics with its timing."
+    )
+    parser.add_argument("run", type=Path, help="bag directory or .mcap file")
+    parser.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1; inf: no delays)")
+    parser.add_argument("--topics", nargs="+", help="replay only these topics (default: all)")
+    parser.add_argument(
+        "--wait-for-subscribers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="first wait for N subscribers per topic",
+    )
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        check_rate(args.rate)
+        open_recording(args.run, required={})  # before ROS starts and takes the signals
+    except (RunReadError, ValueError) as error:
+        print(f"tdslip replay: {error}", file=sys.stderr)
+        return 1
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    stop = stop_on_signals()
+    try:
+        result = replay(
+            args.run,
+            args.rate,
+            topics=args.topics,
+            wait_for_subscribers=args.wait_for_subscribers,
+            stop=stop.is_set,
+        )
+    except (ReplayError, ValueError) as error:
+        print(f"tdslip replay: {error}", file=sys.stderr)
+        return 1
+    finally:
+        rclpy.try_shutdown()
+    counts = ", ".join(f"{topic} {count}" for topic, count in result.published.items())
+    state = "stopped" if result.stopped else "done"
+    print(f"replay {state} in {result.duration:.3f} s: {counts}")
+    if not result.acknowledged:
+        print("warning: not every reliable subscriber acknowledged every message", file=sys.stderr)
+    return 0

@@ -1,0 +1,512 @@
+"""``tdslip run``: one hop of the node suite, recorded, checked and summarised.
+
+Three processes on a private ROS graph (:mod:`tdslip_ros.nodes.isolation`: a free domain id from
+120-229 reserved per run unless ``--domain-id`` is given, ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``,
+and a Fast DDS profile with prompt acknowledgements):
+
+* this one hosts the plant node (so it knows exactly what was published) and a small monitor that
+  follows /tdslip/apex for the progress line and the summary table;
+* ``controller_node`` in a child process: its planning (milliseconds of numpy per apex) would
+  hold the GIL against the plant's 1 kHz tick thread (in one process: thousands of missed ticks
+  in 15 s and a slower answer, measured); apart, an answer costs a DDS round trip (~1-2 ms on the
+  development VM) on top of the planning;
+* ``recorder_node`` in a child process: a Python callback per message would otherwise share one
+  interpreter with the plant; on two cores the plant and the recorder each get one.
+
+The children take the installed config/*.yaml plus the overrides of the command line. The plant
+starts once the recorder and the controller have matched its topics. When the run ends, the plant's
+messages are acknowledged by every subscriber, the controller is stopped (it delivers its last
+command), then the recorder (it records what reached it and finalises the bag). Last, the message
+counts of the bag are compared with what was published: the plant's own counts, and for
+/tdslip/command the commands the plant received. ``--out`` is the bag directory
+(``metadata.yaml`` and ``<name>_0.mcap``); the exit status is 0 only for a complete run whose
+recording is complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import IO
+
+import rclpy
+import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
+from rclpy.context import Context
+from rclpy.exceptions import ParameterException
+from rclpy.executors import Executor
+from rclpy.experimental.events_executor import EventsExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+from tdslip_msgs.msg import ApexEvent
+
+from tdslip_ros.model import units
+from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.nodes import isolation, parameters, topics
+from tdslip_ros.nodes.controller_node import POLICIES
+from tdslip_ros.nodes.entry import (
+    PARENT_PID_VARIABLE,
+    config_file,
+    spin_until,
+    stop_on_signals,
+    wait_for_delivery,
+)
+from tdslip_ros.nodes.plant_node import CLOCK_MODES, PlantNode, RunOutcome
+from tdslip_ros.nodes.realtime import TickTiming
+
+STARTUP_TIMEOUT = 30.0  # s for the child nodes to start and match the plant's topics
+STOP_TIMEOUT = 30.0  # s for a child to stop after SIGINT
+QUIET = 0.2  # s without a new command: the controller's last commands have been received
+
+ProgressCallback = Callable[[ApexEvent], None]
+
+
+class RunError(RuntimeError):
+    """The suite could not run or record (a node did not start, crashed, or lost messages)."""
+
+
+@dataclass
+class RunOptions:
+    """What ``tdslip run`` runs. ``None`` leaves a setting to the installed YAML files, except
+    ``target_energy``, which defaults to the energy of the initial apex (energy regulation then
+    holds the hopper's energy)."""
+
+    out: Path
+    strides: int = 50
+    """The run ends at this apex (0: never; then give a ``duration``)."""
+    policy: str = "energy"
+    mode: str = "lockstep"
+    height: float = parameters.DEFAULT_APEX_HEIGHT
+    speed: float = parameters.DEFAULT_APEX_SPEED
+    touchdown_angle: float | None = None  # rad
+    target_energy: float | None = None
+    target_height: float | None = None
+    target_speed: float | None = None
+    command_timeout: float | None = None
+    realtime_priority: int | None = None
+    """SCHED_FIFO priority of the realtime plant's tick thread (0: normal scheduling)."""
+    record_clock: bool = False
+    duration: float | None = None
+    """Wall-time limit [s]: the run ends as complete when it is reached."""
+    domain_id: int | None = None
+
+
+@dataclass
+class RunReport:
+    outcome: RunOutcome
+    params: HopperParams
+    apexes: list[ApexEvent]
+    published: dict[str, int]
+    recorded: dict[str, int]
+    command_latencies_ns: list[int]
+    """Wall time from each apex's publication to the plant's receipt of the valid command for it."""
+    delivery_time: float
+    """s from the plant's start until every subscriber had acknowledged all its messages."""
+    tick_timing: TickTiming | None
+    """Realtime mode: the timing statistics of the plant's tick."""
+    bag: Path
+    controller_log: str
+    """What the controller process printed: why it could not answer an apex, if it could not."""
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def recording_complete(self) -> bool:
+        return self.published == self.recorded
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome.ok and self.recording_complete and not self.problems
+
+
+class ApexMonitor(Node):
+    """Collects the apex events of the run (for progress and the summary)."""
+
+    def __init__(self, progress: ProgressCallback | None, **node_options: object) -> None:
+        super().__init__("run_monitor", **node_options)  # type: ignore[arg-type]
+        self.apexes: list[ApexEvent] = []
+        self._progress = progress
+        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.QOS)
+
+    def _on_apex(self, msg: ApexEvent) -> None:
+        self.apexes.append(msg)
+        if self._progress is not None:
+            self._progress(msg)
+
+
+@dataclass
+class ChildNode:
+    """A node executable in a child process, its output kept in a temporary file."""
+
+    name: str
+    process: subprocess.Popen[bytes]
+    log: IO[bytes]
+
+    @classmethod
+    def start(cls, module: str, arguments: list[str], environment: dict[str, str]) -> ChildNode:
+        log = tempfile.TemporaryFile()
+        command = [sys.executable, "-m", module, "--ros-args", *arguments]
+        # A session of its own: a Ctrl-C at the terminal reaches only this process, which stops the
+        # children in order; and they stop by themselves should this process die.
+        process = subprocess.Popen(
+            command,
+            env={**environment, PARENT_PID_VARIABLE: str(os.getpid())},
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        return cls(module.rsplit(".", 1)[-1], process, log)
+
+    def output(self) -> str:
+        self.log.seek(0)
+        return self.log.read().decode(errors="replace")
+
+    def check_alive(self) -> None:
+        if self.process.poll() is not None:
+            raise RunError(f"{self.name} exited early ({self.process.returncode}):\n{self.output()}")
+
+    def stop(self, timeout: float = STOP_TIMEOUT) -> None:
+        """SIGINT, then wait; a node that does not stop in time is killed and reported."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+        try:
+            code = self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+            raise RunError(f"{self.name} did not stop within {timeout} s:\n{self.output()}") from None
+        if code != 0:
+            raise RunError(f"{self.name} failed ({code}):\n{self.output()}")
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+        self.log.close()
+
+
+def _ros_value(value: object) -> str:
+    """A -p override value in ROS's YAML syntax (floats keep their type, full precision)."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def _overrides(values: dict[str, object]) -> list[str]:
+    arguments = []
+    for name, value in values.items():
+        if value is not None:
+            arguments += ["-p", f"{name}:={_ros_value(value)}"]
+    return arguments
+
+
+def plant_overrides(options: RunOptions) -> dict[str, object]:
+    return {
+        "clock_mode": options.mode,
+        "max_strides": options.strides,
+        "initial_height": options.height,
+        "initial_forward_speed": options.speed,
+        "initial_touchdown_angle": options.touchdown_angle,
+        "command_timeout": options.command_timeout,
+        "realtime_priority": options.realtime_priority,
+    }
+
+
+def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str, object]:
+    target_energy = options.target_energy
+    if target_energy is None:
+        target_energy = params.m * (params.g * options.height + 0.5 * options.speed**2)
+    return {
+        "policy": options.policy,
+        "touchdown_angle": options.touchdown_angle,
+        "target_energy": target_energy,
+        "target_height": options.target_height,
+        "target_speed": options.target_speed,
+    }
+
+
+def read_bag_counts(bag: Path) -> dict[str, int]:
+    """Messages per topic from a bag directory's metadata.yaml (rosbag2's layout)."""
+    information = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    return {
+        entry["topic_metadata"]["name"]: int(entry["message_count"])
+        for entry in information["topics_with_message_count"]
+    }
+
+
+@contextmanager
+def _ros_context(domain_id: int) -> Iterator[Context]:
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def run(
+    options: RunOptions,
+    progress: ProgressCallback | None = None,
+    stop_requested: Callable[[], bool] = lambda: False,
+) -> RunReport:
+    """Run the suite once (see the module docstring); RunError if it could not run or record.
+
+    ``stop_requested`` is polled while running; when it turns true the run ends as complete.
+    """
+    if options.mode not in CLOCK_MODES:
+        raise RunError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
+    if options.policy not in POLICIES:
+        raise RunError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
+    bag = Path(options.out)
+    if bag.exists():
+        raise RunError(f"{bag} exists already; choose a new --out")
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    os.environ.update(isolation.process_settings())  # before the first participant of this process
+    with ExitStack() as stack:
+        domain_id = stack.enter_context(isolation.reserved_domain(options.domain_id))
+        environment = isolation.isolated_environment(domain_id)
+        context = stack.enter_context(_ros_context(domain_id))
+        try:
+            plant = PlantNode(
+                autostart=False,
+                context=context,
+                cli_args=["--ros-args", "--params-file", str(config_file("plant.yaml"))],
+                parameter_overrides=[
+                    Parameter(name, value=value)
+                    for name, value in plant_overrides(options).items()
+                    if value is not None
+                ],
+            )
+        except (ParameterException, ParameterError) as error:
+            raise RunError(f"plant parameters: {error}") from None
+        stack.callback(plant.destroy_node)
+        monitor = ApexMonitor(progress, context=context)
+        stack.callback(monitor.destroy_node)
+        executor = EventsExecutor(context=context)
+        stack.callback(executor.shutdown)
+        executor.add_node(plant)
+        executor.add_node(monitor)
+
+        recorder = ChildNode.start(
+            "tdslip_ros.nodes.recorder_node",
+            ["--params-file", str(config_file("recorder.yaml")), "-p", f"output:={bag}"]
+            + _overrides({"record_clock": options.record_clock}),
+            environment,
+        )
+        stack.callback(recorder.close)
+        controller = ChildNode.start(
+            "tdslip_ros.nodes.controller_node",
+            ["--params-file", str(config_file("controller.yaml"))]
+            + _overrides(controller_overrides(options, plant.hopper)),
+            environment,
+        )
+        stack.callback(controller.close)
+
+        recorded_topics = [*topics.TDSLIP_TOPICS, *((topics.CLOCK,) if options.record_clock else ())]
+        _wait_for_graph(executor, plant, recorded_topics, (recorder, controller))
+
+        start = time.monotonic()
+        deadline = math.inf if options.duration is None else start + options.duration
+        plant.start()
+        while plant.outcome is None:
+            executor.spin_once(timeout_sec=0.1)
+            if time.monotonic() >= deadline:
+                plant.end_run(f"reached the wall-time limit of {options.duration} s")
+            elif stop_requested():
+                plant.end_run("stopped on request")
+            controller.check_alive()
+            recorder.check_alive()
+        outcome = plant.outcome
+
+        problems = []
+        if not wait_for_delivery(plant):
+            problems.append("not every subscriber acknowledged every message of the plant")
+        delivery_time = (time.monotonic_ns() - plant.start_wall_ns) * 1e-9
+        controller.stop()
+        _spin_until_quiet(executor, lambda: plant.received_commands)
+        spin_until(executor, lambda: len(monitor.apexes) == plant.published[topics.APEX], timeout=5.0)
+        recorder.stop()
+        published = {topic: plant.published[topic] for topic in recorded_topics if topic != topics.COMMAND}
+        published[topics.COMMAND] = plant.received_commands
+        report = RunReport(
+            outcome=outcome,
+            params=plant.hopper,
+            apexes=monitor.apexes,
+            published=dict(sorted(published.items())),
+            recorded=dict(sorted(read_bag_counts(bag).items())),
+            command_latencies_ns=plant.command_latencies_ns,
+            delivery_time=delivery_time,
+            tick_timing=plant.tick_timing,
+            bag=bag,
+            controller_log=controller.output(),
+            problems=problems,
+        )
+    return report
+
+
+def _wait_for_graph(
+    executor: Executor, plant: PlantNode, recorded_topics: list[str], children: tuple[ChildNode, ...]
+) -> None:
+    """Until the recorder subscribes to every recorded topic and the controller is connected."""
+
+    def ready() -> bool:
+        for child in children:
+            child.check_alive()
+        published = [topic for topic in recorded_topics if topic != topics.COMMAND]
+        return (
+            all(plant.matched_subscribers(topic) >= 1 for topic in published)
+            and plant.matched_subscribers(topics.APEX) >= 3  # recorder, controller, monitor
+            and plant.count_publishers(topics.COMMAND) >= 1
+            and plant.count_subscribers(topics.COMMAND) >= 2  # plant, recorder
+        )
+
+    if not spin_until(executor, ready, timeout=STARTUP_TIMEOUT):
+        logs = "\n".join(f"--- {child.name}:\n{child.output()}" for child in children)
+        raise RunError(f"the controller and recorder did not connect within {STARTUP_TIMEOUT} s\n{logs}")
+
+
+def _spin_until_quiet(executor: Executor, count: Callable[[], int]) -> None:
+    last, since = count(), time.monotonic()
+    while time.monotonic() - since < QUIET:
+        executor.spin_once(timeout_sec=QUIET / 4)
+        if count() != last:
+            last, since = count(), time.monotonic()
+
+
+# --- command line --------------------------------------------------------------------------------
+
+
+def apex_table(params: HopperParams, apexes: list[ApexEvent]) -> str:
+    """The apex states, SI and dimensionless (eq. 24), one row per stride."""
+    header = (
+        f"{'stride':>6} {'t [s]':>9} {'y [m]':>9} {'xdot [m/s]':>11} {'E [J]':>10}"
+        f" | {'ybar':>8} {'xdotbar':>8} {'Ebar':>8}"
+    )
+    rows = [header, "-" * len(header)]
+    for apex in apexes:
+        rows.append(
+            f"{apex.stride:>6d} {apex.sim_time:>9.4f} {apex.height:>9.5f} {apex.forward_speed:>11.5f}"
+            f" {apex.energy:>10.3f} | {units.height_to_bar(params, apex.height):>8.5f}"
+            f" {units.speed_to_bar(params, apex.forward_speed):>8.5f}"
+            f" {units.energy_to_bar(params, apex.energy):>8.5f}"
+        )
+    return "\n".join(rows)
+
+
+def counts_table(report: RunReport) -> str:
+    rows = [f"{'topic':<16} {'published':>10} {'recorded':>10}"]
+    for topic in sorted(set(report.published) | set(report.recorded)):
+        published, recorded = report.published.get(topic, 0), report.recorded.get(topic, 0)
+        mark = "" if published == recorded else "  LOST" if recorded < published else "  EXTRA"
+        rows.append(f"{topic:<16} {published:>10d} {recorded:>10d}{mark}")
+    return "\n".join(rows)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tdslip run",
+        description="Run the plant, controller and recorder nodes for one hop and record it.",
+    )
+    parser.add_argument("--strides", type=int, default=50, help="the run ends at this apex (default 50)")
+    parser.add_argument("--policy", choices=POLICIES, default="energy")
+    parser.add_argument("--mode", choices=CLOCK_MODES, default="lockstep")
+    parser.add_argument(
+        "--out", type=Path, help="bag directory to create (default runs/<policy>-<mode>-<time>)"
+    )
+    parser.add_argument(
+        "--height", type=float, default=parameters.DEFAULT_APEX_HEIGHT, help="initial apex [m]"
+    )
+    parser.add_argument(
+        "--speed", type=float, default=parameters.DEFAULT_APEX_SPEED, help="initial apex [m/s]"
+    )
+    parser.add_argument("--angle", type=float, help="touchdown angle [deg] (default 20)")
+    parser.add_argument(
+        "--target-energy", type=float, help="energy policy [J] (default: initial apex energy)"
+    )
+    parser.add_argument("--target-height", type=float, help="deadbeat/pd target apex height [m]")
+    parser.add_argument("--target-speed", type=float, help="deadbeat/pd target apex speed [m/s]")
+    parser.add_argument("--timeout", type=float, help="lockstep command timeout [s wall]")
+    parser.add_argument("--duration", type=float, help="end the run after this wall time [s]")
+    parser.add_argument(
+        "--realtime-priority", type=int, help="SCHED_FIFO priority 1-99 of the realtime tick (needs root)"
+    )
+    parser.add_argument("--record-clock", action="store_true", help="also record /clock")
+    parser.add_argument("--domain-id", type=int, help="ROS domain id (default: a free one from 120-229)")
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    out = args.out or Path("runs") / f"{args.policy}-{args.mode}-{datetime.now():%Y%m%d-%H%M%S}"
+    options = RunOptions(
+        out=out,
+        strides=args.strides,
+        policy=args.policy,
+        mode=args.mode,
+        height=args.height,
+        speed=args.speed,
+        touchdown_angle=None if args.angle is None else math.radians(args.angle),
+        target_energy=args.target_energy,
+        target_height=args.target_height,
+        target_speed=args.target_speed,
+        command_timeout=args.timeout,
+        realtime_priority=args.realtime_priority,
+        record_clock=args.record_clock,
+        duration=args.duration,
+        domain_id=args.domain_id,
+    )
+    interactive = sys.stderr.isatty()
+
+    def progress(apex: ApexEvent) -> None:
+        line = f"stride {apex.stride}/{args.strides}  t = {apex.sim_time:.3f} s"
+        if interactive:
+            print(
+                f"\r{line}  y = {apex.height:.4f} m  xdot = {apex.forward_speed:.4f} m/s",
+                end="",
+                file=sys.stderr,
+            )
+        elif apex.stride % max(1, args.strides // 10) == 0:
+            print(line, file=sys.stderr)
+
+    stop = stop_on_signals()
+    try:
+        report = run(options, progress, stop.is_set)
+    except RunError as error:
+        print(f"\ntdslip run: {error}", file=sys.stderr)
+        return 1
+    if interactive:
+        print(file=sys.stderr)
+    print(apex_table(report.params, report.apexes))
+    print()
+    print(counts_table(report))
+    print()
+    outcome = report.outcome
+    speed_up = outcome.sim_time / outcome.wall_time if outcome.wall_time > 0 else math.inf
+    print(
+        f"{options.mode} run, policy {options.policy}: {outcome.stride} strides, "
+        f"{outcome.sim_time:.3f} s simulated in {outcome.wall_time:.3f} s wall ({speed_up:.2f}x)"
+        f"; bag: {report.bag}"
+    )
+    for problem in report.problems:
+        print(f"problem: {problem}", file=sys.stderr)
+    if not report.recording_complete:
+        print("recording INCOMPLETE: the bag's counts differ from what was published", file=sys.stderr)
+    if not outcome.ok:
+        if report.controller_log.strip():
+            print(f"controller output:\n{report.controller_log.rstrip()}", file=sys.stderr)
+        print(
+            f"run FAILED at stride {outcome.stride}, t = {outcome.sim_time:.6f} s: "
+            f"{outcome.kind}: {outcome.reason}",
+            file=sys.stderr,
+        )
+    return 0 if report.ok else 1

@@ -1,0 +1,119 @@
+"""Node parameters: declared with a description and a range, set by config/*.yaml, validated."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml  # type: ignore[import-untyped]
+from rcl_interfaces.msg import ParameterType
+from rclpy.exceptions import InvalidParameterValueException
+from rclpy.node import Node
+from ros_harness import RosGraph, overrides
+
+from tdslip_ros.model.params import HopperParams
+from tdslip_ros.nodes import controller_node, parameters, plant_node, recorder_node
+from tdslip_ros.nodes.controller_node import ControllerNode
+from tdslip_ros.nodes.entry import with_default_params_file
+from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.plant_node import PlantNode
+from tdslip_ros.nodes.recorder_node import RecorderNode
+
+NODE_SPECS = {
+    "plant.yaml": plant_node.SPECS,
+    "controller.yaml": controller_node.SPECS,
+    "recorder.yaml": recorder_node.SPECS,
+}
+HOPPER_KEYS = [spec.name for spec in parameters.HOPPER]
+
+
+def yaml_parameters(path: Path) -> dict[str, Any]:
+    document = yaml.safe_load(path.read_text())
+    assert list(document) == ["/**"]
+    parameters_: dict[str, Any] = document["/**"]["ros__parameters"]
+    return parameters_
+
+
+@pytest.mark.parametrize("file_name", sorted(NODE_SPECS))
+def test_yaml_sets_exactly_the_declared_parameters_to_their_defaults(repo_root: Path, file_name: str) -> None:
+    values = yaml_parameters(repo_root / "config" / file_name)
+    specs = NODE_SPECS[file_name]
+    assert list(values) == [spec.name for spec in specs]  # none missing, none unknown, same order
+    for spec in specs:
+        value = values[spec.name]
+        assert type(value) is type(spec.default), spec.name  # rclpy refuses e.g. an int for a double
+        # Bit for bit: a run from the YAML and one from the defaults must be the same run.
+        assert value == spec.default, spec.name
+
+
+def test_plant_and_controller_share_the_paper_hopper(repo_root: Path) -> None:
+    plant = yaml_parameters(repo_root / "config" / "plant.yaml")
+    controller = yaml_parameters(repo_root / "config" / "controller.yaml")
+    assert {key: plant[key] for key in HOPPER_KEYS} == {key: controller[key] for key in HOPPER_KEYS}
+    hopper = HopperParams(*(plant[key] for key in HOPPER_KEYS))
+    assert (hopper.kbar, hopper.zeta0, hopper.m, hopper.r0) == pytest.approx(
+        (36.0, 0.08, 80.0, 1.0), rel=1e-14
+    )
+
+
+def check_descriptor(node: Node, spec: ParameterSpec) -> None:
+    (descriptor,) = node.describe_parameters([spec.name])
+    assert descriptor.description, spec.name
+    if descriptor.type == ParameterType.PARAMETER_DOUBLE:
+        (bounds,) = descriptor.floating_point_range
+        assert bounds.from_value <= spec.default <= bounds.to_value
+    elif descriptor.type == ParameterType.PARAMETER_INTEGER:
+        (bounds,) = descriptor.integer_range
+        assert bounds.from_value <= spec.default <= bounds.to_value
+    elif descriptor.type == ParameterType.PARAMETER_STRING and spec.choices:
+        assert all(choice in descriptor.additional_constraints for choice in spec.choices)
+    else:
+        assert descriptor.type in (ParameterType.PARAMETER_BOOL, ParameterType.PARAMETER_STRING), spec.name
+
+
+def test_every_parameter_is_described_with_its_range(ros: RosGraph, tmp_path: Path) -> None:
+    nodes = {
+        "plant.yaml": PlantNode(context=ros.context, autostart=False),
+        "controller.yaml": ControllerNode(context=ros.context),
+        "recorder.yaml": RecorderNode(
+            context=ros.context, parameter_overrides=overrides(output=str(tmp_path / "b"))
+        ),
+    }
+    for file_name, node in nodes.items():
+        ros.add(node)
+        rclpy_own = ("use_sim_time", "start_type_description_service")
+        own = {name for name in node.list_parameters([], 0).names if name not in rclpy_own}
+        assert own == {spec.name for spec in NODE_SPECS[file_name]}
+        for spec in NODE_SPECS[file_name]:
+            check_descriptor(node, spec)
+
+
+def test_a_params_file_configures_the_node_and_bad_values_are_refused(ros: RosGraph, tmp_path: Path) -> None:
+    def plant_with(values: dict[str, object]) -> PlantNode:
+        path = tmp_path / "plant.yaml"
+        path.write_text(yaml.safe_dump({"/**": {"ros__parameters": values}}))
+        return ros.add(
+            PlantNode(
+                context=ros.context, autostart=False, cli_args=["--ros-args", "--params-file", str(path)]
+            )
+        )
+
+    plant = plant_with({"mass": 70.0, "clock_mode": "realtime", "max_strides": 7})
+    assert (plant.hopper.m, plant.lockstep, plant.get_parameter("max_strides").value) == (70.0, False, 7)
+    for bad in ({"damping": -1.0}, {"clock_mode": "fast"}, {"initial_touchdown_angle": 2.0}):
+        with pytest.raises(InvalidParameterValueException, match=next(iter(bad))):
+            plant_with(bad)
+    with pytest.raises(InvalidParameterValueException, match="initial_height"):
+        PlantNode(context=ros.context, parameter_overrides=overrides(initial_height=math.inf))
+
+
+def test_command_line_overrides_win_over_the_default_params_file(ros: RosGraph) -> None:
+    argv = ["plant_node", "--ros-args", "-p", "mass:=70.0"]
+    arguments = with_default_params_file(argv, "plant.yaml")
+    assert arguments[:3] == ["plant_node", "--ros-args", "--params-file"] and arguments[-3:] == argv[1:]
+    assert with_default_params_file([*argv, "--params-file", "mine.yaml"], "plant.yaml")[-1] == "mine.yaml"
+    plant = ros.add(PlantNode(context=ros.context, autostart=False, cli_args=arguments[1:]))
+    assert plant.hopper.m == 70.0
+    assert plant.hopper.k == parameters.PAPER_PARAMS.k

@@ -1,0 +1,121 @@
+"""The controller node answers apex events with exactly the model policy's command, and its
+policy and targets change at runtime through validated parameters."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from rclpy.parameter import Parameter
+from ros_harness import RosGraph
+from tdslip_msgs.msg import ApexEvent, StanceCommand
+
+from tdslip_ros.model import controllers, units
+from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.controller_node import ControllerNode
+from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS
+
+BETA = math.radians(22.0)
+TARGET = (1.05, 4.6)  # m, m/s
+
+
+class Bench:
+    """A controller with a probe that publishes apex events and collects the answers."""
+
+    def __init__(self, ros: RosGraph) -> None:
+        self.ros = ros
+        self.controller = ros.add(ControllerNode(context=ros.context))
+        probe = ros.node("probe")
+        self.apex = probe.create_publisher(ApexEvent, topics.APEX, topics.QOS)
+        self.commands: list[StanceCommand] = ros.collect(StanceCommand, topics.COMMAND, probe)
+        ros.spin_until(
+            lambda: self.apex.get_subscription_count() >= 1 and probe.count_publishers(topics.COMMAND) >= 1,
+            "the controller to connect",
+        )
+
+    def set(self, **values: object) -> bool:
+        results = self.controller.set_parameters(
+            [Parameter(name, value=value) for name, value in values.items()]
+        )
+        return all(result.successful for result in results)
+
+    def answer(self, stride: int, y: float, xdot: float) -> StanceCommand:
+        count = len(self.commands)
+        self.apex.publish(ApexEvent(stride=stride, height=y, forward_speed=xdot))
+        self.ros.spin_until(lambda: len(self.commands) > count, f"the answer to apex {stride}")
+        assert len(self.commands) == count + 1
+        return self.commands[-1]
+
+
+def fields(msg: StanceCommand | ModelCommand) -> tuple[float, float, float]:
+    return (msg.touchdown_angle, msg.tau0, msg.t_f)
+
+
+def test_each_policy_answers_with_the_model_policy_command(ros: RosGraph) -> None:
+    bench = Bench(ros)
+    assert bench.set(touchdown_angle=BETA, target_height=TARGET[0], target_speed=TARGET[1], corrections=1)
+    apexes = [(1.0, 5.0), (0.98, 4.9)]
+    energy = 1700.0
+    power = 900.0  # W
+    expected = {
+        "open_loop": [
+            controllers.fixed_power(PARAMS, y, xdot, BETA, units.power_to_alpha(PARAMS, power))
+            for y, xdot in apexes
+        ],
+        "energy": [controllers.energy_regulation(PARAMS, y, xdot, BETA, energy) for y, xdot in apexes],
+        "deadbeat": [controllers.deadbeat(PARAMS, y, xdot, *TARGET) for y, xdot in apexes[:1]],
+        # The PD's derivative term uses the previous apex of the run (none at stride 0).
+        "pd": [
+            controllers.pd_speed_energy_height(PARAMS, *apexes[0], apexes[0][1], *TARGET),
+            controllers.pd_speed_energy_height(PARAMS, *apexes[1], apexes[0][1], *TARGET),
+        ],
+    }
+    assert bench.set(touchdown_power=power, target_energy=energy)
+    for policy, commands in expected.items():
+        assert bench.set(policy=policy)
+        for stride, (command, (y, xdot)) in enumerate(zip(commands, apexes, strict=False)):
+            answer = bench.answer(stride, y, xdot)
+            assert (answer.stride, answer.policy) == (stride, policy)
+            assert fields(answer) == fields(command.command())
+
+
+def test_targets_change_at_runtime_and_bad_values_are_refused(ros: RosGraph) -> None:
+    bench = Bench(ros)
+    apex = (1.0, 5.0)
+    assert bench.set(policy="energy", target_energy=1750.0)
+    before = bench.answer(0, *apex)
+    assert bench.set(target_energy=1800.0)
+    after = bench.answer(1, *apex)
+    angle = bench.controller.get_parameter("touchdown_angle").value
+    assert fields(after) == fields(controllers.energy_regulation(PARAMS, *apex, angle, 1800.0).command())
+    assert after.tau0 < before.tau0  # more energy to put in: more forward thrust (tau0 < 0)
+
+    assert not bench.set(policy="bogus")  # not one of the choices
+    assert not bench.set(target_height=-1.0)  # out of range
+    assert not bench.set(mass=70.0)  # read-only: the hopper is the plant's
+    assert not bench.set(corrections=1.5)  # wrong type
+    assert bench.controller.get_parameter("policy").value == "energy"
+    assert bench.controller.get_parameter("mass").value == PARAMS.m
+    assert fields(bench.answer(2, *apex)) == fields(after)
+
+
+def test_an_apex_without_a_command_gets_no_answer(ros: RosGraph) -> None:
+    bench = Bench(ros)
+    assert bench.set(policy="energy")
+    # At 0.5 m the leg cannot be placed at 20 degrees (r0 cos = 0.94 m): no command exists.
+    bench.apex.publish(ApexEvent(stride=0, height=0.5, forward_speed=5.0))
+    answer = bench.answer(1, 1.0, 5.0)  # answers come in order: the first apex produced nothing
+    assert answer.stride == 1 and len(bench.commands) == 1
+
+
+@pytest.mark.parametrize("policy", ["energy", "open_loop"])
+def test_answer_keeps_the_apex_stamp(ros: RosGraph, policy: str) -> None:
+    bench = Bench(ros)
+    assert bench.set(policy=policy)
+    msg = ApexEvent(stride=4, height=1.0, forward_speed=5.0)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 345_000_000
+    count = len(bench.commands)
+    bench.apex.publish(msg)
+    ros.spin_until(lambda: len(bench.commands) > count, "the answer")
+    assert (bench.commands[-1].header.stamp.sec, bench.commands[-1].header.stamp.nanosec) == (12, 345_000_000)
