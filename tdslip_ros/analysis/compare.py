@@ -1,0 +1,512 @@
+"""A recorded run against the paper's analytic apex return map.
+
+* **Per-stride prediction.** From each recorded apex and the command the plant actually applied,
+  the analytic map (:func:`tdslip_ros.model.analytic.approximate_map`, 0 and 1 correction
+  iterations) predicts the next apex; the exact map (batched DOP853,
+  :func:`tdslip_ros.model.batch.batch_apex_return_map`) predicts it too, which separates the analytic
+  map's approximation error from the 1 kHz plant's own integration error.
+* **Convergence** at the paper's tolerance: the run has converged at stride n when every apex-to-apex
+  change from apex n on is below 1e-4 in the dimensionless apex coordinates (ybar, xdotbar).
+* **Fixed point and dominant eigenvalue from the recording.** The apex changes D_k = s_{k+1} - s_k
+  of a run near a fixed point obey D_{k+1} = A D_k, A the Jacobian of the closed-loop stride map. A is
+  fitted by least squares (minimum norm, so a run whose changes all lie along the dominant direction
+  still gives that eigenvalue) over the changes above CHANGE_FLOOR (rounding noise), and the fixed
+  point extrapolated from the last apex: s* = s_N + A (I - A)^-1 D_{N-1}. Only changes from the stride
+  on which all of them stay below the tolerance enter the fit: the linear regime.
+* **The analytic fixed point** of the closed-loop analytic map for the same parameters and policy, by
+  Newton's method from the recorded estimate, and the eigenvalues of its Jacobian. The policy may
+  remember the previous apex speed (the PD baseline's derivative term), so the stride map acts on
+  (y, xdot, xdot_prev) and the Jacobian is 3x3; it is taken by central differences because the
+  deadbeat policy's inner minimisation is not complex-step safe (``analytic.map_jacobian``).
+
+Policy settings are not stored in a recording. :class:`PolicySpec` takes them from the caller, else
+from the recorded commands (policy name, fixed touchdown angle) and the installed controller
+defaults (``config/controller.yaml``; energy regulation's target defaults to the initial apex energy,
+as ``tdslip run`` sets it). :func:`compare_run` then replays the policy on the recorded apexes and
+reports how closely it reproduces the recorded commands, so wrong settings are visible.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
+
+from tdslip_ros.analysis.reader import Run
+from tdslip_ros.bag.schema import MessageDefinitionError, package_share_directory
+from tdslip_ros.model import controllers, units
+from tdslip_ros.model.analytic import CommandArrays, approximate_map, eigenvalues
+from tdslip_ros.model.batch import batch_apex_return_map
+from tdslip_ros.model.events import failure_from_code
+from tdslip_ros.model.params import HopperParams
+
+FloatArray = npt.NDArray[np.float64]
+
+CONVERGENCE_TOLERANCE = 1e-4
+"""Dimensionless apex change below which a run has converged (the paper's tolerance)."""
+CHANGE_FLOOR = 1e-11
+"""Dimensionless apex changes below this are rounding noise and are not fitted."""
+POLICIES = ("open_loop", "energy", "deadbeat", "pd")
+CORRECTIONS = (0, 1)
+REPRODUCTION_TOLERANCE = 1e-6
+"""Relative command deviation up to which a policy replay counts as reproducing the recorded commands."""
+_JACOBIAN_STEP = 1e-4  # dimensionless central-difference step (deadbeat's angle search resolves 1e-9 rad)
+_NEWTON_TOLERANCE = 1e-12
+_NEWTON_ITERATIONS = 30
+_NEWTON_HALVINGS = 20
+_FIXED_POINT_RESIDUAL = 1e-8  # dimensionless residual up to which a Newton result counts as a fixed point
+
+
+class PolicyError(ValueError):
+    """The policy settings are incomplete or unknown."""
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """What the controller computed each command from (SI; the controller node's parameters)."""
+
+    name: str
+    touchdown_angle: float
+    touchdown_power: float
+    target_energy: float
+    target_height: float
+    target_speed: float
+    pd_kp: float
+    pd_kd: float
+    corrections: int
+    source: str = ""
+
+    def commands(
+        self, params: HopperParams, y: npt.ArrayLike, xdot: npt.ArrayLike, previous_xdot: npt.ArrayLike
+    ) -> CommandArrays:
+        """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by ``pd`` only."""
+        if self.name == "open_loop":
+            alpha = units.power_to_alpha(params, self.touchdown_power)
+            return controllers.fixed_power(params, y, xdot, self.touchdown_angle, alpha, self.corrections)
+        if self.name == "energy":
+            return controllers.energy_regulation(
+                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
+            )
+        if self.name == "deadbeat":
+            return controllers.deadbeat(
+                params, y, xdot, self.target_height, self.target_speed, self.corrections
+            )
+        if self.name == "pd":
+            return controllers.pd_speed_energy_height(
+                params,
+                y,
+                xdot,
+                previous_xdot,
+                self.target_height,
+                self.target_speed,
+                kp=self.pd_kp,
+                kd=self.pd_kd,
+                corrections=self.corrections,
+            )
+        raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
+
+    @property
+    def target(self) -> tuple[float, float] | None:
+        """The target apex (y, xdot) of a policy that has one."""
+        if self.name in ("deadbeat", "pd"):
+            return self.target_height, self.target_speed
+        return None
+
+
+def controller_defaults() -> dict[str, Any]:
+    """The installed controller node's parameter file (config/controller.yaml), as a mapping."""
+    try:
+        path = package_share_directory("tdslip_ros") / "config" / "controller.yaml"
+        document = yaml.safe_load(path.read_text())
+        return dict(next(iter(document.values()))["ros__parameters"])
+    except (
+        MessageDefinitionError,
+        OSError,
+        yaml.YAMLError,
+        AttributeError,
+        KeyError,
+        StopIteration,
+    ) as error:
+        raise PolicyError(f"the installed controller defaults are unreadable: {error!r}") from None
+
+
+def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
+    """The policy settings of ``run``: ``overrides`` (None values ignored), else what the recording shows
+    (the applied policy, the fixed touchdown angle of open_loop and energy, the initial apex energy as
+    energy regulation's target), else the installed controller defaults."""
+    given = {name: value for name, value in overrides.items() if value is not None}
+    defaults = controller_defaults()
+    policies = run.policies
+    if "name" not in given and len(policies) != 1:
+        found = ", ".join(policies) if policies else "no applied command"
+        raise PolicyError(f"the run shows {found}; name the policy to compare with")
+    name = str(given.get("name", policies[0] if policies else ""))
+    if name not in POLICIES:
+        raise PolicyError(f"unknown policy {name!r}; one of {', '.join(POLICIES)}")
+    recorded: dict[str, Any] = {"target_energy": run.strides[0].energy}
+    first_command = next((s.command for s in run.strides if s.command is not None), None)
+    if name in ("open_loop", "energy") and first_command is not None:
+        recorded["touchdown_angle"] = first_command.touchdown_angle
+    keys = ("touchdown_angle", "touchdown_power", "target_energy", "target_height", "target_speed")
+    values: dict[str, Any] = {key: float(defaults[key]) for key in keys}
+    values |= {"pd_kp": float(defaults["pd_kp"]), "pd_kd": float(defaults["pd_kd"])}
+    values["corrections"] = int(defaults["corrections"])
+    values |= recorded
+    values |= {key: value for key, value in given.items() if key != "name"}
+    sources = sorted(given.keys() - {"name"})
+    source = "given: " + ", ".join(sources) if sources else "recording + installed controller defaults"
+    return PolicySpec(name=name, source=source, **values)
+
+
+# --- results ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Predictions:
+    """Next-apex predictions for the strides in ``stride``: those with an applied command and a recorded
+    next apex, and the stride in which the hopper failed (its ``recorded`` row is NaN: did the maps
+    foresee the failure?). Arrays (n, 2) of (y [m], xdot [m/s]); NaN where a map failed."""
+
+    stride: npt.NDArray[np.int64]
+    recorded: FloatArray
+    analytic: dict[int, FloatArray]
+    analytic_failures: dict[int, list[str | None]]
+    """The failure the analytic map predicts, by name, per stride (None where it predicts an apex)."""
+    analytic_energy: dict[int, FloatArray]
+    """Analytic (hip energy, damping loss, spring loss) [J] of each stride, (n, 3)."""
+    exact: FloatArray
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Dimensionless absolute errors of predicted next apexes, mean and max over the strides with a
+    recorded next apex; ``failures``: how many of those the map predicted to fail."""
+
+    strides: int
+    failures: int
+    mean_height: float
+    max_height: float
+    mean_speed: float
+    max_speed: float
+
+
+@dataclass(frozen=True)
+class FixedPoint:
+    """A fixed point (y [m], xdot [m/s]) with its eigenvalues (descending modulus)."""
+
+    y: float
+    xdot: float
+    eigenvalues: tuple[complex, ...]
+
+    @property
+    def dominant(self) -> complex:
+        return self.eigenvalues[0]
+
+
+@dataclass(frozen=True)
+class Comparison:
+    run: Run
+    policy: PolicySpec
+    predictions: Predictions
+    errors: dict[int, ErrorStats]
+    exact_errors: ErrorStats
+    command_deviation: float
+    """Largest relative deviation of the replayed policy's commands from the applied ones."""
+    converged_at: int | None
+    recorded_fixed_point: FixedPoint | None
+    analytic_fixed_point: FixedPoint | None
+    energy_balance_residual: float
+    """Largest |E_{k+1} - E_k - (W_hip - E_c - E_k)| over strides, relative to E_k."""
+
+    @property
+    def policy_reproduced(self) -> bool:
+        return self.command_deviation <= REPRODUCTION_TOLERANCE
+
+
+def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
+    """Compare ``run`` with the analytic map (see the module docstring)."""
+    policy = policy_for_run(run) if policy is None else policy
+    params = run.params
+    predictions = predict(run)
+    apexes = run.apex_array()
+    failed = run.outcome is not None and run.outcome.kind != "run_complete"
+    converged_at, recorded = convergence(params, apexes, failed)
+    # Newton starts from the recorded fixed point, else from the last apex.
+    guess = (
+        (recorded.y, recorded.xdot) if recorded is not None else (float(apexes[-1, 0]), float(apexes[-1, 1]))
+    )
+    analytic = analytic_fixed_point(params, policy, guess)
+    return Comparison(
+        run=run,
+        policy=policy,
+        predictions=predictions,
+        errors={c: error_stats(params, predictions.analytic[c], predictions.recorded) for c in CORRECTIONS},
+        exact_errors=error_stats(params, predictions.exact, predictions.recorded),
+        command_deviation=command_deviation(run, policy),
+        converged_at=converged_at,
+        recorded_fixed_point=recorded,
+        analytic_fixed_point=analytic,
+        energy_balance_residual=energy_balance_residual(run),
+    )
+
+
+def predict(run: Run) -> Predictions:
+    """Analytic (0 and 1 corrections) and exact next apexes from each recorded apex and applied command."""
+    by_stride = {s.stride: s for s in run.strides}
+    rows = [
+        s
+        for s in run.strides
+        if s.command is not None and (s.stride + 1 in by_stride or s.failure is not None)
+    ]
+    stride = np.array([s.stride for s in rows], dtype=np.int64)
+    start = np.array([(s.y, s.xdot) for s in rows], dtype=float).reshape(-1, 2)
+    after = [by_stride.get(k + 1) for k in stride]
+    recorded = np.array([(math.nan, math.nan) if a is None else (a.y, a.xdot) for a in after]).reshape(-1, 2)
+    command = CommandArrays(
+        *(
+            np.array([getattr(s.command, name) for s in rows], dtype=float)
+            for name in ("touchdown_angle", "tau0", "t_f")
+        )
+    )
+    analytic, failures, energy = {}, {}, {}
+    for corrections in CORRECTIONS:
+        result = approximate_map(run.params, start[:, 0], start[:, 1], command, corrections)
+        analytic[corrections] = np.stack([result.y, result.xdot], axis=-1).reshape(-1, 2)
+        codes = np.atleast_1d(result.failure)
+        failures[corrections] = [None if (f := failure_from_code(int(c))) is None else str(f) for c in codes]
+        energy[corrections] = np.stack(
+            [result.stance.hip_energy, result.stance.damping_loss, result.stance.spring_energy], axis=-1
+        ).reshape(-1, 3)
+    if len(rows):
+        exact = batch_apex_return_map(run.params, start[:, 0], start[:, 1], *command)
+        exact_next = np.stack([exact.y, exact.xdot], axis=-1)
+    else:
+        exact_next = np.empty((0, 2))
+    return Predictions(
+        stride=stride,
+        recorded=recorded,
+        analytic=analytic,
+        analytic_failures=failures,
+        analytic_energy=energy,
+        exact=exact_next,
+    )
+
+
+def dimensionless(params: HopperParams, apexes: npt.ArrayLike) -> FloatArray:
+    """(..., 2) apex (y, xdot) in SI to (ybar, xdotbar)."""
+    apexes = np.asarray(apexes, dtype=float)
+    return np.stack(
+        [units.height_to_bar(params, apexes[..., 0]), units.speed_to_bar(params, apexes[..., 1])], axis=-1
+    )
+
+
+def error_stats(params: HopperParams, predicted: FloatArray, recorded: FloatArray) -> ErrorStats:
+    reached = np.all(np.isfinite(recorded), axis=-1)
+    error = np.abs(dimensionless(params, predicted[reached]) - dimensionless(params, recorded[reached]))
+    ok = np.all(np.isfinite(error), axis=-1)
+    good = error[ok]
+
+    def stat(function: Any, column: int) -> float:
+        return float(function(good[:, column])) if len(good) else math.nan
+
+    return ErrorStats(
+        strides=int(len(error)),
+        failures=int(np.count_nonzero(~ok)),
+        mean_height=stat(np.mean, 0),
+        max_height=stat(np.max, 0),
+        mean_speed=stat(np.mean, 1),
+        max_speed=stat(np.max, 1),
+    )
+
+
+def convergence_stride(params: HopperParams, apexes: FloatArray) -> int | None:
+    """First apex n from which every apex change is below CONVERGENCE_TOLERANCE (dimensionless,
+    either coordinate), or None (also with fewer than two apexes)."""
+    if len(apexes) < 2:
+        return None
+    change = np.max(np.abs(np.diff(dimensionless(params, apexes), axis=0)), axis=-1)
+    large = np.flatnonzero(change >= CONVERGENCE_TOLERANCE)
+    first = 0 if len(large) == 0 else int(large[-1]) + 1
+    return first if first < len(change) else None
+
+
+def convergence(
+    params: HopperParams, apexes: FloatArray, failed: bool = False
+) -> tuple[int | None, FixedPoint | None]:
+    """The stride from which a run has converged (None if it has not) and the fixed point and
+    eigenvalues fitted to its recorded apexes (None for a failed run or one whose last apex change is
+    not below the tolerance). Apex changes below the tolerance that still grow (fitted |lambda| >= 1)
+    are a slow drift, not convergence."""
+    recorded = None if failed else recorded_fixed_point(params, apexes)
+    if recorded is None or abs(recorded.dominant) >= 1.0:
+        return None, recorded
+    return convergence_stride(params, apexes), recorded
+
+
+def recorded_fixed_point(params: HopperParams, apexes: FloatArray) -> FixedPoint | None:
+    """Fixed point and eigenvalues of the fitted change map D_{k+1} = A D_k (module docstring), fitted
+    on the changes from the stride on which every change is below CONVERGENCE_TOLERANCE (the linear
+    regime); None if the last change is not."""
+    first = convergence_stride(params, apexes)
+    if first is None:
+        return None
+    bar = dimensionless(params, apexes)
+    change = np.diff(bar, axis=0)
+    size = np.max(np.abs(change), axis=-1)
+    usable = (np.arange(len(size) - 1) >= first) & (size[:-1] > CHANGE_FLOOR)
+    before, after = change[:-1][usable], change[1:][usable]
+    last = bar[-1]
+    if len(before):
+        # lstsq solves before @ A.T = after; rcond drops directions the changes do not excite.
+        a_transposed, *_ = np.linalg.lstsq(before, after, rcond=1e-6)
+        a = a_transposed.T
+        values = eigenvalues(a)
+        try:
+            fixed = last + a @ np.linalg.solve(np.eye(2) - a, change[-1])
+        except np.linalg.LinAlgError:  # an eigenvalue of exactly 1: no extrapolation
+            fixed = last
+    else:
+        # From above the tolerance to rounding noise in one stride: the last apex is the fixed point.
+        values, fixed = np.zeros(2), last
+    si = (units.height_from_bar(params, fixed[0]), units.speed_from_bar(params, fixed[1]))
+    return FixedPoint(float(si[0]), float(si[1]), tuple(complex(v) for v in values))
+
+
+def closed_loop_step(
+    params: HopperParams, policy: PolicySpec, y: npt.ArrayLike, xdot: npt.ArrayLike, previous: npt.ArrayLike
+) -> FloatArray:
+    """(..., 3) next (y, xdot, xdot_prev) of the analytic closed-loop stride map; NaN where it fails."""
+    command = policy.commands(params, y, xdot, previous)
+    result = approximate_map(params, y, xdot, command, policy.corrections)
+    return np.stack(np.broadcast_arrays(result.y, result.xdot, np.asarray(xdot, dtype=float)), axis=-1)
+
+
+def _state_scale(params: HopperParams) -> FloatArray:
+    """SI per dimensionless unit of (y, xdot, xdot_prev)."""
+    return np.array([units.length_scale(params), units.speed_scale(params), units.speed_scale(params)])
+
+
+def _closed_loop_bar(params: HopperParams, policy: PolicySpec, state_bar: FloatArray) -> FloatArray:
+    """closed_loop_step in dimensionless coordinates, on (..., 3) states."""
+    scale = _state_scale(params)
+    state = state_bar * scale
+    return np.asarray(closed_loop_step(params, policy, state[..., 0], state[..., 1], state[..., 2]) / scale)
+
+
+def closed_loop_jacobian(params: HopperParams, policy: PolicySpec, y: float, xdot: float) -> FloatArray:
+    """3x3 Jacobian of the dimensionless closed-loop map at (y, xdot, xdot_prev = xdot), by central
+    differences."""
+    centre = np.array([y, xdot, xdot]) / _state_scale(params)
+    steps = _JACOBIAN_STEP * np.eye(3)
+    mapped = _closed_loop_bar(params, policy, np.concatenate([centre + steps, centre - steps]))
+    return np.asarray((mapped[:3] - mapped[3:]).T / (2.0 * _JACOBIAN_STEP))
+
+
+def analytic_fixed_point(
+    params: HopperParams, policy: PolicySpec, guess: tuple[float, float]
+) -> FixedPoint | None:
+    """Fixed point of the analytic closed-loop map near ``guess`` (Newton), with the Jacobian's
+    eigenvalues; None if Newton does not converge (no fixed point nearby, or the map fails there)."""
+    scale = _state_scale(params)[:2]
+    state = np.asarray(guess, dtype=float) / scale
+    steps = _JACOBIAN_STEP * np.eye(2)
+
+    def reduced(points: FloatArray) -> FloatArray:
+        # Fixed points have xdot_prev = xdot, so Newton runs on (ybar, xdotbar) alone.
+        full = np.concatenate([points, points[..., 1:2]], axis=-1)
+        return _closed_loop_bar(params, policy, full)[..., :2]
+
+    def residual_at(point: FloatArray) -> FloatArray:
+        return np.asarray(reduced(point[None, :])[0] - point)
+
+    residual = residual_at(state)
+    for _ in range(_NEWTON_ITERATIONS):
+        if not np.all(np.isfinite(residual)):
+            return None
+        mapped = reduced(np.vstack([state + steps, state - steps]))
+        jacobian = (mapped[:2] - mapped[2:]).T / (2.0 * _JACOBIAN_STEP)
+        try:
+            step = np.linalg.solve(jacobian - np.eye(2), -residual)
+        except np.linalg.LinAlgError:
+            return None
+        # Damped: halve the step while it leaves the region where the map exists or does not help.
+        for _ in range(_NEWTON_HALVINGS):
+            trial_residual = residual_at(state + step)
+            if np.all(np.isfinite(trial_residual)) and np.max(np.abs(trial_residual)) < np.max(
+                np.abs(residual)
+            ):
+                break
+            step = 0.5 * step
+        state, residual = state + step, trial_residual
+        if np.max(np.abs(step)) <= _NEWTON_TOLERANCE or np.max(np.abs(residual)) <= _NEWTON_TOLERANCE:
+            break
+    if not np.all(np.abs(residual) <= _FIXED_POINT_RESIDUAL) or state[0] <= 0.0:
+        return None
+    y, xdot = (float(v) for v in state * scale)
+    values = eigenvalues(closed_loop_jacobian(params, policy, y, xdot))
+    return FixedPoint(y, xdot, tuple(complex(v) for v in values))
+
+
+def command_deviation(run: Run, policy: PolicySpec) -> float:
+    """Largest relative deviation of the policy's commands, replayed on the recorded apexes, from the
+    applied ones (angle, tau0 and t_f each relative to its own magnitude); NaN without commands."""
+    rows = [(i, s) for i, s in enumerate(run.strides) if s.command is not None]
+    if not rows:
+        return math.nan
+    y = np.array([s.y for _, s in rows])
+    xdot = np.array([s.xdot for _, s in rows])
+    previous = np.array([run.strides[i - 1].xdot if i > 0 else s.xdot for i, s in rows])
+    replayed = policy.commands(run.params, y, xdot, previous)
+    worst = 0.0
+    for name, values in zip(("touchdown_angle", "tau0", "t_f"), replayed, strict=True):
+        applied = np.array([getattr(s.command, name) for _, s in rows])
+        deviation = np.abs(np.asarray(values) - applied) / np.maximum(np.abs(applied), 1e-300)
+        worst = max(worst, float(np.max(np.where(np.isfinite(deviation), deviation, np.inf))))
+    return worst
+
+
+def energy_balance_residual(run: Run) -> float:
+    """Largest relative residual of E_{k+1} - E_k = W_hip - E_c - E_k over the recorded strides."""
+    worst = 0.0
+    for before, after in zip(run.strides, run.strides[1:], strict=False):
+        flows = before.hip_work - before.damping_loss - before.spring_loss
+        worst = max(worst, abs(after.energy - before.energy - flows) / abs(before.energy))
+    return worst
+
+
+def comparison_summary(comparison: Comparison) -> dict[str, Any]:
+    """JSON-ready summary of a comparison (SI and dimensionless)."""
+    params = comparison.run.params
+
+    def point(fixed: FixedPoint | None) -> dict[str, Any] | None:
+        if fixed is None:
+            return None
+        bar = dimensionless(params, (fixed.y, fixed.xdot))
+        return {
+            "y": fixed.y,
+            "xdot": fixed.xdot,
+            "ybar": float(bar[0]),
+            "xdotbar": float(bar[1]),
+            "eigenvalues": [[v.real, v.imag] for v in fixed.eigenvalues],
+            "dominant_modulus": abs(fixed.dominant),
+        }
+
+    policy = asdict(comparison.policy)
+    return {
+        "policy": policy,
+        "policy_reproduced": comparison.policy_reproduced,
+        "command_deviation": comparison.command_deviation,
+        "prediction_errors": {
+            **{f"analytic_{c}_corrections": asdict(stats) for c, stats in comparison.errors.items()},
+            "exact_map": asdict(comparison.exact_errors),
+        },
+        "converged_at_stride": comparison.converged_at,
+        "convergence_tolerance": CONVERGENCE_TOLERANCE,
+        "recorded_fixed_point": point(comparison.recorded_fixed_point),
+        "analytic_fixed_point": point(comparison.analytic_fixed_point),
+        "energy_balance_residual": comparison.energy_balance_residual,
+    }

@@ -1,0 +1,330 @@
+"""``tdslip analyze RUN --out DIR``: a recorded run against the analytic map, as numbers and pictures.
+
+Writes ``DIR/summary.json`` (run, hopper parameters, policy, per-stride records and predictions,
+convergence, fixed points, eigenvalues), four PNG figures and ``DIR/report.md``, and prints the
+headline numbers. Policy settings that the recording does not show can be given on the command line
+(see :func:`tdslip_ros.analysis.compare.policy_for_run`); so can the hopper parameters (``--params``,
+a ROS parameter file such as config/plant.yaml), which are otherwise inferred from the recording.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
+
+from tdslip_ros.analysis import plots
+from tdslip_ros.analysis.compare import (
+    CORRECTIONS,
+    POLICIES,
+    Comparison,
+    FixedPoint,
+    PolicyError,
+    compare_run,
+    comparison_summary,
+    dimensionless,
+    policy_for_run,
+)
+from tdslip_ros.analysis.reader import Run, RunReadError, read_run
+from tdslip_ros.model import units
+from tdslip_ros.model.params import HopperParams, ParameterError
+
+FIGURES = {
+    "apex_sequence": "apex height and speed per stride",
+    "return_map": "return-map cobweb over the analytic map",
+    "com_trajectory": "COM trajectory with GRF directions and virtual footfalls (fig. 12)",
+    "energy_flows": "energy input against losses per stride",
+}
+
+
+@dataclass(frozen=True)
+class Analysis:
+    comparison: Comparison
+    summary: dict[str, Any]
+    files: dict[str, Path]
+
+
+def hopper_params_from_yaml(path: Path) -> HopperParams:
+    """The hopper block (mass, stiffness, rest_length, damping, gravity) of a ROS parameter file."""
+    try:
+        document = yaml.safe_load(Path(path).read_text())
+        values = next(iter(document.values()))["ros__parameters"]
+        return HopperParams(
+            m=values["mass"],
+            k=values["stiffness"],
+            r0=values["rest_length"],
+            c=values["damping"],
+            g=values["gravity"],
+        )
+    except (OSError, yaml.YAMLError, AttributeError, StopIteration, KeyError, TypeError) as error:
+        raise RunReadError(f"{path}: no hopper parameters (mass, stiffness, ...) in it: {error!r}") from None
+    except ParameterError as error:
+        raise RunReadError(f"{path}: {error}") from None
+
+
+def stride_table(comparison: Comparison) -> list[dict[str, Any]]:
+    """One JSON row per recorded stride: apex, applied command, energy flows, failure, predictions."""
+    run, predictions = comparison.run, comparison.predictions
+    row_of = {int(k): i for i, k in enumerate(predictions.stride)}
+    rows = []
+    for stride in run.strides:
+        row: dict[str, Any] = {
+            "stride": stride.stride,
+            "t": stride.t,
+            "y": stride.y,
+            "xdot": stride.xdot,
+            "energy": stride.energy,
+            "command": None if stride.command is None else asdict(stride.command),
+            "policy": stride.policy or None,
+            "hip_work": stride.hip_work,
+            "damping_loss": stride.damping_loss,
+            "spring_loss": stride.spring_loss,
+            "failure": stride.failure,
+            "failure_reason": stride.failure_reason or None,
+        }
+        i = row_of.get(stride.stride)
+        if i is not None:
+            row["next_apex_predicted"] = {
+                **{f"analytic_{c}_corrections": predictions.analytic[c][i].tolist() for c in CORRECTIONS},
+                "exact_map": predictions.exact[i].tolist(),
+            }
+            row["analytic_failure"] = {
+                f"analytic_{c}_corrections": predictions.analytic_failures[c][i] for c in CORRECTIONS
+            }
+        rows.append(row)
+    return rows
+
+
+def run_summary(run: Run) -> dict[str, Any]:
+    params = run.params
+    outcome = None if run.outcome is None else asdict(run.outcome)
+    return {
+        "path": str(run.path),
+        "apexes_recorded": len(run.strides),
+        "sim_time": float(run.samples.t[-1]) if len(run.samples) else run.strides[-1].t,
+        "samples": len(run.samples),
+        "outcome": outcome,
+        "message_counts": run.message_counts,
+        "params": {**asdict(params), "kbar": params.kbar, "zeta0": params.zeta0, "source": run.params_source},
+    }
+
+
+def analyze(
+    run: Run, out: Path, policy_overrides: dict[str, Any] | None = None, stride: int | None = None
+) -> Analysis:
+    """Compare ``run``, write the summary JSON, the figures and the Markdown report into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    comparison = compare_run(run, policy_for_run(run, **(policy_overrides or {})))
+    files = {name: out / f"{name}.png" for name in FIGURES}
+    drawers = {
+        "apex_sequence": lambda path: plots.apex_sequence(comparison, path),
+        "return_map": lambda path: plots.return_map(comparison, path),
+        "com_trajectory": lambda path: plots.com_trajectory(run, path, stride),
+        "energy_flows": lambda path: plots.energy_flows(comparison, path),
+    }
+    if plots.last_complete_stride(run) is None:  # failed in its first stride: nothing per stride to draw
+        del files["com_trajectory"], files["energy_flows"]
+    for name, path in files.items():
+        drawers[name](path)
+    summary = {
+        "run": run_summary(run),
+        "comparison": comparison_summary(comparison),
+        "figures": {name: path.name for name, path in files.items()},
+        "strides": stride_table(comparison),
+    }
+    files["summary"] = out / "summary.json"
+    files["summary"].write_text(to_json(summary))
+    files["report"] = out / "report.md"
+    files["report"].write_text(markdown(comparison, summary))
+    return Analysis(comparison, summary, files)
+
+
+def _json_ready(value: object) -> object:
+    """Plain JSON values: NaN and infinities become null (JSON has none), complex numbers [re, im]."""
+    if isinstance(value, dict):
+        return {str(key): _json_ready(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_ready(item) for item in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, complex):
+        return [_json_ready(value.real), _json_ready(value.imag)]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def to_json(value: object) -> str:
+    """``value`` as indented, strict JSON text (see _json_ready), newline-terminated."""
+    return json.dumps(_json_ready(value), indent=1, allow_nan=False) + "\n"
+
+
+# --- text ---------------------------------------------------------------------------------------
+
+
+def _outcome_text(run: Run) -> str:
+    if run.outcome is None:
+        return "the recording ends before the run did"
+    return f"ended {run.outcome.kind} at stride {run.outcome.stride} ({run.outcome.reason})"
+
+
+def _policy_text(comparison: Comparison) -> str:
+    policy, params = comparison.policy, comparison.run.params
+    if policy.name in ("open_loop", "energy"):
+        detail = f"beta = {math.degrees(policy.touchdown_angle):.2f} deg, "
+        if policy.name == "energy":
+            ebar = units.energy_to_bar(params, policy.target_energy)
+            detail += f"E* = {policy.target_energy:.1f} J (Ebar {ebar:.4f})"
+        else:
+            alpha = units.power_to_alpha(params, policy.touchdown_power)
+            detail += f"C = {policy.touchdown_power:.1f} W (alpha {alpha:.4f})"
+    else:
+        detail = f"target y* = {policy.target_height:.4g} m, xdot* = {policy.target_speed:.4g} m/s"
+        if policy.name == "pd":
+            detail += f", kp = {policy.pd_kp:g}, kd = {policy.pd_kd:g}"
+    deviation = comparison.command_deviation
+    if math.isnan(deviation):
+        replay = "no command was applied, so there is nothing to check it against"
+    elif comparison.policy_reproduced:
+        replay = f"replaying it reproduces the recorded commands (max rel. dev. {deviation:.1e})"
+    else:
+        replay = (
+            "WARNING: replaying it does NOT reproduce the recorded commands (max rel. dev. "
+            f"{deviation:.1e}); give the run's settings (--target-..., see --help)"
+        )
+    return f"policy {policy.name} ({detail}); {replay}"
+
+
+def _fixed_point_row(
+    label: str, params: HopperParams, fixed: FixedPoint | None, converged: bool = True
+) -> str:
+    if fixed is None:
+        return f"  {label:<9} {'-':>9} {'-':>9} {'-':>9}"
+    bar = dimensionless(params, (fixed.y, fixed.xdot))
+    point = f"{bar[0]:>9.5f} {bar[1]:>9.5f}" if converged else f"{'-':>9} {'-':>9}"
+    return f"  {label:<9} {point} {abs(fixed.dominant):>9.4f}"
+
+
+def headline(comparison: Comparison) -> str:
+    """The compact summary ``tdslip analyze`` prints."""
+    run = comparison.run
+    params = run.params
+    apexes = f"{len(run.strides)} apex{'es' if len(run.strides) != 1 else ''}"
+    simulated = run.samples.t[-1] if len(run.samples) else 0.0
+    lines = [
+        f"run {run.path}: {apexes}, {simulated:.2f} s simulated, {_outcome_text(run)}",
+        f"hopper: m = {params.m:.4g} kg, k = {params.k:.6g} N/m, r0 = {params.r0:.4g} m, "
+        f"c = {params.c:.5g} N s/m, g = {params.g:.4g} m/s^2 "
+        f"(kbar {params.kbar:.4g}, zeta0 {params.zeta0:.4g}; {run.params_source})",
+        _policy_text(comparison),
+        f"next-apex prediction error, dimensionless, over {comparison.exact_errors.strides} strides:",
+        f"  {'':<30} {'height max':>10} {'mean':>9} {'speed max':>10} {'mean':>9}",
+    ]
+    rows = [
+        (f"analytic map, {c} correction{'s' if c != 1 else ''}", comparison.errors[c]) for c in CORRECTIONS
+    ]
+    rows.append(("exact map (DOP853)", comparison.exact_errors))
+    for label, stats in rows:
+        failures = f"  ({stats.failures} predicted to fail)" if stats.failures else ""
+        lines.append(
+            f"  {label:<30} {stats.max_height:>10.2e} {stats.mean_height:>9.2e} "
+            f"{stats.max_speed:>10.2e} {stats.mean_speed:>9.2e}{failures}"
+        )
+    failed = next((s.stride for s in run.strides if s.failure is not None), None)
+    predictions = comparison.predictions
+    if failed is not None and failed in predictions.stride:
+        foreseen = predictions.analytic_failures[1][list(predictions.stride).index(failed)] or "a next apex"
+        lines.append(f"the analytic map (1 correction) predicted {foreseen} for stride {failed}")
+    converged, recorded = comparison.converged_at, comparison.recorded_fixed_point
+    if converged is not None:
+        lines.append(f"converged (apex change < 1e-4) from stride {converged}")
+    elif recorded is not None:
+        lines.append(
+            "not converged: the apex changes are below 1e-4 but grow "
+            f"(|lambda| = {abs(recorded.dominant):.4f})"
+        )
+    else:
+        lines.append(
+            "not converged: the last apex change is not below 1e-4"
+            if run.outcome is None or run.outcome.kind == "run_complete"
+            else "not converged: the run failed"
+        )
+    lines.append(f"  {'fixed pt':<9} {'ybar':>9} {'xdotbar':>9} {'|lambda|':>9}")
+    lines.append(_fixed_point_row("recorded", params, recorded, converged is not None))
+    lines.append(_fixed_point_row("analytic", params, comparison.analytic_fixed_point))
+    lines.append(
+        f"energy balance per stride: largest residual {comparison.energy_balance_residual:.1e} (relative)"
+    )
+    return "\n".join(lines)
+
+
+def markdown(comparison: Comparison, summary: dict[str, Any]) -> str:
+    figures = "\n".join(f"![{FIGURES[name]}]({file})\n" for name, file in summary["figures"].items())
+    return (
+        f"# Run analysis: {comparison.run.path.name}\n\n"
+        "Recorded run against the analytic apex return map of the paper (dimensionless units of eq. 24 "
+        "unless marked). Numbers: `summary.json`.\n\n"
+        f"```\n{headline(comparison)}\n```\n\n{figures}"
+    )
+
+
+# --- command line -------------------------------------------------------------------------------
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tdslip analyze", description="Compare a recorded run with the analytic map; write a report."
+    )
+    parser.add_argument("run", type=Path, help="bag directory or .mcap file of a run")
+    parser.add_argument("--out", type=Path, help="report directory (default RUN/report, or next to an .mcap)")
+    parser.add_argument("--params", type=Path, help="ROS parameter file with the hopper (default: inferred)")
+    parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
+    policy = parser.add_argument_group(
+        "policy settings (default: from the recording and config/controller.yaml)"
+    )
+    policy.add_argument("--policy", dest="name", choices=POLICIES)
+    policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy)")
+    policy.add_argument("--touchdown-power", type=float, help="hip power at touchdown [W] (open_loop)")
+    policy.add_argument("--target-energy", type=float, help="[J] (energy; default: initial apex energy)")
+    policy.add_argument("--target-height", type=float, help="[m] (deadbeat, pd)")
+    policy.add_argument("--target-speed", type=float, help="[m/s] (deadbeat, pd)")
+    policy.add_argument("--pd-kp", type=float, help="[rad/(m/s)] (pd)")
+    policy.add_argument("--pd-kd", type=float, help="[rad/(m/s)] (pd)")
+    policy.add_argument(
+        "--corrections", type=int, help="analytic-map corrections the controller planned with"
+    )
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    out = args.out or (args.run / "report" if args.run.is_dir() else args.run.with_suffix("") / "report")
+    overrides = {
+        "name": args.name,
+        "touchdown_angle": None if args.angle is None else math.radians(args.angle),
+        "touchdown_power": args.touchdown_power,
+        "target_energy": args.target_energy,
+        "target_height": args.target_height,
+        "target_speed": args.target_speed,
+        "pd_kp": args.pd_kp,
+        "pd_kd": args.pd_kd,
+        "corrections": args.corrections,
+    }
+    try:
+        params = None if args.params is None else hopper_params_from_yaml(args.params)
+        run = read_run(args.run, params)
+        analysis = analyze(run, out, overrides, args.stride)
+    except (RunReadError, PolicyError, ValueError) as error:
+        print(f"tdslip analyze: {error}", file=sys.stderr)
+        return 1
+    print(headline(analysis.comparison))
+    figures = sum(1 for path in analysis.files.values() if path.suffix == ".png")
+    print(f"report: {analysis.files['report']} (summary.json and {figures} figures beside it)")
+    return 0

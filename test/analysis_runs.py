@@ -1,0 +1,76 @@
+"""Recordings for the analysis and replay tests, made by the real node suite in lockstep.
+
+Each named run is recorded once per test process (``tdslip run``'s :func:`~tdslip_ros.nodes.runner.run`,
+a few seconds) under pytest's session temporary directory and shared by every test module. The helpers
+below derive damaged or reduced copies of a recording for the error tests.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.reader import make_reader
+
+from tdslip_ros.bag import RosbagMcapWriter
+from tdslip_ros.nodes.runner import RunOptions, RunReport, run
+
+RUNS: dict[str, dict[str, Any]] = {
+    # Energy regulation from the default apex (1 m, 5 m/s): converges in a few strides.
+    "energy": {"strides": 12},
+    # At 30 deg the energy-regulated fixed point of the default energy is unstable: reversal at stride 3.
+    "reversal": {"strides": 30, "touchdown_angle": math.radians(30.0)},
+}
+_recorded: dict[str, RunReport] = {}
+
+
+def recorded_run(name: str, tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    """The report of run ``name`` (see RUNS), recording it on first use."""
+    if name not in _recorded:
+        for attempt in range(2):
+            out = tmp_path_factory.getbasetemp() / "analysis_runs" / f"{name}-{attempt}"
+            report = run(RunOptions(out=out, **RUNS[name]))
+            # The runner occasionally starts before the recorder has matched the controller's publisher
+            # and records no commands (reported to the runner's owner); one retry keeps these tests about
+            # the analysis.
+            if report.recording_complete:
+                break
+        assert report.recording_complete, (report.published, report.recorded)
+        _recorded[name] = report
+    return _recorded[name]
+
+
+def raw_messages(mcap_path: Path) -> Iterator[tuple[str, str, int, int, bytes]]:
+    """(topic, type, log time, publish time, data) of every message, in file order."""
+    with open(mcap_path, "rb") as stream:
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            assert schema is not None
+            yield channel.topic, schema.name, message.log_time, message.publish_time, message.data
+
+
+def rewrite(
+    source: Path,
+    target: Path,
+    keep: Callable[[str], bool] = lambda topic: True,
+    retype: dict[str, str] | None = None,
+    change: Callable[[str, int, bytes], bytes] = lambda topic, index, data: data,
+) -> Path:
+    """A bare .mcap copy of ``source`` with only the topics ``keep`` accepts (channels of dropped topics
+    are kept if listed in ``retype`` with a new type), their messages passed through ``change``."""
+    retype = retype or {}
+    counts: dict[str, int] = {}
+    with RosbagMcapWriter(target, bag_directory=False) as writer:
+        for topic, type_name, log_time, publish_time, data in raw_messages(source):
+            if topic in retype:
+                writer.add_topic(topic, retype[topic])
+                continue
+            if not keep(topic):
+                continue
+            writer.add_topic(topic, type_name)
+            index = counts.get(topic, 0)
+            counts[topic] = index + 1
+            writer.write(topic, change(topic, index, data), log_time, publish_time)
+    return target

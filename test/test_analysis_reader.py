@@ -1,0 +1,278 @@
+"""The run reader: tidy records from a real lockstep recording, and clear errors for damaged input."""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from analysis_runs import raw_messages, recorded_run, rewrite
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from tdslip_ros.analysis import reader
+from tdslip_ros.analysis.reader import (
+    CommandRecord,
+    ContactRecord,
+    RunReadError,
+    StateRecord,
+    applied_commands,
+    read_run,
+)
+from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.runner import RunReport
+
+
+@pytest.fixture(scope="module")
+def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    return recorded_run("energy", tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def mcap_path(energy: RunReport) -> Path:
+    return reader.mcap_file(energy.bag)
+
+
+def test_the_offline_analysis_does_not_load_rclpy(repo_root: Path) -> None:
+    modules = ("reader", "compare", "plots", "report", "controller_comparison")
+    code = "; ".join(f"import tdslip_ros.analysis.{name}" for name in modules)
+    code += (
+        "; import sys; print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'tdslip_msgs')))"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], cwd=repo_root, capture_output=True, text=True, check=True
+    )
+    assert result.stdout.strip() == "[]"
+
+
+def test_topic_names_and_types_are_the_node_suites() -> None:
+    expected = {topic: topics.type_name(topics.MESSAGE_TYPES[topic]) for topic in topics.TDSLIP_TOPICS}
+    assert reader.TOPIC_TYPES == expected
+
+
+def test_records_match_what_the_plant_published(energy: RunReport) -> None:
+    run = read_run(energy.bag)
+    assert run.message_counts == energy.recorded
+    assert len(run.samples) == energy.published[topics.STATE] == len(run.samples.grf_t)
+    assert len(run.apexes) == energy.published[topics.APEX] == len(run.strides)
+    assert len(run.contacts) == energy.published[topics.CONTACT]
+    assert len(run.commands) == energy.published[topics.COMMAND]
+    # The runner's monitor received the apex events over DDS and rclpy: an independent decoding path.
+    for stride, apex in zip(run.strides, energy.apexes, strict=True):
+        assert (stride.stride, stride.t, stride.y, stride.xdot, stride.energy) == (
+            apex.stride,
+            apex.sim_time,
+            apex.height,
+            apex.forward_speed,
+            apex.energy,
+        )
+    assert run.outcome is not None and run.outcome.kind == "run_complete" and run.outcome.fatal
+    assert all(s.failure is None for s in run.strides)
+    # Every stance that started had its command; the run ends at an apex, so the last stride has none.
+    assert all(s.command is not None and s.policy == "energy" for s in run.strides[:-1])
+    assert run.strides[-1].command is None and math.isnan(run.strides[-1].hip_work)
+    # 1 kHz samples, sorted, one per tick from t = 0.
+    assert np.array_equal(np.round(run.samples.t * 1000.0), np.arange(len(run.samples)))
+    assert np.array_equal(run.samples.t, run.samples.grf_t)
+
+
+def test_stride_energy_flows_are_the_next_apex_bookkeeping(energy: RunReport) -> None:
+    run = read_run(energy.bag)
+    for stride, after in zip(run.strides, energy.apexes[1:], strict=False):
+        assert (stride.hip_work, stride.damping_loss, stride.spring_loss) == (
+            after.hip_work,
+            after.damping_loss,
+            after.spring_loss,
+        )
+        assert stride.touchdown_time < stride.liftoff_time < after.sim_time
+
+
+def test_vectorised_1khz_columns_equal_mcap_ros2_decoding(energy: RunReport, mcap_path: Path) -> None:
+    run = read_run(energy.bag)
+    fields = {
+        "x": "x",
+        "y": "y",
+        "xdot": "xdot",
+        "ydot": "ydot",
+        "toe_x": "toe_x",
+        "toe_y": "toe_y",
+        "r": "leg_length",
+        "theta": "leg_angle",
+        "rdot": "leg_length_rate",
+        "thetadot": "leg_angle_rate",
+        "hip_torque": "hip_torque",
+        "energy": "energy",
+        "stride": "stride",
+        "phase": "phase",
+    }
+    decoded: dict[str, list[object]] = {name: [] for name in (*fields, "t", "fx", "fy")}
+    with open(mcap_path, "rb") as stream:
+        messages = make_reader(stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+            topics=[topics.STATE, topics.GRF]
+        )
+        for _, channel, _, msg in messages:
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            if channel.topic == topics.STATE:
+                decoded["t"].append(stamp)
+                for name, field in fields.items():
+                    decoded[name].append(getattr(msg, field))
+            else:
+                decoded["fx"].append(msg.wrench.force.x)
+                decoded["fy"].append(msg.wrench.force.y)
+    samples = run.samples
+    for name in fields:
+        assert np.array_equal(getattr(samples, name), np.array(decoded[name])), name
+    assert np.array_equal(samples.t, np.array(decoded["t"]))
+    assert np.array_equal(samples.grf_x, np.array(decoded["fx"]))
+    assert np.array_equal(samples.grf_y, np.array(decoded["fy"]))
+    assert np.count_nonzero(samples.phase == 1) > 0 and np.count_nonzero(samples.grf_y) > 0
+
+
+def test_parameters_are_inferred_from_the_recording(energy: RunReport) -> None:
+    run = read_run(energy.bag)
+    assert run.params_source == "inferred from the recording"
+    for name in ("m", "k", "r0", "c", "g"):
+        assert getattr(run.params, name) == pytest.approx(getattr(energy.params, name), rel=1e-12), name
+    given = read_run(energy.bag, energy.params)
+    assert given.params == energy.params and given.params_source == "given"
+
+
+def test_parameters_that_contradict_the_recording_are_refused(energy: RunReport) -> None:
+    wrong = type(energy.params)(m=energy.params.m * 1.01, k=energy.params.k, r0=1.0, c=energy.params.c)
+    with pytest.raises(RunReadError, match="do not follow from the hopper parameters"):
+        read_run(energy.bag, wrong)
+
+
+def test_a_bare_mcap_file_reads_like_its_bag_directory(energy: RunReport, mcap_path: Path) -> None:
+    assert read_run(mcap_path).strides == read_run(energy.bag).strides
+
+
+def _state(theta: float, tau: float) -> StateRecord:
+    return StateRecord(0.1, 0, 1, 0.0, 0.9, 5.0, -1.0, 0.3, 0.0, 1.0, theta, -1.0, -5.0, tau, 1700.0)
+
+
+def _command(stride: int, angle: float, tau0: float, log_time: int) -> CommandRecord:
+    return CommandRecord(stride, angle, tau0, 0.12, "energy", log_time)
+
+
+def test_the_applied_command_is_the_one_the_touchdown_shows() -> None:
+    contacts = [
+        ContactRecord("touchdown", 0, 0.1, _state(0.35, -200.0)),
+        ContactRecord("touchdown", 1, 0.4, _state(0.35, -200.0)),
+        ContactRecord("touchdown", 2, 0.7, _state(0.30, -150.0)),
+    ]
+    commands = [
+        _command(0, 0.36, -210.0, 1),  # superseded before touchdown
+        _command(0, 0.35, -200.0, 2),  # applied
+        _command(1, 0.40, -300.0, 3),  # rejected (late): the plant kept the command in force
+        _command(2, 0.31, -150.0, 4),  # no match for stride 2: the touchdown shows a command not recorded
+    ]
+    applied = applied_commands(contacts, commands)
+    assert applied == {0: commands[1], 1: commands[1]}
+
+
+# --- damaged or incomplete input ------------------------------------------------------------------
+
+
+def _expect_error(path: Path, *needles: str) -> str:
+    with pytest.raises(RunReadError) as caught:
+        read_run(path)
+    message = str(caught.value)
+    for needle in needles:
+        assert needle in message, message
+    return message
+
+
+def test_missing_path(tmp_path: Path) -> None:
+    _expect_error(tmp_path / "nothing", "no such file or directory")
+
+
+def test_directory_without_a_recording(tmp_path: Path) -> None:
+    _expect_error(tmp_path, "bag directory without an .mcap file")
+
+
+def test_metadata_listing_a_missing_file(energy: RunReport, tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    shutil.copytree(energy.bag, bag)
+    next(bag.glob("*.mcap")).unlink()
+    _expect_error(bag, "listed in metadata.yaml", "is missing")
+
+
+def test_split_bags_are_refused(mcap_path: Path, tmp_path: Path) -> None:
+    for name in ("a.mcap", "b.mcap"):
+        shutil.copy(mcap_path, tmp_path / name)
+    _expect_error(tmp_path, "split bags", "a.mcap", "b.mcap")
+
+
+def test_not_an_mcap_file(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    path.write_text("stride,y,xdot\n0,1.0,5.0\n")
+    _expect_error(path, "not an MCAP file")
+
+
+@pytest.mark.parametrize("kept", [0.5, 0.999])
+def test_truncated_file(mcap_path: Path, tmp_path: Path, kept: float) -> None:
+    data = mcap_path.read_bytes()
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data[: int(len(data) * kept)])
+    _expect_error(path, "truncated or not finalised", "footer")
+
+
+@pytest.mark.parametrize("where", ["start", "end"])
+def test_corrupt_chunk(mcap_path: Path, tmp_path: Path, where: str) -> None:
+    with open(mcap_path, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    chunk = summary.chunk_indexes[0]
+    # Early in the compressed data the zstd frame still decodes (to wrong bytes: the CRC catches it);
+    # near its end the decompressor itself fails.
+    offset = chunk.chunk_start_offset + (2000 if where == "start" else chunk.chunk_length - 50)
+    data = bytearray(mcap_path.read_bytes())
+    data[offset : offset + 10] = bytes(b ^ 0xFF for b in data[offset : offset + 10])
+    path = tmp_path / "corrupt.mcap"
+    path.write_bytes(bytes(data))
+    _expect_error(path, "corrupt data", "near byte")
+
+
+def test_missing_topics_are_named(mcap_path: Path, tmp_path: Path) -> None:
+    path = rewrite(mcap_path, tmp_path / "reduced.mcap", keep=lambda t: t not in (topics.GRF, topics.CONTACT))
+    message = _expect_error(path, "missing topics", topics.GRF, topics.CONTACT)
+    assert topics.STATE not in message.split("(recorded:")[0]
+
+
+def test_a_topic_of_the_wrong_type(mcap_path: Path, tmp_path: Path) -> None:
+    path = rewrite(mcap_path, tmp_path / "retyped.mcap", retype={topics.APEX: "tdslip_msgs/msg/Status"})
+    _expect_error(
+        path, f"topic {topics.APEX} has type tdslip_msgs/msg/Status", "expected tdslip_msgs/msg/ApexEvent"
+    )
+
+
+def test_no_apex_messages(mcap_path: Path, tmp_path: Path) -> None:
+    path = rewrite(mcap_path, tmp_path / "no_apex.mcap", retype={topics.APEX: "tdslip_msgs/msg/ApexEvent"})
+    _expect_error(path, f"topic {topics.APEX} has no messages")
+
+
+def test_an_undecodable_message(mcap_path: Path, tmp_path: Path) -> None:
+    path = rewrite(
+        mcap_path,
+        tmp_path / "bad_cdr.mcap",
+        change=lambda topic, index, data: data[:10] if (topic, index) == (topics.COMMAND, 2) else data,
+    )
+    _expect_error(path, f"topic {topics.COMMAND}: undecodable message")
+
+
+def test_a_run_without_a_complete_stance_needs_its_parameters(mcap_path: Path, tmp_path: Path) -> None:
+    path = rewrite(
+        mcap_path, tmp_path / "no_contacts.mcap", retype={topics.CONTACT: "tdslip_msgs/msg/ContactEvent"}
+    )
+    _expect_error(path, "cannot infer the hopper parameters", "give the parameters")
+
+
+def test_rewrite_keeps_every_message(mcap_path: Path, tmp_path: Path) -> None:
+    """The helper the error tests rely on copies a recording faithfully."""
+    copy = rewrite(mcap_path, tmp_path / "copy.mcap")
+    assert list(raw_messages(copy)) == list(raw_messages(mcap_path))

@@ -1,0 +1,123 @@
+"""``tdslip analyze``: files, printed headline and clean errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from analysis_runs import recorded_run, rewrite
+
+from tdslip_ros import cli
+from tdslip_ros.analysis import reader
+from tdslip_ros.analysis.reader import RunReadError
+from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml, main
+from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.entry import config_file
+from tdslip_ros.nodes.runner import RunReport
+
+
+@pytest.fixture(scope="module")
+def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    return recorded_run("energy", tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def reversal(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    # Recorded outside the tests: rclpy's EventsExecutor enables faulthandler, which needs a real stderr
+    # (capsys replaces it).
+    return recorded_run("reversal", tmp_path_factory)
+
+
+def _strict_json(path: Path) -> object:
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"non-standard JSON constant {constant}")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_analyze_writes_summary_figures_and_report(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "report"
+    assert cli.main(["analyze", str(energy.bag), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    summary = _strict_json(out / "summary.json")
+    assert isinstance(summary, dict)
+    strides = summary["strides"]
+    assert [row["stride"] for row in strides] == [apex.stride for apex in energy.apexes]
+    assert [row["y"] for row in strides] == [apex.height for apex in energy.apexes]
+    assert strides[-1]["command"] is None and strides[-1]["hip_work"] is None  # NaN became null
+    assert summary["run"]["outcome"]["kind"] == "run_complete"
+    assert summary["run"]["params"]["kbar"] == pytest.approx(36.0, rel=1e-12)
+    comparison = summary["comparison"]
+    assert comparison["policy"]["name"] == "energy" and comparison["policy_reproduced"]
+    assert comparison["converged_at_stride"] is not None
+    assert set(summary["figures"]) == set(FIGURES)
+    for name in summary["figures"].values():
+        assert (out / name).stat().st_size > 10_000
+    markdown = (out / "report.md").read_text()
+    assert all(f"({name})" in markdown for name in summary["figures"].values())
+    # The headline carries the numbers of the summary.
+    errors = comparison["prediction_errors"]["analytic_1_corrections"]
+    assert f"{errors['max_height']:.2e}" in printed
+    assert f"converged (apex change < 1e-4) from stride {comparison['converged_at_stride']}" in printed
+    recorded = comparison["recorded_fixed_point"]
+    assert f"{recorded['ybar']:.5f}" in printed and f"{recorded['dominant_modulus']:.4f}" in printed
+    assert str(out / "report.md") in printed
+
+
+def test_analyze_takes_the_hopper_from_a_parameter_file(energy: RunReport, tmp_path: Path) -> None:
+    plant_yaml = config_file("plant.yaml")
+    assert hopper_params_from_yaml(plant_yaml) == energy.params
+    assert main([str(energy.bag), "--out", str(tmp_path), "--params", str(plant_yaml)]) == 0
+    summary = _strict_json(tmp_path / "summary.json")
+    assert isinstance(summary, dict) and summary["run"]["params"]["source"] == "given"
+
+
+def test_a_parameter_file_without_the_hopper_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "recorder.yaml"
+    path.write_text(config_file("recorder.yaml").read_text())
+    with pytest.raises(RunReadError, match="no hopper parameters"):
+        hopper_params_from_yaml(path)
+
+
+@pytest.mark.parametrize("damage", ["missing_topic", "truncated", "wrong_policy"])
+def test_analyze_fails_cleanly(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
+) -> None:
+    source = reader.mcap_file(energy.bag)
+    arguments = []
+    if damage == "missing_topic":
+        path = rewrite(source, tmp_path / "run.mcap", keep=lambda topic: topic != topics.STATE)
+        expected = f"missing topic {topics.STATE}"
+    elif damage == "truncated":
+        path = tmp_path / "run.mcap"
+        path.write_bytes(source.read_bytes()[:-1000])
+        expected = "truncated or not finalised"
+    else:
+        path, arguments = source, ["--policy", "deadbeat", "--pd-kp", "-1"]
+        expected = ""
+    code = main([str(path), "--out", str(tmp_path / "out"), *arguments])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    if damage == "wrong_policy":
+        # A policy that is not the run's is analysed, with a loud warning in the headline.
+        assert code == 0 and "does NOT reproduce the recorded commands" in captured.out
+    else:
+        assert code == 1 and captured.err.startswith("tdslip analyze: ") and expected in captured.err
+
+
+def test_analyze_reports_a_failed_run(
+    reversal: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main([str(reversal.bag), "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    outcome = reversal.outcome
+    assert f"ended {outcome.kind} at stride {outcome.stride}" in printed
+    assert f"predicted reversal for stride {outcome.stride}" in printed  # the analytic map foresaw it
+    assert "not converged: the run failed" in printed
+    summary = _strict_json(tmp_path / "summary.json")
+    assert isinstance(summary, dict)
+    last = summary["strides"][-1]
+    assert last["failure"] == outcome.kind and last["next_apex_predicted"]["exact_map"] == [None, None]

@@ -1,0 +1,109 @@
+"""``tdslip replay``: record -> replay -> record again gives the same messages in the same order."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+import rclpy
+from analysis_runs import raw_messages, recorded_run
+from rclpy.context import Context
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from tdslip_ros.analysis import reader
+from tdslip_ros.analysis.reader import open_recording
+from tdslip_ros.nodes import isolation, topics
+from tdslip_ros.nodes.entry import config_file
+from tdslip_ros.nodes.replay import ReplayError, check_rate, main, offered_qos, replay, send_offset
+from tdslip_ros.nodes.runner import ChildNode, RunReport
+
+
+@pytest.fixture(scope="module")
+def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    return recorded_run("energy", tmp_path_factory)
+
+
+@contextmanager
+def ros_domain() -> Iterator[tuple[Context, dict[str, str]]]:
+    """An rclpy context on a private domain, and the environment for child processes on it."""
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = isolation.DISCOVERY_RANGE  # read at init
+    with isolation.reserved_domain() as domain_id:
+        context = Context()
+        rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        try:
+            yield context, isolation.isolated_environment(domain_id)
+        finally:
+            rclpy.try_shutdown(context=context)
+
+
+def _by_topic(mcap_path: Path) -> dict[str, list[bytes]]:
+    messages: dict[str, list[bytes]] = {}
+    for topic, _, _, _, data in raw_messages(mcap_path):
+        messages.setdefault(topic, []).append(data)
+    return messages
+
+
+def test_record_replay_record_gives_the_same_messages_in_the_same_order(
+    energy: RunReport, tmp_path: Path
+) -> None:
+    original = reader.mcap_file(energy.bag)
+    again = tmp_path / "again"
+    with ros_domain() as (context, environment):
+        recorder = ChildNode.start(
+            "tdslip_ros.nodes.recorder_node",
+            ["--params-file", str(config_file("recorder.yaml")), "-p", f"output:={again}"],
+            environment,
+        )
+        try:
+            # Original timing (rate 1): the replay can be no faster than the recording's log times.
+            result = replay(energy.bag, 1.0, wait_for_subscribers=1, context=context)
+            recorder.stop()
+        finally:
+            recorder.close()
+    recorded = _by_topic(original)
+    assert result.published == {topic: len(recorded.get(topic, [])) for topic in result.published}
+    assert result.acknowledged and not result.stopped
+    log_times = [log_time for _, _, log_time, _, _ in raw_messages(original)]
+    assert result.duration >= (max(log_times) - min(log_times)) * 1e-9
+    replayed = _by_topic(reader.mcap_file(again))
+    assert set(replayed) == set(recorded) == set(topics.TDSLIP_TOPICS)
+    for topic, messages in recorded.items():
+        assert replayed[topic] == messages, topic  # same CDR bytes, same order, nothing lost
+
+
+def test_replay_publishes_with_the_recorded_qos(energy: RunReport) -> None:
+    recording = open_recording(energy.bag)
+    for topic in topics.TDSLIP_TOPICS:
+        qos = offered_qos(recording.topics[topic])
+        assert qos.history is HistoryPolicy.KEEP_ALL
+        assert qos.reliability is ReliabilityPolicy.RELIABLE
+        assert qos.durability is DurabilityPolicy.VOLATILE
+
+
+def test_schedule_scales_the_recorded_spacing() -> None:
+    first = 1_700_000_000_000_000_000
+    assert send_offset(first, first, 1.0) == 0.0
+    assert send_offset(first + 500_000_000, first, 1.0) == pytest.approx(0.5)
+    assert send_offset(first + 500_000_000, first, 2.0) == pytest.approx(0.25)
+    assert send_offset(first + 500_000_000, first, 0.5) == pytest.approx(1.0)
+    assert send_offset(first + 500_000_000, first, math.inf) == 0.0
+    for rate in (0.0, -1.0, math.nan):
+        with pytest.raises(ValueError, match="rate must be positive"):
+            check_rate(rate)
+
+
+def test_replay_of_a_damaged_recording_fails_cleanly(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(reader.mcap_file(energy.bag).read_bytes()[:5000])
+    with pytest.raises(ReplayError, match="truncated"):
+        replay(path)
+    assert main([str(path)]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.startswith("tdslip replay: ") and "Traceback" not in captured.err
