@@ -38,9 +38,10 @@ import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis.reader import Run
 from tdslip_ros.bag.schema import MessageDefinitionError, package_share_directory
-from tdslip_ros.model import controllers, units
+from tdslip_ros.model import units
 from tdslip_ros.model.analytic import CommandArrays, approximate_map, eigenvalues
 from tdslip_ros.model.batch import batch_apex_return_map
+from tdslip_ros.model.controllers import POLICIES, PolicyError, PolicySpec
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
 
@@ -50,7 +51,6 @@ CONVERGENCE_TOLERANCE = 1e-4
 """Dimensionless apex change below which a run has converged (the paper's tolerance)."""
 CHANGE_FLOOR = 1e-11
 """Dimensionless apex changes below this are rounding noise and are not fitted."""
-POLICIES = ("open_loop", "energy", "deadbeat", "pd")
 CORRECTIONS = (0, 1)
 REPRODUCTION_TOLERANCE = 1e-6
 """Relative command deviation up to which a policy replay counts as reproducing the recorded commands."""
@@ -59,62 +59,6 @@ _NEWTON_TOLERANCE = 1e-12
 _NEWTON_ITERATIONS = 30
 _NEWTON_HALVINGS = 20
 _FIXED_POINT_RESIDUAL = 1e-8  # dimensionless residual up to which a Newton result counts as a fixed point
-
-
-class PolicyError(ValueError):
-    """The policy settings are incomplete or unknown."""
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    """What the controller computed each command from (SI; the controller node's parameters)."""
-
-    name: str
-    touchdown_angle: float
-    touchdown_power: float
-    target_energy: float
-    target_height: float
-    target_speed: float
-    pd_kp: float
-    pd_kd: float
-    corrections: int
-    source: str = ""
-
-    def commands(
-        self, params: HopperParams, y: npt.ArrayLike, xdot: npt.ArrayLike, previous_xdot: npt.ArrayLike
-    ) -> CommandArrays:
-        """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by ``pd`` only."""
-        if self.name == "open_loop":
-            alpha = units.power_to_alpha(params, self.touchdown_power)
-            return controllers.fixed_power(params, y, xdot, self.touchdown_angle, alpha, self.corrections)
-        if self.name == "energy":
-            return controllers.energy_regulation(
-                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
-            )
-        if self.name == "deadbeat":
-            return controllers.deadbeat(
-                params, y, xdot, self.target_height, self.target_speed, self.corrections
-            )
-        if self.name == "pd":
-            return controllers.pd_speed_energy_height(
-                params,
-                y,
-                xdot,
-                previous_xdot,
-                self.target_height,
-                self.target_speed,
-                kp=self.pd_kp,
-                kd=self.pd_kd,
-                corrections=self.corrections,
-            )
-        raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
-
-    @property
-    def target(self) -> tuple[float, float] | None:
-        """The target apex (y, xdot) of a policy that has one."""
-        if self.name in ("deadbeat", "pd"):
-            return self.target_height, self.target_speed
-        return None
 
 
 def controller_defaults() -> dict[str, Any]:

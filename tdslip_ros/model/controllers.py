@@ -14,9 +14,11 @@ The torque-based policies are complex-step safe (for :func:`~tdslip_ros.model.an
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic import (
@@ -461,3 +463,61 @@ def pd_speed_energy_height(
     angle = np.clip(angle, lower, upper)
     target_energy = _apex_energy(params, target_y_, target_xdot_)
     return energy_regulation(params, y_, xdot_, angle, target_energy, corrections, liftoff)
+
+
+POLICIES = ("open_loop", "energy", "deadbeat", "pd")
+
+
+class PolicyError(ValueError):
+    """The policy settings are incomplete or unknown."""
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A named policy with its settings (SI; the controller node's parameters), in one place for the
+    controller node and the offline analysis. ``source`` says where the settings came from."""
+
+    name: str
+    touchdown_angle: float
+    touchdown_power: float
+    target_energy: float
+    target_height: float
+    target_speed: float
+    pd_kp: float
+    pd_kd: float
+    corrections: int
+    source: str = ""
+
+    def commands(
+        self, params: HopperParams, y: npt.ArrayLike, xdot: npt.ArrayLike, previous_xdot: npt.ArrayLike
+    ) -> CommandArrays:
+        """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by ``pd`` only."""
+        if self.name == "open_loop":
+            alpha = units.power_to_alpha(params, self.touchdown_power)
+            return fixed_power(params, y, xdot, self.touchdown_angle, alpha, self.corrections)
+        if self.name == "energy":
+            return energy_regulation(
+                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
+            )
+        if self.name == "deadbeat":
+            return deadbeat(params, y, xdot, self.target_height, self.target_speed, self.corrections)
+        if self.name == "pd":
+            return pd_speed_energy_height(
+                params,
+                y,
+                xdot,
+                previous_xdot,
+                self.target_height,
+                self.target_speed,
+                kp=self.pd_kp,
+                kd=self.pd_kd,
+                corrections=self.corrections,
+            )
+        raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
+
+    @property
+    def target(self) -> tuple[float, float] | None:
+        """The target apex (y, xdot) of a policy that has one."""
+        if self.name in ("deadbeat", "pd"):
+            return self.target_height, self.target_speed
+        return None

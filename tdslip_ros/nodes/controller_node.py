@@ -20,20 +20,18 @@ SI hopper parameters as the plant (``mass``, ``stiffness``, ``rest_length``, ``d
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
 
 from rclpy.node import Node
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
-from tdslip_ros.model import controllers, units
-from tdslip_ros.model.analytic import CommandArrays
+from tdslip_ros.model import controllers
+from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
 
-POLICIES = ("open_loop", "energy", "deadbeat", "pd")
 DEFAULT_TARGET_ENERGY = parameters.PAPER_PARAMS.m * (
     parameters.PAPER_PARAMS.g * parameters.DEFAULT_APEX_HEIGHT + 0.5 * parameters.DEFAULT_APEX_SPEED**2
 )
@@ -63,6 +61,15 @@ TUNABLE: tuple[ParameterSpec, ...] = (
     ),
 )
 SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *TUNABLE)
+_POLICY_SETTINGS = (
+    "touchdown_angle",
+    "touchdown_power",
+    "target_energy",
+    "target_height",
+    "target_speed",
+    "pd_kp",
+    "pd_kd",
+)
 
 
 class ControllerNode(Node):
@@ -74,12 +81,6 @@ class ControllerNode(Node):
         self.hopper = parameters.hopper_params(parameters.declare(self, SPECS))
         self.published = 0
         self._previous_speed: float | None = None
-        self._policies: dict[str, Callable[[float, float], CommandArrays]] = {
-            "open_loop": self._open_loop,
-            "energy": self._energy,
-            "deadbeat": self._deadbeat,
-            "pd": self._pd,
-        }
         self._publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
         self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.QOS)
 
@@ -89,7 +90,13 @@ class ControllerNode(Node):
     def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
         """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
         ParameterError if the policy has none (e.g. the leg cannot be placed from this apex)."""
-        return self._policies[policy](y, xdot).command()
+        spec = controllers.PolicySpec(
+            name=policy,
+            corrections=int(self.get_parameter("corrections").value),
+            **{name: self._value(name) for name in _POLICY_SETTINGS},
+        )
+        previous = xdot if self._previous_speed is None else self._previous_speed
+        return spec.commands(self.hopper, y, xdot, previous).command()
 
     def _on_apex(self, apex: ApexEvent) -> None:
         if apex.stride == 0:
@@ -115,49 +122,6 @@ class ControllerNode(Node):
         msg.header = apex.header
         self._publisher.publish(msg)
         self.published += 1
-
-    def _corrections(self) -> int:
-        return int(self.get_parameter("corrections").value)
-
-    def _open_loop(self, y: float, xdot: float) -> CommandArrays:
-        alpha = units.power_to_alpha(self.hopper, self._value("touchdown_power"))
-        return controllers.fixed_power(
-            self.hopper, y, xdot, self._value("touchdown_angle"), alpha, self._corrections()
-        )
-
-    def _energy(self, y: float, xdot: float) -> CommandArrays:
-        return controllers.energy_regulation(
-            self.hopper,
-            y,
-            xdot,
-            self._value("touchdown_angle"),
-            self._value("target_energy"),
-            self._corrections(),
-        )
-
-    def _deadbeat(self, y: float, xdot: float) -> CommandArrays:
-        return controllers.deadbeat(
-            self.hopper,
-            y,
-            xdot,
-            self._value("target_height"),
-            self._value("target_speed"),
-            self._corrections(),
-        )
-
-    def _pd(self, y: float, xdot: float) -> CommandArrays:
-        previous = xdot if self._previous_speed is None else self._previous_speed
-        return controllers.pd_speed_energy_height(
-            self.hopper,
-            y,
-            xdot,
-            previous,
-            self._value("target_height"),
-            self._value("target_speed"),
-            kp=self._value("pd_kp"),
-            kd=self._value("pd_kd"),
-            corrections=self._corrections(),
-        )
 
 
 def main(argv: list[str] | None = None) -> int:

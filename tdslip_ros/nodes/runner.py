@@ -52,9 +52,9 @@ from rclpy.signals import SignalHandlerOptions
 from tdslip_msgs.msg import ApexEvent
 
 from tdslip_ros.model import units
+from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.nodes import isolation, parameters, topics
-from tdslip_ros.nodes.controller_node import POLICIES
 from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
     config_file,
