@@ -1,7 +1,7 @@
 """The one boundary between SI (used everywhere inside) and the paper's dimensionless units (eq. 24).
 
 ybar = y/r0, xdotbar = xdot/sqrt(g r0), Ebar = E/(m g r0), taubar = tau/(m g r0),
-alpha = C/(m g sqrt(g r0)) for a power C, tbar = t/sqrt(r0/g).
+alpha = C/(m g sqrt(g r0)) for a power C.
 The functions accept floats or numpy arrays.
 """
 
@@ -32,10 +32,6 @@ def energy_scale(params: HopperParams) -> float:
 
 def power_scale(params: HopperParams) -> float:
     return params.m * params.g * math.sqrt(params.g * params.r0)
-
-
-def time_scale(params: HopperParams) -> float:
-    return math.sqrt(params.r0 / params.g)
 
 
 def height_to_bar(params: HopperParams, y: Scalar) -> Scalar:
@@ -76,11 +72,3 @@ def power_to_alpha(params: HopperParams, power: Scalar) -> Scalar:
 
 def power_from_alpha(params: HopperParams, alpha: Scalar) -> Scalar:
     return alpha * power_scale(params)
-
-
-def time_to_bar(params: HopperParams, t: Scalar) -> Scalar:
-    return t / time_scale(params)
-
-
-def time_from_bar(params: HopperParams, tbar: Scalar) -> Scalar:
-    return tbar * time_scale(params)
