@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One command to set up and use tdslip_ros on a fresh machine.
 #
-#   ./run.sh demo [args]    set up, then run the demo
+#   ./run.sh demo [args]    set up, then run a recorded closed-loop hop and analyse it (args go to tdslip run)
 #   ./run.sh test [args]    set up, then run the test suite (extra args go to pytest)
 #   ./run.sh setup          set up only
 #
@@ -144,10 +144,16 @@ enter_environment() {
     unset _ROS_WHEELS_BOOTSTRAP_COMPLETE
 }
 
-# The demo step: for now the plant-only simulation table; it becomes the closed-loop run later.
+# The main job: a closed-loop lockstep hop under energy regulation, recorded to MCAP, then analysed
+# against the analytic return map. Each demo gets its own folder, so earlier runs are never overwritten.
 run_demo() {
-    say "demo: tdslip simulate $*"
-    "$VENV/bin/tdslip" simulate "$@"
+    local out
+    out="$REPO/runs/demo-$(date +%Y%m%d-%H%M%S)"
+    say "demo: tdslip run --policy energy --out ${out#"$REPO"/}/bag $*"
+    "$VENV/bin/tdslip" run --policy energy --strides 30 --out "$out/bag" "$@"
+    say "demo: tdslip analyze ${out#"$REPO"/}/bag --out ${out#"$REPO"/}/report"
+    "$VENV/bin/tdslip" analyze "$out/bag" --out "$out/report"
+    say "demo: done; the recording is in ${out#"$REPO"/}/bag, the report (PNG, JSON, Markdown) in ${out#"$REPO"/}/report"
 }
 
 run_tests() {
