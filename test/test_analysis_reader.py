@@ -14,13 +14,14 @@ from analysis_runs import raw_messages, recorded_run, rewrite
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from tdslip_ros.analysis import reader
+from tdslip_ros import interfaces
 from tdslip_ros.analysis.reader import (
     CommandRecord,
     ContactRecord,
     RunReadError,
     StateRecord,
     applied_commands,
+    mcap_file,
     read_run,
 )
 from tdslip_ros.nodes import topics
@@ -34,7 +35,7 @@ def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
 
 @pytest.fixture(scope="module")
 def mcap_path(energy: RunReport) -> Path:
-    return reader.mcap_file(energy.bag)
+    return mcap_file(energy.bag)
 
 
 def test_the_offline_analysis_does_not_load_rclpy(repo_root: Path) -> None:
@@ -49,9 +50,9 @@ def test_the_offline_analysis_does_not_load_rclpy(repo_root: Path) -> None:
     assert result.stdout.strip() == "[]"
 
 
-def test_topic_names_and_types_are_the_node_suites() -> None:
+def test_interface_type_names_are_those_of_the_generated_message_classes() -> None:
     expected = {topic: topics.type_name(topics.MESSAGE_TYPES[topic]) for topic in topics.TDSLIP_TOPICS}
-    assert reader.TOPIC_TYPES == expected
+    assert interfaces.TOPIC_TYPES == expected
 
 
 def test_records_match_what_the_plant_published(energy: RunReport) -> None:

@@ -34,27 +34,11 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
+from tdslip_ros.interfaces import APEX, COMMAND, CONTACT, GRF, STATE, STATUS, TOPIC_TYPES
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
 FloatArray = npt.NDArray[np.float64]
 
-# Topic names and types as tdslip_ros.nodes.topics spells them (that module imports rclpy, which this
-# one must not; test_analysis_reader.py checks that both agree).
-STATE = "/tdslip/state"
-GRF = "/tdslip/grf"
-APEX = "/tdslip/apex"
-CONTACT = "/tdslip/contact"
-STATUS = "/tdslip/status"
-COMMAND = "/tdslip/command"
-TOPIC_TYPES: dict[str, str] = {
-    STATE: "tdslip_msgs/msg/HopperState",
-    GRF: "geometry_msgs/msg/WrenchStamped",
-    APEX: "tdslip_msgs/msg/ApexEvent",
-    CONTACT: "tdslip_msgs/msg/ContactEvent",
-    STATUS: "tdslip_msgs/msg/Status",
-    COMMAND: "tdslip_msgs/msg/StanceCommand",
-}
-"""Every topic an analysis needs, with its message type."""
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 FAILURE_KINDS = ("toe_stubbing", "no_liftoff", "fall", "reversal", "command_timeout")

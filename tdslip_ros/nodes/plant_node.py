@@ -194,6 +194,7 @@ class PlantNode(Node):
 
     def __init__(self, *, autostart: bool = True, **node_options: object) -> None:
         super().__init__("plant", **node_options)  # type: ignore[arg-type]
+        self._ticker: Ticker | None = None  # first: destroy_node must work if the rest raises
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         values = parameters.declare(self, SPECS)
         self.hopper = parameters.hopper_params(values)
@@ -243,7 +244,6 @@ class PlantNode(Node):
         self._timeout_timer = self.create_timer(
             float(values["command_timeout"]), self._on_command_timeout, clock=steady, autostart=False
         )
-        self._ticker: Ticker | None = None
         self._realtime_priority = int(values["realtime_priority"])
         self._running = False
         self._ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD

@@ -21,14 +21,8 @@ from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, StanceCommand,
 
 from tdslip_ros.bag import OfferedQos
 
-STATE = "/tdslip/state"
-GRF = "/tdslip/grf"
-APEX = "/tdslip/apex"
-CONTACT = "/tdslip/contact"
-STATUS = "/tdslip/status"
-COMMAND = "/tdslip/command"
-CLOCK = "/clock"
-RESET_SERVICE = "/tdslip/reset"
+# Re-exported: the nodes spell every topic topics.NAME.
+from tdslip_ros.interfaces import APEX, CLOCK, COMMAND, CONTACT, GRF, RESET_SERVICE, STATE, STATUS  # noqa: F401
 
 FRAME_ID = "world"
 
