@@ -86,6 +86,7 @@ CONSTANTS: dict[str, dict[str, int | str]] = {
         "KIND_REVERSAL": "reversal",
         "KIND_COMMAND_TIMEOUT": "command_timeout",
         "KIND_COMMAND_REJECTED": "command_rejected",
+        "KIND_PUBLISH_FAILED": "publish_failed",
         "KIND_RUN_COMPLETE": "run_complete",
         "KIND_RESET": "reset",
     },

@@ -41,8 +41,8 @@ FloatArray = npt.NDArray[np.float64]
 
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-FAILURE_KINDS = ("toe_stubbing", "no_liftoff", "fall", "reversal", "command_timeout")
-"""Status kinds that end a run as a failure (the model's FailureKind values and the plant's timeout)."""
+FAILURE_KINDS = ("toe_stubbing", "no_liftoff", "fall", "reversal", "command_timeout", "publish_failed")
+"""Status kinds that end a run as a failure (the model's FailureKind values and the plant's own)."""
 CONTACT_KINDS = {0: "touchdown", 1: "bottom", 2: "liftoff"}
 PARAMETER_CONSISTENCY = 1e-9
 """Largest relative energy mismatch of the recorded events accepted for one set of hopper parameters."""

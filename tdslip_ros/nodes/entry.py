@@ -88,8 +88,22 @@ def spin_until(executor: Executor, condition: Callable[[], bool], timeout: float
 
 
 def wait_for_delivery(node: Node, timeout: float = DELIVERY_TIMEOUT) -> bool:
-    """Wait until every reliable subscriber has acknowledged everything ``node`` published."""
-    return all(publisher.wait_for_all_acked(Duration(seconds=timeout)) for publisher in node.publishers)
+    """Wait until each of ``node``'s publishers has matched every subscription the graph shows on
+    its topic and every reliable subscriber has acknowledged everything published (False if not
+    within ``timeout`` s). Matching first: a subscriber discovered but not yet matched (a late
+    recorder on a loaded machine) would otherwise miss even a transient-local history."""
+    deadline = time.monotonic() + timeout
+
+    def matched() -> bool:
+        return all(
+            publisher.get_subscription_count() >= node.count_subscribers(publisher.topic_name)
+            for publisher in node.publishers
+        )
+
+    while not matched() and time.monotonic() < deadline:
+        time.sleep(SPIN_SLICE / 10)
+    left = Duration(nanoseconds=max(0, round((deadline - time.monotonic()) * 1e9)))
+    return matched() and all(publisher.wait_for_all_acked(left) for publisher in node.publishers)
 
 
 def orphaned() -> bool:

@@ -26,7 +26,8 @@ stepper refuses (non-finite, out of range, or a touchdown angle the body cannot 
 
 The run starts once each /tdslip/* topic has ``min_subscribers`` subscribers (default 0) and, in
 lockstep, a controller is connected or ``command_timeout`` has passed. It ends, with a fatal Status,
-at a failure of the hopper, at a command timeout, or as ``run_complete`` at apex ``max_strides``.
+at a failure of the hopper, at a command timeout, as ``publish_failed`` when a subscriber stops
+taking messages until the plant can publish no more, or as ``run_complete`` at apex ``max_strides``.
 The /tdslip/reset service restarts it from a new apex: strides count from 0 again while simulated
 time runs on.
 """
@@ -44,6 +45,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.task import Future
@@ -60,6 +62,8 @@ from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
+
+RCLError = rclpy_implementation.RCLError  # what a failed publish raises (as rclpy.subscription names it)
 
 TICK_PERIOD = 1e-3  # s, the plant's fixed step
 START_CHECK_PERIOD = 0.05  # s, how often an autostarting plant checks whether its peers are there
@@ -344,7 +348,10 @@ class PlantNode(Node):
         self._timeout_timer.cancel()
         if self._ticker is not None:
             self._ticker.request_stop()  # the lock is held: the tick thread may be waiting for it
-        self._publish_status(kind, reason, t, fatal=True)
+        try:
+            self._publish_status(kind, reason, t, fatal=True)
+        except RCLError as error:  # the status topic's subscriber is the one that stalled
+            self.get_logger().error(f"the final status could not be published: {error}")
         wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
         self.outcome = RunOutcome(kind, reason, self._stepper.stride, t, wall_time)
         if self.tick_timing is not None:
@@ -364,7 +371,7 @@ class PlantNode(Node):
         with self._lock:
             self._check_clock_subscribers()
             for _ in range(LOCKSTEP_BATCH):
-                if self._tick():
+                if self._tick_or_fail():
                     self._lockstep_timer.cancel()
                     return
 
@@ -379,9 +386,19 @@ class PlantNode(Node):
             due = self._tick0 + round((now_ns - self.start_wall_ns) * 1e-9 / TICK_PERIOD)
             first = self._ticks
             while self._ticks < due and self._running:
-                self._tick()
+                self._tick_or_fail()
             assert self.tick_timing is not None
             self.tick_timing.record(now_ns, self._ticks - first)
+
+    def _tick_or_fail(self) -> bool:
+        """:meth:`_tick`; a publication that fails ends the run with ``publish_failed``."""
+        try:
+            return self._tick()
+        except RCLError as error:
+            # A reliable KEEP_ALL subscriber that stops taking messages fills the publisher's
+            # history; publishing then blocks and fails. The run ends, reported, the node lives on.
+            self._finish(Status.KIND_PUBLISH_FAILED, str(error).split(",", 1)[0], self.sim_time)
+            return True
 
     def _tick(self) -> bool:
         """Step one tick and publish it; True when stepping must pause (awaited command, end of run)."""
