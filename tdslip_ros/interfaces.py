@@ -1,8 +1,16 @@
-"""Names of the suite's topics and service and the message types they carry, without rclpy.
+"""What the nodes and the offline analysis share, without rclpy: the names of the suite's topics
+and service, the message types they carry, the installed node parameter files, and the keys under
+which ``tdslip run`` stores the nodes' parameters in a bag's ``custom_data``.
 
-The nodes (tdslip_ros.nodes.topics adds the QoS and message classes) and the offline analysis, which
-must not need rclpy, both take the names from here.
+tdslip_ros.nodes.topics adds the QoS and message classes; the analysis must not need rclpy.
 """
+
+from pathlib import Path
+from typing import Any
+
+import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
+
+from tdslip_ros.bag.schema import package_share_directory
 
 STATE = "/tdslip/state"
 GRF = "/tdslip/grf"
@@ -22,3 +30,22 @@ TOPIC_TYPES: dict[str, str] = {
     COMMAND: "tdslip_msgs/msg/StanceCommand",
 }
 """Every /tdslip topic with the type name rosbag2 records for it."""
+
+
+def config_file(name: str) -> Path:
+    """An installed node parameter file, e.g. ``config_file("plant.yaml")`` (from ``config/``)."""
+    path = package_share_directory("tdslip_ros") / "config" / name
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing; install tdslip_ros (./run.sh setup)")
+    return path
+
+
+def installed_parameters(name: str) -> dict[str, Any]:
+    """The ``ros__parameters`` of an installed node parameter file, by name."""
+    document = yaml.safe_load(config_file(name).read_text())
+    return dict(next(iter(document.values()))["ros__parameters"])
+
+
+def custom_data_key(node: str, parameter: str) -> str:
+    """The custom_data key of a node's parameter in a ``tdslip run`` bag (tdslip_ros.controller.policy)."""
+    return f"tdslip_ros.{node}.{parameter}"

@@ -23,6 +23,8 @@ RUNS: dict[str, dict[str, Any]] = {
     "energy": {"strides": 12},
     # At 30 deg the energy-regulated fixed point of the default energy is unstable: reversal at stride 3.
     "reversal": {"strides": 30, "touchdown_angle": math.radians(30.0)},
+    # Deadbeat to a target speed other than the controller's default (5 m/s).
+    "deadbeat": {"strides": 4, "policy": "deadbeat", "target_speed": 4.0},
 }
 _recorded: dict[str, RunReport] = {}
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import shutil
 
 import numpy as np
 import pytest
@@ -122,6 +123,22 @@ def test_the_policy_replay_reproduces_the_applied_commands(run: Run) -> None:
     assert comparison.policy_reproduced and comparison.command_deviation < 1e-9
     wrong = compare_run(run, policy_for_run(run, target_energy=0.99 * policy.target_energy))
     assert not wrong.policy_reproduced
+
+
+def test_the_policy_settings_come_from_the_parameters_stored_in_the_bag(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    run = read_run(recorded_run("deadbeat", tmp_path_factory).bag)
+    assert run.custom_data["tdslip_ros.controller.target_speed"] == "4.0"
+    assert run.custom_data["tdslip_ros.plant.max_strides"] == "4"
+    policy = policy_for_run(run)
+    assert policy.source == "the controller parameters stored in the recording"
+    assert (policy.name, policy.target) == ("deadbeat", (1.0, 4.0))  # not the installed default 5 m/s
+    assert compare_run(run, policy).policy_reproduced
+    # A bare copy of the .mcap keeps them: they are in its rosbag2 metadata record.
+    bare = tmp_path_factory.mktemp("bare") / "run.mcap"
+    shutil.copyfile(run.path / f"{run.path.name}_0.mcap", bare)
+    assert read_run(bare).custom_data == run.custom_data
 
 
 def test_a_converged_run_has_its_fixed_point_near_the_analytic_one(run: Run) -> None:

@@ -12,8 +12,8 @@ from tdslip_ros import cli
 from tdslip_ros.analysis import reader
 from tdslip_ros.analysis.reader import RunReadError
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml, main
+from tdslip_ros.interfaces import config_file
 from tdslip_ros.nodes import topics
-from tdslip_ros.nodes.entry import config_file
 from tdslip_ros.nodes.runner import RunReport
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -14,9 +16,9 @@ from rclpy.node import Node
 from ros_harness import RosGraph, overrides
 
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.nodes import controller_node, parameters, plant_node, recorder_node
+from tdslip_ros.nodes import controller_node, isolation, parameters, plant_node, recorder_node
 from tdslip_ros.nodes.controller_node import ControllerNode
-from tdslip_ros.nodes.entry import with_default_params_file
+from tdslip_ros.nodes.entry import BAD_PARAMETERS, with_default_params_file
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.plant_node import PlantNode
 from tdslip_ros.nodes.recorder_node import RecorderNode
@@ -107,6 +109,22 @@ def test_a_params_file_configures_the_node_and_bad_values_are_refused(ros: RosGr
             plant_with(bad)
     with pytest.raises(InvalidParameterValueException, match="initial_height"):
         PlantNode(context=ros.context, parameter_overrides=overrides(initial_height=math.inf))
+
+
+def test_the_recorder_refuses_malformed_custom_data_before_creating_a_bag(tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    with isolation.reserved_domain() as domain_id:
+        result = subprocess.run(
+            [sys.executable, "-m", "tdslip_ros.nodes.recorder_node", "--ros-args"]
+            + ["-p", f"output:={bag}", "-p", "custom_data:=run=1 no_value"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=isolation.isolated_environment(domain_id),
+        )
+    assert result.returncode == BAD_PARAMETERS
+    assert "custom_data: 'no_value' is not KEY=VALUE" in result.stderr
+    assert not bag.exists()
 
 
 def test_command_line_overrides_win_over_the_default_params_file(ros: RosGraph) -> None:

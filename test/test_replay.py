@@ -17,8 +17,8 @@ from rclpy.signals import SignalHandlerOptions
 
 from tdslip_ros.analysis import reader
 from tdslip_ros.analysis.reader import open_recording
+from tdslip_ros.interfaces import config_file
 from tdslip_ros.nodes import isolation, topics
-from tdslip_ros.nodes.entry import config_file
 from tdslip_ros.nodes.replay import ReplayError, check_rate, main, offered_qos, replay, send_offset
 from tdslip_ros.nodes.runner import ChildNode, RunReport
 

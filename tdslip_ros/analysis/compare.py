@@ -19,11 +19,12 @@
   (y, xdot, xdot_prev) and the Jacobian is 3x3; it is taken by central differences because the
   deadbeat policy's inner minimisation is not complex-step safe (``analytic.map_jacobian``).
 
-Policy settings are not stored in a recording. :class:`PolicySpec` takes them from the caller, else
-from the recorded commands (policy name, fixed touchdown angle) and the installed controller
-defaults (``config/controller.yaml``; energy regulation's target defaults to the initial apex energy,
-as ``tdslip run`` sets it). :func:`compare_run` then replays the policy on the recorded apexes and
-reports how closely it reproduces the recorded commands, so wrong settings are visible.
+Policy settings (:func:`policy_for_run`) come from the caller, else from the controller parameters
+``tdslip run`` stores in the bag's custom_data, else from the recorded commands (policy name, fixed
+touchdown angle) and the installed controller defaults (``config/controller.yaml``; energy
+regulation's target defaults to the initial apex energy, as ``tdslip run`` sets it).
+:func:`compare_run` then replays the policy on the recorded apexes and reports how closely it
+reproduces the recorded commands, so wrong settings are visible.
 """
 
 from __future__ import annotations
@@ -37,7 +38,8 @@ import numpy.typing as npt
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis.reader import Run
-from tdslip_ros.bag.schema import MessageDefinitionError, package_share_directory
+from tdslip_ros.bag.schema import MessageDefinitionError
+from tdslip_ros.interfaces import custom_data_key, installed_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic import CommandArrays, approximate_map, eigenvalues
 from tdslip_ros.model.batch import batch_apex_return_map
@@ -64,9 +66,7 @@ _FIXED_POINT_RESIDUAL = 1e-8  # dimensionless residual up to which a Newton resu
 def controller_defaults() -> dict[str, Any]:
     """The installed controller node's parameter file (config/controller.yaml), as a mapping."""
     try:
-        path = package_share_directory("tdslip_ros") / "config" / "controller.yaml"
-        document = yaml.safe_load(path.read_text())
-        return dict(next(iter(document.values()))["ros__parameters"])
+        return installed_parameters("controller.yaml")
     except (
         MessageDefinitionError,
         OSError,
@@ -78,31 +78,52 @@ def controller_defaults() -> dict[str, Any]:
         raise PolicyError(f"the installed controller defaults are unreadable: {error!r}") from None
 
 
+_SETTING_TYPES: dict[str, type] = {
+    "touchdown_angle": float,
+    "touchdown_power": float,
+    "target_energy": float,
+    "target_height": float,
+    "target_speed": float,
+    "pd_kp": float,
+    "pd_kd": float,
+    "corrections": int,
+}
+
+
 def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
-    """The policy settings of ``run``: ``overrides`` (None values ignored), else what the recording shows
-    (the applied policy, the fixed touchdown angle of open_loop and energy, the initial apex energy as
-    energy regulation's target), else the installed controller defaults."""
+    """The policy settings of ``run``, each from the first of: ``overrides`` (None values ignored); the
+    controller parameters ``tdslip run`` stored in the bag's custom_data; what the recording shows (the
+    applied policy, the fixed touchdown angle of open_loop and energy, the initial apex energy as
+    energy regulation's target); the installed controller defaults."""
     given = {name: value for name, value in overrides.items() if value is not None}
-    defaults = controller_defaults()
+    stored = {
+        name: run.custom_data[key]
+        for name in ("policy", *_SETTING_TYPES)
+        if (key := custom_data_key("controller", name)) in run.custom_data
+    }
+    stored_name = stored.pop("policy", None)
     policies = run.policies
-    if "name" not in given and len(policies) != 1:
+    if "name" not in given and stored_name is None and len(policies) != 1:
         found = ", ".join(policies) if policies else "no applied command"
         raise PolicyError(f"the run shows {found}; name the policy to compare with")
-    name = str(given.get("name", policies[0] if policies else ""))
+    name = str(given.get("name", stored_name or policies[0]))
     if name not in POLICIES:
         raise PolicyError(f"unknown policy {name!r}; one of {', '.join(POLICIES)}")
-    recorded: dict[str, Any] = {"target_energy": run.strides[0].energy}
+    defaults = controller_defaults()
+    values: dict[str, Any] = {key: convert(defaults[key]) for key, convert in _SETTING_TYPES.items()}
+    values["target_energy"] = run.strides[0].energy
     first_command = next((s.command for s in run.strides if s.command is not None), None)
     if name in ("open_loop", "energy") and first_command is not None:
-        recorded["touchdown_angle"] = first_command.touchdown_angle
-    keys = ("touchdown_angle", "touchdown_power", "target_energy", "target_height", "target_speed")
-    values: dict[str, Any] = {key: float(defaults[key]) for key in keys}
-    values |= {"pd_kp": float(defaults["pd_kp"]), "pd_kd": float(defaults["pd_kd"])}
-    values["corrections"] = int(defaults["corrections"])
-    values |= recorded
+        values["touchdown_angle"] = first_command.touchdown_angle
+    values |= {key: _SETTING_TYPES[key](value) for key, value in stored.items()}
     values |= {key: value for key, value in given.items() if key != "name"}
     sources = sorted(given.keys() - {"name"})
-    source = "given: " + ", ".join(sources) if sources else "recording + installed controller defaults"
+    if sources:
+        source = "given: " + ", ".join(sources)
+    elif stored:
+        source = "the controller parameters stored in the recording"
+    else:
+        source = "recording + installed controller defaults"
     return PolicySpec(name=name, source=source, **values)
 
 

@@ -93,11 +93,13 @@ class TopicInfo:
 
 @dataclass(frozen=True)
 class Recording:
-    """A validated MCAP file: where it is, its topics and its message count."""
+    """A validated MCAP file: where it is, its topics, its message count and the ``custom_data`` of its
+    rosbag2 metadata (``tdslip run`` stores the nodes' parameters there; empty if none)."""
 
     mcap_path: Path
     topics: dict[str, TopicInfo]
     message_count: int
+    custom_data: dict[str, str]
 
 
 def mcap_file(path: Path) -> Path:
@@ -135,7 +137,9 @@ def open_recording(path: Path, required: dict[str, str] | None = None) -> Record
     with open(mcap_path, "rb") as stream:
         _check_magic(mcap_path, stream)
         try:
-            summary = make_reader(stream).get_summary()
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            rosbag2 = [record.metadata for record in reader.iter_metadata() if record.name == "rosbag2"]
         except Exception as error:  # see _corrupt
             raise RunReadError(f"{mcap_path}: the summary section is unreadable ({error!r})") from None
     if summary is None or summary.statistics is None:
@@ -163,7 +167,18 @@ def open_recording(path: Path, required: dict[str, str] | None = None) -> Record
                 f"{mcap_path}: topic {topic} has type {topics[topic].type_name or 'unknown'}, "
                 f"expected {type_name}"
             )
-    return Recording(mcap_path, topics, summary.statistics.message_count)
+    return Recording(mcap_path, topics, summary.statistics.message_count, _custom_data(mcap_path, rosbag2))
+
+
+def _custom_data(mcap_path: Path, rosbag2: list[dict[str, str]]) -> dict[str, str]:
+    """The custom_data mapping of the rosbag2 metadata record."""
+    if not rosbag2:
+        return {}
+    try:
+        information = yaml.safe_load(rosbag2[0]["serialized_metadata"])  # metadata.yaml's inner mapping
+        return {str(key): str(value) for key, value in (information.get("custom_data") or {}).items()}
+    except (yaml.YAMLError, KeyError, TypeError, AttributeError) as error:
+        raise RunReadError(f"{mcap_path}: the rosbag2 metadata record is unreadable ({error!r})") from None
 
 
 def _check_magic(path: Path, stream: BinaryIO) -> None:
@@ -477,6 +492,7 @@ class Run:
     samples: Samples
     outcome: StatusRecord | None
     message_counts: dict[str, int]
+    custom_data: dict[str, str]
 
     @property
     def policies(self) -> tuple[str, ...]:
@@ -550,6 +566,7 @@ def read_run(path: Path, params: HopperParams | None = None) -> Run:
         samples=samples,
         outcome=outcome,
         message_counts={topic: info.message_count for topic, info in recording.topics.items()},
+        custom_data=recording.custom_data,
     )
 
 

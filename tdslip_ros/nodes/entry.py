@@ -32,7 +32,7 @@ from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from tdslip_ros.bag.schema import package_share_directory
+from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import isolation
 
@@ -45,14 +45,6 @@ PARENT_PID_VARIABLE = "TDSLIP_PARENT_PID"
 BAD_PARAMETERS = 2  # exit status of a node executable refusing its parameters
 
 NodeT = TypeVar("NodeT", bound=Node)
-
-
-def config_file(name: str) -> Path:
-    """An installed parameter file, e.g. ``config_file("plant.yaml")``."""
-    path = package_share_directory(PACKAGE) / "config" / name
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} is missing; install tdslip_ros (./run.sh setup)")
-    return path
 
 
 def with_default_params_file(argv: list[str], config_name: str) -> list[str]:

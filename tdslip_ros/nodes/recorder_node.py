@@ -30,6 +30,7 @@ from rclpy.executors import Executor
 from rclpy.node import Node
 
 from tdslip_ros.bag import RosbagMcapWriter
+from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
@@ -50,7 +51,24 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "record_clock", False, "also record /clock (lockstep runs publish it at 1 kHz)", read_only=True
     ),
+    ParameterSpec(
+        "custom_data",
+        "",
+        "space-separated KEY=VALUE pairs for the bag metadata's custom_data (ros2 bag record --custom-data)",
+        read_only=True,
+    ),
 )
+
+
+def parse_custom_data(text: str) -> dict[str, str]:
+    """``"k1=v1 k2=v2"`` as a mapping; ParameterError names an item without a key and a ``=``."""
+    pairs = {}
+    for item in text.split():
+        key, equals, value = item.partition("=")
+        if not key or not equals:
+            raise ParameterError(f"custom_data: {item!r} is not KEY=VALUE")
+        pairs[key] = value
+    return pairs
 
 
 class RecorderNode(Node):
@@ -65,6 +83,7 @@ class RecorderNode(Node):
             Path(output),
             compression=values["compression"],  # type: ignore[arg-type]
             chunk_size=int(values["chunk_size"]),
+            custom_data=parse_custom_data(str(values["custom_data"])),
         )
         recorded = [*topics.TDSLIP_TOPICS, *((topics.CLOCK,) if values["record_clock"] else ())]
         for topic in recorded:

@@ -51,13 +51,13 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from tdslip_msgs.msg import ApexEvent
 
+from tdslip_ros.interfaces import config_file, custom_data_key, installed_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.nodes import isolation, parameters, topics
 from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
-    config_file,
     spin_until,
     stop_on_signals,
     wait_for_delivery,
@@ -235,6 +235,21 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
     }
 
 
+def run_custom_data(options: RunOptions, params: HopperParams) -> str:
+    """The plant's and the controller's parameters of this run (installed defaults and overrides), as
+    the recorder's ``custom_data`` (KEY=VALUE pairs): the bag then says how it was made."""
+    pairs = []
+    for node, overrides in (
+        ("plant", plant_overrides(options)),
+        ("controller", controller_overrides(options, params)),
+    ):
+        values = installed_parameters(f"{node}.yaml") | {k: v for k, v in overrides.items() if v is not None}
+        pairs += [
+            f"{custom_data_key(node, name)}={_ros_value(value)}" for name, value in sorted(values.items())
+        ]
+    return " ".join(pairs)
+
+
 def read_bag_counts(bag: Path) -> dict[str, int]:
     """Messages per topic from a bag directory's metadata.yaml (rosbag2's layout)."""
     information = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -300,7 +315,12 @@ def run(
         recorder = ChildNode.start(
             "tdslip_ros.nodes.recorder_node",
             ["--params-file", str(config_file("recorder.yaml")), "-p", f"output:={bag}"]
-            + _overrides({"record_clock": options.record_clock}),
+            + _overrides(
+                {
+                    "record_clock": options.record_clock,
+                    "custom_data": run_custom_data(options, plant.hopper),
+                }
+            ),
             environment,
         )
         stack.callback(recorder.close)
