@@ -3,7 +3,8 @@
     python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy]
 
 Times are CPU seconds of this single-threaded process (time.process_time), best of several runs.
-Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1; target >= 1e6),
+Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1; target >= 1e6)
+for several lanes per call,
 (2) the time per stride of the analytic map against the exact plant (exact_map.apex_return_map), measured
 side by side in this run, as a ratio, and (3) the accuracy table: mean and max relative errors of the next
 apex height and speed, analytic vs exact, for corrections 0 and 1, on a broad grid and on the operating
@@ -48,13 +49,25 @@ def _random_strides(lanes: int) -> tuple[np.ndarray, np.ndarray, CommandArrays]:
     return y, xdot, command
 
 
-def throughput(lanes: int, repeat: int) -> None:
+def throughput(lanes: int, blocks: list[int], repeat: int) -> None:
+    """The same ``lanes`` evaluations in calls of ``block`` lanes each: past the CPU caches (tens of
+    thousands of lanes) every array operation waits on memory, so moderate blocks are fastest."""
     params = ParamArrays.of(PARAMS)
     y, xdot, command = _random_strides(lanes)
-    print(f"analytic map, {lanes} lanes in one call, best of {repeat}:")
-    for corrections in (0, 1):
-        seconds = _best_time(lambda c=corrections: approximate_map(params, y, xdot, command, c), repeat)
-        print(f"  corrections={corrections}: {lanes / seconds:12.4g} evaluations/s")
+    print(f"analytic map, {lanes} lanes in calls of `block` lanes, best of {repeat} (evaluations/s):")
+    print(f"  {'block':>8} {'corrections=0':>14} {'corrections=1':>14}")
+
+    def evaluate(block: int, corrections: int) -> None:
+        for i in range(0, lanes, block):
+            part = CommandArrays(*(field[i : i + block] for field in command))
+            approximate_map(params, y[i : i + block], xdot[i : i + block], part, corrections)
+
+    for block in blocks:
+        rates = [
+            lanes / _best_time(lambda b=block, c=corrections: evaluate(b, c), repeat)
+            for corrections in (0, 1)
+        ]
+        print(f"  {block:>8} {rates[0]:>14.4g} {rates[1]:>14.4g}")
 
 
 def speed_ratio(strides: int) -> None:
@@ -103,11 +116,14 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--lanes", type=int, default=200_000, help="lanes of the throughput run")
+    parser.add_argument(
+        "--blocks", type=int, nargs="+", default=[4096, 16384, 200_000], help="lanes per call to compare"
+    )
     parser.add_argument("--repeat", type=int, default=5, help="repetitions (best time counts)")
     parser.add_argument("--strides", type=int, default=300, help="strides of the exact-vs-analytic timing")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy table")
     args = parser.parse_args(argv)
-    throughput(args.lanes, args.repeat)
+    throughput(args.lanes, args.blocks, args.repeat)
     speed_ratio(args.strides)
     if not args.no_accuracy:
         accuracy_table()
