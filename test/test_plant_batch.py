@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from failure_cases import STANCE_FAILURE_CASES
 
 from tdslip_ros.model import units
 from tdslip_ros.model.batch import batch_apex_return_map, simulate_strides
@@ -56,24 +57,8 @@ def test_batch_map_agrees_with_the_exact_map_on_a_grid() -> None:
 
 @pytest.mark.parametrize(
     ("params", "apex", "command", "kind"),
-    [
-        (PARAMS, ApexState(1.2, 2.0), StanceCommand(math.radians(26.0), 300.0, 0.15), FailureKind.REVERSAL),
-        (PARAMS, ApexState(1.2, 2.0), StanceCommand(math.radians(26.0), -100.0, 0.15), FailureKind.REVERSAL),
-        (PARAMS, ApexState(1.0, 1.0), StanceCommand(math.radians(10.0), -3000.0, 1.0), FailureKind.FALL),
-        (
-            HopperParams.from_dimensionless(1.2, 0.3),
-            ApexState(math.cos(0.8) + 0.05, 3.0),
-            StanceCommand(0.8, 0.0, 1.0),
-            FailureKind.FALL,
-        ),
-        (
-            HopperParams.from_dimensionless(36.0, 0.5),
-            ApexState(math.cos(1e-6) + 1e-3, 1e-5),
-            StanceCommand(1e-6, 0.0, 0.1),
-            FailureKind.NO_LIFTOFF,
-        ),
-    ],
-    ids=["reversal_stance", "reversal_liftoff", "fall_liftoff", "fall_stance", "no_liftoff"],
+    [case[1:5] for case in STANCE_FAILURE_CASES],
+    ids=[case.name for case in STANCE_FAILURE_CASES],
 )
 def test_stance_failures_per_lane(
     params: HopperParams, apex: ApexState, command: StanceCommand, kind: FailureKind

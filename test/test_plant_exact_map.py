@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from failure_cases import FAILURE_CASES
 from scipy.optimize import brentq
 
 from tdslip_ros.model import dynamics
@@ -18,66 +19,6 @@ LOSSLESS = HopperParams.from_dimensionless(36.0, 0.0)
 # A stable lossless gait: beta = 20 deg at Ebar = 2.5 has a stable fixed point near ybar = 0.97.
 LOSSLESS_COMMAND = StanceCommand(math.radians(20.0), tau0=0.0, t_f=0.1)
 LOSSLESS_START = ApexState.from_height_energy(LOSSLESS, 1.0, 2.5 * LOSSLESS.m * LOSSLESS.g * LOSSLESS.r0)
-
-# Failure cases: (name, params, apex, command, kind, phrase the reason must contain).
-FAILURE_CASES = [
-    (
-        "apex below the touchdown height",
-        PARAMS,
-        ApexState(0.85, 4.0),
-        StanceCommand(math.radians(20.0), -300.0, 0.15),
-        FailureKind.TOE_STUBBING,
-        "below the touchdown height",
-    ),
-    (
-        "slow, steep drop lands with thetadot > 0",
-        PARAMS,
-        ApexState(1.2, 0.5),
-        StanceCommand(math.radians(26.0), -300.0, 0.15),
-        FailureKind.REVERSAL,
-        "at touchdown",
-    ),
-    (
-        "braking hip torque swings the body back in stance",
-        PARAMS,
-        ApexState(1.2, 2.0),
-        StanceCommand(math.radians(26.0), 300.0, 0.15),
-        FailureKind.REVERSAL,
-        "into stance",
-    ),
-    (
-        "the leg throws the body backwards at liftoff",
-        PARAMS,
-        ApexState(1.2, 2.0),
-        StanceCommand(math.radians(26.0), -100.0, 0.15),
-        FailureKind.REVERSAL,
-        "xdot",
-    ),
-    (
-        "a long forward torque tips the body over: liftoff while descending",
-        PARAMS,
-        ApexState(1.0, 1.0),
-        StanceCommand(math.radians(10.0), -3000.0, 1.0),
-        FailureKind.FALL,
-        "no apex",
-    ),
-    (
-        "a soft leg collapses to the ground",
-        HopperParams.from_dimensionless(1.2, 0.3),
-        ApexState(math.cos(0.8) + 0.05, 3.0),
-        StanceCommand(0.8, 0.0, 1.0),
-        FailureKind.FALL,
-        "body height reached 0",
-    ),
-    (
-        "heavily damped leg balanced upright on a near-vertical touchdown",
-        HopperParams.from_dimensionless(36.0, 0.5),
-        ApexState(math.cos(1e-6) + 1e-3, 1e-5),
-        StanceCommand(1e-6, 0.0, 0.1),
-        FailureKind.NO_LIFTOFF,
-        "no liftoff",
-    ),
-]
 
 
 def test_lossless_apex_energy_is_conserved_over_50_strides() -> None:
@@ -186,7 +127,7 @@ def test_event_states_are_the_events() -> None:
 @pytest.mark.parametrize(
     ("params", "apex", "command", "kind", "phrase"),
     [case[1:] for case in FAILURE_CASES],
-    ids=[case[0] for case in FAILURE_CASES],
+    ids=[case.name for case in FAILURE_CASES],
 )
 def test_each_failure_is_reported_by_name(
     params: HopperParams, apex: ApexState, command: StanceCommand, kind: FailureKind, phrase: str

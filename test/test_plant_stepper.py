@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 
 import pytest
+from failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind, FailureKind, Phase
@@ -219,34 +220,8 @@ def test_toe_stubbing_is_declared_at_the_tick_after_the_apex_unless_the_command_
 
 @pytest.mark.parametrize(
     ("params", "apex", "command", "kind"),
-    [
-        (PARAMS, ApexState(0.85, 4.0), StanceCommand(BETA, -300.0, 0.15), FailureKind.TOE_STUBBING),
-        (PARAMS, ApexState(1.2, 0.5), StanceCommand(math.radians(26.0), -300.0, 0.15), FailureKind.REVERSAL),
-        (PARAMS, ApexState(1.2, 2.0), StanceCommand(math.radians(26.0), 300.0, 0.15), FailureKind.REVERSAL),
-        (PARAMS, ApexState(1.2, 2.0), StanceCommand(math.radians(26.0), -100.0, 0.15), FailureKind.REVERSAL),
-        (PARAMS, ApexState(1.0, 1.0), StanceCommand(math.radians(10.0), -3000.0, 1.0), FailureKind.FALL),
-        (
-            HopperParams.from_dimensionless(1.2, 0.3),
-            ApexState(math.cos(0.8) + 0.05, 3.0),
-            StanceCommand(0.8, 0.0, 1.0),
-            FailureKind.FALL,
-        ),
-        (
-            HopperParams.from_dimensionless(36.0, 0.5),
-            ApexState(math.cos(1e-6) + 1e-3, 1e-5),
-            StanceCommand(1e-6, 0.0, 0.1),
-            FailureKind.NO_LIFTOFF,
-        ),
-    ],
-    ids=[
-        "toe_stubbing",
-        "reversal_touchdown",
-        "reversal_stance",
-        "reversal_liftoff",
-        "fall_liftoff",
-        "fall_stance",
-        "no_liftoff",
-    ],
+    [case[1:5] for case in FAILURE_CASES],
+    ids=[case.name for case in FAILURE_CASES],
 )
 def test_failures_match_the_exact_map_by_name_and_time(
     params: HopperParams, apex: ApexState, command: StanceCommand, kind: FailureKind

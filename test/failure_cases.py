@@ -1,0 +1,83 @@
+"""One input per named failure of a stride, shared by the exact map's, the stepper's and the batched
+engine's tests (each must report the same failure for the same input)."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from tdslip_ros.model.events import FailureKind
+from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+
+PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+
+
+class FailureCase(NamedTuple):
+    name: str
+    params: HopperParams
+    apex: ApexState
+    command: StanceCommand
+    kind: FailureKind
+    phrase: str  # what the exact map's reason must contain
+
+
+FAILURE_CASES = (
+    FailureCase(
+        "toe_stubbing: apex below the touchdown height",
+        PARAMS,
+        ApexState(0.85, 4.0),
+        StanceCommand(math.radians(20.0), -300.0, 0.15),
+        FailureKind.TOE_STUBBING,
+        "below the touchdown height",
+    ),
+    FailureCase(
+        "reversal at touchdown: a slow, steep drop lands with thetadot > 0",
+        PARAMS,
+        ApexState(1.2, 0.5),
+        StanceCommand(math.radians(26.0), -300.0, 0.15),
+        FailureKind.REVERSAL,
+        "at touchdown",
+    ),
+    FailureCase(
+        "reversal in stance: a braking hip torque swings the body back",
+        PARAMS,
+        ApexState(1.2, 2.0),
+        StanceCommand(math.radians(26.0), 300.0, 0.15),
+        FailureKind.REVERSAL,
+        "into stance",
+    ),
+    FailureCase(
+        "reversal at liftoff: the leg throws the body backwards",
+        PARAMS,
+        ApexState(1.2, 2.0),
+        StanceCommand(math.radians(26.0), -100.0, 0.15),
+        FailureKind.REVERSAL,
+        "xdot",
+    ),
+    FailureCase(
+        "fall after liftoff: a long forward torque tips the body over, liftoff while descending",
+        PARAMS,
+        ApexState(1.0, 1.0),
+        StanceCommand(math.radians(10.0), -3000.0, 1.0),
+        FailureKind.FALL,
+        "no apex",
+    ),
+    FailureCase(
+        "fall in stance: a soft leg collapses to the ground",
+        HopperParams.from_dimensionless(1.2, 0.3),
+        ApexState(math.cos(0.8) + 0.05, 3.0),
+        StanceCommand(0.8, 0.0, 1.0),
+        FailureKind.FALL,
+        "body height reached 0",
+    ),
+    FailureCase(
+        "no_liftoff: a heavily damped leg balanced upright on a near-vertical touchdown",
+        HopperParams.from_dimensionless(36.0, 0.5),
+        ApexState(math.cos(1e-6) + 1e-3, 1e-5),
+        StanceCommand(1e-6, 0.0, 0.1),
+        FailureKind.NO_LIFTOFF,
+        "no liftoff",
+    ),
+)
+STANCE_FAILURE_CASES = tuple(case for case in FAILURE_CASES if "touchdown" not in case.phrase)
+"""The cases that fail in or after stance (the batched engine's per-lane failures)."""
