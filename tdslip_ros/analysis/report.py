@@ -287,7 +287,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--params", type=Path, help="ROS parameter file with the hopper (default: inferred)")
     parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
     policy = parser.add_argument_group(
-        "policy settings (default: from the recording and config/controller.yaml)"
+        "policy settings (default: as stored in the bag, else the recording and config/controller.yaml)"
     )
     policy.add_argument("--policy", dest="name", choices=POLICIES)
     policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy)")
