@@ -149,11 +149,11 @@ enter_environment() {
 run_demo() {
     local out
     out="$REPO/runs/demo-$(date +%Y%m%d-%H%M%S)"
-    say "demo: tdslip run --policy energy --out ${out#"$REPO"/}/bag $*"
-    "$VENV/bin/tdslip" run --policy energy --strides 30 --out "$out/bag" "$@"
-    say "demo: tdslip analyze ${out#"$REPO"/}/bag --out ${out#"$REPO"/}/report"
-    "$VENV/bin/tdslip" analyze "$out/bag" --out "$out/report"
-    say "demo: done; the recording is in ${out#"$REPO"/}/bag, the report (PNG, JSON, Markdown) in ${out#"$REPO"/}/report"
+    say "demo: tdslip run --policy energy --strides 30 --out ${out#"$REPO"/} $*"
+    "$VENV/bin/tdslip" run --policy energy --strides 30 --out "$out" "$@"
+    say "demo: tdslip analyze ${out#"$REPO"/} (report into ${out#"$REPO"/}/report)"
+    "$VENV/bin/tdslip" analyze "$out"
+    say "demo: done; the recording (rosbag2 directory) is ${out#"$REPO"/}, the report (PNG, JSON, Markdown) ${out#"$REPO"/}/report"
 }
 
 run_tests() {
