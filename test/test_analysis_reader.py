@@ -21,6 +21,7 @@ from tdslip_ros.analysis.reader import (
     RunReadError,
     StateRecord,
     applied_commands,
+    infer_params,
     mcap_file,
     read_run,
 )
@@ -133,11 +134,12 @@ def test_vectorised_1khz_columns_equal_mcap_ros2_decoding(energy: RunReport, mca
     assert np.count_nonzero(samples.phase == 1) > 0 and np.count_nonzero(samples.grf_y) > 0
 
 
-def test_parameters_are_inferred_from_the_recording(energy: RunReport) -> None:
+def test_parameters_come_from_the_bag_or_are_inferred_from_the_recording(energy: RunReport) -> None:
     run = read_run(energy.bag)
-    assert run.params_source == "inferred from the recording"
+    assert run.params_source == "stored in the recording" and run.params == energy.params
+    inferred = infer_params(run.apexes, run.contacts, energy.bag)
     for name in ("m", "k", "r0", "c", "g"):
-        assert getattr(run.params, name) == pytest.approx(getattr(energy.params, name), rel=1e-12), name
+        assert getattr(inferred, name) == pytest.approx(getattr(energy.params, name), rel=1e-12), name
     given = read_run(energy.bag, energy.params)
     assert given.params == energy.params and given.params_source == "given"
 

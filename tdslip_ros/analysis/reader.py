@@ -9,8 +9,9 @@ in one ``frombuffer`` call (``test_analysis_reader.py`` checks it against ``mcap
 What comes out (:class:`Run`) is tidy: one :class:`StrideRecord` per recorded apex (its state, the
 command applied in the stance that follows, that stance's energy flows, the failure that ended the
 run in it), the contact events, every command and status message, and the 1 kHz samples as
-arrays. The hopper parameters are not stored in a recording; :func:`infer_params` recovers them
-from the physics of the recorded events (exact to rounding), unless they are given.
+arrays. The hopper parameters are the given ones, else those ``tdslip run`` stored in the bag's
+custom_data, else :func:`infer_params` recovers them from the physics of the recorded events
+(exact to rounding); either way they are checked against the recorded events.
 
 Every problem with the input -- no such path, not an MCAP file, a truncated or unfinalised file, a
 corrupt chunk, a missing topic, a topic of the wrong type, an undecodable message -- raises
@@ -34,7 +35,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
-from tdslip_ros.interfaces import APEX, COMMAND, CONTACT, GRF, STATE, STATUS, TOPIC_TYPES
+from tdslip_ros.interfaces import APEX, COMMAND, CONTACT, GRF, STATE, STATUS, TOPIC_TYPES, custom_data_key
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
 FloatArray = npt.NDArray[np.float64]
@@ -477,7 +478,7 @@ class Samples:
 
 @dataclass(frozen=True)
 class Run:
-    """A recorded run, tidy. ``params`` are the hopper parameters (given or inferred, see
+    """A recorded run, tidy. ``params`` are the hopper parameters (given, stored or inferred, see
     ``params_source``); ``outcome`` the fatal status that ended the run (None if the recording
     ends before the run did)."""
 
@@ -551,6 +552,8 @@ def read_run(path: Path, params: HopperParams | None = None) -> Run:
     samples = _samples(columns)
     source = "given"
     if params is None:
+        params, source = _stored_params(recording), "stored in the recording"
+    if params is None:
         params, source = infer_params(apexes, contacts, recording.mcap_path), "inferred from the recording"
     _check_params(params, apexes, contacts, recording.mcap_path)
     outcome = next((s for s in statuses if s.fatal), None)
@@ -568,6 +571,20 @@ def read_run(path: Path, params: HopperParams | None = None) -> Run:
         message_counts={topic: info.message_count for topic, info in recording.topics.items()},
         custom_data=recording.custom_data,
     )
+
+
+_STORED_PARAMS = {"m": "mass", "k": "stiffness", "r0": "rest_length", "c": "damping", "g": "gravity"}
+
+
+def _stored_params(recording: Recording) -> HopperParams | None:
+    """The plant's hopper parameters from the custom_data ``tdslip run`` writes (None if absent)."""
+    keys = {field: custom_data_key("plant", name) for field, name in _STORED_PARAMS.items()}
+    if not all(key in recording.custom_data for key in keys.values()):
+        return None
+    try:
+        return HopperParams(**{field: float(recording.custom_data[key]) for field, key in keys.items()})
+    except (ValueError, ParameterError) as error:
+        raise RunReadError(f"{recording.mcap_path}: stored hopper parameters are invalid ({error})") from None
 
 
 def _checked(topic: str, decode: Callable[[], Any]) -> Any:

@@ -4,7 +4,8 @@ Writes ``DIR/summary.json`` (run, hopper parameters, policy, per-stride records 
 convergence, fixed points, eigenvalues), four PNG figures and ``DIR/report.md``, and prints the
 headline numbers. Policy settings that the recording does not show can be given on the command line
 (see :func:`tdslip_ros.analysis.compare.policy_for_run`); so can the hopper parameters (``--params``,
-a ROS parameter file such as config/plant.yaml), which are otherwise inferred from the recording.
+a ROS parameter file such as config/plant.yaml), which otherwise come from the bag's custom_data
+(``tdslip run`` stores them) or are inferred from the recording.
 """
 
 from __future__ import annotations
@@ -284,7 +285,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("run", type=Path, help="bag directory or .mcap file of a run")
     parser.add_argument("--out", type=Path, help="report directory (default RUN/report, or next to an .mcap)")
-    parser.add_argument("--params", type=Path, help="ROS parameter file with the hopper (default: inferred)")
+    parser.add_argument(
+        "--params",
+        type=Path,
+        help="ROS parameter file with the hopper (default: stored in the bag, or inferred)",
+    )
     parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
     policy = parser.add_argument_group(
         "policy settings (default: as stored in the bag, else the recording and config/controller.yaml)"
