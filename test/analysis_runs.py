@@ -8,6 +8,7 @@ below derive damaged or reduced copies of a recording for the error tests.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -35,11 +36,12 @@ def recorded_run(name: str, tmp_path_factory: pytest.TempPathFactory) -> RunRepo
         for attempt in range(2):
             out = tmp_path_factory.getbasetemp() / "analysis_runs" / f"{name}-{attempt}"
             report = run(RunOptions(out=out, **RUNS[name]))
-            # The runner occasionally starts before the recorder has matched the controller's publisher
-            # and records no commands (reported to the runner's owner); one retry keeps these tests about
-            # the analysis.
+            # A recorder that had not matched the controller's publisher used to miss every command
+            # (about 1 run in 15 under load); the controller now waits for that match before it exits.
+            # These tests are about the analysis: one retry, and a warning in the summary if it was needed.
             if report.recording_complete:
                 break
+            warnings.warn(f"run {name!r} recorded incompletely, retried: {report.recorded}", stacklevel=1)
         assert report.recording_complete, (report.published, report.recorded)
         _recorded[name] = report
     return _recorded[name]
