@@ -74,11 +74,6 @@ class RosGraph:
                 raise AssertionError(f"timed out after {timeout} s waiting for {what}")
             self.executor.spin_once(timeout_sec=SPIN_SLICE)
 
-    def spin_for(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while (left := deadline - time.monotonic()) > 0:
-            self.executor.spin_once(timeout_sec=min(left, SPIN_SLICE))
-
     @property
     def environment(self) -> dict[str, str]:
         """Environment of child processes in this graph."""

@@ -321,11 +321,6 @@ class StanceApproximation:
         return self.phase1.angle()
 
     @property
-    def phi2(self) -> Array:
-        """-arccos(zeta), in (-pi/2, 0]."""
-        return -np.arccos(self.zeta)
-
-    @property
     def phi3(self) -> Array:
         """In [0, pi): the force phase lag of the damper."""
         return self.phase3.angle()

@@ -153,11 +153,6 @@ class Basin:
     energy: Array
     history: StrideHistory
 
-    def fraction(self, name: str, mask: ArrayLike = True) -> float:
-        """Share of the lanes in ``mask`` with outcome ``name``."""
-        selected = np.broadcast_to(np.asarray(mask, dtype=bool), self.outcome.shape)
-        return float(np.mean(self.outcome[selected] == OUTCOMES.index(name))) if selected.any() else 0.0
-
 
 def settle(params: HopperParams, history: StrideHistory) -> tuple[Array, Array]:
     """Per lane: converged (bool) and the convergence stride (-1 where not converged).

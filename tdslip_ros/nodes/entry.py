@@ -36,7 +36,6 @@ from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import isolation
 
-PACKAGE = "tdslip_ros"
 SPIN_SLICE = 0.1
 """s, longest a spin call blocks: how soon signal handlers and exit checks get to run."""
 DELIVERY_TIMEOUT = 5.0  # s
