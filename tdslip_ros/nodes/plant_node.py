@@ -281,13 +281,21 @@ class PlantNode(Node):
             if topic != topics.COMMAND
         ):
             return
-        controller = (
-            self.count_publishers(topics.COMMAND) >= 1 and self._apex_pub.get_subscription_count() >= 1
-        )
         waited = time.monotonic_ns() - self._created_ns >= self._controller_wait_ns
-        if self.lockstep and not (controller or waited):
+        if self.lockstep and not (self._controller_connected() or waited):
             return
         self.start()
+
+    def _controller_connected(self) -> bool:
+        """A node publishes commands and subscribes to the apex, and every apex subscription of the
+        graph has matched the plant's publisher, so the first apex reaches the controller."""
+        commanders = {
+            (i.node_namespace, i.node_name) for i in self.get_publishers_info_by_topic(topics.COMMAND)
+        }
+        apex_subscriptions = self.get_subscriptions_info_by_topic(topics.APEX)
+        listeners = {(i.node_namespace, i.node_name) for i in apex_subscriptions}
+        matched = self.matched_subscribers(topics.APEX) >= len(apex_subscriptions)
+        return bool(commanders & listeners) and matched
 
     def start(self) -> None:
         """Publish the initial apex and sample, then start stepping (or wait for its command)."""
