@@ -5,12 +5,14 @@ which ``tdslip run`` stores the nodes' parameters in a bag's ``custom_data``.
 tdslip_ros.nodes.topics adds the QoS and message classes; the analysis must not need rclpy.
 """
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.bag.schema import package_share_directory
+from tdslip_ros.model.params import HopperParams
 
 STATE = "/tdslip/state"
 GRF = "/tdslip/grf"
@@ -31,6 +33,9 @@ TOPIC_TYPES: dict[str, str] = {
 }
 """Every /tdslip topic with the type name rosbag2 records for it."""
 
+HOPPER_PARAMETERS = {"m": "mass", "k": "stiffness", "r0": "rest_length", "c": "damping", "g": "gravity"}
+"""HopperParams fields and the names of the plant's and controller's parameters that hold them (SI)."""
+
 
 def config_file(name: str) -> Path:
     """An installed node parameter file, e.g. ``config_file("plant.yaml")`` (from ``config/``)."""
@@ -46,6 +51,18 @@ def installed_parameters(name: str) -> dict[str, Any]:
     return dict(next(iter(document.values()))["ros__parameters"])
 
 
+def hopper_from_parameters(values: Mapping[str, Any]) -> HopperParams:
+    """The HopperParams of a node's parameter values by name (ParameterError names a bad one; KeyError
+    a missing one)."""
+    return HopperParams(**{field: float(values[name]) for field, name in HOPPER_PARAMETERS.items()})
+
+
 def custom_data_key(node: str, parameter: str) -> str:
     """The custom_data key of a node's parameter in a ``tdslip run`` bag (tdslip_ros.controller.policy)."""
     return f"tdslip_ros.{node}.{parameter}"
+
+
+def stored_parameters(custom_data: Mapping[str, str], node: str) -> dict[str, str]:
+    """The parameters of ``node`` that ``tdslip run`` stored in a bag's custom_data, by name, as text."""
+    prefix = custom_data_key(node, "")
+    return {key[len(prefix) :]: value for key, value in custom_data.items() if key.startswith(prefix)}

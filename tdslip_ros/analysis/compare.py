@@ -39,7 +39,7 @@ import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis.reader import Run
 from tdslip_ros.bag.schema import MessageDefinitionError
-from tdslip_ros.interfaces import custom_data_key, installed_parameters
+from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic import CommandArrays, approximate_map, eigenvalues
 from tdslip_ros.model.batch import batch_apex_return_map
@@ -78,30 +78,15 @@ def controller_defaults() -> dict[str, Any]:
         raise PolicyError(f"the installed controller defaults are unreadable: {error!r}") from None
 
 
-_SETTING_TYPES: dict[str, type] = {
-    "touchdown_angle": float,
-    "touchdown_power": float,
-    "target_energy": float,
-    "target_height": float,
-    "target_speed": float,
-    "pd_kp": float,
-    "pd_kd": float,
-    "corrections": int,
-}
-
-
 def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
     """The policy settings of ``run``, each from the first of: ``overrides`` (None values ignored); the
     controller parameters ``tdslip run`` stored in the bag's custom_data; what the recording shows (the
     applied policy, the fixed touchdown angle of open_loop and energy, the initial apex energy as
     energy regulation's target); the installed controller defaults."""
     given = {name: value for name, value in overrides.items() if value is not None}
-    stored = {
-        name: run.custom_data[key]
-        for name in ("policy", *_SETTING_TYPES)
-        if (key := custom_data_key("controller", name)) in run.custom_data
-    }
-    stored_name = stored.pop("policy", None)
+    controller = stored_parameters(run.custom_data, "controller")
+    stored_name = controller.get("policy")
+    stored = {key: value for key, value in controller.items() if key in PolicySpec.settings()}
     policies = run.policies
     if "name" not in given and stored_name is None and len(policies) != 1:
         found = ", ".join(policies) if policies else "no applied command"
@@ -110,12 +95,12 @@ def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
     if name not in POLICIES:
         raise PolicyError(f"unknown policy {name!r}; one of {', '.join(POLICIES)}")
     defaults = controller_defaults()
-    values: dict[str, Any] = {key: convert(defaults[key]) for key, convert in _SETTING_TYPES.items()}
+    values: dict[str, Any] = {key: defaults[key] for key in PolicySpec.settings()}
     values["target_energy"] = run.strides[0].energy
     first_command = next((s.command for s in run.strides if s.command is not None), None)
     if name in ("open_loop", "energy") and first_command is not None:
         values["touchdown_angle"] = first_command.touchdown_angle
-    values |= {key: _SETTING_TYPES[key](value) for key, value in stored.items()}
+    values |= stored
     values |= {key: value for key, value in given.items() if key != "name"}
     sources = sorted(given.keys() - {"name"})
     if sources:
@@ -124,7 +109,7 @@ def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
         source = "the controller parameters stored in the recording"
     else:
         source = "recording + installed controller defaults"
-    return PolicySpec(name=name, source=source, **values)
+    return PolicySpec.of(name, values, source)
 
 
 # --- results ------------------------------------------------------------------------------------

@@ -35,7 +35,18 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
-from tdslip_ros.interfaces import APEX, COMMAND, CONTACT, GRF, STATE, STATUS, TOPIC_TYPES, custom_data_key
+from tdslip_ros.interfaces import (
+    APEX,
+    COMMAND,
+    CONTACT,
+    GRF,
+    HOPPER_PARAMETERS,
+    STATE,
+    STATUS,
+    TOPIC_TYPES,
+    hopper_from_parameters,
+    stored_parameters,
+)
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
 FloatArray = npt.NDArray[np.float64]
@@ -573,16 +584,13 @@ def read_run(path: Path, params: HopperParams | None = None) -> Run:
     )
 
 
-_STORED_PARAMS = {"m": "mass", "k": "stiffness", "r0": "rest_length", "c": "damping", "g": "gravity"}
-
-
 def _stored_params(recording: Recording) -> HopperParams | None:
     """The plant's hopper parameters from the custom_data ``tdslip run`` writes (None if absent)."""
-    keys = {field: custom_data_key("plant", name) for field, name in _STORED_PARAMS.items()}
-    if not all(key in recording.custom_data for key in keys.values()):
+    values = stored_parameters(recording.custom_data, "plant")
+    if not all(name in values for name in HOPPER_PARAMETERS.values()):
         return None
     try:
-        return HopperParams(**{field: float(recording.custom_data[key]) for field, key in keys.items()})
+        return hopper_from_parameters(values)
     except (ValueError, ParameterError) as error:
         raise RunReadError(f"{recording.mcap_path}: stored hopper parameters are invalid ({error})") from None
 

@@ -34,6 +34,7 @@ from tdslip_ros.analysis.compare import (
     policy_for_run,
 )
 from tdslip_ros.analysis.reader import Run, RunReadError, read_run
+from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
 
@@ -56,15 +57,8 @@ def hopper_params_from_yaml(path: Path) -> HopperParams:
     """The hopper block (mass, stiffness, rest_length, damping, gravity) of a ROS parameter file."""
     try:
         document = yaml.safe_load(Path(path).read_text())
-        values = next(iter(document.values()))["ros__parameters"]
-        return HopperParams(
-            m=values["mass"],
-            k=values["stiffness"],
-            r0=values["rest_length"],
-            c=values["damping"],
-            g=values["gravity"],
-        )
-    except (OSError, yaml.YAMLError, AttributeError, StopIteration, KeyError, TypeError) as error:
+        return hopper_from_parameters(next(iter(document.values()))["ros__parameters"])
+    except (OSError, yaml.YAMLError, AttributeError, StopIteration, KeyError, TypeError, ValueError) as error:
         raise RunReadError(f"{path}: no hopper parameters (mass, stiffness, ...) in it: {error!r}") from None
     except ParameterError as error:
         raise RunReadError(f"{path}: {error}") from None

@@ -13,9 +13,9 @@ The torque-based policies are complex-step safe (for :func:`~tdslip_ros.model.an
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import NamedTuple
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -514,6 +514,19 @@ class PolicySpec:
                 corrections=self.corrections,
             )
         raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
+
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        """The names of the settings: the controller node's parameters of the same names."""
+        return tuple(field.name for field in fields(cls) if field.name not in ("name", "source"))
+
+    @classmethod
+    def of(cls, name: str, values: Mapping[str, str | float], source: str = "") -> PolicySpec:
+        """A spec from setting values as parameters or text give them: ``corrections`` an int, the rest
+        floats."""
+        converted: dict[str, Any] = {key: float(values[key]) for key in cls.settings()}
+        converted["corrections"] = int(values["corrections"])
+        return cls(name=name, source=source, **converted)
 
     @property
     def target(self) -> tuple[float, float] | None:

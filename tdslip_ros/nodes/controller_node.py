@@ -24,6 +24,7 @@ import sys
 from rclpy.node import Node
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
+from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import controllers
 from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import ParameterError
@@ -61,15 +62,6 @@ TUNABLE: tuple[ParameterSpec, ...] = (
     ),
 )
 SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *TUNABLE)
-_POLICY_SETTINGS = (
-    "touchdown_angle",
-    "touchdown_power",
-    "target_energy",
-    "target_height",
-    "target_speed",
-    "pd_kp",
-    "pd_kd",
-)
 
 
 class ControllerNode(Node):
@@ -78,22 +70,18 @@ class ControllerNode(Node):
     def __init__(self, **node_options: object) -> None:
         super().__init__("controller", **node_options)  # type: ignore[arg-type]
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
-        self.hopper = parameters.hopper_params(parameters.declare(self, SPECS))
+        self.hopper = hopper_from_parameters(parameters.declare(self, SPECS))
         self.published = 0
         self._previous_speed: float | None = None
         self._publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
         self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.QOS)
 
-    def _value(self, name: str) -> float:
-        return float(self.get_parameter(name).value)
-
     def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
         """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
         ParameterError if the policy has none (e.g. the leg cannot be placed from this apex)."""
-        spec = controllers.PolicySpec(
-            name=policy,
-            corrections=int(self.get_parameter("corrections").value),
-            **{name: self._value(name) for name in _POLICY_SETTINGS},
+        settings = controllers.PolicySpec.settings()
+        spec = controllers.PolicySpec.of(
+            policy, {parameter.name: parameter.value for parameter in self.get_parameters(settings)}
         )
         previous = xdot if self._previous_speed is None else self._previous_speed
         return spec.commands(self.hopper, y, xdot, previous).command()

@@ -98,14 +98,3 @@ def validate(specs: Sequence[ParameterSpec], parameters: Sequence[Parameter[Any]
                 successful=False, reason=f"{spec.name} must be one of {', '.join(spec.choices)}"
             )
     return SetParametersResult(successful=True)
-
-
-def hopper_params(values: dict[str, ParameterValue]) -> HopperParams:
-    """The HopperParams of declared :data:`HOPPER` values (ParameterError names a bad one)."""
-    return HopperParams(
-        m=float(values["mass"]),
-        k=float(values["stiffness"]),
-        r0=float(values["rest_length"]),
-        c=float(values["damping"]),
-        g=float(values["gravity"]),
-    )

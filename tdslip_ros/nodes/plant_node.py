@@ -53,6 +53,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
+from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model.events import Event, EventKind, Phase
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.params import ApexState, ParameterError
@@ -201,7 +202,7 @@ class PlantNode(Node):
         self._ticker: Ticker | None = None  # first: destroy_node must work if the rest raises
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         values = parameters.declare(self, SPECS)
-        self.hopper = parameters.hopper_params(values)
+        self.hopper = hopper_from_parameters(values)
         self._initial_command = ModelCommand(
             float(values["initial_touchdown_angle"]),
             float(values["initial_tau0"]),
