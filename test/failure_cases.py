@@ -79,5 +79,3 @@ FAILURE_CASES = (
         "no liftoff",
     ),
 )
-STANCE_FAILURE_CASES = tuple(case for case in FAILURE_CASES if "touchdown" not in case.phrase)
-"""The cases that fail in or after stance (the batched engine's per-lane failures)."""

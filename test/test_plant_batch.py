@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from failure_cases import STANCE_FAILURE_CASES
+from failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import units
 from tdslip_ros.model.batch import batch_apex_return_map, simulate_strides
@@ -57,13 +57,13 @@ def test_batch_map_agrees_with_the_exact_map_on_a_grid() -> None:
 
 @pytest.mark.parametrize(
     ("params", "apex", "command", "kind"),
-    [case[1:5] for case in STANCE_FAILURE_CASES],
-    ids=[case.name for case in STANCE_FAILURE_CASES],
+    [case[1:5] for case in FAILURE_CASES],
+    ids=[case.name for case in FAILURE_CASES],
 )
-def test_stance_failures_per_lane(
+def test_each_failure_per_lane(
     params: HopperParams, apex: ApexState, command: StanceCommand, kind: FailureKind
 ) -> None:
-    """Each stance failure in a lane of its own, next to a lane that hops on."""
+    """Each failure in a lane of its own, next to a lane that hops on."""
     assert apex_return_map(params, apex, command).failure is kind
     good_apex = ApexState(1.2, 4.0)
     good_command = StanceCommand(math.radians(20.0), -600.0, 0.15)
