@@ -36,21 +36,27 @@ MESSAGE_FIELDS: dict[str, list[FieldSpec]] = {
         ("leg_angle_rate", "double", "rad/s"),
         ("hip_torque", "double", "N m"),
         ("energy", "double", "J"),
+        ("ground_height", "double", "m"),
     ],
     "ApexEvent": [
         HEADER,
+        ("epoch", "uint32", "-"),
         ("stride", "uint32", "-"),
         ("sim_time", "double", "s"),
         ("x", "double", "m"),
         ("height", "double", "m"),
         ("forward_speed", "double", "m/s"),
         ("energy", "double", "J"),
+        ("ground_height", "double", "m"),
+        ("measured_height", "double", "m"),
+        ("measured_forward_speed", "double", "m/s"),
         ("hip_work", "double", "J"),
         ("damping_loss", "double", "J"),
         ("spring_loss", "double", "J"),
     ],
     "StanceCommand": [
         HEADER,
+        ("epoch", "uint32", "-"),
         ("stride", "uint32", "-"),
         ("touchdown_angle", "double", "rad"),
         ("tau0", "double", "N m"),
@@ -60,12 +66,15 @@ MESSAGE_FIELDS: dict[str, list[FieldSpec]] = {
     "ContactEvent": [
         HEADER,
         ("kind", "uint8", "-"),
+        ("epoch", "uint32", "-"),
         ("stride", "uint32", "-"),
         ("sim_time", "double", "s"),
+        ("ground_height", "double", "m"),
         ("state", "tdslip_msgs/HopperState", None),
     ],
     "Status": [
         HEADER,
+        ("epoch", "uint32", "-"),
         ("stride", "uint32", "-"),
         ("sim_time", "double", "s"),
         ("kind", "string", "-"),
@@ -74,7 +83,11 @@ MESSAGE_FIELDS: dict[str, list[FieldSpec]] = {
     ],
 }
 RESET_REQUEST: list[FieldSpec] = [("height", "double", "m"), ("forward_speed", "double", "m/s")]
-RESET_RESPONSE: list[FieldSpec] = [("success", "boolean", "-"), ("message", "string", "-")]
+RESET_RESPONSE: list[FieldSpec] = [
+    ("success", "boolean", "-"),
+    ("epoch", "uint32", "-"),
+    ("message", "string", "-"),
+]
 
 CONSTANTS: dict[str, dict[str, int | str]] = {
     "HopperState": {"PHASE_FLIGHT": 0, "PHASE_STANCE": 1},
@@ -84,6 +97,7 @@ CONSTANTS: dict[str, dict[str, int | str]] = {
         "KIND_NO_LIFTOFF": "no_liftoff",
         "KIND_FALL": "fall",
         "KIND_REVERSAL": "reversal",
+        "KIND_STATE_LIMIT": "state_limit",
         "KIND_COMMAND_TIMEOUT": "command_timeout",
         "KIND_COMMAND_REJECTED": "command_rejected",
         "KIND_PUBLISH_FAILED": "publish_failed",

@@ -550,7 +550,8 @@ class PlantNode(Node):
         msg = ApexEvent(stride=stride, sim_time=self._offset + state.t, x=state.x, height=state.y)
         msg.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, msg.sim_time)
-        msg.forward_speed = state.xdot
+        msg.forward_speed = msg.measured_forward_speed = state.xdot
+        msg.measured_height = state.y
         msg.energy = state.energy
         flows = self._stepper.last_stride_energy if stride > 0 else None
         if flows is not None:
