@@ -14,14 +14,18 @@ import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 from tdslip_ros.bag.schema import package_share_directory
 from tdslip_ros.model.params import HopperParams
 
-STATE = "/tdslip/state"
-GRF = "/tdslip/grf"
-APEX = "/tdslip/apex"
-CONTACT = "/tdslip/contact"
-STATUS = "/tdslip/status"
-COMMAND = "/tdslip/command"
+# Relative names: the nodes create their topics and service with these, so a node's namespace
+# (``--ros-args -r __ns:=/hopper1``) and remapping apply as in any ROS 2 package. /clock is global.
+STATE = "tdslip/state"
+GRF = "tdslip/grf"
+APEX = "tdslip/apex"
+CONTACT = "tdslip/contact"
+STATUS = "tdslip/status"
+COMMAND = "tdslip/command"
+RECORDER_STATUS = "tdslip/recorder_status"
+MARKERS = "tdslip/markers"
 CLOCK = "/clock"
-RESET_SERVICE = "/tdslip/reset"
+RESET_SERVICE = "tdslip/reset"
 
 TOPIC_TYPES: dict[str, str] = {
     STATE: "tdslip_msgs/msg/HopperState",
@@ -31,7 +35,19 @@ TOPIC_TYPES: dict[str, str] = {
     STATUS: "tdslip_msgs/msg/Status",
     COMMAND: "tdslip_msgs/msg/StanceCommand",
 }
-"""Every /tdslip topic with the type name rosbag2 records for it."""
+"""The suite's topics that a run's analysis needs, by relative name, with the type name rosbag2
+records for them."""
+
+
+def resolve(name: str, namespace: str = "/") -> str:
+    """The fully qualified name of a suite topic or service in ``namespace`` (``/h1`` ->
+    ``/h1/tdslip/state``); absolute names (/clock) stay as they are."""
+    if name.startswith("/"):
+        return name
+    if not namespace.startswith("/"):
+        namespace = "/" + namespace
+    return f"{namespace.rstrip('/')}/{name}"
+
 
 HOPPER_PARAMETERS = {"m": "mass", "k": "stiffness", "r0": "rest_length", "c": "damping", "g": "gravity"}
 """HopperParams fields and the names of the plant's and controller's parameters that hold them (SI)."""

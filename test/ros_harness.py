@@ -62,7 +62,7 @@ class RosGraph:
         """A list that fills with every message on ``topic`` (suite QoS)."""
         received: list[Any] = []
         (node or self.node(f"collect_{len(self.nodes)}")).create_subscription(
-            message_class, topic, received.append, topics.QOS
+            message_class, topic, received.append, topics.STREAM_QOS
         )
         return received
 

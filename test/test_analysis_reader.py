@@ -25,6 +25,7 @@ from tdslip_ros.analysis.reader import (
     mcap_file,
     read_run,
 )
+from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
 
@@ -52,17 +53,21 @@ def test_the_offline_analysis_does_not_load_rclpy(repo_root: Path) -> None:
 
 
 def test_interface_type_names_are_those_of_the_generated_message_classes() -> None:
-    expected = {topic: topics.type_name(topics.MESSAGE_TYPES[topic]) for topic in topics.TDSLIP_TOPICS}
+    expected = {
+        topic: topics.type_name(topics.MESSAGE_TYPES[topic])
+        for topic in topics.RECORDED_TOPICS
+        if topic != topics.MARKERS
+    }
     assert interfaces.TOPIC_TYPES == expected
 
 
 def test_records_match_what_the_plant_published(energy: RunReport) -> None:
     run = read_run(energy.bag)
     assert run.message_counts == energy.recorded
-    assert len(run.samples) == energy.published[topics.STATE] == len(run.samples.grf_t)
-    assert len(run.apexes) == energy.published[topics.APEX] == len(run.strides)
-    assert len(run.contacts) == energy.published[topics.CONTACT]
-    assert len(run.commands) == energy.published[topics.COMMAND]
+    assert len(run.samples) == energy.published[resolve(topics.STATE)] == len(run.samples.grf_t)
+    assert len(run.apexes) == energy.published[resolve(topics.APEX)] == len(run.strides)
+    assert len(run.contacts) == energy.published[resolve(topics.CONTACT)]
+    assert len(run.commands) == energy.published[resolve(topics.COMMAND)]
     # The runner's monitor received the apex events over DDS and rclpy: an independent decoding path.
     for stride, apex in zip(run.strides, energy.apexes, strict=True):
         assert (stride.stride, stride.t, stride.y, stride.xdot, stride.energy) == (
@@ -114,11 +119,11 @@ def test_vectorised_1khz_columns_equal_mcap_ros2_decoding(energy: RunReport, mca
     decoded: dict[str, list[object]] = {name: [] for name in (*fields, "t", "fx", "fy")}
     with open(mcap_path, "rb") as stream:
         messages = make_reader(stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
-            topics=[topics.STATE, topics.GRF]
+            topics=[resolve(topics.STATE), resolve(topics.GRF)]
         )
         for _, channel, _, msg in messages:
             stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            if channel.topic == topics.STATE:
+            if channel.topic == resolve(topics.STATE):
                 decoded["t"].append(stamp)
                 for name, field in fields.items():
                     decoded[name].append(getattr(msg, field))
@@ -242,35 +247,49 @@ def test_corrupt_chunk(mcap_path: Path, tmp_path: Path, where: str) -> None:
 
 
 def test_missing_topics_are_named(mcap_path: Path, tmp_path: Path) -> None:
-    path = rewrite(mcap_path, tmp_path / "reduced.mcap", keep=lambda t: t not in (topics.GRF, topics.CONTACT))
-    message = _expect_error(path, "missing topics", topics.GRF, topics.CONTACT)
-    assert topics.STATE not in message.split("(recorded:")[0]
+    path = rewrite(
+        mcap_path,
+        tmp_path / "reduced.mcap",
+        keep=lambda t: t not in (resolve(topics.GRF), resolve(topics.CONTACT)),
+    )
+    message = _expect_error(path, "missing topics", resolve(topics.GRF), resolve(topics.CONTACT))
+    assert resolve(topics.STATE) not in message.split("(recorded:")[0]
 
 
 def test_a_topic_of_the_wrong_type(mcap_path: Path, tmp_path: Path) -> None:
-    path = rewrite(mcap_path, tmp_path / "retyped.mcap", retype={topics.APEX: "tdslip_msgs/msg/Status"})
+    path = rewrite(
+        mcap_path, tmp_path / "retyped.mcap", retype={resolve(topics.APEX): "tdslip_msgs/msg/Status"}
+    )
     _expect_error(
-        path, f"topic {topics.APEX} has type tdslip_msgs/msg/Status", "expected tdslip_msgs/msg/ApexEvent"
+        path,
+        f"topic {resolve(topics.APEX)} has type tdslip_msgs/msg/Status",
+        "expected tdslip_msgs/msg/ApexEvent",
     )
 
 
 def test_no_apex_messages(mcap_path: Path, tmp_path: Path) -> None:
-    path = rewrite(mcap_path, tmp_path / "no_apex.mcap", retype={topics.APEX: "tdslip_msgs/msg/ApexEvent"})
-    _expect_error(path, f"topic {topics.APEX} has no messages")
+    path = rewrite(
+        mcap_path, tmp_path / "no_apex.mcap", retype={resolve(topics.APEX): "tdslip_msgs/msg/ApexEvent"}
+    )
+    _expect_error(path, f"topic {resolve(topics.APEX)} has no messages")
 
 
 def test_an_undecodable_message(mcap_path: Path, tmp_path: Path) -> None:
     path = rewrite(
         mcap_path,
         tmp_path / "bad_cdr.mcap",
-        change=lambda topic, index, data: data[:10] if (topic, index) == (topics.COMMAND, 2) else data,
+        change=lambda topic, index, data: (
+            data[:10] if (topic, index) == (resolve(topics.COMMAND), 2) else data
+        ),
     )
-    _expect_error(path, f"topic {topics.COMMAND}: undecodable message")
+    _expect_error(path, f"topic {resolve(topics.COMMAND)}: undecodable message")
 
 
 def test_a_run_without_a_complete_stance_needs_its_parameters(mcap_path: Path, tmp_path: Path) -> None:
     path = rewrite(
-        mcap_path, tmp_path / "no_contacts.mcap", retype={topics.CONTACT: "tdslip_msgs/msg/ContactEvent"}
+        mcap_path,
+        tmp_path / "no_contacts.mcap",
+        retype={resolve(topics.CONTACT): "tdslip_msgs/msg/ContactEvent"},
     )
     _expect_error(path, "cannot infer the hopper parameters", "give the parameters")
 

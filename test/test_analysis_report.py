@@ -12,7 +12,7 @@ from tdslip_ros import cli
 from tdslip_ros.analysis import reader
 from tdslip_ros.analysis.reader import RunReadError
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml, main
-from tdslip_ros.interfaces import config_file
+from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
 
@@ -89,8 +89,8 @@ def test_analyze_fails_cleanly(
     source = reader.mcap_file(energy.bag)
     arguments = []
     if damage == "missing_topic":
-        path = rewrite(source, tmp_path / "run.mcap", keep=lambda topic: topic != topics.STATE)
-        expected = f"missing topic {topics.STATE}"
+        path = rewrite(source, tmp_path / "run.mcap", keep=lambda topic: topic != resolve(topics.STATE))
+        expected = f"missing topic {resolve(topics.STATE)}"
     elif damage == "truncated":
         path = tmp_path / "run.mcap"
         path.write_bytes(source.read_bytes()[:-1000])

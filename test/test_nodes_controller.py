@@ -20,6 +20,18 @@ BETA = math.radians(22.0)
 TARGET = (1.05, 4.6)  # m, m/s
 
 
+def apex_event(stride: int, y: float, xdot: float, epoch: int = 0) -> ApexEvent:
+    """An apex as the plant publishes it on flat ground without sensing noise (measured = true)."""
+    return ApexEvent(
+        epoch=epoch,
+        stride=stride,
+        height=y,
+        forward_speed=xdot,
+        measured_height=y,
+        measured_forward_speed=xdot,
+    )
+
+
 class Bench:
     """A controller with a probe that publishes apex events and collects the answers."""
 
@@ -27,7 +39,7 @@ class Bench:
         self.ros = ros
         self.controller = ros.add(ControllerNode(context=ros.context))
         probe = ros.node("probe")
-        self.apex = probe.create_publisher(ApexEvent, topics.APEX, topics.QOS)
+        self.apex = probe.create_publisher(ApexEvent, topics.APEX, topics.STREAM_QOS)
         self.commands: list[StanceCommand] = ros.collect(StanceCommand, topics.COMMAND, probe)
         ros.spin_until(
             lambda: self.apex.get_subscription_count() >= 1 and probe.count_publishers(topics.COMMAND) >= 1,
@@ -42,7 +54,7 @@ class Bench:
 
     def answer(self, stride: int, y: float, xdot: float) -> StanceCommand:
         count = len(self.commands)
-        self.apex.publish(ApexEvent(stride=stride, height=y, forward_speed=xdot))
+        self.apex.publish(apex_event(stride, y, xdot))
         self.ros.spin_until(lambda: len(self.commands) > count, f"the answer to apex {stride}")
         assert len(self.commands) == count + 1
         return self.commands[-1]
@@ -104,18 +116,19 @@ def test_an_apex_without_a_command_gets_no_answer(ros: RosGraph) -> None:
     bench = Bench(ros)
     assert bench.set(policy="energy")
     # At 0.5 m the leg cannot be placed at 20 degrees (r0 cos = 0.94 m): no command exists.
-    bench.apex.publish(ApexEvent(stride=0, height=0.5, forward_speed=5.0))
+    bench.apex.publish(apex_event(0, 0.5, 5.0))
     answer = bench.answer(1, 1.0, 5.0)  # answers come in order: the first apex produced nothing
     assert answer.stride == 1 and len(bench.commands) == 1
 
 
 @pytest.mark.parametrize("policy", ["energy", "open_loop"])
-def test_answer_keeps_the_apex_stamp(ros: RosGraph, policy: str) -> None:
+def test_answer_keeps_the_apex_stamp_and_epoch(ros: RosGraph, policy: str) -> None:
     bench = Bench(ros)
     assert bench.set(policy=policy)
-    msg = ApexEvent(stride=4, height=1.0, forward_speed=5.0)
+    msg = apex_event(4, 1.0, 5.0, epoch=7)
     msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 345_000_000
     count = len(bench.commands)
     bench.apex.publish(msg)
     ros.spin_until(lambda: len(bench.commands) > count, "the answer")
     assert (bench.commands[-1].header.stamp.sec, bench.commands[-1].header.stamp.nanosec) == (12, 345_000_000)
+    assert (bench.commands[-1].epoch, bench.commands[-1].stride) == (7, 4)

@@ -16,6 +16,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from ros_harness import RosGraph, stop_process
 
+from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.parameters import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
 from tdslip_ros.nodes.plant_node import TICK_PERIOD
@@ -32,9 +33,16 @@ def test_executables_hop_on_their_own_with_the_installed_config(ros: RosGraph, t
         [str(lib / "recorder_node"), "--ros-args", "-p", f"output:={bag}"], tmp_path / "recorder.log"
     )
     controller = ros.start_process([str(lib / "controller_node")], tmp_path / "controller.log")
-    # Lockstep (plant.yaml): it waits for the controller, and here for the recorder on every topic.
+    # Lockstep (plant.yaml): it waits for the controller, and here for the recorder (wait_for_recorder).
     plant = ros.start_process(
-        [str(lib / "plant_node"), "--ros-args", "-p", f"max_strides:={STRIDES}", "-p", "min_subscribers:=1"],
+        [
+            str(lib / "plant_node"),
+            "--ros-args",
+            "-p",
+            f"max_strides:={STRIDES}",
+            "-p",
+            "wait_for_recorder:=true",
+        ],
         tmp_path / "plant.log",
     )
     assert plant.wait(60) == 0, (tmp_path / "plant.log").read_text()  # exit_when_done, run complete
@@ -47,10 +55,10 @@ def test_executables_hop_on_their_own_with_the_installed_config(ros: RosGraph, t
             stream, decoder_factories=[DecoderFactory()]
         ).iter_decoded_messages():
             messages.setdefault(channel.topic, []).append(message)
-    apexes = messages[topics.APEX]
+    apexes = messages[resolve(topics.APEX)]
     assert [apex.stride for apex in apexes] == list(range(STRIDES + 1))
     assert (apexes[0].height, apexes[0].forward_speed) == (DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED)
-    assert {command.policy for command in messages[topics.COMMAND]} == {"energy"}
-    assert [status.kind for status in messages[topics.STATUS]] == ["run_complete"]
+    assert {command.policy for command in messages[resolve(topics.COMMAND)]} == {"energy"}
+    assert [status.kind for status in messages[resolve(topics.STATUS)]] == ["run_complete"]
     # Samples at t = 0 and at the end of every tick up to the one of the last apex.
-    assert len(messages[topics.STATE]) == math.ceil(apexes[-1].sim_time / TICK_PERIOD) + 1
+    assert len(messages[resolve(topics.STATE)]) == math.ceil(apexes[-1].sim_time / TICK_PERIOD) + 1

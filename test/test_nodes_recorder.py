@@ -20,6 +20,7 @@ from ros_harness import RosGraph, overrides, stop_process
 from rosbags.highlevel import AnyReader
 from tdslip_msgs.msg import ApexEvent
 
+from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.entry import wait_for_delivery
@@ -34,27 +35,23 @@ def start_recorder(ros: RosGraph, bag: Path, record_clock: bool) -> subprocess.P
     return ros.start_module(RECORDER, arguments, bag.parent / "recorder.log")
 
 
-def start_hopping(
-    ros: RosGraph, record_clock: bool, **plant_values: object
-) -> tuple[PlantNode, ControllerNode]:
-    """Plant and controller in-process; the plant starts once the recorder listens everywhere."""
+def start_hopping(ros: RosGraph, **plant_values: object) -> tuple[PlantNode, ControllerNode]:
+    """Plant (waiting for the recorder) and controller in-process; the plant starts by itself once
+    the recorder has matched every publisher and the controller is connected."""
     plant = ros.add(
-        PlantNode(context=ros.context, autostart=False, parameter_overrides=overrides(**plant_values))
+        PlantNode(context=ros.context, parameter_overrides=overrides(wait_for_recorder=True, **plant_values))
     )
     controller = ros.add(ControllerNode(context=ros.context))
-    published = [t for t in topics.TDSLIP_TOPICS if t != topics.COMMAND] + (
-        [topics.CLOCK] if record_clock else []
-    )
-    ros.spin_until(
-        lambda: (
-            all(plant.matched_subscribers(t) >= 1 for t in published)
-            and plant.matched_subscribers(topics.APEX) >= 2
-            and plant.count_subscribers(topics.COMMAND) >= 2
-        ),
-        "the recorder and the controller to connect",
-    )
-    plant.start()
+    ros.spin_until(lambda: plant.start_wall_ns > 0, "the recorder and the controller to connect")
     return plant, controller
+
+
+def published_counts(plant: PlantNode, controller: ControllerNode) -> dict[str, int]:
+    """What the plant and the controller published, by recorded (fully qualified) topic name."""
+    return {
+        resolve(topic): count
+        for topic, count in {**plant.published, topics.COMMAND: controller.published}.items()
+    }
 
 
 def mcap_contents(path: Path) -> tuple[Any, dict[str, int], dict[str, list[Any]]]:
@@ -103,15 +100,15 @@ def test_recording_decodes_in_two_readers_with_the_published_counts(ros: RosGrap
     bag = tmp_path / "bag"
     recorder = start_recorder(ros, bag, record_clock=True)
     apexes = ros.collect(ApexEvent, topics.APEX)
-    plant, controller = start_hopping(ros, record_clock=True, max_strides=3)
+    plant, controller = start_hopping(ros, max_strides=3)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     ros.spin_until(
         lambda: len(apexes) == controller.published == plant.published[topics.APEX], "every apex answered"
     )
-    assert wait_for_delivery(plant) and wait_for_delivery(controller)
+    assert plant.deliver(ros.executor) and wait_for_delivery(controller)
     assert stop_process(recorder) == 0
-    published = {**plant.published, topics.COMMAND: controller.published}
-    assert set(published) == set(topics.MESSAGE_TYPES)
+    published = published_counts(plant, controller)
+    assert set(published) == {resolve(topic) for topic in topics.MESSAGE_TYPES}
 
     summary, mcap_counts, mcap_messages = mcap_contents(bag / "bag_0.mcap")
     assert mcap_counts == published
@@ -124,31 +121,14 @@ def test_recording_decodes_in_two_readers_with_the_published_counts(ros: RosGrap
     assert metadata_counts(bag) == published
 
     for decoded in (mcap_messages, rosbags_messages):
-        assert [(m.stride, m.height, m.forward_speed) for m in decoded[topics.APEX]] == [
+        assert [(m.stride, m.height, m.forward_speed) for m in decoded[resolve(topics.APEX)]] == [
             (m.stride, m.height, m.forward_speed) for m in apexes
         ]
-        assert_gapless_from_start(decoded[topics.STATE])
-        assert [stamp_ns(m) for m in decoded[topics.GRF]] == [stamp_ns(m) for m in decoded[topics.STATE]]
-        assert [m.stride for m in decoded[topics.COMMAND]] == list(range(len(apexes)))
-        assert decoded[topics.STATUS][-1].kind == "run_complete"
-
-
-def test_commands_published_before_the_recorder_matched_are_recorded(ros: RosGraph, tmp_path: Path) -> None:
-    """The controller may answer before the recorder has matched it (tdslip run cannot see that)."""
-    controller = ros.add(ControllerNode(context=ros.context))
-    apex = ros.node("probe").create_publisher(ApexEvent, topics.APEX, topics.QOS)
-    ros.spin_until(lambda: apex.get_subscription_count() >= 1, "the controller")
-    apex.publish(ApexEvent(stride=0, height=1.0, forward_speed=5.0))
-    ros.spin_until(lambda: controller.published == 1, "the answer")
-
-    bag = tmp_path / "bag"
-    recorder = start_recorder(ros, bag, record_clock=False)
-    (answers,) = (publisher for publisher in controller.publishers if publisher.topic_name == topics.COMMAND)
-    ros.spin_until(lambda: answers.get_subscription_count() >= 1, "the recorder to match the controller")
-    assert wait_for_delivery(controller)  # acknowledged by the recorder: it has the old answer
-    assert stop_process(recorder) == 0
-    _, counts, messages = mcap_contents(bag / "bag_0.mcap")
-    assert counts[topics.COMMAND] == 1 and messages[topics.COMMAND][0].stride == 0
+        states = decoded[resolve(topics.STATE)]
+        assert_gapless_from_start(states)
+        assert [stamp_ns(m) for m in decoded[resolve(topics.GRF)]] == [stamp_ns(m) for m in states]
+        assert [m.stride for m in decoded[resolve(topics.COMMAND)]] == list(range(len(apexes)))
+        assert decoded[resolve(topics.STATUS)][-1].kind == "run_complete"
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -157,7 +137,7 @@ def test_a_stop_signal_mid_run_leaves_a_finalised_readable_bag(
 ) -> None:
     bag = tmp_path / "bag"
     recorder = start_recorder(ros, bag, record_clock=False)
-    plant, _ = start_hopping(ros, record_clock=False, max_strides=0)  # hops until stopped
+    plant, _ = start_hopping(ros, max_strides=0)  # hops until stopped
     ros.spin_until(lambda: plant.published[topics.STATE] >= 1500, "1.5 s of simulated hopping")
     recorder.send_signal(signum)
     ros.spin_until(
@@ -169,6 +149,6 @@ def test_a_stop_signal_mid_run_leaves_a_finalised_readable_bag(
     _, mcap_counts, mcap_messages = mcap_contents(bag / "bag_0.mcap")  # needs the summary: finalised
     rosbags_counts, rosbags_messages = rosbags_contents(bag)
     assert mcap_counts == rosbags_counts == metadata_counts(bag)
-    assert mcap_counts[topics.STATE] >= 1500
+    assert mcap_counts[resolve(topics.STATE)] >= 1500
     for decoded in (mcap_messages, rosbags_messages):
-        assert_gapless_from_start(decoded[topics.STATE])
+        assert_gapless_from_start(decoded[resolve(topics.STATE)])

@@ -17,7 +17,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from tdslip_ros.analysis import reader
 from tdslip_ros.analysis.reader import open_recording
-from tdslip_ros.interfaces import config_file
+from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.replay import ReplayError, check_rate, main, offered_qos, replay, send_offset
 from tdslip_ros.nodes.runner import ChildNode, RunReport
@@ -71,22 +71,18 @@ def test_record_replay_record_gives_the_same_messages_in_the_same_order(
     log_times = [log_time for _, _, log_time, _, _ in raw_messages(original)]
     assert result.duration >= (max(log_times) - min(log_times)) * 1e-9
     replayed = _by_topic(reader.mcap_file(again))
-    assert set(replayed) == set(recorded) == set(topics.TDSLIP_TOPICS)
+    assert set(replayed) == set(recorded) == {resolve(topic) for topic in topics.RECORDED_TOPICS}
     for topic, messages in recorded.items():
         assert replayed[topic] == messages, topic  # same CDR bytes, same order, nothing lost
 
 
 def test_replay_publishes_with_the_recorded_qos(energy: RunReport) -> None:
     recording = open_recording(energy.bag)
-    for topic in topics.TDSLIP_TOPICS:
-        replayed, published = offered_qos(recording.topics[topic]), topics.qos(topic)
-        assert (replayed.history, replayed.reliability, replayed.durability) == (
-            published.history,
-            published.reliability,
-            published.durability,
-        ), topic
-        if published.history is HistoryPolicy.KEEP_LAST:
-            assert replayed.depth == published.depth, topic
+    for topic in topics.RECORDED_TOPICS:
+        replayed, published = offered_qos(recording.topics[resolve(topic)]), topics.qos(topic)
+        assert (replayed.reliability, replayed.durability) == (published.reliability, published.durability)
+        # The graph reports no history (recorded as unknown): kept last, as deep as the plant's.
+        assert replayed.history is HistoryPolicy.KEEP_LAST and replayed.depth == topics.STREAM_DEPTH, topic
 
 
 def test_schedule_scales_the_recorded_spacing() -> None:

@@ -21,7 +21,7 @@ corrupt chunk, a missing topic, a topic of the wrong type, an undecodable messag
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -45,6 +45,7 @@ from tdslip_ros.interfaces import (
     STATUS,
     TOPIC_TYPES,
     hopper_from_parameters,
+    resolve,
     stored_parameters,
 )
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
@@ -105,13 +106,19 @@ class TopicInfo:
 
 @dataclass(frozen=True)
 class Recording:
-    """A validated MCAP file: where it is, its topics, its message count and the ``custom_data`` of its
-    rosbag2 metadata (``tdslip run`` stores the nodes' parameters there; empty if none)."""
+    """A validated MCAP file: where it is, its topics (by recorded name), its message count, the
+    ``custom_data`` of its rosbag2 metadata (``tdslip run`` stores the nodes' parameters there; empty
+    if none) and the namespace the suite's topics were recorded in."""
 
     mcap_path: Path
     topics: dict[str, TopicInfo]
     message_count: int
     custom_data: dict[str, str]
+    namespace: str = "/"
+
+    def name(self, topic: str) -> str:
+        """The recorded name of a suite topic given by its relative name (interfaces.STATE, ...)."""
+        return resolve(topic, self.namespace)
 
 
 def mcap_file(path: Path) -> Path:
@@ -141,9 +148,27 @@ def mcap_file(path: Path) -> Path:
     return mcap_path
 
 
-def open_recording(path: Path, required: dict[str, str] | None = None) -> Recording:
-    """Check that ``path`` is a complete MCAP recording holding the ``required`` topics (with their
-    types; default :data:`TOPIC_TYPES`) and return its layout; RunReadError otherwise."""
+def suite_namespace(topics: Iterable[str], namespace: str | None = None) -> str:
+    """The namespace of the suite's topics among recorded topic names: ``namespace`` if given, else
+    the one namespace holding an apex topic ("/" if none does); RunReadError if several do."""
+    if namespace is not None:
+        return resolve("", namespace).rstrip("/") or "/"
+    suffix = "/" + APEX
+    found = sorted({name[: -len(suffix)] or "/" for name in topics if name.endswith(suffix)})
+    if len(found) > 1:
+        raise RunReadError(
+            f"the recording holds the hopper topics of several namespaces ({', '.join(found)}); "
+            "choose one (--namespace)"
+        )
+    return found[0] if found else "/"
+
+
+def open_recording(
+    path: Path, required: dict[str, str] | None = None, namespace: str | None = None
+) -> Recording:
+    """Check that ``path`` is a complete MCAP recording holding the ``required`` suite topics (relative
+    names with their types; default :data:`TOPIC_TYPES`) in ``namespace`` (default: found by
+    :func:`suite_namespace`) and return its layout; RunReadError otherwise."""
     required = TOPIC_TYPES if required is None else required
     mcap_path = mcap_file(path)
     with open(mcap_path, "rb") as stream:
@@ -167,19 +192,22 @@ def open_recording(path: Path, required: dict[str, str] | None = None) -> Record
         )
         for channel_id, channel in summary.channels.items()
     }
-    missing = [topic for topic in required if topic not in topics]
+    namespace = suite_namespace(topics, namespace)
+    missing = [resolve(topic, namespace) for topic in required if resolve(topic, namespace) not in topics]
     if missing:
         raise RunReadError(
             f"{mcap_path}: missing topic{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
             f"(recorded: {', '.join(sorted(topics)) or 'none'})"
         )
     for topic, type_name in required.items():
-        if topics[topic].type_name != type_name:
+        recorded = topics[resolve(topic, namespace)]
+        if recorded.type_name != type_name:
             raise RunReadError(
-                f"{mcap_path}: topic {topic} has type {topics[topic].type_name or 'unknown'}, "
+                f"{mcap_path}: topic {recorded.topic} has type {recorded.type_name or 'unknown'}, "
                 f"expected {type_name}"
             )
-    return Recording(mcap_path, topics, summary.statistics.message_count, _custom_data(mcap_path, rosbag2))
+    custom_data = _custom_data(mcap_path, rosbag2)
+    return Recording(mcap_path, topics, summary.statistics.message_count, custom_data, namespace)
 
 
 def _custom_data(mcap_path: Path, rosbag2: list[dict[str, str]]) -> dict[str, str]:
@@ -516,10 +544,12 @@ class Run:
         return np.array([(s.y, s.xdot) for s in self.strides], dtype=float).reshape(-1, 2)
 
 
-def read_run(path: Path, params: HopperParams | None = None) -> Run:
-    """Load a run (see the module docstring); ``params`` overrides the inferred hopper parameters."""
-    recording = open_recording(path)
-    schemas = {topic: info.schema for topic, info in recording.topics.items()}
+def read_run(path: Path, params: HopperParams | None = None, namespace: str | None = None) -> Run:
+    """Load a run (see the module docstring); ``params`` overrides the inferred hopper parameters,
+    ``namespace`` chooses the hopper in a recording of several (see :func:`suite_namespace`)."""
+    recording = open_recording(path, namespace=namespace)
+    suite_topics = {recording.name(topic): topic for topic in TOPIC_TYPES}
+    schemas = {topic: recording.topics[name].schema for name, topic in suite_topics.items()}
     events: dict[str, list[bytes]] = {topic: [] for topic in (APEX, CONTACT, STATUS, COMMAND)}
     log_times: list[int] = []
     stream_batches: dict[str, list[bytes]] = {STATE: [], GRF: []}
@@ -530,12 +560,15 @@ def read_run(path: Path, params: HopperParams | None = None) -> Run:
         schema = schemas[topic]
         assert schema is not None
         columns[topic].append(
-            _checked(topic, lambda: _decoded_columns(schema, stream_batches[topic], fields[topic]))
+            _checked(
+                recording.name(topic),
+                lambda: _decoded_columns(schema, stream_batches[topic], fields[topic]),
+            )
         )
         stream_batches[topic] = []
 
     for channel, message in iter_messages(recording):
-        topic = channel.topic
+        topic = suite_topics.get(channel.topic, "")
         if topic in stream_batches:
             stream_batches[topic].append(message.data)
             if len(stream_batches[topic]) >= _BATCH:
@@ -547,7 +580,9 @@ def read_run(path: Path, params: HopperParams | None = None) -> Run:
     for topic in stream_batches:
         flush(topic)
 
-    decoded = {topic: _decode_all(topic, schemas[topic], datas) for topic, datas in events.items()}
+    decoded = {
+        topic: _decode_all(recording.name(topic), schemas[topic], datas) for topic, datas in events.items()
+    }
     apexes = sorted((_apex(m) for m in decoded[APEX]), key=lambda a: a.t)
     contacts = sorted((_contact(m) for m in decoded[CONTACT]), key=lambda c: c.t)
     commands = [_command(m, log_time) for m, log_time in zip(decoded[COMMAND], log_times, strict=True)]
@@ -559,7 +594,9 @@ def read_run(path: Path, params: HopperParams | None = None) -> Run:
             f"{resets[0].t:.3f} s); analysing a recording of several runs is not supported"
         )
     if not apexes:
-        raise RunReadError(f"{recording.mcap_path}: topic {APEX} has no messages (not even the initial apex)")
+        raise RunReadError(
+            f"{recording.mcap_path}: topic {recording.name(APEX)} has no messages (not even the initial apex)"
+        )
     samples = _samples(columns)
     source = "given"
     if params is None:

@@ -30,13 +30,14 @@ from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.nodes import parameters, topics
-from tdslip_ros.nodes.entry import run_node
+from tdslip_ros.nodes.entry import run_node, wait_for_matching
 from tdslip_ros.nodes.parameters import ParameterSpec
 
 DEFAULT_TARGET_ENERGY = parameters.PAPER_PARAMS.m * (
     parameters.PAPER_PARAMS.g * parameters.DEFAULT_APEX_HEIGHT + 0.5 * parameters.DEFAULT_APEX_SPEED**2
 )
 """J, the energy of the default initial apex: energy regulation then keeps the hopper's energy."""
+MATCH_TIMEOUT = 1.0  # s an answer waits for its publisher to match a subscriber the graph already shows
 
 TUNABLE: tuple[ParameterSpec, ...] = (
     ParameterSpec("policy", "energy", "stance policy answering each apex", choices=POLICIES),
@@ -65,7 +66,7 @@ SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *TUNABLE)
 
 
 class ControllerNode(Node):
-    """Subscribes /tdslip/apex, publishes one /tdslip/command per apex it can answer."""
+    """Subscribes tdslip/apex, publishes one tdslip/command per apex it can answer."""
 
     def __init__(self, **node_options: object) -> None:
         super().__init__("controller", **node_options)  # type: ignore[arg-type]
@@ -74,7 +75,7 @@ class ControllerNode(Node):
         self.published = 0
         self._previous_speed: float | None = None
         self._publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
-        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.QOS)
+        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
 
     def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
         """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
@@ -90,17 +91,20 @@ class ControllerNode(Node):
         if apex.stride == 0:
             self._previous_speed = None  # a new run: no previous apex for the PD's derivative term
         policy = str(self.get_parameter("policy").value)
+        # What the controller can know: the measured apex, its height above the ground it last stood on.
+        height, speed = apex.measured_height - apex.ground_height, apex.measured_forward_speed
         try:
-            command = self.plan(policy, apex.height, apex.forward_speed)
+            command = self.plan(policy, height, speed)
         except ParameterError as error:
             self.get_logger().error(
-                f"{policy}: no command for apex {apex.stride} (y = {apex.height:.6g} m, "
-                f"xdot = {apex.forward_speed:.6g} m/s): {error}"
+                f"{policy}: no command for apex {apex.stride} (y = {height:.6g} m above the ground, "
+                f"xdot = {speed:.6g} m/s): {error}"
             )
             return
         finally:
-            self._previous_speed = apex.forward_speed
+            self._previous_speed = speed
         msg = StanceCommand(
+            epoch=apex.epoch,
             stride=apex.stride,
             touchdown_angle=command.touchdown_angle,
             tau0=command.tau0,
@@ -108,13 +112,18 @@ class ControllerNode(Node):
             policy=policy,
         )
         msg.header = apex.header
+        # A recorder or plant the graph shows but this publisher has not matched yet would miss it.
+        if not wait_for_matching(self, [self._publisher], MATCH_TIMEOUT):
+            self.get_logger().warning(f"{self._publisher.topic_name}: not every subscriber matched in time")
         self._publisher.publish(msg)
         self.published += 1
 
 
 def main(argv: list[str] | None = None) -> int:
     """``controller_node [--ros-args ...]``: serve until SIGINT/SIGTERM, config/controller.yaml by default."""
-    return run_node(ControllerNode, "controller.yaml", sys.argv if argv is None else argv, lambda node: False)
+    return run_node(
+        ControllerNode, "controller.yaml", sys.argv if argv is None else argv, lambda node: False, specs=SPECS
+    )
 
 
 if __name__ == "__main__":

@@ -19,10 +19,10 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import rclpy
 from rclpy.duration import Duration
@@ -30,15 +30,18 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor
 from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
 from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
-from tdslip_ros.nodes import isolation
+from tdslip_ros.nodes import isolation, parameters
+from tdslip_ros.nodes.parameters import ParameterSpec
 
 SPIN_SLICE = 0.1
 """s, longest a spin call blocks: how soon signal handlers and exit checks get to run."""
 DELIVERY_TIMEOUT = 5.0  # s
+MATCH_POLL = 0.001  # s between two looks at a publisher's matched subscriptions
 PARENT_PID_VARIABLE = "TDSLIP_PARENT_PID"
 """Set by a supervising process (``tdslip run``): its node children stop when it is gone."""
 BAD_PARAMETERS = 2  # exit status of a node executable refusing its parameters
@@ -78,29 +81,47 @@ def spin_until(executor: Executor, condition: Callable[[], bool], timeout: float
     return True
 
 
-def wait_for_delivery(node: Node, timeout: float = DELIVERY_TIMEOUT) -> bool:
-    """Wait until each of ``node``'s publishers has matched every subscription the graph shows on
-    its topic and every reliable subscriber has acknowledged everything published (False if not
-    within ``timeout`` s). Matching first: a subscriber discovered but not yet matched (a late
-    recorder on a loaded machine) would otherwise miss even a transient-local history."""
+def wait_for_matching(node: Node, publishers: Sequence[Publisher[Any]], timeout: float) -> bool:
+    """Wait (sleeping, without spinning: DDS matches on threads of its own) until each publisher
+    has matched every subscription the graph shows on its topic; False after ``timeout`` s.
+    A volatile publisher sends nothing to a subscriber it has not matched yet, even one the graph
+    already shows: this is how a node makes sure a recorder that started first hears it."""
     deadline = time.monotonic() + timeout
 
     def matched() -> bool:
-        return all(
-            publisher.get_subscription_count() >= node.count_subscribers(publisher.topic_name)
-            for publisher in node.publishers
-        )
+        return all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in publishers)
 
-    while not matched() and time.monotonic() < deadline:
-        time.sleep(SPIN_SLICE / 10)
-    left = Duration(nanoseconds=max(0, round((deadline - time.monotonic()) * 1e9)))
-    return matched() and all(publisher.wait_for_all_acked(left) for publisher in node.publishers)
+    while not matched():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(MATCH_POLL)
+    return True
+
+
+def wait_for_delivery(node: Node, timeout: float = DELIVERY_TIMEOUT) -> bool:
+    """Wait until each of ``node``'s publishers has matched every subscription the graph shows on
+    its topic and every reliable subscriber has acknowledged everything published (False if not
+    within ``timeout`` s)."""
+    deadline = time.monotonic() + timeout
+    if not wait_for_matching(node, node.publishers, timeout):
+        return False
+
+    def acknowledged(publisher: Publisher[Any]) -> bool:
+        left = Duration(nanoseconds=max(0, round((deadline - time.monotonic()) * 1e9)))
+        return bool(publisher.wait_for_all_acked(left))
+
+    return all(acknowledged(publisher) for publisher in node.publishers)
 
 
 def orphaned() -> bool:
     """True once the supervisor named by PARENT_PID_VARIABLE is no longer this process's parent."""
     supervisor = os.environ.get(PARENT_PID_VARIABLE)
     return supervisor is not None and os.getppid() != int(supervisor)
+
+
+def _delivered_to_every_subscriber(node: Node, executor: Executor) -> None:
+    if not wait_for_delivery(node):
+        node.get_logger().warning("not every subscriber acknowledged every message before exit")
 
 
 def run_node(
@@ -110,10 +131,20 @@ def run_node(
     finished: Callable[[NodeT], bool],
     exit_status: Callable[[NodeT], int] = lambda node: 0,
     on_stop: Callable[[NodeT, Executor], None] = lambda node, executor: None,
+    *,
+    specs: Sequence[ParameterSpec] = (),
+    deliver: Callable[[NodeT, Executor], None] = _delivered_to_every_subscriber,
 ) -> int:
-    """Main of a node executable: init with the default params file, spin until ``finished(node)``
-    or a stop signal, run ``on_stop``, deliver what was published, shut down; returns
+    """Main of a node executable: check the command line (params files exist, ``-p`` values of
+    ``specs`` have their types), init with the default params file, spin until ``finished(node)``
+    or a stop signal, run ``on_stop``, ``deliver`` what was published, shut down; returns
     ``exit_status(node)``, or BAD_PARAMETERS if the node refused its parameters or output."""
+    name = Path(argv[0]).name
+    try:
+        argv = parameters.check_command_line(argv, specs)
+    except ParameterError as error:
+        print(f"{name}: {error}", file=sys.stderr)
+        return BAD_PARAMETERS
     os.environ.update(isolation.dds_settings())
     rclpy.init(
         args=with_default_params_file(argv, config_name), signal_handler_options=SignalHandlerOptions.NO
@@ -123,15 +154,14 @@ def run_node(
         try:
             node = factory()
         except (ParameterException, ParameterError, OSError) as error:
-            print(f"{Path(argv[0]).name}: {error}", file=sys.stderr)
+            print(f"{name}: {error}", file=sys.stderr)
             return BAD_PARAMETERS
         executor = EventsExecutor()
         executor.add_node(node)
         try:
             spin_until(executor, lambda: stop.is_set() or finished(node) or orphaned())
             on_stop(node, executor)
-            if not wait_for_delivery(node):
-                node.get_logger().warning("not every subscriber acknowledged every message before exit")
+            deliver(node, executor)
         finally:
             executor.shutdown()
             node.destroy_node()

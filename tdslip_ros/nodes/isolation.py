@@ -33,6 +33,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+VALID_DOMAIN_IDS = range(0, 233)
+"""The ids Fast DDS can use: its port arithmetic runs out of ports above 232."""
 DOMAIN_POOL = range(120, 230)
 DISCOVERY_RANGE = "LOCALHOST"
 HEARTBEAT_PERIOD_NS = 50_000_000
@@ -76,7 +78,7 @@ def reserved_domain(domain_id: int | None = None) -> Iterator[int]:
             os.close(descriptor)  # releases the lock
         return
     raise RuntimeError(
-        f"ROS domain {domain_id} is in use"
+        f"ROS domain {domain_id} is in use by another run (choose another --domain-id, or none)"
         if domain_id is not None
         else "every domain id of the pool is in use"
     )

@@ -14,13 +14,15 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.params import HopperParams, ParameterError
 
 ParameterValue = bool | int | float | str
 
@@ -98,3 +100,52 @@ def validate(specs: Sequence[ParameterSpec], parameters: Sequence[Parameter[Any]
                 successful=False, reason=f"{spec.name} must be one of {', '.join(spec.choices)}"
             )
     return SetParametersResult(successful=True)
+
+
+def _ros_arguments(argv: Sequence[str]) -> list[tuple[int, str, str]]:
+    """(index, flag, value) of the flags with a value inside the ``--ros-args`` sections of argv."""
+    found = []
+    inside = False
+    index = 0
+    while index < len(argv):
+        token = argv[index]
+        if token == "--ros-args":
+            inside = True
+        elif token == "--":
+            inside = False
+        elif inside and token in ("-p", "--param", "--params-file") and index + 1 < len(argv):
+            found.append((index + 1, token, argv[index + 1]))
+            index += 1
+        index += 1
+    return found
+
+
+def check_command_line(argv: list[str], specs: Sequence[ParameterSpec]) -> list[str]:
+    """argv checked against ``specs`` before rcl reads it, which would let a default params file
+    silently win over a ``-p`` value of the wrong type: a value of another type, an unparsable one
+    or a missing params file raise ParameterError naming it. An integer given for a float
+    parameter (``-p mass:=80``) is what the user means: the returned argv spells it as a float."""
+    by_name = {spec.name: spec for spec in specs}
+    checked = list(argv)
+    for index, flag, value in _ros_arguments(argv):
+        if flag == "--params-file":
+            if not Path(value).is_file():
+                raise ParameterError(f"--params-file {value}: no such file")
+            continue
+        name, assign, text = value.partition(":=")
+        spec = by_name.get(name.rsplit(":", 1)[-1])
+        if not assign or spec is None:
+            continue
+        try:
+            parsed = yaml.safe_load(text)
+        except yaml.YAMLError:
+            parsed = text
+        expected = type(spec.default)
+        if expected is float and type(parsed) is int:
+            checked[index] = f"{name}:={float(parsed)!r}"
+        elif type(parsed) is not expected:
+            raise ParameterError(
+                f"parameter {spec.name}: {text!r} is not of type {expected.__name__} "
+                f"({flag} {value}; default {spec.default!r})"
+            )
+    return checked

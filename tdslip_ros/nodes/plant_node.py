@@ -1,39 +1,54 @@
 """The plant node: the exact TD-SLIP stepper of the model, advanced at 1 kHz and published.
 
-Every tick it publishes the state (/tdslip/state) and the ground reaction force (/tdslip/grf),
-and, stamped with the times the stepper located inside the tick, the apex (/tdslip/apex), contact
-(/tdslip/contact) and failure (/tdslip/status) events. All physics is the model's
-(:class:`~tdslip_ros.model.stepper.FixedStepStepper`); this node only schedules, validates commands
-and converts records to messages.
+Every tick it publishes the state (``tdslip/state``) and the ground reaction force (``tdslip/grf``),
+and, stamped with the times the stepper located inside the tick, the apex (``tdslip/apex``),
+contact (``tdslip/contact``) and failure (``tdslip/status``) events; ``tdslip/markers`` draws the
+hopper for Foxglove and RViz at ``marker_rate`` Hz of simulated time, and /clock carries the
+simulated time while someone subscribes to it (``publish_clock``). Every stamp is simulated time,
+in both clock modes; nodes that should follow it run with ``use_sim_time``. All physics is the
+model's (:class:`~tdslip_ros.model.stepper.FixedStepStepper`); this node only schedules, validates
+commands and converts records to messages. Names are relative, so ``__ns`` puts a hopper in a
+namespace of its own; QoS is :mod:`tdslip_ros.nodes.topics`'s contract.
 
 Clock modes (parameter ``clock_mode``):
 
 * ``realtime``: a 1 kHz tick against the steady clock, on a thread of its own
   (:mod:`tdslip_ros.nodes.realtime`: why, and ``realtime_priority``); each tick steps the plant up
   to the tick due at that wall time (a late one catches up, so simulated time never drifts from
-  wall time). The latest valid command for the current stride is used at touchdown. A lock keeps
-  the tick thread and the executor's callbacks (commands, reset) apart.
-* ``lockstep``: as fast as possible, /clock published every tick. At each apex (the initial one
-  included) the plant stops and waits for the command answering that stride; nothing but the
-  command decides what happens next, so runs with equal parameters give bit-identical results. No
-  valid command within ``command_timeout`` seconds of wall time ends the run (Status
-  ``command_timeout``).
+  wall time). The latest valid command for the current stride is used at touchdown; a controller
+  that leaves ``max_stale_strides`` strides in a row unanswered ends the run (``command_timeout``).
+  A lock keeps the tick thread and the executor's callbacks (commands, reset) apart.
+* ``lockstep``: as fast as possible. At each apex (the initial one included) the plant stops and
+  waits for the command answering that stride; nothing but the command decides what happens next,
+  so runs with equal parameters give bit-identical results. No valid command within
+  ``command_timeout`` seconds of wall time ends the run (Status ``command_timeout``).
 
-A command is rejected (logged, Status ``command_rejected``, never applied) when it answers another
-stride than the latest apex, arrives after the touchdown it was for, repeats an already answered
-stride in lockstep, or holds a value that :class:`~tdslip_ros.model.params.StanceCommand` or the
-stepper refuses (non-finite, out of range, or a touchdown angle the body cannot reach).
+A command answers one apex: it carries the apex's ``epoch`` (0 for the first run, one more at
+every reset) and ``stride``. It is rejected (Status ``command_rejected``, never applied) when it
+answers another apex, arrives after the touchdown it was for, repeats an already answered stride
+in lockstep, or holds a value that :class:`~tdslip_ros.model.params.StanceCommand` or the stepper
+refuses (non-finite, out of range, or a touchdown angle the body cannot reach). Answers to
+earlier apexes cost next to nothing and are only counted (a flood of them cannot delay the valid
+one); other rejections are logged and reported, at most :data:`REJECTION_REPORTS` per
+:data:`REJECTION_REPORT_PERIOD`, the rest summed.
 
-The run starts once each /tdslip/* topic has ``min_subscribers`` subscribers (default 0) and, in
-lockstep, a controller is connected or ``command_timeout`` has passed. It ends, with a fatal Status,
-at a failure of the hopper, at a command timeout, as ``publish_failed`` when a subscriber stops
-taking messages until the plant can publish no more, or as ``run_complete`` at apex ``max_strides``.
-The /tdslip/reset service restarts it from a new apex: strides count from 0 again while simulated
-time runs on.
+With ``wait_for_recorder`` the plant treats a recorder_node (``tdslip/recorder_status``) as part
+of the run (:mod:`tdslip_ros.nodes.flow_control`): it starts once the recorder hears every
+publisher, a lockstep run never gets more than :data:`FLOW_WINDOW` messages ahead of what the
+recorder has written, and the end of a run waits until everything is in the bag. No other
+subscriber can slow or stop the plant: one that stalls only loses messages.
+
+The run starts once each of the plant's topics has ``min_subscribers`` subscribers and a controller
+is connected (or ``command_timeout`` has passed). It ends, with a fatal Status, at a failure of
+the hopper, at a command timeout, as ``publish_failed`` when a publication fails or the recorder
+waited for stops reporting, or as ``run_complete`` at apex ``max_strides``. The reset service
+(``tdslip/reset``) restarts it from a new apex in a new epoch: strides count from 0 again while
+simulated time runs on.
 """
 
 from __future__ import annotations
 
+import struct
 import sys
 import threading
 import time
@@ -45,12 +60,14 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
+from rclpy.executors import Executor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
-from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, StanceCommand, Status
+from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
 from tdslip_ros.interfaces import hopper_from_parameters
@@ -60,7 +77,9 @@ from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
-from tdslip_ros.nodes.entry import run_node
+from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
+from tdslip_ros.nodes.flow_control import RecorderProgress
+from tdslip_ros.nodes.markers import HopperMarkers
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
 
@@ -68,8 +87,21 @@ RCLError = rclpy_implementation.RCLError  # what a failed publish raises (as rcl
 
 TICK_PERIOD = 1e-3  # s, the plant's fixed step
 START_CHECK_PERIOD = 0.05  # s, how often an autostarting plant checks whether its peers are there
+START_SETTLE = 0.2  # s the peers must have been there before the run starts
 LOCKSTEP_BATCH = 50
 """Ticks per lockstep timer callback: amortises the executor's cost while keeping it responsive."""
+GRAPH_CHECK_TICKS = 50
+"""Ticks between two looks at who subscribes to /clock and the markers (a graph query costs ~20 us)."""
+FLOW_WINDOW = topics.STREAM_DEPTH // 2
+"""Messages per topic a lockstep plant may run ahead of the recorder it waits for: well inside the
+publishers' history, so the recorder never misses one."""
+DELIVERY_TIMEOUT = 10.0
+"""s a finished run waits for the recorder it waits for to write everything (and, without one, at
+most :data:`ACK_TIMEOUT` for subscribers' acknowledgements)."""
+ACK_TIMEOUT = 1.0  # s
+REJECTION_REPORTS = 10
+REJECTION_REPORT_PERIOD = 1.0
+"""s: at most REJECTION_REPORTS rejections per period are logged and reported one by one."""
 
 CLOCK_MODES = ("realtime", "lockstep")
 SPECS: tuple[ParameterSpec, ...] = (
@@ -114,9 +146,19 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "command_timeout",
         5.0,
-        "lockstep: wall time [s] to wait at an apex for its command before the run ends",
+        "wall time [s] to wait for a controller before starting, and in lockstep at an apex for its "
+        "command before the run ends",
         1e-3,
         3600.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "max_stale_strides",
+        3,
+        "realtime: the run ends (command_timeout) after this many strides in a row without a valid "
+        "command answering them (0: never; the plant hops on the command in force)",
+        0,
+        1_000_000,
         read_only=True,
     ),
     ParameterSpec(
@@ -133,13 +175,35 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "min_subscribers",
         0,
-        "the run starts once each /tdslip/* topic has this many subscribers (e.g. 1: a recorder)",
+        "the run starts once each of the plant's topics has this many subscribers",
         0,
         1000,
         read_only=True,
     ),
     ParameterSpec(
-        "exit_when_done", True, "plant_node exits when the run has ended (else it stays for /tdslip/reset)"
+        "wait_for_recorder",
+        False,
+        "start once a recorder_node has matched every publisher, keep a lockstep run within reach of "
+        "what it has written, and wait at the end until everything is in its bag",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "publish_clock",
+        True,
+        "publish /clock (simulated time) while someone subscribes to it; off for all hoppers but one "
+        "when several share a domain",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "marker_rate",
+        60.0,
+        "rate [Hz of simulated time] of the tdslip/markers drawing (0: none)",
+        0.0,
+        1000.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "exit_when_done", True, "plant_node exits when the run has ended (else it stays for tdslip/reset)"
     ),
 )
 
@@ -149,6 +213,8 @@ _CONTACT_KINDS = {
     EventKind.LIFTOFF: ContactEvent.LIFTOFF,
 }
 _NS_PER_S = 1_000_000_000
+_CDR_LITTLE_ENDIAN = 1
+_UINT32_PAIR = struct.Struct("<II")
 
 
 @dataclass(frozen=True)
@@ -190,11 +256,52 @@ def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
     msg.energy = state.energy
 
 
+def command_key(data: bytes) -> tuple[int, int] | None:
+    """(epoch, stride) of a serialized StanceCommand, read without deserializing it (None if the
+    bytes are not little-endian CDR of that layout). After the 4-byte encapsulation header come
+    header.stamp (8 bytes), header.frame_id (uint32 length, then its bytes), then epoch and stride,
+    each aligned to 4 bytes counted from the end of the encapsulation header."""
+    if len(data) < 16 or data[1] != _CDR_LITTLE_ENDIAN:
+        return None
+    offset = 12 + int.from_bytes(data[12:16], "little")  # payload offset after frame_id
+    offset += -offset % 4
+    if 4 + offset + _UINT32_PAIR.size > len(data):
+        return None
+    epoch, stride = _UINT32_PAIR.unpack_from(data, 4 + offset)
+    return epoch, stride
+
+
+class RejectionLog:
+    """Rejected commands, logged and reported one by one up to REJECTION_REPORTS per
+    REJECTION_REPORT_PERIOD, the rest summed into the next report: a flood of bad commands cannot
+    flood the log or the status topic."""
+
+    def __init__(self) -> None:
+        self._period_start_ns = 0
+        self._reports_in_period = 0
+        self.suppressed = 0
+        self.total = 0
+
+    def admit(self, now_ns: int) -> str | None:
+        """Count a rejection; the prefix of its report if it is to be reported now, else None."""
+        self.total += 1
+        if now_ns - self._period_start_ns >= REJECTION_REPORT_PERIOD * _NS_PER_S:
+            self._period_start_ns, self._reports_in_period = now_ns, 0
+        if self._reports_in_period >= REJECTION_REPORTS:
+            self.suppressed += 1
+            return None
+        self._reports_in_period += 1
+        prefix = f"({self.suppressed} more rejected, not reported one by one) " if self.suppressed else ""
+        self.suppressed = 0
+        return prefix
+
+
 class PlantNode(Node):
     """The 1 kHz TD-SLIP plant. ``done`` completes with the :class:`RunOutcome` when the run ends.
 
-    It starts by itself once its peers are there (see the parameter ``min_subscribers`` and
-    :meth:`_start_when_ready`); with ``autostart=False`` it waits for :meth:`start` instead.
+    It starts by itself once its peers are there (see the parameters ``min_subscribers`` and
+    ``wait_for_recorder``, and :meth:`_start_when_ready`); with ``autostart=False`` it waits for
+    :meth:`start` instead.
     """
 
     def __init__(self, *, autostart: bool = True, **node_options: object) -> None:
@@ -211,34 +318,51 @@ class PlantNode(Node):
         initial_apex = ApexState(float(values["initial_height"]), float(values["initial_forward_speed"]))
         self.lockstep = values["clock_mode"] == "lockstep"
         self._max_strides = int(values["max_strides"])
+        self._max_stale_strides = int(values["max_stale_strides"])
+        self._wait_for_recorder = bool(values["wait_for_recorder"])
 
         self.published: Counter[str] = Counter()
+        """Messages published per topic, by relative name (topics.STATE, ...)."""
         self.received_commands = 0
+        self.rejections = RejectionLog()
         self.command_latencies_ns: list[int] = []
         """Wall time from each apex's publication to the valid command answering it."""
         self.tick_timing = None if self.lockstep else TickTiming(round(TICK_PERIOD * _NS_PER_S))
+        self.recorders = RecorderProgress()
         self.outcome: RunOutcome | None = None
         self.done: Future[RunOutcome] = Future()
 
+        published_topics = [*topics.PLANT_TOPICS, *((topics.CLOCK,) if values["publish_clock"] else ())]
         self._topic_publishers: dict[str, Publisher[Any]] = {
-            topic: self.create_publisher(message, topic, topics.QOS)
-            for topic, message in topics.MESSAGE_TYPES.items()
-            if topic != topics.COMMAND and (topic != topics.CLOCK or self.lockstep)
+            topic: self.create_publisher(topics.MESSAGE_TYPES[topic], topic, topics.STREAM_QOS)
+            for topic in published_topics
         }
+        self.topic_names = {topic: pub.topic_name for topic, pub in self._topic_publishers.items()}
+        """Fully qualified name of each published topic, by its relative name."""
+        self.command_topic = self.resolve_topic_name(topics.COMMAND)
         self._state_pub = self._topic_publishers[topics.STATE]
         self._grf_pub = self._topic_publishers[topics.GRF]
-        self._apex_pub = self._topic_publishers[topics.APEX]
         self._clock_pub = self._topic_publishers.get(topics.CLOCK)
         self._clock_out: Publisher[Any] | None = None  # _clock_pub while it has subscribers
+        self._markers_pub = self._topic_publishers[topics.MARKERS]
+        marker_rate = float(values["marker_rate"])
+        self._marker_period_ticks = max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0
+        self._markers_out = False  # markers are drawn while someone subscribes to them
+        self._markers = HopperMarkers(topics.FRAME_ID)
         self._state_msg = HopperState()
         self._state_msg.header.frame_id = topics.FRAME_ID
         self._grf_msg = WrenchStamped()
         self._grf_msg.header.frame_id = topics.FRAME_ID
         self._clock_msg = ClockMsg()
-        # One stamp object shared by the three per-tick messages: set once per tick.
+        # One stamp object shared by the per-tick messages: set once per tick.
         self._grf_msg.header.stamp = self._clock_msg.clock = self._state_msg.header.stamp
-        # Volatile on purpose (topics.COMMAND_QOS keeps old answers): none is for a run starting now.
-        self.create_subscription(StanceCommand, topics.COMMAND, self._on_command, topics.QOS)
+        # Raw: an answer to an earlier apex is recognised from its bytes (command_key), unparsed.
+        self._command_subscription = self.create_subscription(
+            StanceCommand, topics.COMMAND, self._on_command, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
+        )
+        self.create_subscription(
+            RecorderStatus, topics.RECORDER_STATUS, self._on_recorder_status, topics.RECORDER_STATUS_QOS
+        )
         self.create_service(Reset, topics.RESET_SERVICE, self._on_reset)
 
         # Stepping: lockstep by a zero-period timer of the executor, realtime by a Ticker thread;
@@ -246,21 +370,44 @@ class PlantNode(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._lock = threading.Lock()
         self._lockstep_timer = self.create_timer(0.0, self._advance_lockstep, clock=steady, autostart=False)
+        self._command_timeout = float(values["command_timeout"])
         self._timeout_timer = self.create_timer(
-            float(values["command_timeout"]), self._on_command_timeout, clock=steady, autostart=False
+            self._command_timeout, self._on_command_timeout, clock=steady, autostart=False
+        )
+        self._held_by_recorder = False  # lockstep stepping paused until the recorder catches up
+        self._recorder_timer = self.create_timer(
+            self._command_timeout, self._on_recorder_timeout, clock=steady, autostart=False
         )
         self._realtime_priority = int(values["realtime_priority"])
         self._running = False
+        self._epoch = 0
         self._ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD
         self._tick0 = 0  # the tick at start(), due at start_wall_ns of the steady clock
         self.start_wall_ns = 0
         self._restart(initial_apex, time_offset_ticks=0)
 
         self._min_subscribers = int(values["min_subscribers"])
-        self._controller_wait_ns = round(float(values["command_timeout"]) * _NS_PER_S)
         self._created_ns = time.monotonic_ns()
+        self._ready_since_ns: int | None = None
         self._start_check = self.create_timer(
             START_CHECK_PERIOD, self._start_when_ready, clock=steady, autostart=autostart
+        )
+        self.get_logger().info(self._startup_summary(initial_apex))
+
+    def _startup_summary(self, apex: ApexState) -> str:
+        hopper = self.hopper
+        start = ["a controller on " + self.command_topic]
+        if self._min_subscribers:
+            start.append(f"{self._min_subscribers} subscriber(s) per topic")
+        if self._wait_for_recorder:
+            start.append("a recorder_node")
+        return (
+            f"{'lockstep' if self.lockstep else 'realtime'} plant, "
+            f"max_strides {self._max_strides or 'none'}; "
+            f"hopper m {hopper.m:g} kg, k {hopper.k:g} N/m, r0 {hopper.r0:g} m, c {hopper.c:g} N s/m, "
+            f"g {hopper.g:g} m/s^2 (kbar {hopper.kbar:.4g}, zeta0 {hopper.zeta0:.4g}); initial apex "
+            f"{apex.y:g} m, {apex.xdot:g} m/s; publishing {', '.join(self.topic_names.values())}; "
+            f"starts on {' and '.join(start)} (at most {self._command_timeout:g} s)"
         )
 
     # --- run control ----------------------------------------------------------------------------
@@ -269,33 +416,55 @@ class PlantNode(Node):
     def sim_time(self) -> float:
         return self._ticks * TICK_PERIOD
 
+    @property
+    def epoch(self) -> int:
+        """The run epoch: 0 for the first run, one more after every reset."""
+        return self._epoch
+
     def matched_subscribers(self, topic: str) -> int:
-        """Subscriptions matched with the plant's publisher on ``topic``."""
+        """Subscriptions matched with the plant's publisher on ``topic`` (relative name)."""
         return self._topic_publishers[topic].get_subscription_count()
 
     def _start_when_ready(self) -> None:
-        """autostart: start once min_subscribers listen to each /tdslip/* topic and, in lockstep, a
-        controller is connected (apex subscribed, command published) or command_timeout has passed."""
-        if any(
-            self.matched_subscribers(topic) < self._min_subscribers
-            for topic in topics.TDSLIP_TOPICS
-            if topic != topics.COMMAND
-        ):
-            return
-        waited = time.monotonic_ns() - self._created_ns >= self._controller_wait_ns
-        if self.lockstep and not (self._controller_connected() or waited):
-            return
-        self.start()
+        """autostart: start once :meth:`ready_to_start`, or once command_timeout has passed."""
+        waited = time.monotonic_ns() - self._created_ns >= self._command_timeout * _NS_PER_S
+        if self.ready_to_start() or (waited and self._peers_required_present()):
+            self.start()
+
+    def _peers_required_present(self) -> bool:
+        """min_subscribers listen to each topic and a recorder waited for has matched every publisher."""
+        if any(self.matched_subscribers(topic) < self._min_subscribers for topic in topics.PLANT_TOPICS):
+            return False
+        return not self._wait_for_recorder or self.recorder_ready()
+
+    def ready_to_start(self) -> bool:
+        """The peers are there (:meth:`_peers_required_present`) and a controller is connected, and
+        have been for START_SETTLE s: discovery is not symmetric, and a peer that has matched this
+        plant may not yet be matched by the others."""
+        if not (self._peers_required_present() and self._controller_connected()):
+            self._ready_since_ns = None
+            return False
+        now = time.monotonic_ns()
+        if self._ready_since_ns is None:
+            self._ready_since_ns = now
+        return now - self._ready_since_ns >= START_SETTLE * _NS_PER_S
+
+    def recorder_ready(self) -> bool:
+        """A recorder has matched this plant's publishers and every command publisher of the graph."""
+        published = [self.topic_names[topic] for topic in topics.PLANT_TOPICS]
+        return self.recorders.ready(published, self.command_topic, self.count_publishers(self.command_topic))
 
     def _controller_connected(self) -> bool:
-        """A node publishes commands and subscribes to the apex, and every apex subscription of the
-        graph has matched the plant's publisher, so the first apex reaches the controller."""
-        commanders = {
-            (i.node_namespace, i.node_name) for i in self.get_publishers_info_by_topic(topics.COMMAND)
-        }
-        apex_subscriptions = self.get_subscriptions_info_by_topic(topics.APEX)
+        """A node publishes commands and subscribes to the apex, every apex subscription of the graph
+        has matched the plant's publisher (the first apex reaches the controller) and every command
+        publisher the plant's subscription (the answer reaches the plant)."""
+        command_publishers = self.get_publishers_info_by_topic(self.command_topic)
+        commanders = {(i.node_namespace, i.node_name) for i in command_publishers}
+        apex_subscriptions = self.get_subscriptions_info_by_topic(self.topic_names[topics.APEX])
         listeners = {(i.node_namespace, i.node_name) for i in apex_subscriptions}
-        matched = self.matched_subscribers(topics.APEX) >= len(apex_subscriptions)
+        matched = self.matched_subscribers(topics.APEX) >= len(
+            apex_subscriptions
+        ) and self._command_subscription.get_publisher_count() >= len(command_publishers)
         return bool(commanders & listeners) and matched
 
     def start(self) -> None:
@@ -310,7 +479,7 @@ class PlantNode(Node):
         self._running = True
         self.start_wall_ns = time.monotonic_ns()
         self._tick0 = self._ticks
-        self._check_clock_subscribers()
+        self._check_graph()
         self._publish_apex(0, self._stepper.state)
         self._publish_sample(self._stepper.state)
         if self.lockstep:
@@ -349,17 +518,20 @@ class PlantNode(Node):
         self._offset = time_offset_ticks * TICK_PERIOD
         self._awaiting: int | None = None
         self._answered = -1  # the latest stride whose command was applied
+        self._stale_strides = 0  # realtime: strides in a row that no valid command answered
         self._apex_wall_ns = time.monotonic_ns()
 
     def _finish(self, kind: str, reason: str, t: float) -> None:
         self._running = False
         self._lockstep_timer.cancel()
         self._timeout_timer.cancel()
+        self._recorder_timer.cancel()
+        self._held_by_recorder = False
         if self._ticker is not None:
             self._ticker.request_stop()  # the lock is held: the tick thread may be waiting for it
         try:
             self._publish_status(kind, reason, t, fatal=True)
-        except RCLError as error:  # the status topic's subscriber is the one that stalled
+        except RCLError as error:
             self.get_logger().error(f"the final status could not be published: {error}")
         wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
         self.outcome = RunOutcome(kind, reason, self._stepper.stride, t, wall_time)
@@ -374,20 +546,64 @@ class PlantNode(Node):
         if not self.done.done():
             self.done.set_result(self.outcome)
 
+    def recorded_everything(self) -> bool:
+        """Every recorder waited for has written everything published on the topics it records."""
+        return self.recorders.caught_up({self.topic_names[t]: n for t, n in self.published.items()})
+
+    def deliver(self, executor: Executor) -> bool:
+        """After a run: with ``wait_for_recorder``, spin until the recorder has written everything
+        (False after DELIVERY_TIMEOUT s); without, wait at most ACK_TIMEOUT for the subscribers'
+        acknowledgements, so that no stalled subscriber can keep the plant."""
+        if self._wait_for_recorder and self.recorders.heard:
+            return spin_until(executor, self.recorded_everything, DELIVERY_TIMEOUT)
+        return wait_for_delivery(self, ACK_TIMEOUT)
+
     # --- stepping -------------------------------------------------------------------------------
 
     def _advance_lockstep(self) -> None:
         with self._lock:
-            self._check_clock_subscribers()
+            if self._wait_for_recorder and self._recorder_lag() > FLOW_WINDOW:
+                self._hold_for_recorder()
+                return
             for _ in range(LOCKSTEP_BATCH):
                 if self._tick_or_fail():
                     self._lockstep_timer.cancel()
                     return
 
-    def _check_clock_subscribers(self) -> None:
-        # /clock costs a publish per tick even when nobody listens: it is sent while someone does.
+    def _recorder_lag(self) -> int:
+        return self.recorders.lag(self.topic_names[topics.STATE], self.published[topics.STATE])
+
+    def _hold_for_recorder(self) -> None:
+        """Pause lockstep stepping until the recorder reports that it caught up (or gives up)."""
+        self._lockstep_timer.cancel()
+        if not self._held_by_recorder:
+            self._held_by_recorder = True
+            self._recorder_timer.reset()
+
+    def _on_recorder_status(self, msg: RecorderStatus) -> None:
+        with self._lock:
+            self.recorders.update(msg)
+            if self._held_by_recorder and self._running and self._recorder_lag() <= FLOW_WINDOW // 2:
+                self._held_by_recorder = False
+                self._recorder_timer.cancel()
+                self._lockstep_timer.reset()
+
+    def _on_recorder_timeout(self) -> None:
+        self._recorder_timer.cancel()
+        with self._lock:
+            if self._held_by_recorder and self._running:
+                self._finish(
+                    Status.KIND_PUBLISH_FAILED,
+                    f"the recorder waited for stopped: it is {self._recorder_lag()} messages behind and "
+                    f"reported nothing for {self.recorders.silent_for(time.monotonic_ns()):.1f} s",
+                    self.sim_time,
+                )
+
+    def _check_graph(self) -> None:
+        # /clock and the markers cost a publish even when nobody listens: they go out while someone does.
         listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
         self._clock_out = self._clock_pub if listened else None
+        self._markers_out = bool(self._marker_period_ticks) and self._markers_pub.get_subscription_count() > 0
 
     def _advance_realtime(self, now_ns: int) -> None:
         """Tick thread: step up to the tick due at ``now_ns`` of the steady clock."""
@@ -404,8 +620,6 @@ class PlantNode(Node):
         try:
             return self._tick()
         except RCLError as error:
-            # A reliable KEEP_ALL subscriber that stops taking messages fills the publisher's
-            # history; publishing then blocks and fails. The run ends, reported, the node lives on.
             self._finish(Status.KIND_PUBLISH_FAILED, str(error).split(",", 1)[0], self.sim_time)
             return True
 
@@ -413,6 +627,8 @@ class PlantNode(Node):
         """Step one tick and publish it; True when stepping must pause (awaited command, end of run)."""
         events = self._stepper.step()
         self._ticks += 1
+        if self._ticks % GRAPH_CHECK_TICKS == 0:
+            self._check_graph()
         apex: Event | None = None
         for event in events:
             if event.kind is EventKind.APEX:
@@ -426,6 +642,8 @@ class PlantNode(Node):
                 self._publish_contact(event)
         state = self._stepper.state
         self._publish_sample(state)
+        if self._markers_out and self._ticks % self._marker_period_ticks == 0:
+            self._publish_markers(state)
         if apex is None:
             return False
         if apex.stride == self._max_strides:
@@ -434,6 +652,19 @@ class PlantNode(Node):
             return True
         if self.lockstep:
             self._await_command()
+            return True
+        return self._count_stale_stride(apex.stride)
+
+    def _count_stale_stride(self, stride: int) -> bool:
+        """Realtime: at the apex of ``stride``, was the previous stride answered? Too many unanswered
+        in a row end the run (a dead or silent controller must not go unnoticed)."""
+        self._stale_strides = 0 if self._answered == stride - 1 else self._stale_strides + 1
+        if self._max_stale_strides and self._stale_strides >= self._max_stale_strides:
+            self._finish(
+                Status.KIND_COMMAND_TIMEOUT,
+                f"no valid command answered the last {self._stale_strides} strides (max_stale_strides)",
+                self._offset + self._stepper.t,
+            )
             return True
         return False
 
@@ -448,32 +679,45 @@ class PlantNode(Node):
 
     def _time_out(self) -> None:
         if self._awaiting is not None and self._running:
-            period = self._timeout_timer.timer_period_ns * 1e-9
+            rejected = self.rejections.total
+            rejected_so_far = f"; {rejected} command(s) rejected so far" if rejected else ""
             self._finish(
                 Status.KIND_COMMAND_TIMEOUT,
-                f"no valid command for stride {self._awaiting} within command_timeout = {period:g} s",
+                f"no valid command for epoch {self._epoch}, stride {self._awaiting} within "
+                f"command_timeout = {self._command_timeout:g} s{rejected_so_far}",
                 self._offset + self._stepper.t,
             )
 
     # --- commands and reset ---------------------------------------------------------------------
 
-    def _on_command(self, msg: StanceCommand) -> None:
+    def _on_command(self, data: bytes) -> None:
+        self.received_commands += 1
+        key = command_key(data)
+        # Unlocked: a stale answer is recognised without waiting for the tick thread.
+        if key is not None and key < (self._epoch, self._stepper.stride):
+            self.rejections.total += 1
+            return
+        msg = deserialize_message(data, StanceCommand)
         with self._lock:
             self._take_command(msg)
 
     def _take_command(self, msg: StanceCommand) -> None:
-        self.received_commands += 1
         if not self._running:
             self.get_logger().debug(f"command for stride {msg.stride} ignored: no run in progress")
             return
         try:
             self._apply(msg)
         except ParameterError as error:
-            reason = f"command for stride {msg.stride} ({msg.policy or 'no policy'}) rejected: {error}"
-            self.get_logger().warning(reason)
-            self._publish_status(
-                Status.KIND_COMMAND_REJECTED, reason, self._offset + self._stepper.t, fatal=False
-            )
+            prefix = self.rejections.admit(time.monotonic_ns())
+            if prefix is not None:
+                reason = (
+                    f"{prefix}command for epoch {msg.epoch}, stride {msg.stride} "
+                    f"({msg.policy or 'no policy'}) rejected: {error}"
+                )
+                self.get_logger().warning(reason)
+                self._publish_status(
+                    Status.KIND_COMMAND_REJECTED, reason, self._offset + self._stepper.t, fatal=False
+                )
             return
         if msg.stride != self._answered:
             self.command_latencies_ns.append(time.monotonic_ns() - self._apex_wall_ns)
@@ -486,6 +730,10 @@ class PlantNode(Node):
     def _apply(self, msg: StanceCommand) -> None:
         """Validate a command and hand it to the stepper; ParameterError gives the reason to refuse it."""
         stride = self._stepper.stride
+        if msg.epoch != self._epoch:
+            raise ParameterError(
+                f"it answers epoch {msg.epoch}, but the run is in epoch {self._epoch} (copy the apex's epoch)"
+            )
         if msg.stride != stride:
             raise ParameterError(f"it answers stride {msg.stride}, but the latest apex is stride {stride}")
         if self.lockstep and self._awaiting != stride:
@@ -499,29 +747,34 @@ class PlantNode(Node):
             apex = ApexState(request.height, request.forward_speed)
         except ParameterError as error:
             response.success, response.message = False, f"reset refused: {error}"
+            response.epoch = self._epoch
             return response
         self._stop_ticker()  # outside the lock: the tick in progress needs it to finish
         with self._lock:
             response.message = self._reset(apex)
-        response.success = True
+        response.success, response.epoch = True, self._epoch
         return response
 
     def _reset(self, apex: ApexState) -> str:
         self._lockstep_timer.cancel()
         self._timeout_timer.cancel()
+        self._recorder_timer.cancel()
+        self._held_by_recorder = False
         self._running = False
         message = (
-            f"reset to apex height {apex.y} m, forward speed {apex.xdot} m/s at t = {self.sim_time:.3f} s"
+            f"reset to apex height {apex.y} m, forward speed {apex.xdot} m/s at t = {self.sim_time:.3f} s "
+            f"(epoch {self._epoch + 1})"
         )
         if not self.done.done():
             wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
             self.done.set_result(
                 RunOutcome(Status.KIND_RESET, message, self._stepper.stride, self.sim_time, wall_time)
             )
+        self._publish_status(Status.KIND_RESET, message, self.sim_time, fatal=False)
+        self._epoch += 1
         self._restart(apex, time_offset_ticks=self._ticks)
         self.outcome = None
         self.done = Future()
-        self._publish_status(Status.KIND_RESET, message, self.sim_time, fatal=False)
         self.get_logger().info(message)
         self._start()
         return message
@@ -534,20 +787,26 @@ class PlantNode(Node):
 
     def _publish_sample(self, state: ModelState) -> None:
         fill_state(self._state_msg, state, self._offset + state.t)
+        published = self.published
+        # Each count right after its publish: a failing publish leaves the counts exact.
         self._state_pub.publish(self._state_msg)
+        published[topics.STATE] += 1
         force = self._grf_msg.wrench.force
         force.x = state.grf_x
         force.y = state.grf_y
         self._grf_pub.publish(self._grf_msg)
-        published = self.published
-        published[topics.STATE] += 1
         published[topics.GRF] += 1
         if self._clock_out is not None:
             self._clock_out.publish(self._clock_msg)
             published[topics.CLOCK] += 1
 
+    def _publish_markers(self, state: ModelState) -> None:
+        self._publish(topics.MARKERS, self._markers.update(state, self._state_msg.header.stamp))
+
     def _publish_apex(self, stride: int, state: ModelState) -> None:
-        msg = ApexEvent(stride=stride, sim_time=self._offset + state.t, x=state.x, height=state.y)
+        msg = ApexEvent(
+            epoch=self._epoch, stride=stride, sim_time=self._offset + state.t, x=state.x, height=state.y
+        )
         msg.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, msg.sim_time)
         msg.forward_speed = msg.measured_forward_speed = state.xdot
@@ -565,14 +824,17 @@ class PlantNode(Node):
 
     def _publish_contact(self, event: Event) -> None:
         t = self._offset + event.t
-        msg = ContactEvent(kind=_CONTACT_KINDS[event.kind], stride=event.stride, sim_time=t)
+        kind = _CONTACT_KINDS[event.kind]
+        msg = ContactEvent(kind=kind, epoch=self._epoch, stride=event.stride, sim_time=t)
         msg.header.frame_id = msg.state.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, t)
         fill_state(msg.state, event.state, t)
         self._publish(topics.CONTACT, msg)
 
     def _publish_status(self, kind: str, reason: str, t: float, *, fatal: bool) -> None:
-        msg = Status(stride=self._stepper.stride, sim_time=t, kind=kind, reason=reason, fatal=fatal)
+        msg = Status(
+            epoch=self._epoch, stride=self._stepper.stride, sim_time=t, kind=kind, reason=reason, fatal=fatal
+        )
         msg.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, t)
         self._publish(topics.STATUS, msg)
@@ -587,7 +849,19 @@ def main(argv: list[str] | None = None) -> int:
     def status(node: PlantNode) -> int:
         return 0 if node.outcome is None or node.outcome.ok else 1
 
-    return run_node(PlantNode, "plant.yaml", sys.argv if argv is None else argv, finished, status)
+    def deliver(node: PlantNode, executor: Executor) -> None:
+        if not node.deliver(executor):
+            node.get_logger().warning("not everything published reached the recorder before exit")
+
+    return run_node(
+        PlantNode,
+        "plant.yaml",
+        sys.argv if argv is None else argv,
+        finished,
+        status,
+        specs=SPECS,
+        deliver=deliver,
+    )
 
 
 if __name__ == "__main__":

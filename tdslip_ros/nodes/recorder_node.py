@@ -1,19 +1,26 @@
-"""The recorder node: every /tdslip/* topic (and /clock if asked) into a rosbag2-compatible MCAP bag.
+"""The recorder node: the suite's topics (and /clock if asked) into a rosbag2-compatible MCAP bag.
 
-Subscriptions are raw (the CDR bytes go to :class:`~tdslip_ros.bag.RosbagMcapWriter` untouched)
-with the publishers' QoS (:mod:`tdslip_ros.nodes.topics`), so every message published while the
-recorder is matched is recorded, and the controller's answers also from before it matched. Every
-topic is in the bag from the start, with the suite's QoS as offered QoS, even if nothing is
-published on it. Log and publish time are both the system time [ns] at
-which the callback takes the message (rosbag2 before Jazzy did the same): rclpy's EventsExecutor
-cannot yet pass the MessageInfo with the publisher's source timestamp (Kilted: "SystemError: null
-argument to internal routine"), and the Python executors are too slow for 1 kHz topics.
+It records the topics of :data:`~tdslip_ros.nodes.topics.RECORDED_TOPICS` in its namespace (so
+``__ns:=/h1`` records hopper /h1). It subscribes to them at once (reliable and volatile, which any
+reliable publisher matches), so a node started after it finds its subscription there from the
+start. Like rosbag2 it adapts to what the publishers offer (the graph is looked at every
+:data:`DISCOVERY_PERIOD` s; :func:`~tdslip_ros.nodes.topics.adapted_qos`): a topic is registered in
+the bag with its publishers' offered profiles when the first one appears, and a subscription that
+has recorded nothing yet is made best-effort or transient-local if every publisher is.
+Subscriptions are raw (the CDR bytes go to
+:class:`~tdslip_ros.bag.RosbagMcapWriter` untouched). Log and publish time are both the system
+time [ns] at which the callback takes the message (rosbag2 before Jazzy did the same): rclpy's
+EventsExecutor cannot yet pass the MessageInfo with the publisher's source timestamp (Kilted:
+"SystemError: null argument to internal routine"), and the Python executors are too slow for 1 kHz.
+
+Progress goes out on ``tdslip/recorder_status`` (``tdslip_msgs/RecorderStatus``) every
+:data:`STATUS_MESSAGES` recorded messages and every DISCOVERY_PERIOD: per topic the messages
+written and the publishers matched. A plant with ``wait_for_recorder`` paces itself on it.
 
 Stopping (SIGINT or SIGTERM): the recorder first records what has already reached it (it spins
 until no message came for ``DRAIN_QUIET`` s, at most ``DRAIN_LIMIT`` s), then finalises the bag
-(summary, ``metadata.yaml``), so the file is complete and readable. A publisher that has seen all
-its messages acknowledged (``wait_for_all_acked``) before the signal therefore finds all of them
-in the bag. A hard kill (SIGKILL) loses at most the open chunk; see :mod:`tdslip_ros.bag.writer`.
+(summary, ``metadata.yaml``), so the file is complete and readable. A hard kill (SIGKILL) loses at
+most the open chunk; see :mod:`tdslip_ros.bag.writer`.
 
 Run it in a process of its own next to a 1 kHz plant: each message costs a Python callback.
 """
@@ -22,19 +29,26 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 from rclpy.executors import Executor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
+from tdslip_msgs.msg import RecorderStatus
 
-from tdslip_ros.bag import RosbagMcapWriter
+from tdslip_ros.bag import OfferedQos, RosbagMcapWriter
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
 
+DISCOVERY_PERIOD = 0.05  # s between two looks for new publishers (and status reports)
+STATUS_MESSAGES = 100
+"""Recorded messages between two status reports: a lockstep plant's flow control sees progress
+every ~50 ticks."""
 DRAIN_QUIET = 0.2  # s without a message: everything sent before the stop has been recorded
 DRAIN_LIMIT = 1.0  # s, the longest a stop waits for the stream to go quiet
 SPECS: tuple[ParameterSpec, ...] = (
@@ -85,22 +99,87 @@ class RecorderNode(Node):
             chunk_size=int(values["chunk_size"]),
             custom_data=parse_custom_data(str(values["custom_data"])),
         )
-        recorded = [*topics.TDSLIP_TOPICS, *((topics.CLOCK,) if values["record_clock"] else ())]
-        for topic in recorded:
-            message_class = topics.MESSAGE_TYPES[topic]
-            self.bag.add_topic(
-                topic, topics.type_name(message_class), offered_qos=(topics.offered_qos(topic),)
-            )
-            self.create_subscription(message_class, topic, self._writer(topic), topics.qos(topic), raw=True)
-        self.get_logger().info(f"recording {', '.join(recorded)} into {self.bag.mcap_path}")
+        relative = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if values["record_clock"] else ())]
+        self.topic_names = [self.resolve_topic_name(topic) for topic in relative]
+        """The recorded topics, fully qualified, in the order of the status reports."""
+        self._message_classes = {
+            name: topics.MESSAGE_TYPES[topic] for name, topic in zip(self.topic_names, relative, strict=True)
+        }
+        self._topic_subscriptions: dict[str, Subscription[Any]] = {}
+        self._warned: set[str] = set()
+        self._unreported = 0
+        self._status = RecorderStatus(bag=str(self.bag.mcap_path), topics=self.topic_names)
+        self._status_publisher = self.create_publisher(
+            RecorderStatus, topics.RECORDER_STATUS, topics.RECORDER_STATUS_QOS
+        )
+        # Subscribed from the start (reliable, volatile: any reliable publisher matches), so that
+        # a publisher that appears later has the recorder's subscription to match from its start.
+        for name in self.topic_names:
+            self._subscribe(name, topics.adapted_qos([]))
+        self.create_timer(DISCOVERY_PERIOD, self._discover)
+        self._discover()
+        self.get_logger().info(f"recording {', '.join(self.topic_names)} into {self.bag.mcap_path}")
 
-    def _writer(self, topic: str) -> Callable[[bytes], None]:
+    def _discover(self) -> None:
+        """Register newly published topics in the bag with their offered QoS and adapt a subscription
+        that has recorded nothing yet to what its publishers offer; then report progress."""
+        for name in self.topic_names:
+            offered = [
+                topics.offered_qos(info.qos_profile) for info in self.get_publishers_info_by_topic(name)
+            ]
+            if not offered:
+                continue
+            self._register(name, offered)
+            wanted = topics.adapted_qos(offered)
+            subscription = self._topic_subscriptions[name]
+            if _same_policies(subscription.qos_profile, wanted):
+                continue
+            if self.bag.message_counts.get(name, 0) == 0:
+                self.destroy_subscription(subscription)
+                self._subscribe(name, wanted)
+            elif name not in self._warned and not _compatible(subscription.qos_profile, offered):
+                self._warned.add(name)
+                self.get_logger().warning(
+                    f"{name}: a publisher offers a QoS ({offered[-1]}) the recorder's subscription "
+                    "cannot hear; its messages are not recorded"
+                )
+        self.publish_status()
+
+    def _register(self, name: str, offered: list[OfferedQos]) -> None:
+        """Add the topic to the bag (once) with the QoS profiles its publishers offer."""
+        if name not in self.bag.message_counts:
+            self.bag.add_topic(name, topics.type_name(self._message_classes[name]), offered_qos=offered)
+
+    def _subscribe(self, name: str, qos: QoSProfile) -> None:
         write = self.bag.write
 
         def record(data: bytes) -> None:
-            write(topic, data, time.time_ns())
+            if name not in self.bag.message_counts:  # a message before its publisher was discovered
+                self._register(
+                    name, [topics.offered_qos(i.qos_profile) for i in self.get_publishers_info_by_topic(name)]
+                )
+            write(name, data, time.time_ns())
+            self._unreported += 1
+            if self._unreported >= STATUS_MESSAGES:
+                self.publish_status()
 
-        return record
+        self._topic_subscriptions[name] = self.create_subscription(
+            self._message_classes[name], name, record, qos, raw=True
+        )
+
+    def publish_status(self) -> None:
+        """Report what has been written so far (tdslip/recorder_status)."""
+        self._unreported = 0
+        counts = self.bag.message_counts
+        status = self._status
+        status.header.stamp = self.get_clock().now().to_msg()
+        status.recorded = [counts.get(name, 0) for name in self.topic_names]
+        status.publishers = [
+            subscription.get_publisher_count() if (subscription := self._topic_subscriptions.get(name)) else 0
+            for name in self.topic_names
+        ]
+        status.closed = self.bag.closed
+        self._status_publisher.publish(status)
 
     @property
     def message_count(self) -> int:
@@ -112,10 +191,26 @@ class RecorderNode(Node):
             self.bag.close()
             counts = ", ".join(f"{topic} {count}" for topic, count in self.bag.message_counts.items())
             self.get_logger().info(f"bag {self.bag.mcap_path} closed: {counts}")
+            self.publish_status()
 
     def destroy_node(self) -> None:
         self.close()
         super().destroy_node()
+
+
+def _same_policies(actual: QoSProfile, wanted: QoSProfile) -> bool:
+    return actual.reliability == wanted.reliability and actual.durability == wanted.durability
+
+
+def _compatible(requested: QoSProfile, offered: list[OfferedQos]) -> bool:
+    """Whether a subscription with the ``requested`` QoS hears every one of the ``offered`` ones."""
+    reliable = requested.reliability == ReliabilityPolicy.RELIABLE
+    transient = requested.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    return all(
+        (not reliable or qos.reliability == "reliable")
+        and (not transient or qos.durability == "transient_local")
+        for qos in offered
+    )
 
 
 def drain(executor: Executor, recorder: RecorderNode) -> None:
@@ -136,7 +231,12 @@ def main(argv: list[str] | None = None) -> int:
         recorder.close()
 
     return run_node(
-        RecorderNode, "recorder.yaml", sys.argv if argv is None else argv, lambda node: False, on_stop=finish
+        RecorderNode,
+        "recorder.yaml",
+        sys.argv if argv is None else argv,
+        lambda node: False,
+        on_stop=finish,
+        specs=SPECS,
     )
 
 

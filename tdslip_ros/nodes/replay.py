@@ -43,6 +43,8 @@ from tdslip_ros.bag.schema import split_type_name
 from tdslip_ros.nodes.entry import SPIN_SLICE, stop_on_signals
 
 ACK_TIMEOUT = 10.0  # s for reliable subscribers to acknowledge the last messages
+UNKNOWN_HISTORY_DEPTH = 1000
+"""Depth of a replayed topic whose recorded history is unknown: the plant's own (1 s at 1 kHz)."""
 _NS_PER_S = 1_000_000_000
 _HISTORY = {"keep_all": HistoryPolicy.KEEP_ALL, "keep_last": HistoryPolicy.KEEP_LAST}
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
@@ -72,16 +74,23 @@ def message_class(type_name: str) -> type:
 
 
 def offered_qos(topic: TopicInfo) -> QoSProfile:
-    """The first offered QoS profile recorded for ``topic`` (rclpy's defaults where it has none)."""
+    """The first offered QoS profile recorded for ``topic`` (rclpy's defaults where it has none).
+
+    The ROS graph does not report a publisher's history (rosbag2 and the recorder store it as
+    ``unknown``, depth 0): such a topic is replayed KEEP_LAST with UNKNOWN_HISTORY_DEPTH samples.
+    """
     try:
         profiles = yaml.safe_load(topic.metadata.get("offered_qos_profiles", "")) or []
     except yaml.YAMLError as error:
         raise ReplayError(f"{topic.topic}: unreadable offered_qos_profiles ({error})") from None
     profile: dict[str, object] = profiles[0] if profiles else {}
     history = _HISTORY.get(str(profile.get("history")), HistoryPolicy.KEEP_LAST)
+    depth = int(str(profile.get("depth", 10))) if history is HistoryPolicy.KEEP_LAST else 0
+    if history is HistoryPolicy.KEEP_LAST and depth == 0:
+        depth = UNKNOWN_HISTORY_DEPTH
     return QoSProfile(
         history=history,
-        depth=int(str(profile.get("depth", 10))) if history is HistoryPolicy.KEEP_LAST else 0,
+        depth=depth,
         reliability=_RELIABILITY.get(str(profile.get("reliability")), ReliabilityPolicy.RELIABLE),
         durability=_DURABILITY.get(str(profile.get("durability")), DurabilityPolicy.VOLATILE),
     )

@@ -43,15 +43,16 @@ from typing import IO
 import rclpy
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 from rclpy.context import Context
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import InvalidTopicNameException, ParameterException
 from rclpy.executors import Executor
 from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from tdslip_msgs.msg import ApexEvent
 
-from tdslip_ros.interfaces import config_file, custom_data_key, installed_parameters
+from tdslip_ros.interfaces import config_file, custom_data_key, installed_parameters, resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
@@ -60,13 +61,13 @@ from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
     spin_until,
     stop_on_signals,
-    wait_for_delivery,
 )
 from tdslip_ros.nodes.plant_node import CLOCK_MODES, PlantNode, RunOutcome
 from tdslip_ros.nodes.realtime import TickTiming
 
 STARTUP_TIMEOUT = 30.0  # s for the child nodes to start and match the plant's topics
 STOP_TIMEOUT = 30.0  # s for a child to stop after SIGINT
+CLOSE_GRACE = 15.0  # s a child gets to stop on an error path before it is killed
 QUIET = 0.2  # s without a new command: the controller's last commands have been received
 
 ProgressCallback = Callable[[ApexEvent], None]
@@ -100,6 +101,8 @@ class RunOptions:
     duration: float | None = None
     """Wall-time limit [s]: the run ends as complete when it is reached."""
     domain_id: int | None = None
+    namespace: str = "/"
+    """Namespace of the three nodes (``tdslip run --namespace /h1``: topics /h1/tdslip/...)."""
 
 
 @dataclass
@@ -108,7 +111,9 @@ class RunReport:
     params: HopperParams
     apexes: list[ApexEvent]
     published: dict[str, int]
+    """Messages per recorded topic (fully qualified name): the plant's, and the commands it received."""
     recorded: dict[str, int]
+    """Messages per recorded topic in the bag."""
     command_latencies_ns: list[int]
     """Wall time from each apex's publication to the plant's receipt of the valid command for it."""
     delivery_time: float
@@ -136,7 +141,7 @@ class ApexMonitor(Node):
         super().__init__("run_monitor", **node_options)  # type: ignore[arg-type]
         self.apexes: list[ApexEvent] = []
         self._progress = progress
-        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.QOS)
+        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
 
     def _on_apex(self, msg: ApexEvent) -> None:
         self.apexes.append(msg)
@@ -153,9 +158,11 @@ class ChildNode:
     log: IO[bytes]
 
     @classmethod
-    def start(cls, module: str, arguments: list[str], environment: dict[str, str]) -> ChildNode:
+    def start(
+        cls, module: str, arguments: list[str], environment: dict[str, str], namespace: str = "/"
+    ) -> ChildNode:
         log = tempfile.TemporaryFile()
-        command = [sys.executable, "-m", module, "--ros-args", *arguments]
+        command = [sys.executable, "-m", module, "--ros-args", "-r", f"__ns:={namespace}", *arguments]
         # A session of its own: a Ctrl-C at the terminal reaches only this process, which stops the
         # children in order; and they stop by themselves should this process die.
         process = subprocess.Popen(
@@ -188,10 +195,16 @@ class ChildNode:
         if code != 0:
             raise RunError(f"{self.name} failed ({code}):\n{self.output()}")
 
-    def close(self) -> None:
+    def close(self, grace: float = CLOSE_GRACE) -> None:
+        """Stop the node if it still runs (an error path): SIGINT first, so that a recorder still
+        finalises its bag, and SIGKILL only after ``grace`` seconds."""
         if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait()
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(grace)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
         self.log.close()
 
 
@@ -219,6 +232,7 @@ def plant_overrides(options: RunOptions) -> dict[str, object]:
         "initial_touchdown_angle": options.touchdown_angle,
         "command_timeout": options.command_timeout,
         "realtime_priority": options.realtime_priority,
+        "wait_for_recorder": True,
     }
 
 
@@ -269,6 +283,34 @@ def _ros_context(domain_id: int) -> Iterator[Context]:
         rclpy.try_shutdown(context=context)
 
 
+def check_options(options: RunOptions) -> None:
+    """RunError naming the first option ``run`` cannot use."""
+    if options.mode not in CLOCK_MODES:
+        raise RunError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
+    if options.policy not in POLICIES:
+        raise RunError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
+    if options.strides < 0:
+        raise RunError(f"strides must be 0 (no limit) or positive, not {options.strides}")
+    if options.duration is not None and not (math.isfinite(options.duration) and options.duration > 0):
+        raise RunError(f"duration must be a positive number of seconds, not {options.duration}")
+    if options.strides == 0 and options.duration is None:
+        raise RunError("a run without a stride limit (strides 0) needs a duration")
+    if options.domain_id is not None and options.domain_id not in isolation.VALID_DOMAIN_IDS:
+        valid = isolation.VALID_DOMAIN_IDS
+        raise RunError(f"domain id must be in {valid.start}-{valid.stop - 1}, not {options.domain_id}")
+    try:
+        validate_full_topic_name(resolve(topics.STATE, options.namespace))
+    except InvalidTopicNameException:
+        raise RunError(f"{options.namespace!r} is not a valid ROS namespace") from None
+    bag = Path(options.out)
+    if bag.exists():
+        raise RunError(f"{bag} exists already; choose a new --out")
+    try:
+        bag.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise RunError(f"cannot create the directory for --out {bag}: {error.strerror}") from None
+
+
 def run(
     options: RunOptions,
     progress: ProgressCallback | None = None,
@@ -276,25 +318,25 @@ def run(
 ) -> RunReport:
     """Run the suite once (see the module docstring); RunError if it could not run or record.
 
-    ``stop_requested`` is polled while running; when it turns true the run ends as complete.
+    ``stop_requested`` is polled while running; when it turns true the run ends as complete. On
+    every way out (a child's crash, an exception, a second Ctrl-C) the children are stopped with
+    SIGINT first, so the recorder finalises the bag with what it has.
     """
-    if options.mode not in CLOCK_MODES:
-        raise RunError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
-    if options.policy not in POLICIES:
-        raise RunError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
+    check_options(options)
     bag = Path(options.out)
-    if bag.exists():
-        raise RunError(f"{bag} exists already; choose a new --out")
-    bag.parent.mkdir(parents=True, exist_ok=True)
     os.environ.update(isolation.process_settings())  # before the first participant of this process
     with ExitStack() as stack:
-        domain_id = stack.enter_context(isolation.reserved_domain(options.domain_id))
+        try:
+            domain_id = stack.enter_context(isolation.reserved_domain(options.domain_id))
+        except RuntimeError as error:
+            raise RunError(str(error)) from None
         environment = isolation.isolated_environment(domain_id)
         context = stack.enter_context(_ros_context(domain_id))
         try:
             plant = PlantNode(
                 autostart=False,
                 context=context,
+                namespace=options.namespace,
                 cli_args=["--ros-args", "--params-file", str(config_file("plant.yaml"))],
                 parameter_overrides=[
                     Parameter(name, value=value)
@@ -305,13 +347,14 @@ def run(
         except (ParameterException, ParameterError) as error:
             raise RunError(f"plant parameters: {error}") from None
         stack.callback(plant.destroy_node)
-        monitor = ApexMonitor(progress, context=context)
+        monitor = ApexMonitor(progress, context=context, namespace=options.namespace)
         stack.callback(monitor.destroy_node)
         executor = EventsExecutor(context=context)
         stack.callback(executor.shutdown)
         executor.add_node(plant)
         executor.add_node(monitor)
 
+        # Closed last: on an error path the recorder still gets the plant's last messages.
         recorder = ChildNode.start(
             "tdslip_ros.nodes.recorder_node",
             ["--params-file", str(config_file("recorder.yaml")), "-p", f"output:={bag}"]
@@ -322,6 +365,7 @@ def run(
                 }
             ),
             environment,
+            options.namespace,
         )
         stack.callback(recorder.close)
         controller = ChildNode.start(
@@ -329,11 +373,11 @@ def run(
             ["--params-file", str(config_file("controller.yaml"))]
             + _overrides(controller_overrides(options, plant.hopper)),
             environment,
+            options.namespace,
         )
         stack.callback(controller.close)
 
-        recorded_topics = [*topics.TDSLIP_TOPICS, *((topics.CLOCK,) if options.record_clock else ())]
-        _wait_for_graph(executor, plant, recorded_topics, (recorder, controller))
+        _wait_for_graph(executor, plant, monitor, (recorder, controller))
 
         start = time.monotonic()
         deadline = math.inf if options.duration is None else start + options.duration
@@ -349,21 +393,24 @@ def run(
         outcome = plant.outcome
 
         problems = []
-        if not wait_for_delivery(plant):
-            problems.append("not every subscriber acknowledged every message of the plant")
+        if not plant.deliver(executor):
+            problems.append("the recorder did not write everything the plant published")
         delivery_time = (time.monotonic_ns() - plant.start_wall_ns) * 1e-9
         controller.stop()
         _spin_until_quiet(executor, lambda: plant.received_commands)
         spin_until(executor, lambda: len(monitor.apexes) == plant.published[topics.APEX], timeout=5.0)
         recorder.stop()
-        published = {topic: plant.published[topic] for topic in recorded_topics if topic != topics.COMMAND}
-        published[topics.COMMAND] = plant.received_commands
+        recorded_topics = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if options.record_clock else ())]
+        counts = {**plant.published, topics.COMMAND: plant.received_commands}
+        published = {resolve(topic, options.namespace): counts.get(topic, 0) for topic in recorded_topics}
+        in_bag = read_bag_counts(bag)
+        recorded = {topic: in_bag.get(topic, 0) for topic in published}
         report = RunReport(
             outcome=outcome,
             params=plant.hopper,
             apexes=monitor.apexes,
             published=dict(sorted(published.items())),
-            recorded=dict(sorted(read_bag_counts(bag).items())),
+            recorded=dict(sorted(recorded.items())),
             command_latencies_ns=plant.command_latencies_ns,
             delivery_time=delivery_time,
             tick_timing=plant.tick_timing,
@@ -375,19 +422,18 @@ def run(
 
 
 def _wait_for_graph(
-    executor: Executor, plant: PlantNode, recorded_topics: list[str], children: tuple[ChildNode, ...]
+    executor: Executor, plant: PlantNode, monitor: ApexMonitor, children: tuple[ChildNode, ...]
 ) -> None:
-    """Until the recorder subscribes to every recorded topic and the controller is connected."""
+    """Until the recorder has matched every publisher (the plant's, the controller's) and the
+    controller and the monitor hear the apex."""
 
     def ready() -> bool:
         for child in children:
             child.check_alive()
-        published = [topic for topic in recorded_topics if topic != topics.COMMAND]
         return (
-            all(plant.matched_subscribers(topic) >= 1 for topic in published)
-            and plant.matched_subscribers(topics.APEX) >= 3  # recorder, controller, monitor
-            and plant.count_publishers(topics.COMMAND) >= 1
-            and plant.count_subscribers(topics.COMMAND) >= 2  # plant, recorder
+            plant.matched_subscribers(topics.APEX) >= 3  # recorder, controller, monitor
+            and monitor.count_publishers(topics.APEX) >= 1
+            and plant.ready_to_start()
         )
 
     if not spin_until(executor, ready, timeout=STARTUP_TIMEOUT):
@@ -424,11 +470,13 @@ def apex_table(params: HopperParams, apexes: list[ApexEvent]) -> str:
 
 
 def counts_table(report: RunReport) -> str:
-    rows = [f"{'topic':<16} {'published':>10} {'recorded':>10}"]
-    for topic in sorted(set(report.published) | set(report.recorded)):
+    names = sorted(set(report.published) | set(report.recorded))
+    width = max(len("topic"), *map(len, names))
+    rows = [f"{'topic':<{width}} {'published':>10} {'recorded':>10}"]
+    for topic in names:
         published, recorded = report.published.get(topic, 0), report.recorded.get(topic, 0)
         mark = "" if published == recorded else "  LOST" if recorded < published else "  EXTRA"
-        rows.append(f"{topic:<16} {published:>10d} {recorded:>10d}{mark}")
+        rows.append(f"{topic:<{width}} {published:>10d} {recorded:>10d}{mark}")
     return "\n".join(rows)
 
 
@@ -462,6 +510,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--record-clock", action="store_true", help="also record /clock")
     parser.add_argument("--domain-id", type=int, help="ROS domain id (default: a free one from 120-229)")
+    parser.add_argument(
+        "--namespace", default="/", help="ROS namespace of the nodes (default /: topics /tdslip/...)"
+    )
     return parser
 
 
@@ -484,6 +535,7 @@ def main(argv: list[str]) -> int:
         record_clock=args.record_clock,
         duration=args.duration,
         domain_id=args.domain_id,
+        namespace=args.namespace,
     )
     interactive = sys.stderr.isatty()
 
@@ -504,6 +556,9 @@ def main(argv: list[str]) -> int:
     except RunError as error:
         print(f"\ntdslip run: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # a second Ctrl-C: the children were stopped on the way out
+        print(f"\ntdslip run: interrupted; the recording so far is in {options.out}", file=sys.stderr)
+        return 130
     if interactive:
         print(file=sys.stderr)
     print(apex_table(report.params, report.apexes))

@@ -1,58 +1,109 @@
 """Names, types and QoS of the node suite's topics and service: the one place they are spelled.
 
-Every topic is reliable. The plant's topics are KEEP_ALL and volatile: a publisher whose subscriber
-lags keeps the messages until they are acknowledged (and blocks briefly if its history fills)
-instead of overwriting them, and late joiners get nothing old. Before the plant starts, ``tdslip
-run`` waits until every subscriber has matched the plant's publishers, so nothing of a run is missed.
+The QoS contract (the README states it for users' own nodes):
 
-/tdslip/command is the exception (:data:`COMMAND_QOS`): its publisher is the controller, and whether
-the recorder has matched the controller cannot be seen from the plant's process; the controller
-answers the first apex at once. So its publisher is transient-local and keeps the last
-:data:`COMMAND_HISTORY` answers for subscribers that match late; the recorder asks for them. The
-plant subscribes volatile: an old answer is of no use to a plant that starts later.
+* Everything the plant publishes is **reliable, volatile, KEEP_LAST** (:data:`STREAM_QOS`, depth
+  :data:`STREAM_DEPTH`). Any subscriber matches it (a default-QoS ``create_subscription(..., 10)``,
+  ``ros2 topic echo``, a best-effort one), and none can hold the plant: a subscriber that stalls
+  or dies only loses what it did not take, because a KEEP_LAST writer drops its oldest sample
+  instead of blocking when its history is full. The plant waits only for a recorder it is told to
+  wait for (parameter ``wait_for_recorder``: flow control on :data:`RECORDER_STATUS`).
+* Commands: the plant subscribes reliable and volatile, so a controller must publish reliable (ROS's
+  default, ``create_publisher(StanceCommand, 'tdslip/command', 10)``); any durability and depth
+  work. A command answers one apex: it copies the apex's ``epoch`` and ``stride``. The suite's
+  controller publishes transient-local (:data:`COMMAND_QOS`), so that a recorder whose
+  subscription it matches only after its first answers still gets them (DDS discovery is not
+  symmetric: a recorder can hear a publisher before that publisher sends to the recorder).
+* The recorder adapts its subscriptions to what the publishers offer, as rosbag2 does
+  (:func:`adapted_qos`).
+
+Topic names are relative (``tdslip/state``), so ``__ns`` and remapping apply; /clock is global.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from geometry_msgs.msg import WrenchStamped
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSPresetProfiles,
+    QoSProfile,
+    ReliabilityPolicy,
+)
 from rosgraph_msgs.msg import Clock
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, StanceCommand, Status
+from visualization_msgs.msg import MarkerArray
 
 from tdslip_ros.bag import OfferedQos
 
 # Re-exported: the nodes spell every topic topics.NAME.
-from tdslip_ros.interfaces import APEX, CLOCK, COMMAND, CONTACT, GRF, RESET_SERVICE, STATE, STATUS  # noqa: F401
+from tdslip_ros.interfaces import (  # noqa: F401
+    APEX,
+    CLOCK,
+    COMMAND,
+    CONTACT,
+    GRF,
+    MARKERS,
+    RECORDER_STATUS,
+    RESET_SERVICE,
+    STATE,
+    STATUS,
+)
 
 FRAME_ID = "world"
 
-QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_ALL,
-    depth=0,
+STREAM_DEPTH = 1000
+"""Samples a plant publisher keeps for a lagging subscriber: 1 s of the 1 kHz state in realtime."""
+STREAM_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=STREAM_DEPTH,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-COMMAND_HISTORY = 1000  # answers kept: minutes of hopping at a few strides a second
+COMMAND_HISTORY = 1000  # answers kept for a late subscriber: minutes of hopping
 COMMAND_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=COMMAND_HISTORY,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+"""What the suite's controller publishes commands with (the plant and the recorder accept any
+reliable publisher)."""
+COMMAND_SUBSCRIPTION_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+"""The plant's command subscription: reliable and volatile (an old answer is of no use to a new run)."""
+RECORDER_STATUS_QOS: QoSProfile = QoSPresetProfiles.DEFAULT.value
 
 
 def qos(topic: str) -> QoSProfile:
-    """The QoS the suite publishes ``topic`` with (and records it with)."""
-    return COMMAND_QOS if topic == COMMAND else QOS
+    """The QoS the suite publishes ``topic`` with."""
+    return COMMAND_QOS if topic == COMMAND else STREAM_QOS
 
 
-def offered_qos(topic: str) -> OfferedQos:
-    """qos(topic) as rosbag2 writes it into a recording's topic metadata."""
-    if topic == COMMAND:
-        return OfferedQos(
-            history="keep_last", depth=COMMAND_HISTORY, reliability="reliable", durability="transient_local"
-        )
-    return OfferedQos(history="keep_all", depth=0, reliability="reliable", durability="volatile")
+def offered_qos(profile: QoSProfile) -> OfferedQos:
+    """An rclpy profile as rosbag2 writes it into a recording's topic metadata."""
+    return OfferedQos.from_rclpy(profile)
+
+
+def adapted_qos(offered: Iterable[OfferedQos]) -> QoSProfile:
+    """The subscription QoS a recorder asks for given the publishers' offered profiles (rosbag2's
+    rule): reliable only if every publisher is reliable, transient-local only if every one is;
+    KEEP_ALL, so that nothing a reliable publisher sends is dropped on the recorder's side."""
+    offered = list(offered)
+    reliable = all(profile.reliability == "reliable" for profile in offered)
+    transient = bool(offered) and all(profile.durability == "transient_local" for profile in offered)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_ALL,
+        depth=0,
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE,
+    )
 
 
 MESSAGE_TYPES: dict[str, type] = {
@@ -62,11 +113,15 @@ MESSAGE_TYPES: dict[str, type] = {
     CONTACT: ContactEvent,
     STATUS: Status,
     COMMAND: StanceCommand,
+    MARKERS: MarkerArray,
     CLOCK: Clock,
 }
-"""Every topic of the suite and its message class; the plant publishes all but COMMAND."""
+"""Every topic the plant publishes or subscribes, with its message class."""
 
-TDSLIP_TOPICS = tuple(topic for topic in MESSAGE_TYPES if topic.startswith("/tdslip/"))
+PLANT_TOPICS = (STATE, GRF, APEX, CONTACT, STATUS, MARKERS)
+"""What the plant publishes besides /clock."""
+RECORDED_TOPICS = (*PLANT_TOPICS, COMMAND)
+"""What the recorder records (and /clock if asked)."""
 
 
 def type_name(message_class: type) -> str:

@@ -1,0 +1,43 @@
+"""A controller of your own for the tdslip_ros plant, as a ROS 2 user would write it.
+
+It answers every apex with a fixed touchdown angle and a torque ramp that pushes harder when the
+hopper is slower than 5 m/s (it settles near 5.5 m/s). Default QoS on both topics; the command
+copies the apex's epoch and stride, which is how the plant knows what it answers.
+
+    ros2 run tdslip_ros plant_node          # lockstep: it waits for a controller
+    python3 examples/my_controller.py       # in another terminal (same ROS_DOMAIN_ID)
+"""
+
+import rclpy
+from rclpy.node import Node
+from tdslip_msgs.msg import ApexEvent, StanceCommand
+
+
+class MyController(Node):
+    def __init__(self) -> None:
+        super().__init__("my_controller")
+        self.commands = self.create_publisher(StanceCommand, "tdslip/command", 10)
+        self.create_subscription(ApexEvent, "tdslip/apex", self.on_apex, 10)
+
+    def on_apex(self, apex: ApexEvent) -> None:
+        command = StanceCommand(epoch=apex.epoch, stride=apex.stride, policy="my_controller")
+        command.touchdown_angle = 0.35  # rad, about 20 degrees
+        command.tau0 = -273.0 + 200.0 * (apex.measured_forward_speed - 5.0)  # N m, < 0: forward thrust
+        command.t_f = 0.13  # s
+        self.commands.publish(command)
+
+
+def main() -> None:
+    rclpy.init()
+    node = MyController()
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

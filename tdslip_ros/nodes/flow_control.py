@@ -1,0 +1,74 @@
+"""What a plant knows of the recorders that report on ``tdslip/recorder_status``.
+
+A recorder_node publishes, per recorded topic, how many messages it has written and how many
+publishers it has matched (``tdslip_msgs/RecorderStatus``). A plant told to wait for a recorder
+(``wait_for_recorder``) uses that to start only once the recorder hears every publisher, to pace
+a lockstep run so that it never gets more than a window of messages ahead of what the recorder has
+written (its publishers keep :data:`~tdslip_ros.nodes.topics.STREAM_DEPTH` samples, so nothing
+is dropped), and to wait at the end until everything it published is in the bag.
+
+The acknowledgements of DDS cannot do this: they cover every subscriber alike, so a stalled
+``ros2 topic echo`` would hold the plant as firmly as a slow recorder.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from tdslip_msgs.msg import RecorderStatus
+
+
+@dataclass
+class _Report:
+    recorded: dict[str, int]
+    publishers: dict[str, int]
+    closed: bool
+    received_ns: int
+
+
+class RecorderProgress:
+    """The latest report of each recorder (by its bag), topics by fully qualified name."""
+
+    def __init__(self) -> None:
+        self._reports: dict[str, _Report] = {}
+
+    def update(self, msg: RecorderStatus) -> None:
+        self._reports[msg.bag] = _Report(
+            recorded=dict(zip(msg.topics, (int(n) for n in msg.recorded), strict=True)),
+            publishers=dict(zip(msg.topics, (int(n) for n in msg.publishers), strict=True)),
+            closed=bool(msg.closed),
+            received_ns=time.monotonic_ns(),
+        )
+
+    def _recording(self, topic: str) -> list[_Report]:
+        return [report for report in self._reports.values() if topic in report.recorded and not report.closed]
+
+    def ready(self, published_topics: Iterable[str], command_topic: str, command_publishers: int) -> bool:
+        """A recorder has matched this plant on every topic it records and every command publisher."""
+        for report in self._reports.values():
+            if report.closed:
+                continue
+            matched = all(report.publishers.get(topic, 1) >= 1 for topic in published_topics)
+            if matched and report.publishers.get(command_topic, 0) >= command_publishers:
+                return True
+        return False
+
+    def lag(self, topic: str, published: int) -> int:
+        """Messages on ``topic`` published but not yet written by the slowest recorder (0 if none
+        records it)."""
+        return max((published - report.recorded[topic] for report in self._recording(topic)), default=0)
+
+    def caught_up(self, published: Mapping[str, int]) -> bool:
+        """Every recorder has written everything published on the topics it records."""
+        return all(self.lag(topic, count) <= 0 for topic, count in published.items())
+
+    def silent_for(self, now_ns: int) -> float:
+        """Seconds since the latest report of any open recorder (inf without one)."""
+        times = [report.received_ns for report in self._reports.values() if not report.closed]
+        return (now_ns - max(times)) * 1e-9 if times else float("inf")
+
+    @property
+    def heard(self) -> bool:
+        return bool(self._reports)
