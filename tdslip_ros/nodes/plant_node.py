@@ -48,6 +48,7 @@ simulated time runs on.
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 import sys
 import threading
@@ -73,6 +74,7 @@ from tdslip_msgs.srv import Reset
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model.events import Event, EventKind, Phase
 from tdslip_ros.model.events import HopperState as ModelState
+from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.model.stepper import FixedStepStepper
@@ -135,6 +137,15 @@ SPECS: tuple[ParameterSpec, ...] = (
     ),
     ParameterSpec(
         "initial_t_f", 0.13, "ramp duration t_f [s] of the initial command", 1e-4, 1e2, read_only=True
+    ),
+    ParameterSpec(
+        "max_torque",
+        0.0,
+        "actuator limit |tau0| [N m]: a command beyond it is rejected (0: 20 m g r0 of this hopper, "
+        "tdslip_ros.model.limits)",
+        0.0,
+        1e9,
+        read_only=True,
     ),
     ParameterSpec(
         "clock_mode",
@@ -310,12 +321,18 @@ class PlantNode(Node):
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         values = parameters.declare(self, SPECS)
         self.hopper = hopper_from_parameters(values)
+        check_hopper(self.hopper)
+        self.limits = PlausibilityLimits.for_hopper(self.hopper)
+        if float(values["max_torque"]) > 0.0:
+            self.limits = dataclasses.replace(self.limits, max_torque=float(values["max_torque"]))
         self._initial_command = ModelCommand(
             float(values["initial_touchdown_angle"]),
             float(values["initial_tau0"]),
             float(values["initial_t_f"]),
         )
+        self.limits.check_command(self._initial_command)
         initial_apex = ApexState(float(values["initial_height"]), float(values["initial_forward_speed"]))
+        self.limits.check_apex(initial_apex)
         self.lockstep = values["clock_mode"] == "lockstep"
         self._max_strides = int(values["max_strides"])
         self._max_stale_strides = int(values["max_stale_strides"])
@@ -514,7 +531,9 @@ class PlantNode(Node):
             self._ticker = None
 
     def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
-        self._stepper = FixedStepStepper(self.hopper, apex, self._initial_command, dt=TICK_PERIOD)
+        self._stepper = FixedStepStepper(
+            self.hopper, apex, self._initial_command, dt=TICK_PERIOD, limits=self.limits
+        )
         self._offset = time_offset_ticks * TICK_PERIOD
         self._awaiting: int | None = None
         self._answered = -1  # the latest stride whose command was applied
@@ -740,11 +759,14 @@ class PlantNode(Node):
             raise ParameterError(f"stride {stride} already has its command (lockstep)")
         if self._stepper.state.phase is Phase.STANCE:
             raise ParameterError(f"it arrived after the touchdown of stride {stride}")
-        self._stepper.set_command(ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f))
+        command = ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f)
+        self.limits.check_command(command)
+        self._stepper.set_command(command)
 
     def _on_reset(self, request: Reset.Request, response: Reset.Response) -> Reset.Response:
         try:
             apex = ApexState(request.height, request.forward_speed)
+            self.limits.check_apex(apex)
         except ParameterError as error:
             response.success, response.message = False, f"reset refused: {error}"
             response.epoch = self._epoch
