@@ -28,9 +28,9 @@ every reset) and ``stride``. It is rejected (Status ``command_rejected``, never 
 answers another apex, arrives after the touchdown it was for, repeats an already answered stride
 in lockstep, or holds a value that :class:`~tdslip_ros.model.params.StanceCommand` or the stepper
 refuses (non-finite, out of range, or a touchdown angle the body cannot reach). Answers to
-earlier apexes cost next to nothing and are only counted (a flood of them cannot delay the valid
-one); other rejections are logged and reported, at most :data:`REJECTION_REPORTS` per
-:data:`REJECTION_REPORT_PERIOD`, the rest summed.
+other apexes are recognised from their bytes and cost next to nothing (a flood of them cannot delay
+the valid one); late answers are only counted, other rejections are logged and reported, at most
+:data:`REJECTION_REPORTS` per :data:`REJECTION_REPORT_PERIOD`, the rest summed.
 
 With ``wait_for_recorder`` the plant treats a recorder_node (``tdslip/recorder_status``) as part
 of the run (:mod:`tdslip_ros.nodes.flow_control`): it starts once the recorder hears every
@@ -424,6 +424,7 @@ class PlantNode(Node):
             f"hopper m {hopper.m:g} kg, k {hopper.k:g} N/m, r0 {hopper.r0:g} m, c {hopper.c:g} N s/m, "
             f"g {hopper.g:g} m/s^2 (kbar {hopper.kbar:.4g}, zeta0 {hopper.zeta0:.4g}); initial apex "
             f"{apex.y:g} m, {apex.xdot:g} m/s; publishing {', '.join(self.topic_names.values())}; "
+            f"service {self.resolve_topic_name(topics.RESET_SERVICE)}; "
             f"starts on {' and '.join(start)} (at most {self._command_timeout:g} s)"
         )
 
@@ -712,13 +713,35 @@ class PlantNode(Node):
     def _on_command(self, data: bytes) -> None:
         self.received_commands += 1
         key = command_key(data)
-        # Unlocked: a stale answer is recognised without waiting for the tick thread.
-        if key is not None and key < (self._epoch, self._stepper.stride):
-            self.rejections.total += 1
+        # Unlocked and unparsed: an answer to another apex costs next to nothing, so that a flood of
+        # them cannot delay the one the plant waits for.
+        if key is not None and key != (self._epoch, self._stepper.stride):
+            if key > (self._epoch, self._stepper.stride):
+                epoch, stride = key
+                self._report_rejection(
+                    f"command for epoch {epoch}, stride {stride} rejected: {self._not_yet(key)}"
+                )
+            else:
+                self.rejections.total += 1  # a late answer: counted, not reported
             return
         msg = deserialize_message(data, StanceCommand)
         with self._lock:
             self._take_command(msg)
+
+    def _not_yet(self, key: tuple[int, int]) -> str:
+        epoch, stride = key
+        if epoch != self._epoch:
+            return f"the run is in epoch {self._epoch}"
+        return f"the latest apex is stride {self._stepper.stride}"
+
+    def _report_rejection(self, reason: str) -> None:
+        """Log and report a rejection (at most REJECTION_REPORTS per period, the rest summed)."""
+        prefix = self.rejections.admit(time.monotonic_ns())
+        if prefix is not None:
+            self.get_logger().warning(prefix + reason)
+            self._publish_status(
+                Status.KIND_COMMAND_REJECTED, prefix + reason, self._offset + self._stepper.t, fatal=False
+            )
 
     def _take_command(self, msg: StanceCommand) -> None:
         if not self._running:
@@ -727,16 +750,10 @@ class PlantNode(Node):
         try:
             self._apply(msg)
         except ParameterError as error:
-            prefix = self.rejections.admit(time.monotonic_ns())
-            if prefix is not None:
-                reason = (
-                    f"{prefix}command for epoch {msg.epoch}, stride {msg.stride} "
-                    f"({msg.policy or 'no policy'}) rejected: {error}"
-                )
-                self.get_logger().warning(reason)
-                self._publish_status(
-                    Status.KIND_COMMAND_REJECTED, reason, self._offset + self._stepper.t, fatal=False
-                )
+            self._report_rejection(
+                f"command for epoch {msg.epoch}, stride {msg.stride} ({msg.policy or 'no policy'}) "
+                f"rejected: {error}"
+            )
             return
         if msg.stride != self._answered:
             self.command_latencies_ns.append(time.monotonic_ns() - self._apex_wall_ns)

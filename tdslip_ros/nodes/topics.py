@@ -72,12 +72,13 @@ COMMAND_QOS = QoSProfile(
 """What the suite's controller publishes commands with (the plant and the recorder accept any
 reliable publisher)."""
 COMMAND_SUBSCRIPTION_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
+    history=HistoryPolicy.KEEP_ALL,
+    depth=0,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-"""The plant's command subscription: reliable and volatile (an old answer is of no use to a new run)."""
+"""The plant's command subscription: reliable and volatile (an old answer is of no use to a new run),
+KEEP_ALL so that no later message can push the valid answer out of its queue."""
 RECORDER_STATUS_QOS: QoSProfile = QoSPresetProfiles.DEFAULT.value
 
 
