@@ -435,6 +435,11 @@ class PlantNode(Node):
         return self._ticks * TICK_PERIOD
 
     @property
+    def stride(self) -> int:
+        """The latest apex of the run (0: the initial one)."""
+        return self._stepper.stride
+
+    @property
     def epoch(self) -> int:
         """The run epoch: 0 for the first run, one more after every reset."""
         return self._epoch
