@@ -108,3 +108,31 @@ def test_a_failed_run_names_the_failure_and_exits_non_zero(tmp_path: Path, mode:
 def test_an_existing_output_is_refused(tmp_path: Path) -> None:
     result = tdslip_run("--strides", "1", "--out", str(tmp_path))
     assert result.returncode == 1 and "exists already" in result.stderr
+
+
+def test_a_2000_stride_lockstep_run_with_both_cores_busy_records_every_message(tmp_path: Path) -> None:
+    """The plant paces itself on the recorder (flow control) instead of failing when the recorder
+    falls behind on a loaded machine: the run completes and nothing is lost."""
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        bag = tmp_path / "long"
+        result = subprocess.run(
+            [sys.executable, "-m", "tdslip_ros.cli", "run", "--strides", "2000", "--out", str(bag)],
+            capture_output=True,
+            text=True,
+            timeout=1200,
+            check=False,
+        )
+    finally:
+        for process in busy:
+            process.kill()
+            process.wait()
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    assert "lockstep run, policy energy: 2000 strides" in result.stdout
+    counts = bag_counts(bag)
+    assert counts[resolve(topics.APEX)] == 2001 and counts[resolve(topics.STATE)] > 500_000
+    printed = {
+        line.split()[0]: line.split()[1:] for line in result.stdout.splitlines() if line.startswith("/")
+    }
+    assert {topic: int(values[1]) for topic, values in printed.items()} == counts
+    assert all(values[0] == values[1] for values in printed.values())  # published = recorded, per topic
