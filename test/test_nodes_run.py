@@ -11,6 +11,7 @@ import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.parameters import PAPER_PARAMS
@@ -136,3 +137,13 @@ def test_a_2000_stride_lockstep_run_with_both_cores_busy_records_every_message(t
     }
     assert {topic: int(values[1]) for topic, values in printed.items()} == counts
     assert all(values[0] == values[1] for values in printed.values())  # published = recorded, per topic
+
+
+def test_a_run_in_a_namespace_records_and_analyses_its_topics_there(tmp_path: Path) -> None:
+    bag = tmp_path / "ns"
+    result = tdslip_run("--strides", "3", "--namespace", "/h1", "--out", str(bag))
+    assert result.returncode == 0, result.stdout + result.stderr
+    counts = bag_counts(bag)
+    assert counts["/h1/tdslip/apex"] == 4 and not any(topic.startswith("/tdslip/") for topic in counts)
+    run = read_run(bag)
+    assert len(run.strides) == 4 and run.params_source == "stored in the recording"
