@@ -184,6 +184,14 @@ SPECS: tuple[ParameterSpec, ...] = (
         read_only=True,
     ),
     ParameterSpec(
+        "realtime_cpu",
+        -1,
+        "realtime: the CPU the tick thread is pinned to (-1: any; e.g. one kept free with isolcpus)",
+        -1,
+        1023,
+        read_only=True,
+    ),
+    ParameterSpec(
         "min_subscribers",
         0,
         "the run starts once each of the plant's topics has this many subscribers",
@@ -396,6 +404,7 @@ class PlantNode(Node):
             self._command_timeout, self._on_recorder_timeout, clock=steady, autostart=False
         )
         self._realtime_priority = int(values["realtime_priority"])
+        self._realtime_cpu = None if int(values["realtime_cpu"]) < 0 else int(values["realtime_cpu"])
         self._running = False
         self._epoch = 0
         self._ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD
@@ -514,6 +523,7 @@ class PlantNode(Node):
                 round(TICK_PERIOD * _NS_PER_S),
                 self._advance_realtime,
                 priority=self._realtime_priority,
+                cpu=self._realtime_cpu,
                 on_error=self._log_warning,
             )
             self._ticker.start(self.start_wall_ns)
