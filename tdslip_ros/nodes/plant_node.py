@@ -571,6 +571,7 @@ class PlantNode(Node):
         wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
         self.outcome = RunOutcome(kind, reason, self._stepper.stride, t, wall_time)
         if self.tick_timing is not None:
+            self.tick_timing.close_window()
             self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
         if kind == Status.KIND_RUN_COMPLETE:
             self.get_logger().info(f"run complete at stride {self._stepper.stride}, t = {t:.3f} s: {reason}")

@@ -110,9 +110,10 @@ class TickTiming:
             self._window_missed += ticks - 1
         self._window_firings += 1
         if self._window_clocks is None or self._window_firings >= self.WINDOW_FIRINGS:
-            self._close_window()
+            self.close_window()
 
-    def _close_window(self) -> None:
+    def close_window(self) -> None:
+        """Explain the misses of the firings since the last window (also at the end of a run)."""
         clocks = self._cpu_clocks()
         if self._window_clocks is not None:
             stolen = clocks[0] - self._window_clocks[0]
