@@ -135,9 +135,9 @@ def test_answer_keeps_the_apex_stamp_and_epoch(ros: RosGraph, policy: str) -> No
     assert (bench.commands[-1].epoch, bench.commands[-1].stride) == (7, 4)
 
 
-def test_a_late_subscriber_gets_the_command_in_force_not_an_old_one(ros: RosGraph) -> None:
+def test_a_late_subscriber_gets_the_next_command_not_an_old_one(ros: RosGraph) -> None:
     """What ``ros2 topic echo --once tdslip/command`` shows: it asks for the publishers' durability
-    (transient-local) and gets their history, which holds the latest answer only."""
+    (volatile), so no old answer is replayed to it; the next one is what it prints."""
     bench = Bench(ros)
     for stride in range(3):
         bench.answer(stride, 1.0 - 0.01 * stride, 5.0)
@@ -151,6 +151,10 @@ def test_a_late_subscriber_gets_the_command_in_force_not_an_old_one(ros: RosGrap
             depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
         ),
     )
-    ros.spin_until(lambda: len(received) >= 1, "the history")
+    late.create_subscription(StanceCommand, topics.COMMAND, received.append, 10)
+    ros.spin_until(lambda: bench.controller.count_subscribers(topics.COMMAND) >= 3, "the late subscribers")
     ros.executor.spin_once(timeout_sec=0.5)
-    assert [msg.stride for msg in received] == [2]
+    assert received == []  # the transient-local one is incompatible: nothing old is replayed
+    bench.answer(3, 0.97, 5.0)
+    ros.spin_until(lambda: len(received) >= 1, "the next answer")
+    assert [msg.stride for msg in received] == [3]

@@ -607,7 +607,9 @@ class PlantNode(Node):
                     return
 
     def _recorder_lag(self) -> int:
-        return self.recorders.lag(self.topic_names[topics.STATE], self.published[topics.STATE])
+        """The most messages on any one topic that the recorder has not written yet: each topic, as
+        DDS delivers a reliable topic in order, a lost sample holds up only its own topic."""
+        return max(self.recorders.lag(self.topic_names[t], self.published[t]) for t in self.published)
 
     def _hold_for_recorder(self) -> None:
         """Pause lockstep stepping until the recorder reports that it caught up (or gives up)."""

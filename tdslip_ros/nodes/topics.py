@@ -11,9 +11,9 @@ The QoS contract (the README states it for users' own nodes):
 * Commands: the plant subscribes reliable and volatile, so a controller must publish reliable (ROS's
   default, ``create_publisher(StanceCommand, 'tdslip/command', 10)``); any durability and depth
   work. A command answers one apex: it copies the apex's ``epoch`` and ``stride``. The suite's
-  controller publishes transient-local with a history of one (:data:`COMMAND_QOS`), so that a
-  recorder whose subscription it matches only after an answer still gets it (DDS discovery is not
-  symmetric: a recorder can hear a publisher before that publisher sends to the recorder).
+  controller publishes volatile with a deep history (:data:`COMMAND_QOS`): a subscriber that
+  missed an answer in transport (a recorder starved of CPU) gets it repaired from that history,
+  while one that starts late sees the next answer, not an old one (``ros2 topic echo --once``).
 * The recorder adapts its subscriptions to what the publishers offer, as rosbag2 does
   (:func:`adapted_qos`).
 
@@ -62,14 +62,13 @@ STREAM_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-COMMAND_HISTORY = 1
-"""Answers kept for a subscriber that matches late: the latest (``ros2 topic echo --once`` shows the
-command in force, not an old one)."""
+COMMAND_HISTORY = 1000
+"""Answers a controller keeps for reliable repair: minutes of hopping."""
 COMMAND_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=COMMAND_HISTORY,
     reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    durability=DurabilityPolicy.VOLATILE,
 )
 """What the suite's controller publishes commands with (the plant and the recorder accept any
 reliable publisher)."""
