@@ -9,9 +9,9 @@ import pytest
 from analysis_runs import recorded_run, rewrite
 
 from tdslip_ros import cli
-from tdslip_ros.analysis import reader
 from tdslip_ros.analysis.reader import RunReadError
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml, main
+from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
@@ -86,7 +86,7 @@ def test_a_parameter_file_without_the_hopper_is_refused(tmp_path: Path) -> None:
 def test_analyze_fails_cleanly(
     energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
 ) -> None:
-    source = reader.mcap_file(energy.bag)
+    source = mcap_file(energy.bag)
     arguments = []
     if damage == "missing_topic":
         path = rewrite(source, tmp_path / "run.mcap", keep=lambda topic: topic != resolve(topics.STATE))
