@@ -28,6 +28,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "tdslip_ros.nodes.replay",
         "re-publish a recording on its topics with its timing (or --rate R)",
     ),
+    "recover": (
+        "tdslip_ros.bag.recover",
+        "make a truncated or unfinalised recording readable again (the original is kept as *.orig)",
+    ),
     "figures": ("tdslip_ros.analysis.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
 }
 
