@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -547,27 +546,6 @@ def test_a_full_disk_stops_the_recording_with_a_finalised_bag_of_everything_writ
     monkeypatch.undo()
     assert bag.mcap_path.stat().st_size > 256 * 1024 - reserve  # it got to the reserve
     check_full_disk_bag(bag, given, error)
-
-
-@pytest.fixture
-def tiny_disk(tmp_path: Path) -> Iterator[Path]:
-    """A real 2 MiB tmpfs (root in a sandbox can mount one); skipped where mounting is not allowed,
-    which leaves the simulated full disk above."""
-    mount_point = tmp_path / "disk"
-    mount_point.mkdir()
-    result = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mount_point)],
-        capture_output=True,
-        text=True,
-        timeout=30,
-        check=False,
-    )
-    if result.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {result.stderr.strip()}")
-    try:
-        yield mount_point
-    finally:
-        subprocess.run(["umount", str(mount_point)], timeout=30, check=True)
 
 
 def test_a_full_tmpfs_leaves_a_finalised_bag(tiny_disk: Path) -> None:
