@@ -24,7 +24,7 @@ from tdslip_ros.analysis.reader import (
     infer_params,
     read_run,
 )
-from tdslip_ros.bag.reader import mcap_file
+from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
@@ -153,6 +153,34 @@ def test_parameters_that_contradict_the_recording_are_refused(energy: RunReport)
     wrong = type(energy.params)(m=energy.params.m * 1.01, k=energy.params.k, r0=1.0, c=energy.params.c)
     with pytest.raises(RunReadError, match="the hopper parameters given contradict the recorded energies"):
         read_run(energy.bag, wrong)
+
+
+@pytest.mark.parametrize("factor", [1.0 + 1e-4, 0.5, 0.0])
+def test_a_damping_that_contradicts_the_recorded_liftoffs_is_refused(
+    energy: RunReport, factor: float
+) -> None:
+    """No energy shows the damping; the liftoffs do (leg force zero): a given damping off by even
+    0.01 % is refused with what to do, not analysed into prediction errors of 1e-2."""
+    params = energy.params
+    wrong = type(params)(m=params.m, k=params.k, r0=params.r0, c=params.c * factor, g=params.g)
+    with pytest.raises(RunReadError) as caught:
+        read_run(energy.bag, wrong)
+    message = str(caught.value)
+    assert "the hopper parameters given contradict the recorded liftoff of stride 0" in message
+    assert f"the liftoff shows c = {params.c:.6g} N s/m" in message and "--params FILE" in message
+
+
+def test_stored_parameters_that_contradict_the_recording_are_refused(
+    energy: RunReport, mcap_path: Path, tmp_path: Path
+) -> None:
+    stored = open_bag(energy.bag).custom_data
+    key = interfaces.custom_data_key("plant", "damping")
+    edited = rewrite(
+        mcap_path, tmp_path / "edited.mcap", custom_data={**stored, key: str(energy.params.c * 2)}
+    )
+    with pytest.raises(RunReadError, match="the hopper parameters stored in the recording contradict"):
+        read_run(edited)
+    assert read_run(edited, energy.params).params == energy.params  # the right ones, given, are taken
 
 
 def test_a_bare_mcap_file_reads_like_its_bag_directory(energy: RunReport, mcap_path: Path) -> None:

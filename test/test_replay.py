@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import rclpy
 from analysis_runs import raw_messages, recorded_run
+from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.qos import HistoryPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -94,6 +95,35 @@ def test_schedule_scales_the_recorded_spacing() -> None:
     for rate in (0.0, -1.0, math.nan):
         with pytest.raises(ValueError, match="rate must be positive"):
             check_rate(rate)
+
+
+def test_replay_refuses_a_flipped_byte_before_publishing_anything(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A flipped byte inside a chunk (the summary still intact) is found by the full checked pass."""
+    source = mcap_file(energy.bag)
+    with source.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    start = min(index.chunk_start_offset for index in summary.chunk_indexes)
+    data = bytearray(source.read_bytes())
+    data[start + 500] ^= 0x01
+    path = tmp_path / "flipped.mcap"
+    path.write_bytes(bytes(data))
+    assert main([str(path), "--rate", "inf"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip replay: ") and "corrupt data" in error and error.count("\n") == 1
+    with pytest.raises(ReplayError, match="corrupt data"):
+        replay(path, math.inf)
+
+
+@pytest.mark.parametrize("rate", ["1e-300", "0", "-1", "nan"])
+def test_a_rate_that_cannot_replay_the_recording_is_one_line(
+    energy: RunReport, capsys: pytest.CaptureFixture[str], rate: str
+) -> None:
+    assert main([str(energy.bag), "--rate", rate]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip replay: ") and error.count("\n") == 1 and "rate" in error
 
 
 def test_replay_of_a_damaged_recording_fails_cleanly(
