@@ -236,15 +236,15 @@ def iter_messages(
             if isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Message):
-                channel = channels.get(record.channel_id)
-                if channel is None:
+                defined = channels.get(record.channel_id)
+                if defined is None:
                     raise BagReadError(
                         f"{bag.mcap_path}: message {count[0]} refers to channel {record.channel_id}, "
                         "which is not defined before it"
                     )
                 count[0] += 1
-                if topics is None or channel.topic in topics:
-                    yield channel, record
+                if topics is None or defined.topic in topics:
+                    yield defined, record
     if count[0] != bag.message_count:
         raise BagReadError(
             f"{bag.mcap_path}: the data section holds {count[0]} messages, the summary counts "

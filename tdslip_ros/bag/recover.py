@@ -27,11 +27,12 @@ last recovered message.
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import shutil
 import struct
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -151,8 +152,10 @@ def scan_records(stream: BinaryIO, scan: Scan) -> Iterator[Schema | Channel | Me
 
 def _read(opcode: int, body: bytes, length: int) -> Any:
     """One record from its body; None for the kinds recovery does not need (indexes, summary)."""
-    stream = ReadDataStream(_BytesReader(body))
-    readers = {
+    if opcode == 0 or (0x10 <= opcode < 0x80):  # neither an MCAP record nor a user-defined one
+        raise ValueError(f"no record has opcode {opcode:#x}")
+    stream = ReadDataStream(io.BytesIO(body))
+    readers: dict[int, Callable[[], Any]] = {
         Opcode.HEADER: lambda: Header.read(stream),
         Opcode.SCHEMA: lambda: Schema.read(stream),
         Opcode.CHANNEL: lambda: Channel.read(stream),
@@ -160,24 +163,8 @@ def _read(opcode: int, body: bytes, length: int) -> Any:
         Opcode.CHUNK: lambda: Chunk.read(stream),
         Opcode.METADATA: lambda: Metadata.read(stream),
     }
-    if opcode == 0 or (0x10 <= opcode < 0x80):  # neither an MCAP record nor a user-defined one
-        raise ValueError(f"no record has opcode {opcode:#x}")
-    reader = readers.get(Opcode(opcode) if opcode in Opcode._value2member_map_ else -1)
+    reader = readers.get(opcode)
     return None if reader is None else reader()
-
-
-class _BytesReader:
-    """The read interface ReadDataStream needs, over bytes, failing on a short read."""
-
-    def __init__(self, data: bytes) -> None:
-        self._data, self._offset = data, 0
-
-    def read(self, size: int) -> bytes:
-        if self._offset + size > len(self._data):
-            raise ValueError("the record is shorter than its fields")
-        chunk = self._data[self._offset : self._offset + size]
-        self._offset += size
-        return chunk
 
 
 def _noted(scan: Scan, record: Schema | Channel | Message | Metadata) -> Any:

@@ -123,14 +123,15 @@ class _WriteThroughFile:
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         start = self._position
-        try:
-            self._write_at(start, data)
-        except OSError as error:
-            self.error = self.error or error
-            os.ftruncate(self._fd, start)
-            if not self.release_reserve():
-                raise
-            self._write_at(start, data)
+        while True:
+            try:
+                self._write_at(start, data)
+                break
+            except OSError as error:
+                self.error = self.error or error
+                os.ftruncate(self._fd, start)  # the file keeps ending with a whole record
+                if not self.release_reserve():
+                    raise
         self._position = start + len(data)
         return len(data)
 
@@ -194,7 +195,7 @@ def _record_bytes(*records: McapRecord) -> bytes:
     builder = RecordBuilder()
     for record in records:
         record.write(builder)
-    return bytes(builder.end())
+    return bytes(builder.end())  # type: ignore[no-untyped-call]
 
 
 @dataclass
