@@ -73,6 +73,7 @@ _RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
 _NS_PER_S = 1_000_000_000
 _COMPRESSIONS: dict[str, Compression] = {"": "none", "lz4": "lz4", "zstd": "zstd"}
 _DATA_RECORDS = (Schema, Channel, Message, Metadata)
+DataRecord = Schema | Channel | Message | Metadata
 
 
 class RecoverError(Exception):
@@ -83,6 +84,7 @@ class RecoverError(Exception):
 class Scan:
     """What a record-by-record pass over an MCAP file found (see the module docstring)."""
 
+    path: Path
     size: int
     schemas: dict[int, Schema] = field(default_factory=dict)
     channels: dict[int, Channel] = field(default_factory=dict)
@@ -110,7 +112,7 @@ class Scan:
         return tail + sum(length for _, length, _ in self.damaged_chunks)
 
 
-def scan_records(stream: BinaryIO, scan: Scan) -> Iterator[Schema | Channel | Message | Metadata]:
+def scan_records(stream: BinaryIO, scan: Scan) -> Iterator[DataRecord]:
     """The definitions, messages and metadata records of an MCAP file in file order, from every
     readable record (module docstring); ``scan`` is filled in on the way."""
     position = len(MCAP_MAGIC)
@@ -122,7 +124,7 @@ def scan_records(stream: BinaryIO, scan: Scan) -> Iterator[Schema | Channel | Me
             scan.stop_reason = f"a record header is cut off at byte {position}"
             return
         opcode, length = _RECORD_HEAD.unpack(head)
-        name = Opcode(opcode).name.lower() if opcode in Opcode._value2member_map_ else f"opcode {opcode:#x}"
+        name = _record_name(opcode)
         if length > scan.size - position - _RECORD_HEAD.size:
             scan.stop_reason = f"a {name} record is cut off at byte {position}"
             return
@@ -150,6 +152,13 @@ def scan_records(stream: BinaryIO, scan: Scan) -> Iterator[Schema | Channel | Me
     scan.stop_reason = "the file ends without a data end record"
 
 
+def _record_name(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name.lower()
+    except ValueError:
+        return f"opcode {opcode:#x}"
+
+
 def _read(opcode: int, body: bytes, length: int) -> Any:
     """One record from its body; None for the kinds recovery does not need (indexes, summary)."""
     if opcode == 0 or (0x10 <= opcode < 0x80):  # neither an MCAP record nor a user-defined one
@@ -167,14 +176,14 @@ def _read(opcode: int, body: bytes, length: int) -> Any:
     return None if reader is None else reader()
 
 
-def _noted(scan: Scan, record: Schema | Channel | Message | Metadata) -> Any:
+def _noted(scan: Scan, record: DataRecord) -> DataRecord:
     if isinstance(record, Schema):
         scan.schemas[record.id] = record
     elif isinstance(record, Channel):
         scan.channels[record.id] = record
     elif isinstance(record, Metadata) and record.name == ROSBAG2_RECORD:
         try:
-            scan.information = bag_information(Path("?"), record.metadata)
+            scan.information = bag_information(scan.path, record.metadata)
         except BagReadError:
             pass  # an unreadable record is skipped; an earlier one stays
     elif isinstance(record, Message):
@@ -217,7 +226,9 @@ def recover(path: Path) -> Recovery:
     try:
         mcap_path = mcap_file(path)
         if _intact(mcap_path):
-            return Recovery(mcap_path, None, _intact_counts(mcap_path), {}, Scan(mcap_path.stat().st_size))
+            return Recovery(
+                mcap_path, None, _intact_counts(mcap_path), {}, Scan(mcap_path, mcap_path.stat().st_size)
+            )
     except BagReadError as error:
         raise RecoverError(str(error)) from None
     original = mcap_path.with_name(mcap_path.name + ORIGINAL_SUFFIX)
@@ -280,7 +291,7 @@ def _copy(source: Path, target: Path) -> tuple[Recovery, dict[str, Any]]:
     with open(source, "rb") as stream:
         if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise RecoverError(f"{source}: not an MCAP file (no MCAP magic at its start)")
-        scan = Scan(source.stat().st_size)
+        scan = Scan(source, source.stat().st_size)
         for _ in scan_records(stream, scan):
             pass
         information = scan.information
@@ -294,7 +305,7 @@ def _copy(source: Path, target: Path) -> tuple[Recovery, dict[str, Any]]:
             custom_data=custom_data(information),
         ) as bag:
             writable = _add_topics(bag, scan, notes)
-            copy = Scan(scan.size)
+            copy = Scan(source, scan.size)
             for record in scan_records(stream, copy):
                 if isinstance(record, Message) and record.channel_id in writable:
                     topic = writable[record.channel_id]
