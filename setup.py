@@ -76,7 +76,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", relative_files("config/*.yaml")),
+        (f"share/{PACKAGE}/config", relative_files("config/*.yaml") + relative_files("config/*.json")),
     ],
     entry_points={"console_scripts": [f"{name} = {target}" for name, target in CONSOLE_SCRIPTS.items()]},
     cmdclass={"install_data": InstallDataWithRos2RunLaunchers},

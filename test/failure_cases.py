@@ -10,6 +10,7 @@ from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+LOSSLESS = HopperParams.from_dimensionless(36.0, 0.0)
 
 
 class FailureCase(NamedTuple):
@@ -77,5 +78,35 @@ FAILURE_CASES = (
         StanceCommand(1e-6, 0.0, 0.1),
         FailureKind.NO_LIFTOFF,
         "no liftoff",
+    ),
+    # Issue 9: torques far beyond the actuator limit (20 m g r0 = 15.7 kN m) crashed the stepper ("math
+    # domain error" at 1e300, E = inf at 1e100), flew it to 7.7e6 m (1e12), made the exact map drop the
+    # torque (|tau0| >= 1e200) or report an apex at 130 km (1e12) while the batch said no_liftoff.
+    *(
+        FailureCase(
+            f"state_limit: tau0 = {tau0:g} N m, beyond the actuator limit, ends the stride at touchdown",
+            PARAMS,
+            ApexState(1.0, 5.0),
+            StanceCommand(math.radians(20.0), tau0, 0.13),
+            FailureKind.STATE_LIMIT,
+            "actuator limit",
+        )
+        for tau0 in (-1e12, -1e100, -1e200, -1e300, 1e300, -1.6e4)
+    ),
+    FailureCase(
+        "state_limit: a lossless leg bounces a 9.9 m apex above max_apex_height (10 r0)",
+        LOSSLESS,
+        ApexState(9.9, 3.0),
+        StanceCommand(0.2, 0.0, 0.1),
+        FailureKind.STATE_LIMIT,
+        "apex height",
+    ),
+    FailureCase(
+        "state_limit: an 8 kN m thrust at 30 m/s lifts off faster than max_apex_speed (10 sqrt(g r0))",
+        LOSSLESS,
+        ApexState(1.2, 30.0),
+        StanceCommand(0.9, -8000.0, 0.05),
+        FailureKind.STATE_LIMIT,
+        "apex speed",
     ),
 )

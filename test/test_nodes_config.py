@@ -135,3 +135,70 @@ def test_command_line_overrides_win_over_the_default_params_file(ros: RosGraph) 
     plant = ros.add(PlantNode(context=ros.context, autostart=False, cli_args=arguments[1:]))
     assert plant.hopper.m == 70.0
     assert plant.hopper.k == parameters.PAPER_PARAMS.k
+
+
+def node_executable(module: str, *arguments: str) -> subprocess.CompletedProcess[str]:
+    """A node executable started as ``ros2 run`` would, with its own private domain."""
+    with isolation.reserved_domain() as domain_id:
+        return subprocess.run(
+            [sys.executable, "-m", f"tdslip_ros.nodes.{module}", *arguments],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=isolation.isolated_environment(domain_id),
+        )
+
+
+@pytest.mark.parametrize(
+    ("module", "override", "named"),
+    [
+        ("plant_node", "max_strides:=abc", "max_strides"),
+        ("plant_node", "max_strides:=2.5", "max_strides"),
+        ("plant_node", "mass:='80'", "mass"),
+        ("plant_node", "clock_mode:=1", "clock_mode"),
+        ("controller_node", "corrections:=one", "corrections"),
+        ("recorder_node", "record_clock:=maybe", "record_clock"),
+    ],
+)
+def test_a_value_of_the_wrong_type_on_the_command_line_is_an_error_naming_the_parameter(
+    module: str, override: str, named: str
+) -> None:
+    # rcl would let the installed params file win over it and run on the default, silently.
+    result = node_executable(module, "--ros-args", "-p", override)
+    assert result.returncode == BAD_PARAMETERS, result.stderr
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"{module}: parameter {named}: ") and "Traceback" not in result.stderr
+
+
+def test_an_integer_for_a_float_parameter_is_taken_as_that_float() -> None:
+    argv = ["plant_node", "--ros-args", "-p", "mass:=80", "-p", "max_strides:=3", "--", "-p", "mass:=x"]
+    checked = parameters.check_command_line(argv, plant_node.SPECS)
+    assert checked == [
+        "plant_node",
+        "--ros-args",
+        "-p",
+        "mass:=80.0",
+        "-p",
+        "max_strides:=3",
+        "--",
+        "-p",
+        "mass:=x",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--params-file", "/nonexistent.yaml"], "--params-file /nonexistent.yaml: no such file"),
+        (["-p", "damping:=1e7"], "zeta0"),  # within the parameter's range, but an overdamped leg
+        (["-p", "initial_height:=99.0"], "apex height"),  # within the range, beyond the plausibility limits
+        (["-p", "initial_tau0:=-900000.0"], "actuator limit"),
+    ],
+)
+def test_implausible_or_missing_inputs_stop_the_plant_with_one_line(
+    arguments: list[str], message: str
+) -> None:
+    result = node_executable("plant_node", "--ros-args", *arguments)
+    assert result.returncode == BAD_PARAMETERS
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("plant_node: ") and message in line

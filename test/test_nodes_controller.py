@@ -7,6 +7,7 @@ import math
 
 import pytest
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ros_harness import RosGraph
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
@@ -132,3 +133,24 @@ def test_answer_keeps_the_apex_stamp_and_epoch(ros: RosGraph, policy: str) -> No
     ros.spin_until(lambda: len(bench.commands) > count, "the answer")
     assert (bench.commands[-1].header.stamp.sec, bench.commands[-1].header.stamp.nanosec) == (12, 345_000_000)
     assert (bench.commands[-1].epoch, bench.commands[-1].stride) == (7, 4)
+
+
+def test_a_late_subscriber_gets_the_command_in_force_not_an_old_one(ros: RosGraph) -> None:
+    """What ``ros2 topic echo --once tdslip/command`` shows: it asks for the publishers' durability
+    (transient-local) and gets their history, which holds the latest answer only."""
+    bench = Bench(ros)
+    for stride in range(3):
+        bench.answer(stride, 1.0 - 0.01 * stride, 5.0)
+    late = ros.node("late")
+    received: list[StanceCommand] = []
+    late.create_subscription(
+        StanceCommand,
+        topics.COMMAND,
+        received.append,
+        QoSProfile(
+            depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE
+        ),
+    )
+    ros.spin_until(lambda: len(received) >= 1, "the history")
+    ros.executor.spin_once(timeout_sec=0.5)
+    assert [msg.stride for msg in received] == [2]

@@ -11,6 +11,7 @@ import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.parameters import PAPER_PARAMS
@@ -108,3 +109,41 @@ def test_a_failed_run_names_the_failure_and_exits_non_zero(tmp_path: Path, mode:
 def test_an_existing_output_is_refused(tmp_path: Path) -> None:
     result = tdslip_run("--strides", "1", "--out", str(tmp_path))
     assert result.returncode == 1 and "exists already" in result.stderr
+
+
+def test_a_2000_stride_lockstep_run_with_both_cores_busy_records_every_message(tmp_path: Path) -> None:
+    """The plant paces itself on the recorder (flow control) instead of failing when the recorder
+    falls behind on a loaded machine: the run completes and nothing is lost."""
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        bag = tmp_path / "long"
+        result = subprocess.run(
+            [sys.executable, "-m", "tdslip_ros.cli", "run", "--strides", "2000", "--out", str(bag)],
+            capture_output=True,
+            text=True,
+            timeout=1200,
+            check=False,
+        )
+    finally:
+        for process in busy:
+            process.kill()
+            process.wait()
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    assert "lockstep run, policy energy: 2000 strides" in result.stdout
+    counts = bag_counts(bag)
+    assert counts[resolve(topics.APEX)] == 2001 and counts[resolve(topics.STATE)] > 500_000
+    printed = {
+        line.split()[0]: line.split()[1:] for line in result.stdout.splitlines() if line.startswith("/")
+    }
+    assert {topic: int(values[1]) for topic, values in printed.items()} == counts
+    assert all(values[0] == values[1] for values in printed.values())  # published = recorded, per topic
+
+
+def test_a_run_in_a_namespace_records_and_analyses_its_topics_there(tmp_path: Path) -> None:
+    bag = tmp_path / "ns"
+    result = tdslip_run("--strides", "3", "--namespace", "/h1", "--out", str(bag))
+    assert result.returncode == 0, result.stdout + result.stderr
+    counts = bag_counts(bag)
+    assert counts["/h1/tdslip/apex"] == 4 and not any(topic.startswith("/tdslip/") for topic in counts)
+    run = read_run(bag)
+    assert len(run.strides) == 4 and run.params_source == "stored in the recording"

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
+import time
 
 import pytest
 
-from tdslip_ros.nodes.realtime import TickTiming
+from tdslip_ros.nodes.realtime import ProcCpuClocks, TickTiming
 
 PERIOD = 1_000_000  # ns
 
@@ -48,3 +52,55 @@ def test_a_new_run_is_not_timed_against_the_previous_one() -> None:
 
 def test_no_firings_no_statistics() -> None:
     assert math.isnan(TickTiming(PERIOD).period_error(0.5))
+
+
+class ScriptedClocks:
+    """CpuClocks that advance as the test says: (steal, wait) added at each reading."""
+
+    def __init__(self, increments: list[tuple[int, int]]) -> None:
+        self._increments = iter(increments)
+        self._steal = self._wait = 0
+
+    def __call__(self) -> tuple[int, int]:
+        steal, wait = next(self._increments, (0, 0))
+        self._steal += steal
+        self._wait += wait
+        return self._steal, self._wait
+
+
+def test_missed_ticks_are_told_apart_by_what_the_machine_was_doing() -> None:
+    window = TickTiming.WINDOW_FIRINGS
+    # Readings: at the first firing, then after each window of firings. Window 1: the hypervisor
+    # stole 10 ms; window 2: the thread waited 3 ms for a CPU; window 3: neither; window 4: quiet.
+    clocks = ScriptedClocks([(0, 0), (10_000_000, 0), (0, 3_000_000), (0, 100_000), (0, 0)])
+    timing = TickTiming(PERIOD, clocks)
+    now = 0
+    timing.record(now, 1)
+    for missed in (2, 3, 4, 0):  # the misses of each window, in its first firing
+        for firing in range(window):
+            now += PERIOD
+            timing.record(now, 1 + (missed if firing == 0 else 0))
+    assert timing.missed == 9
+    assert (timing.missed_stolen, timing.missed_waiting, timing.missed_unexplained) == (2, 3, 4)
+    assert timing.stolen_ns == 10_000_000
+    assert "2 while the hypervisor stole 0.01 s" in timing.summary()
+
+
+def test_the_proc_clocks_see_this_thread_wait_for_a_cpu_that_others_take() -> None:
+    clocks = ProcCpuClocks()
+    steal_before, wait_before = clocks()
+    # More busy processes than CPUs, while this thread wants a CPU too: it must queue for one.
+    crowd = [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range((os.cpu_count() or 1) * 2)
+    ]
+    try:
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            pass
+    finally:
+        for process in crowd:
+            process.kill()
+            process.wait()
+    steal_after, wait_after = clocks()
+    assert wait_after - wait_before > 20_000_000  # ns: at least 20 ms of the 0.5 s spent queueing
+    assert steal_after >= steal_before >= 0

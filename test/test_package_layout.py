@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
+import signal
 import subprocess
 import sys
 import textwrap
@@ -20,6 +22,8 @@ from typing import Any
 import pytest
 from ament_index_python.packages import get_package_share_directory
 from ament_index_python.resources import get_resource
+
+from tdslip_ros.nodes import isolation
 
 PACKAGE = "tdslip_ros"
 EXECUTABLES = {
@@ -34,6 +38,7 @@ INTERFACES = [
     "msg/StanceCommand.msg",
     "msg/ContactEvent.msg",
     "msg/Status.msg",
+    "msg/RecorderStatus.msg",
     "srv/Reset.srv",
 ]
 
@@ -159,10 +164,20 @@ def test_tdslip_msgs_is_an_installed_interface_package() -> None:
     assert Path(tdslip_msgs.msg.__file__).is_relative_to(sys.prefix)
 
 
+def readme_colcon_command(repo_root: Path) -> list[str]:
+    """The ``colcon build`` line of the README's colcon section, as a user copies it."""
+    lines = [line.strip() for line in (repo_root / "README.md").read_text().splitlines()]
+    (command,) = [line for line in lines if line.startswith("colcon build")]
+    return shlex.split(command)
+
+
 @pytest.mark.slow
-def test_colcon_build_layout_is_found_like_ros2run(repo_root: Path, tmp_path: Path) -> None:
-    """colcon builds msg_defs and the package with the venv as underlay (as an activated venv would
-    present it); after `source install/local_setup.bash` the overlay is what ros2run finds."""
+def test_the_readmes_colcon_command_builds_both_packages_and_plant_node_runs_from_the_install(
+    repo_root: Path, tmp_path: Path
+) -> None:
+    """A plain workspace (this repository cloned as src/tdslip_ros) built with the README's command,
+    the venv as underlay (as an activated venv presents it): after `source install/local_setup.bash`
+    both packages come from the overlay, and `ros2 run tdslip_ros plant_node` hops."""
     venv = Path(sys.prefix)
     environment = {
         key: value
@@ -175,33 +190,45 @@ def test_colcon_build_layout_is_found_like_ros2run(repo_root: Path, tmp_path: Pa
         "VIRTUAL_ENV": str(venv),
         "PATH": f"{venv / 'bin'}{os.pathsep}{os.environ['PATH']}",
     }
-    install = tmp_path / "install"
+    workspace = tmp_path / "tdslip_ws"
+    (workspace / "src").mkdir(parents=True)
+    (workspace / "src" / PACKAGE).symlink_to(repo_root)
+    command = readme_colcon_command(repo_root)
     build = subprocess.run(
-        [
-            str(venv / "bin" / "colcon"),
-            "--log-base",
-            str(tmp_path / "log"),
-            "build",
-            "--paths",
-            str(repo_root),
-            str(repo_root / "msg_defs"),
-            "--build-base",
-            str(tmp_path / "build"),
-            "--install-base",
-            str(install),
-            "--cmake-args",
-            "-DBUILD_TESTING=OFF",
-        ],
-        cwd=tmp_path,
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=600,
-        check=False,
+        command, cwd=workspace, env=environment, capture_output=True, text=True, timeout=900, check=False
     )
     assert build.returncode == 0, build.stdout + build.stderr
+    assert "Summary: 2 packages finished" in build.stdout, build.stdout
+    install = workspace / "install"
 
-    lookup = ros2run_lookup(environment, f'source "{install}/local_setup.bash" && ')
+    sourced = f'source "{install}/local_setup.bash" && '
+    lookup = ros2run_lookup(environment, sourced)
     check_ros2run_layout(lookup, install / PACKAGE)
     assert Path(lookup["tdslip_msgs_prefix"]) == install / "tdslip_msgs"
     assert Path(lookup["tdslip_msgs_module"]).is_relative_to(install / "tdslip_msgs")
+
+    # ros2run execs the executable it found with the user's arguments: a short lockstep hop with the
+    # installed controller, on a private domain.
+    executables = lookup["executables"]
+    with isolation.reserved_domain() as domain_id:
+        hop = {**isolation.isolated_environment(domain_id, environment)}
+        controller = subprocess.Popen(
+            ["bash", "-c", f'{sourced}exec "{executables["controller_node"]}"'],
+            env=hop,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            plant = subprocess.run(
+                ["bash", "-c", f'{sourced}exec "{executables["plant_node"]}" --ros-args -p max_strides:=2'],
+                env=hop,
+                capture_output=True,
+                text=True,
+                timeout=120,
+                check=False,
+            )
+        finally:
+            controller.send_signal(signal.SIGINT)
+            controller.wait(30)
+    assert plant.returncode == 0, plant.stderr
+    assert "run complete at stride 2" in plant.stderr

@@ -68,4 +68,30 @@ def test_simulate_defaults_hop_and_failures_are_named(capsys: pytest.CaptureFixt
     out = capsys.readouterr().out
     assert "reversal" in out and "failure at t" in out
     assert tdslip(["simulate", "--zeta0", "-1"]) == 2
-    assert "zeta0" in capsys.readouterr().out
+    assert "zeta0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--speed", "1e200"], "apex speed xdot = 1e+200 m/s exceeds max_apex_speed = 31.3209 m/s"),
+        (["--height", "1e9"], "apex height y = 1000000000.0 m exceeds max_apex_height = 10 m"),
+        (["--tau0", "1e300"], "tau0 = 1e+300 N m exceeds the actuator limit |tau0| <= 15696 N m"),
+        (["--tau0=-1e12"], "tau0 = -1000000000000.0 N m exceeds the actuator limit"),
+        (["--tau0", "-300", "--t-f", "1e-9"], "t_f = 1e-09 s is outside [0.000334344, 3.34344] s"),
+        (["--strides", "-5"], "--strides must be at least 1, got -5"),
+        (["--strides", "0"], "--strides must be at least 1, got 0"),
+        (["--zeta0", "2"], "zeta0 = c/(2 sqrt(m k)) = 2, but the model needs an underdamped leg"),
+        (["--mass", "1e-300"], "out of the floating-point range"),
+        (["--dt", "0.5"], "cannot resolve this hopper"),
+    ],
+)
+def test_simulate_refuses_implausible_input_in_one_line(
+    arguments: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 9 items 14 and 15: --speed 1e200 and --tau0 1e300 gave tracebacks, --strides -5 exited 0."""
+    assert tdslip(["simulate", *arguments]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.startswith("tdslip simulate: ") and captured.err.count("\n") == 1
+    assert message in captured.err

@@ -54,7 +54,15 @@ from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 FloatArray = npt.NDArray[np.float64]
 
 
-FAILURE_KINDS = ("toe_stubbing", "no_liftoff", "fall", "reversal", "command_timeout", "publish_failed")
+FAILURE_KINDS = (
+    "toe_stubbing",
+    "no_liftoff",
+    "fall",
+    "reversal",
+    "state_limit",
+    "command_timeout",
+    "publish_failed",
+)
 """Status kinds that end a run as a failure (the model's FailureKind values and the plant's own)."""
 CONTACT_KINDS = {0: "touchdown", 1: "bottom", 2: "liftoff"}
 PARAMETER_CONSISTENCY = 1e-9

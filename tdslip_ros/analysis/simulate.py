@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
 from scipy.optimize import brentq
 
 from tdslip_ros.model import units
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.stepper import FixedStepStepper
 
@@ -83,9 +85,15 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--t-f", type=float, help="ramp duration [s] (default: first stride's stance time)")
     parser.add_argument("--dt", type=float, default=1e-3, help="stepper tick [s] (default 0.001)")
     args = parser.parse_args(argv)
+    # Bad input: one line on stderr and exit code 2 (argparse's code for a usage error); 1 is a failure.
     try:
+        if args.strides < 1:
+            raise ParameterError(f"--strides must be at least 1, got {args.strides}")
         params = HopperParams.from_dimensionless(args.kbar, args.zeta0, m=args.mass, r0=args.r0)
+        check_hopper(params)
+        limits = PlausibilityLimits.for_hopper(params)
         apex = ApexState(args.height, args.speed)
+        limits.check_apex(apex)
         angle = math.radians(args.beta_deg)
         if args.tau0 is None:
             command = energy_neutral_command(params, apex, angle, args.t_f)
@@ -93,9 +101,10 @@ def main(argv: list[str]) -> int:
             command = StanceCommand(
                 angle, args.tau0, args.t_f if args.t_f is not None else math.pi / params.omega0
             )
-        stepper = FixedStepStepper(params, apex, command, dt=args.dt)
+        limits.check_command(command)
+        stepper = FixedStepStepper(params, apex, command, dt=args.dt, limits=limits)
     except ParameterError as error:
-        print(f"tdslip simulate: {error}")
+        print(f"tdslip simulate: {error}", file=sys.stderr)
         return 2
 
     print(

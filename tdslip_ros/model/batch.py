@@ -10,7 +10,8 @@ step of the trial length from the bracket start, to 1e-14 s. Lanes that finish a
 the arrays, so the work follows the lanes still in stance.
 
 Failures are per lane, as integer codes (:func:`.events.failure_code`, -1 for none), with the
-same rules as the single-trajectory paths.
+same rules as the single-trajectory paths, plausibility limits (:mod:`.limits`) included. A lane whose step
+size collapses (scipy's rule: below ten spacings of s) fails as ``state_limit`` rather than stall the batch.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from scipy.integrate._ivp import dop853_coefficients as _dop853
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
+from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import HopperParams, ParameterError
 
 IntArray = npt.NDArray[np.int64]
@@ -46,7 +48,7 @@ _INITIAL_STEP_PERIODS = 0.01  # first step, in natural periods of the leg spring
 _EVENT_TIME_TOLERANCE = 1e-14  # s
 _MAX_ROOT_ITERATIONS = 100
 
-_LIFTOFF, _REVERSAL, _FALL, _TIME_LIMIT = 0, 1, 2, 3
+_LIFTOFF, _REVERSAL, _FALL, _TIME_LIMIT, _STEP_COLLAPSE = 0, 1, 2, 3, 4
 _TERMINAL_EVENTS = (
     dynamics.STANCE_EVENT_NAMES.index("liftoff"),
     dynamics.STANCE_EVENT_NAMES.index("reversal"),
@@ -83,22 +85,25 @@ def batch_apex_return_map(
     *,
     rtol: float = 1e-12,
     atol: float = 1e-12,
-    max_stance_time: float | None = None,
+    limits: PlausibilityLimits | None = None,
 ) -> BatchStrideResult:
     """The exact return map of :func:`.exact_map.apex_return_map` for broadcastable arrays of apex
     states (y [m], xdot [m/s]) and commands (touchdown_angle [rad], tau0 [N m], t_f [s]).
 
     rtol/atol: per-lane DOP853 tolerances on the stance state, as in the exact map; the defaults
-    give apex states within ~1e-12 (dimensionless) of it. max_stance_time: the no_liftoff bound.
+    give apex states within ~1e-12 (dimensionless) of it. limits: the plausibility limits (default:
+    the hopper's), max_stance_time among them. ParameterError names the field and the first lane of
+    an invalid input, an apex beyond the limits included, or the invalid tolerance.
     """
+    check_tolerances(rtol, atol)
+    limits = PlausibilityLimits.of(params, limits)
     arrays = np.broadcast_arrays(
         *(np.asarray(v, dtype=np.float64) for v in (y, xdot, touchdown_angle, tau0, t_f))
     )
     shape = arrays[0].shape
     y_a, xdot_a, angle, tau0_a, t_f_a = (np.array(a, dtype=np.float64).ravel() for a in arrays)
-    _validate(y_a, xdot_a, angle, tau0_a, t_f_a)
-    t_limit = dynamics.max_stance_duration(params) if max_stance_time is None else max_stance_time
-    result = _stride(params, y_a, xdot_a, angle, tau0_a, t_f_a, t_limit, rtol, atol)
+    _validate(limits, y_a, xdot_a, angle, tau0_a, t_f_a)
+    result = _stride(limits, y_a, xdot_a, angle, tau0_a, t_f_a, rtol, atol)
     return BatchStrideResult(**{f.name: getattr(result, f.name).reshape(shape) for f in fields(result)})
 
 
@@ -131,7 +136,7 @@ def simulate_strides(
     pass_lanes: bool = False,
     rtol: float = 1e-12,
     atol: float = 1e-12,
-    max_stance_time: float | None = None,
+    limits: PlausibilityLimits | None = None,
 ) -> BatchRun:
     """Run every lane for n_strides strides under ``policy``, stopping lanes at their failure.
 
@@ -139,7 +144,12 @@ def simulate_strides(
     still alive (1-D arrays) and returns (touchdown_angle, tau0, t_f), each broadcastable to them.
     With pass_lanes=True it is called as policy(k, y, xdot, lanes), lanes being the alive lanes'
     flat indices into y0, for policies with per-lane memory (such as a per-lane energy goal).
+    rtol, atol and limits as in :func:`batch_apex_return_map`.
     """
+    check_tolerances(rtol, atol)
+    limits = PlausibilityLimits.of(params, limits)
+    if n_strides < 0:
+        raise ParameterError(f"n_strides must be non-negative, got {n_strides!r}")
     y_init, xdot_init = np.broadcast_arrays(
         np.asarray(y0, dtype=np.float64), np.asarray(xdot0, dtype=np.float64)
     )
@@ -151,7 +161,6 @@ def simulate_strides(
     failure = np.full(lanes_total, NO_FAILURE_CODE, dtype=np.int64)
     failure_stride = np.full(lanes_total, -1, dtype=np.int64)
     y_hist[0], xdot_hist[0] = y_init.ravel(), xdot_init.ravel()
-    t_limit = dynamics.max_stance_duration(params) if max_stance_time is None else max_stance_time
     alive = np.arange(lanes_total)
     for stride in range(n_strides):
         if alive.size == 0:
@@ -161,8 +170,8 @@ def simulate_strides(
         angle, tau0, t_f = (
             np.array(np.broadcast_to(np.asarray(c, dtype=np.float64), alive.shape)) for c in command
         )
-        _validate(y_k, xdot_k, angle, tau0, t_f)
-        step = _stride(params, y_k, xdot_k, angle, tau0, t_f, t_limit, rtol, atol)
+        _validate(limits, y_k, xdot_k, angle, tau0, t_f)
+        step = _stride(limits, y_k, xdot_k, angle, tau0, t_f, rtol, atol)
         y_hist[stride + 1, alive], xdot_hist[stride + 1, alive] = step.y, step.xdot
         energies[:, stride, alive] = step.hip_work, step.damping_loss, step.spring_loss
         failed = step.failure != NO_FAILURE_CODE
@@ -180,8 +189,16 @@ def simulate_strides(
     )
 
 
-def _validate(y: FloatArray, xdot: FloatArray, angle: FloatArray, tau0: FloatArray, t_f: FloatArray) -> None:
-    """The checks of ApexState and StanceCommand, per lane; the message names the field and a lane."""
+def _validate(
+    limits: PlausibilityLimits,
+    y: FloatArray,
+    xdot: FloatArray,
+    angle: FloatArray,
+    tau0: FloatArray,
+    t_f: FloatArray,
+) -> None:
+    """The checks of ApexState, StanceCommand and limits.check_apex, per lane; the message names the
+    field and a lane."""
     checks = (
         ("apex height y", y, np.isfinite(y) & (y > 0.0), "a positive finite number"),
         ("apex speed xdot", xdot, np.isfinite(xdot), "finite"),
@@ -193,20 +210,24 @@ def _validate(y: FloatArray, xdot: FloatArray, angle: FloatArray, tau0: FloatArr
         if not np.all(valid):
             lane = int(np.flatnonzero(~valid)[0])
             raise ParameterError(f"{name} must be {requirement}, got {values[lane]!r} in lane {lane}")
+    beyond = limits.apex_exceeded(y, xdot)
+    if np.any(beyond):
+        lane = int(np.flatnonzero(beyond)[0])
+        raise ParameterError(f"{limits.apex_violation(float(y[lane]), float(xdot[lane]))} in lane {lane}")
 
 
 def _stride(
-    params: HopperParams,
+    limits: PlausibilityLimits,
     y: FloatArray,
     xdot: FloatArray,
     angle: FloatArray,
     tau0: FloatArray,
     t_f: FloatArray,
-    t_limit: float,
     rtol: float,
     atol: float,
 ) -> BatchStrideResult:
     """One stride of 1-D lanes (the arrays are validated)."""
+    params = limits.params
     lanes = y.size
     failure = np.full(lanes, NO_FAILURE_CODE, dtype=np.int64)
     out = {
@@ -215,6 +236,9 @@ def _stride(
     sin_td, cos_td = np.sin(angle), np.cos(angle)
     y_td = dynamics.touchdown_height(params, cos_td)
     failure[y < y_td] = failure_code(FailureKind.TOE_STUBBING)
+    # The same rules, in the same order, as the exact map: the torque limit, then reversal at touchdown.
+    beyond_torque = (failure == NO_FAILURE_CODE) & limits.torque_exceeded(tau0)
+    failure[beyond_torque] = failure_code(FailureKind.STATE_LIMIT)
     t_td = dynamics.fall_time(y, np.zeros(lanes), np.minimum(y_td, y), params.g)
     ydot_td = -params.g * t_td
     rdot_td, thetadot_td = dynamics.polar_velocity(np.full(lanes, params.r0), sin_td, cos_td, xdot, ydot_td)
@@ -224,12 +248,13 @@ def _stride(
     y0 = np.zeros((_STATE_SIZE, in_stance.size))
     y0[0], y0[1], y0[2], y0[3] = params.r0, angle[in_stance], rdot_td[in_stance], thetadot_td[in_stance]
     outcome, s_end, y_end = _integrate_stance(
-        params, y0, tau0[in_stance], t_f[in_stance], t_limit, rtol, atol
+        params, y0, tau0[in_stance], t_f[in_stance], limits.max_stance_time, rtol, atol
     )
     stance_failures = {
         _REVERSAL: FailureKind.REVERSAL,
         _FALL: FailureKind.FALL,
         _TIME_LIMIT: FailureKind.NO_LIFTOFF,
+        _STEP_COLLAPSE: FailureKind.STATE_LIMIT,
     }
     for code, kind in stance_failures.items():
         failure[in_stance[outcome == code]] = failure_code(kind)
@@ -247,16 +272,19 @@ def _stride(
     reversals = ~falls & (xdot_lo <= 0.0)
     failure[lanes_lo[falls]] = failure_code(FailureKind.FALL)
     failure[lanes_lo[reversals]] = failure_code(FailureKind.REVERSAL)
-    ok = ~falls & ~reversals
-    t_rise = ydot_lo[ok] / params.g
-    y_lo = r[ok] * cos_lo[ok]
+    rising = ~falls & ~reversals
+    t_rise = ydot_lo[rising] / params.g
+    y_lo = r[rising] * cos_lo[rising]
     _, y_apex, _, _ = dynamics.ballistic(
-        np.zeros_like(y_lo), y_lo, xdot_lo[ok], ydot_lo[ok], t_rise, params.g
+        np.zeros_like(y_lo), y_lo, xdot_lo[rising], ydot_lo[rising], t_rise, params.g
     )
-    lanes_ok = lanes_lo[ok]
-    out["y"][lanes_ok] = y_apex
-    out["xdot"][lanes_ok] = xdot_lo[ok]
-    out["t"][lanes_ok] = t_td[lanes_ok] + s_end[lifted][ok] + t_rise
+    beyond = limits.apex_exceeded(y_apex, xdot_lo[rising])  # as limits.apex_failure
+    failure[lanes_lo[rising][beyond]] = failure_code(FailureKind.STATE_LIMIT)
+    ok = ~beyond
+    lanes_ok = lanes_lo[rising][ok]
+    out["y"][lanes_ok] = y_apex[ok]
+    out["xdot"][lanes_ok] = xdot_lo[rising][ok]
+    out["t"][lanes_ok] = t_td[lanes_ok] + s_end[lifted][rising][ok] + t_rise[ok]
     return BatchStrideResult(
         y=out["y"],
         xdot=out["xdot"],
@@ -313,8 +341,8 @@ def _integrate_stance(
 ) -> tuple[IntArray, FloatArray, FloatArray]:
     """Integrate lanes from touchdown (s = 0) to their first terminal event or the time limit.
 
-    Returns per lane the outcome (_LIFTOFF, _REVERSAL, _FALL or _TIME_LIMIT), its time s since
-    touchdown and the stance state there.
+    Returns per lane the outcome (_LIFTOFF, _REVERSAL, _FALL, _TIME_LIMIT or _STEP_COLLAPSE), its
+    time s since touchdown and the stance state there (the last accepted one on a step collapse).
     """
     lanes = y0.shape[1]
     outcome = np.full(lanes, _TIME_LIMIT, dtype=np.int64)
@@ -337,14 +365,18 @@ def _integrate_stance(
         in_ramp = s < field.t_f
         h = np.where(in_ramp, np.minimum(h, field.t_f - s), h)
         h = np.minimum(h, t_limit - s)
-        y_new = _dop853_step(field, s, y, h, k)
-        field(s + h, y_new, k[_STAGES])
-        scale = atol + np.maximum(np.abs(y), np.abs(y_new)) * rtol
-        err5 = np.sum((np.tensordot(_E5, k, axes=1) / scale) ** 2, axis=0)
-        err3 = np.sum((np.tensordot(_E3, k, axes=1) / scale) ** 2, axis=0)
-        denominator = err5 + 0.01 * err3
-        with np.errstate(divide="ignore", invalid="ignore"):
+        # A trial step may overflow (a stiff leg, a too long first step); it then fails its error test.
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            y_new = _dop853_step(field, s, y, h, k)
+            field(s + h, y_new, k[_STAGES])
+            scale = atol + np.maximum(np.abs(y), np.abs(y_new)) * rtol
+            err5 = np.sum((np.tensordot(_E5, k, axes=1) / scale) ** 2, axis=0)
+            err3 = np.sum((np.tensordot(_E3, k, axes=1) / scale) ** 2, axis=0)
+            denominator = err5 + 0.01 * err3
             error = np.where(denominator > 0.0, h * err5 / np.sqrt(denominator * _STATE_SIZE), 0.0)
+            # A step that left the floats (overflow, NaN) fails its error test and shrinks by _MIN_FACTOR.
+            left_floats = np.isnan(denominator) | np.isnan(error) | ~np.isfinite(y_new).all(axis=0)
+            error = np.where(left_floats, np.inf, error)
             growth = _SAFETY * error**_ERROR_EXPONENT
         accepted = error < 1.0
         factor = np.where(
@@ -379,7 +411,10 @@ def _integrate_stance(
         h = h * factor
         at_limit = advance & (s >= t_limit)
         y_end[:, lane[at_limit]] = y[:, at_limit]
-        keep = ~stops & ~at_limit
+        collapsed = rejected & (h < 10.0 * (np.nextafter(s, np.inf) - s))  # scipy's smallest step
+        outcome[lane[collapsed]], s_end[lane[collapsed]] = _STEP_COLLAPSE, s[collapsed]
+        y_end[:, lane[collapsed]] = y[:, collapsed]
+        keep = ~stops & ~at_limit & ~collapsed
         if not keep.all():
             lane, s, y, h, rejected, g_before = (
                 lane[keep],

@@ -254,7 +254,7 @@ def stance_failure(event_name: str, s: float) -> tuple[FailureKind, str]:
 
 
 def no_liftoff(limit: float) -> tuple[FailureKind, str]:
-    return FailureKind.NO_LIFTOFF, f"no liftoff within {limit:.6g} s of stance (dynamics.max_stance_duration)"
+    return FailureKind.NO_LIFTOFF, f"no liftoff within {limit:.6g} s of stance (limits.max_stance_time)"
 
 
 def takeoff_failure(xdot_lo: float, ydot_lo: float) -> tuple[FailureKind, str] | None:

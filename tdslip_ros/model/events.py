@@ -5,12 +5,15 @@ human-readable reason. Their meaning, shared by every integrator in this package
 
 * ``toe_stubbing``: touchdown is infeasible, the body is below the touchdown height
   ``r0 cos(theta_td)`` when the leg should be placed (the apex is too low for the commanded angle);
-* ``no_liftoff``: the stance lasts longer than
-  :func:`tdslip_ros.model.dynamics.max_stance_duration` without liftoff, fall or reversal;
+* ``no_liftoff``: the stance lasts longer than ``max_stance_time`` of the plausibility limits (by default
+  :func:`tdslip_ros.model.dynamics.max_stance_duration`) without liftoff, fall or reversal;
 * ``fall``: the body height ``r cos(theta)`` reaches 0 in stance (leg horizontal or fully
   compressed), or the leg lifts off with ``ydot <= 0`` so that the coming flight has no apex;
 * ``reversal``: the motion turns back: ``thetadot >= 0`` in stance (at touchdown or later, the
-  body swings back over the toe), or the leg lifts off with ``xdot <= 0`` (apex speed <= 0).
+  body swings back over the toe), or the leg lifts off with ``xdot <= 0`` (apex speed <= 0);
+* ``state_limit``: the motion leaves the hopper's plausibility limits
+  (:class:`tdslip_ros.model.limits.PlausibilityLimits`): the leg touches down under a ramp torque beyond
+  the actuator limit, or lifts off towards an apex beyond the height or speed bounds.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ class FailureKind(enum.StrEnum):
     NO_LIFTOFF = "no_liftoff"
     FALL = "fall"
     REVERSAL = "reversal"
+    STATE_LIMIT = "state_limit"
 
 
 class Phase(enum.StrEnum):

@@ -3,6 +3,10 @@
 Descent (P_d) and ascent (P_a) are ballistic and taken in closed form. Stance (P_s, eq. 2 with the
 ramp torque of eq. 18) is integrated by scipy's DOP853 with event location; the stance is split at
 the ramp end s = t_f so that no step straddles the kink of the torque.
+
+Inputs and states are held to the plausibility limits (:mod:`.limits`) exactly as the 1 kHz stepper and
+the batched engine hold them, so the three report the same failure for the same input. An integration
+that DOP853 cannot complete is never taken for a result: it ends as ``state_limit`` with scipy's reason.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from scipy.integrate import solve_ivp
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
+from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
 
 
@@ -46,17 +51,21 @@ def apex_return_map(
     *,
     rtol: float = 1e-12,
     atol: float = 1e-12,
-    max_stance_time: float | None = None,
+    limits: PlausibilityLimits | None = None,
 ) -> StrideResult:
     """Next apex from ``apex`` under ``command``, or a named failure (see :mod:`.events`).
 
     rtol and atol are DOP853's relative and absolute tolerances on the stance state (r [m],
     theta [rad], rdot [m/s], thetadot [rad/s], hip work and damper loss [J]); the defaults give
     apex states and event times to about 1e-12 relative. Events are located by scipy's root finder
-    on DOP853's 7th-order dense output. max_stance_time [s] is the no_liftoff bound
-    (default :func:`dynamics.max_stance_duration`).
+    on DOP853's 7th-order dense output. limits (default: the hopper's defaults) bound the motion;
+    their max_stance_time [s] is the no_liftoff bound. Raises ParameterError for tolerances outside
+    :func:`.limits.check_tolerances` and for an apex beyond the limits.
     """
-    t_limit = dynamics.max_stance_duration(params) if max_stance_time is None else max_stance_time
+    check_tolerances(rtol, atol)
+    limits = PlausibilityLimits.of(params, limits)
+    limits.check_apex(apex)
+    t_limit = limits.max_stance_time
     angle = command.touchdown_angle
     sin_td, cos_td = math.sin(angle), math.cos(angle)
     y_td = dynamics.touchdown_height(params, cos_td)
@@ -82,7 +91,11 @@ def apex_return_map(
         return result(*stubbing, state)
 
     t_td = dynamics.fall_time(apex.y, 0.0, y_td, params.g)
-    x_td, _, _, ydot_td = dynamics.ballistic(0.0, apex.y, apex.xdot, 0.0, t_td, params.g)
+    x_td, y_fall, _, ydot_td = dynamics.ballistic(0.0, apex.y, apex.xdot, 0.0, t_td, params.g)
+    beyond_limits = limits.torque_failure(command.tau0)
+    if beyond_limits is not None:  # the hip cannot act: the stride ends as the leg meets the ground
+        state = dynamics.flight_hopper_state(params, t_td, 0, x_td, y_fall, apex.xdot, ydot_td, angle)
+        return result(*beyond_limits, state)
     toe_x = x_td + params.r0 * sin_td
     rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, apex.xdot, ydot_td)
 
@@ -101,6 +114,14 @@ def apex_return_map(
     outcome = _integrate_stance(params, command, y0, t_limit, rtol, atol)
     bottom = None if outcome.bottom is None else stance_state(*outcome.bottom)
     end_state = stance_state(outcome.s_end, outcome.y_end)
+    if outcome.terminal == "failed":
+        return result(
+            FailureKind.STATE_LIMIT,
+            f"the stance integration failed at {outcome.s_end:.6g} s into stance: {outcome.message}",
+            end_state,
+            touchdown,
+            bottom,
+        )
     if outcome.terminal is None:
         return result(*dynamics.no_liftoff(t_limit), end_state, touchdown, bottom)
     if outcome.terminal != "liftoff":
@@ -118,6 +139,9 @@ def apex_return_map(
         return result(failure[0], failure[1], liftoff, touchdown, bottom, liftoff, energy)
     t_rise = liftoff.ydot / params.g
     _, y_apex, _, _ = dynamics.ballistic(liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, params.g)
+    failure = limits.apex_failure(y_apex, liftoff.xdot)
+    if failure is not None:
+        return result(failure[0], failure[1], liftoff, touchdown, bottom, liftoff, energy)
     next_apex = ApexState(y=y_apex, xdot=liftoff.xdot)
     return result(None, "", None, touchdown, bottom, liftoff, energy, next_apex, liftoff.t + t_rise)
 
@@ -140,8 +164,9 @@ class _StanceEvent:
 class _StanceOutcome:
     s_end: float
     y_end: np.ndarray
-    terminal: str | None  # "liftoff", "reversal", "fall", or None when the time limit was reached
+    terminal: str | None  # "liftoff", "reversal", "fall", "failed" (DOP853 gave up), None at the time limit
     bottom: tuple[float, np.ndarray] | None
+    message: str = ""  # scipy's reason when the integration failed
 
 
 def _integrate_stance(
@@ -171,6 +196,8 @@ def _integrate_stance(
         sol = solve_ivp(rhs, (s_start, s_stop), y, method="DOP853", rtol=rtol, atol=atol, events=events)
         if bottom is None and sol.t_events[0].size:
             bottom = (float(sol.t_events[0][0]), sol.y_events[0][0])
+        if sol.status == -1:  # the last accepted state is where it gave up
+            return _StanceOutcome(float(sol.t[-1]), sol.y[:, -1], "failed", bottom, sol.message)
         for index, name in enumerate(dynamics.STANCE_EVENT_NAMES[1:], start=1):
             if sol.t_events[index].size:
                 return _StanceOutcome(float(sol.t_events[index][0]), sol.y_events[index][0], name, bottom)

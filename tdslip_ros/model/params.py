@@ -14,6 +14,7 @@ Sign convention (the one of the paper's eqs. 2, 6, 7; see shared/paper/NOTES.md)
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 
 STANDARD_GRAVITY = 9.81
@@ -25,7 +26,10 @@ class ParameterError(ValueError):
 
 
 def _require_finite(name: str, value: float) -> float:
-    value = float(value)
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} must be a number, got {value!r}") from None
     if not math.isfinite(value):
         raise ParameterError(f"{name} must be a finite number, got {value!r}")
     return value
@@ -40,7 +44,13 @@ def _require_positive(name: str, value: float) -> float:
 
 @dataclass(frozen=True)
 class HopperParams:
-    """Mass m [kg], leg stiffness k [N/m], rest length r0 [m], damping c [N s/m], gravity g [m/s^2]."""
+    """Mass m [kg], leg stiffness k [N/m], rest length r0 [m], damping c [N s/m], gravity g [m/s^2].
+
+    Refused (ParameterError naming the field): non-numbers, non-finite values, m, k, r0, g <= 0, c < 0,
+    and values whose products and ratios in the equations of motion and the unit conversions leave the
+    range of normal doubles (m = k = 1e-300 makes m k = 0, and zeta0 a division by zero). What is legal
+    but implausible (an overdamped leg) is for :mod:`tdslip_ros.model.limits` to judge.
+    """
 
     m: float
     k: float
@@ -55,6 +65,23 @@ class HopperParams:
         if c < 0.0:
             raise ParameterError(f"c (damping) must be non-negative, got {c!r}")
         object.__setattr__(self, "c", c)
+        m, k, r0, g = self.m, self.k, self.r0, self.g
+        derived = {
+            "m g r0 (the energy and torque scale)": m * g * r0,
+            "k/m (omega0^2)": k / m,
+            "m k": m * k,
+            "m r0^2 (the leg's inertia)": m * r0 * r0,
+            "g/r0": g / r0,
+            "k r0/(m g) (kbar)": k * r0 / (m * g),
+        }
+        for what, value in derived.items():
+            if not sys.float_info.min <= value < math.inf:
+                raise ParameterError(
+                    f"m = {m!r}, k = {k!r}, r0 = {r0!r}, g = {g!r} are out of the floating-point range: "
+                    f"{what} = {value!r}"
+                )
+        if not math.isfinite(self.zeta0):
+            raise ParameterError(f"c = {c!r} N s/m is out of the floating-point range: zeta0 = {self.zeta0}")
 
     @classmethod
     def from_dimensionless(

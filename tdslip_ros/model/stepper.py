@@ -15,6 +15,12 @@ worst event-time error is 2.1e-8 s with 1 sub-step, 1.3e-9 s with 2 and 8e-11 s 
 states 1.4e-9, 9e-11, 5e-12 dimensionless): 1 ms RK4 alone misses the 1e-9 s target, 4 sub-steps
 meet it with margin. A stance tick then costs ~30-55 us (bench/bench_stepper.py).
 
+Plausibility limits (:mod:`.limits`): the stepper refuses to start from an apex beyond them; a touchdown
+under a torque beyond the actuator limit, or a liftoff towards an apex beyond the limits, ends the run as
+``state_limit``, so every state it reports is finite and every flight bounded. The sub-step must resolve
+the motion's fastest rate (MAX_RATE_STEP): a stiff or heavily damped leg that 1 kHz RK4 cannot follow is
+refused at construction rather than integrated into nonsense.
+
 Toe stubbing: the command for the next touchdown may be changed until touchdown (set_command),
 e.g. by a controller that answers the apex event. The stepper therefore declares toe_stubbing
 at the start of the first tick, after the apex, that begins with the body below the touchdown
@@ -27,9 +33,14 @@ import math
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
+from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
 DEFAULT_SUBSTEPS = 4
+MAX_RATE_STEP = 0.5
+"""Largest sub-step times the motion's fastest rate (see :func:`fastest_rate`) the stepper accepts: well
+inside RK4's stability limit (2.8), where its local error is still ~1e-4 per sub-step. The paper's
+hopper at 1 kHz with 4 sub-steps is at 0.012."""
 _EVENT_TIME_TOLERANCE = 1e-14  # s, Newton's tolerance on the event time inside a sub-step
 _MAX_ROOT_ITERATIONS = 100
 _GRID_SLACK = 1e-6  # fraction of a sub-step below which the stepper does not stop short of a grid point
@@ -55,19 +66,31 @@ class FixedStepStepper:
         x0: float = 0.0,
         *,
         substeps: int = DEFAULT_SUBSTEPS,
-        max_stance_time: float | None = None,
+        limits: PlausibilityLimits | None = None,
     ) -> None:
+        """Start at ``apex`` (ParameterError when beyond ``limits``, default: the hopper's defaults).
+
+        Raises ParameterError too for a dt or a number of substeps that cannot resolve the motion.
+        """
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be a positive finite number, got {dt!r}")
         if substeps < 1:
             raise ParameterError(f"substeps must be at least 1, got {substeps!r}")
+        self._limits = PlausibilityLimits.of(params, limits)
+        self._limits.check_apex(apex)
+        rate = fastest_rate(self._limits)
+        if rate * dt / substeps > MAX_RATE_STEP:
+            raise ParameterError(
+                f"a sub-step of dt/substeps = {dt / substeps:.6g} s cannot resolve this hopper, whose "
+                f"fastest rate is {rate:.6g} 1/s: at most {MAX_RATE_STEP / rate:.6g} s"
+            )
+        if not math.isfinite(x0):
+            raise ParameterError(f"x0 must be a finite number, got {x0!r}")
         self._params = params
         self._command = command
         self._dt = dt
         self._substeps = substeps
-        self._stance_limit = (
-            dynamics.max_stance_duration(params) if max_stance_time is None else max_stance_time
-        )
+        self._stance_limit = self._limits.max_stance_time
         self._tick = 0
         self._stride = 0
         self._failed: FailureKind | None = None
@@ -85,6 +108,10 @@ class FixedStepStepper:
         self._stance: _StanceVector = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self._stance_tau0 = command.tau0
         self._stance_t_f = command.t_f
+
+    @property
+    def limits(self) -> PlausibilityLimits:
+        return self._limits
 
     @property
     def t(self) -> float:
@@ -196,6 +223,10 @@ class FixedStepStepper:
         t_touchdown = max(t, t_apex + dynamics.fall_time(y_apex, 0.0, y_td, params.g))
         if t_touchdown > t_end:
             return t_end
+        beyond_limits = self._limits.torque_failure(self._command.tau0)
+        if beyond_limits is not None:
+            self._fail(events, self._flight_state(t_touchdown), *beyond_limits)
+            return t_touchdown
         x_td, _, _, ydot_td = dynamics.ballistic(x_apex, y_apex, xdot, 0.0, t_touchdown - t_apex, params.g)
         rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, xdot, ydot_td)
         self._phase = Phase.STANCE
@@ -336,6 +367,13 @@ class FixedStepStepper:
         self._flight_ref = (liftoff.t, liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot)
         self._descending = False
         failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
+        if failure is None:
+            # The coming apex, computed as _advance_flight will reach it.
+            t_rise = (liftoff.t + liftoff.ydot / self._params.g) - liftoff.t
+            _, y_apex, _, _ = dynamics.ballistic(
+                liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, self._params.g
+            )
+            failure = self._limits.apex_failure(y_apex, liftoff.xdot)
         if failure is not None:
             self._fail(events, liftoff, *failure)
 
@@ -343,3 +381,14 @@ class FixedStepStepper:
         self._failed = kind
         self._failure_state = state
         events.append(Event(EventKind.FAILURE, state.t, self._stride, state, kind, reason))
+
+
+def fastest_rate(limits: PlausibilityLimits) -> float:
+    """The fastest rate [1/s] of a TD-SLIP motion within ``limits``: the leg's fastest mode
+    omega0 (zeta0 + sqrt(zeta0^2 - 1)) (omega0 when underdamped), or the swing rate about the toe at the
+    highest speed the limits allow, sqrt(2 max_energy / m) / r0, whichever is larger."""
+    params = limits.params
+    zeta0 = params.zeta0
+    leg = params.omega0 * (zeta0 + math.sqrt(max(zeta0 * zeta0 - 1.0, 0.0)))
+    swing = math.sqrt(2.0 * limits.max_energy / params.m) / params.r0
+    return max(leg, swing)

@@ -27,6 +27,7 @@ from tdslip_msgs.msg import ApexEvent, StanceCommand
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import controllers
 from tdslip_ros.model.controllers import POLICIES
+from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.nodes import parameters, topics
@@ -72,6 +73,7 @@ class ControllerNode(Node):
         super().__init__("controller", **node_options)  # type: ignore[arg-type]
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         self.hopper = hopper_from_parameters(parameters.declare(self, SPECS))
+        check_hopper(self.hopper)
         self.published = 0
         self._previous_speed: float | None = None
         self._publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)

@@ -139,7 +139,7 @@ def run_node(
     ``specs`` have their types), init with the default params file, spin until ``finished(node)``
     or a stop signal, run ``on_stop``, ``deliver`` what was published, shut down; returns
     ``exit_status(node)``, or BAD_PARAMETERS if the node refused its parameters or output."""
-    name = Path(argv[0]).name
+    name = Path(argv[0]).stem
     try:
         argv = parameters.check_command_line(argv, specs)
     except ParameterError as error:

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -102,6 +101,33 @@ def validate(specs: Sequence[ParameterSpec], parameters: Sequence[Parameter[Any]
     return SetParametersResult(successful=True)
 
 
+_TYPE_NAMES = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+_RCL_TRUE = {"y", "Y", "yes", "Yes", "YES", "true", "True", "TRUE", "on", "On", "ON"}
+_RCL_FALSE = {"n", "N", "no", "No", "NO", "false", "False", "FALSE", "off", "Off", "OFF"}
+_RCL_FLOAT_WORDS = {".nan", ".NaN", ".NAN", ".inf", ".Inf", ".INF", "-.inf", "-.Inf", "-.INF"}
+
+
+def rcl_value_type(text: str) -> type:
+    """The type rcl's parameter parser gives a ``-p name:=text`` value: a quoted text is a string,
+    then it tries bool words, an integer, a floating-point number, in that order; else a string."""
+    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
+        return str
+    if text in _RCL_TRUE or text in _RCL_FALSE:
+        return bool
+    try:
+        int(text, 10)
+        return int
+    except ValueError:
+        pass
+    if text in _RCL_FLOAT_WORDS:
+        return float
+    try:
+        float(text)
+        return float
+    except ValueError:
+        return str
+
+
 def _ros_arguments(argv: Sequence[str]) -> list[tuple[int, str, str]]:
     """(index, flag, value) of the flags with a value inside the ``--ros-args`` sections of argv."""
     found = []
@@ -136,16 +162,13 @@ def check_command_line(argv: list[str], specs: Sequence[ParameterSpec]) -> list[
         spec = by_name.get(name.rsplit(":", 1)[-1])
         if not assign or spec is None:
             continue
-        try:
-            parsed = yaml.safe_load(text)
-        except yaml.YAMLError:
-            parsed = text
+        given = rcl_value_type(text)
         expected = type(spec.default)
-        if expected is float and type(parsed) is int:
-            checked[index] = f"{name}:={float(parsed)!r}"
-        elif type(parsed) is not expected:
+        if expected is float and given is int:
+            checked[index] = f"{name}:={float(text)!r}"
+        elif given is not expected:
             raise ParameterError(
-                f"parameter {spec.name}: {text!r} is not of type {expected.__name__} "
+                f"parameter {spec.name}: {text} is not {_TYPE_NAMES[expected]} "
                 f"({flag} {value}; default {spec.default!r})"
             )
     return checked

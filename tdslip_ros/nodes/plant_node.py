@@ -28,9 +28,9 @@ every reset) and ``stride``. It is rejected (Status ``command_rejected``, never 
 answers another apex, arrives after the touchdown it was for, repeats an already answered stride
 in lockstep, or holds a value that :class:`~tdslip_ros.model.params.StanceCommand` or the stepper
 refuses (non-finite, out of range, or a touchdown angle the body cannot reach). Answers to
-earlier apexes cost next to nothing and are only counted (a flood of them cannot delay the valid
-one); other rejections are logged and reported, at most :data:`REJECTION_REPORTS` per
-:data:`REJECTION_REPORT_PERIOD`, the rest summed.
+other apexes are recognised from their bytes and cost next to nothing (a flood of them cannot delay
+the valid one); late answers are only counted, other rejections are logged and reported, at most
+:data:`REJECTION_REPORTS` per :data:`REJECTION_REPORT_PERIOD`, the rest summed.
 
 With ``wait_for_recorder`` the plant treats a recorder_node (``tdslip/recorder_status``) as part
 of the run (:mod:`tdslip_ros.nodes.flow_control`): it starts once the recorder hears every
@@ -48,6 +48,7 @@ simulated time runs on.
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 import sys
 import threading
@@ -73,6 +74,7 @@ from tdslip_msgs.srv import Reset
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model.events import Event, EventKind, Phase
 from tdslip_ros.model.events import HopperState as ModelState
+from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.model.stepper import FixedStepStepper
@@ -137,6 +139,15 @@ SPECS: tuple[ParameterSpec, ...] = (
         "initial_t_f", 0.13, "ramp duration t_f [s] of the initial command", 1e-4, 1e2, read_only=True
     ),
     ParameterSpec(
+        "max_torque",
+        0.0,
+        "actuator limit |tau0| [N m]: a command beyond it is rejected (0: 20 m g r0 of this hopper, "
+        "tdslip_ros.model.limits)",
+        0.0,
+        1e9,
+        read_only=True,
+    ),
+    ParameterSpec(
         "clock_mode",
         "lockstep",
         "realtime: 1 kHz against wall time; lockstep: as fast as possible, each apex waiting for its command",
@@ -170,6 +181,14 @@ SPECS: tuple[ParameterSpec, ...] = (
         "realtime: SCHED_FIFO priority of the tick thread (0: normal scheduling; needs CAP_SYS_NICE)",
         0,
         99,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "realtime_cpu",
+        -1,
+        "realtime: the CPU the tick thread is pinned to (-1: any; e.g. one kept free with isolcpus)",
+        -1,
+        1023,
         read_only=True,
     ),
     ParameterSpec(
@@ -310,12 +329,18 @@ class PlantNode(Node):
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         values = parameters.declare(self, SPECS)
         self.hopper = hopper_from_parameters(values)
+        check_hopper(self.hopper)
+        self.limits = PlausibilityLimits.for_hopper(self.hopper)
+        if float(values["max_torque"]) > 0.0:
+            self.limits = dataclasses.replace(self.limits, max_torque=float(values["max_torque"]))
         self._initial_command = ModelCommand(
             float(values["initial_touchdown_angle"]),
             float(values["initial_tau0"]),
             float(values["initial_t_f"]),
         )
+        self.limits.check_command(self._initial_command)
         initial_apex = ApexState(float(values["initial_height"]), float(values["initial_forward_speed"]))
+        self.limits.check_apex(initial_apex)
         self.lockstep = values["clock_mode"] == "lockstep"
         self._max_strides = int(values["max_strides"])
         self._max_stale_strides = int(values["max_stale_strides"])
@@ -379,6 +404,7 @@ class PlantNode(Node):
             self._command_timeout, self._on_recorder_timeout, clock=steady, autostart=False
         )
         self._realtime_priority = int(values["realtime_priority"])
+        self._realtime_cpu = None if int(values["realtime_cpu"]) < 0 else int(values["realtime_cpu"])
         self._running = False
         self._epoch = 0
         self._ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD
@@ -407,6 +433,7 @@ class PlantNode(Node):
             f"hopper m {hopper.m:g} kg, k {hopper.k:g} N/m, r0 {hopper.r0:g} m, c {hopper.c:g} N s/m, "
             f"g {hopper.g:g} m/s^2 (kbar {hopper.kbar:.4g}, zeta0 {hopper.zeta0:.4g}); initial apex "
             f"{apex.y:g} m, {apex.xdot:g} m/s; publishing {', '.join(self.topic_names.values())}; "
+            f"service {self.resolve_topic_name(topics.RESET_SERVICE)}; "
             f"starts on {' and '.join(start)} (at most {self._command_timeout:g} s)"
         )
 
@@ -415,6 +442,11 @@ class PlantNode(Node):
     @property
     def sim_time(self) -> float:
         return self._ticks * TICK_PERIOD
+
+    @property
+    def stride(self) -> int:
+        """The latest apex of the run (0: the initial one)."""
+        return self._stepper.stride
 
     @property
     def epoch(self) -> int:
@@ -491,6 +523,7 @@ class PlantNode(Node):
                 round(TICK_PERIOD * _NS_PER_S),
                 self._advance_realtime,
                 priority=self._realtime_priority,
+                cpu=self._realtime_cpu,
                 on_error=self._log_warning,
             )
             self._ticker.start(self.start_wall_ns)
@@ -514,7 +547,9 @@ class PlantNode(Node):
             self._ticker = None
 
     def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
-        self._stepper = FixedStepStepper(self.hopper, apex, self._initial_command, dt=TICK_PERIOD)
+        self._stepper = FixedStepStepper(
+            self.hopper, apex, self._initial_command, dt=TICK_PERIOD, limits=self.limits
+        )
         self._offset = time_offset_ticks * TICK_PERIOD
         self._awaiting: int | None = None
         self._answered = -1  # the latest stride whose command was applied
@@ -536,6 +571,7 @@ class PlantNode(Node):
         wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
         self.outcome = RunOutcome(kind, reason, self._stepper.stride, t, wall_time)
         if self.tick_timing is not None:
+            self.tick_timing.close_window()
             self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
         if kind == Status.KIND_RUN_COMPLETE:
             self.get_logger().info(f"run complete at stride {self._stepper.stride}, t = {t:.3f} s: {reason}")
@@ -693,13 +729,35 @@ class PlantNode(Node):
     def _on_command(self, data: bytes) -> None:
         self.received_commands += 1
         key = command_key(data)
-        # Unlocked: a stale answer is recognised without waiting for the tick thread.
-        if key is not None and key < (self._epoch, self._stepper.stride):
-            self.rejections.total += 1
+        # Unlocked and unparsed: an answer to another apex costs next to nothing, so that a flood of
+        # them cannot delay the one the plant waits for.
+        if key is not None and key != (self._epoch, self._stepper.stride):
+            if key > (self._epoch, self._stepper.stride):
+                epoch, stride = key
+                self._report_rejection(
+                    f"command for epoch {epoch}, stride {stride} rejected: {self._not_yet(key)}"
+                )
+            else:
+                self.rejections.total += 1  # a late answer: counted, not reported
             return
         msg = deserialize_message(data, StanceCommand)
         with self._lock:
             self._take_command(msg)
+
+    def _not_yet(self, key: tuple[int, int]) -> str:
+        epoch, stride = key
+        if epoch != self._epoch:
+            return f"the run is in epoch {self._epoch}"
+        return f"the latest apex is stride {self._stepper.stride}"
+
+    def _report_rejection(self, reason: str) -> None:
+        """Log and report a rejection (at most REJECTION_REPORTS per period, the rest summed)."""
+        prefix = self.rejections.admit(time.monotonic_ns())
+        if prefix is not None:
+            self.get_logger().warning(prefix + reason)
+            self._publish_status(
+                Status.KIND_COMMAND_REJECTED, prefix + reason, self._offset + self._stepper.t, fatal=False
+            )
 
     def _take_command(self, msg: StanceCommand) -> None:
         if not self._running:
@@ -708,16 +766,10 @@ class PlantNode(Node):
         try:
             self._apply(msg)
         except ParameterError as error:
-            prefix = self.rejections.admit(time.monotonic_ns())
-            if prefix is not None:
-                reason = (
-                    f"{prefix}command for epoch {msg.epoch}, stride {msg.stride} "
-                    f"({msg.policy or 'no policy'}) rejected: {error}"
-                )
-                self.get_logger().warning(reason)
-                self._publish_status(
-                    Status.KIND_COMMAND_REJECTED, reason, self._offset + self._stepper.t, fatal=False
-                )
+            self._report_rejection(
+                f"command for epoch {msg.epoch}, stride {msg.stride} ({msg.policy or 'no policy'}) "
+                f"rejected: {error}"
+            )
             return
         if msg.stride != self._answered:
             self.command_latencies_ns.append(time.monotonic_ns() - self._apex_wall_ns)
@@ -740,11 +792,14 @@ class PlantNode(Node):
             raise ParameterError(f"stride {stride} already has its command (lockstep)")
         if self._stepper.state.phase is Phase.STANCE:
             raise ParameterError(f"it arrived after the touchdown of stride {stride}")
-        self._stepper.set_command(ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f))
+        command = ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f)
+        self.limits.check_command(command)
+        self._stepper.set_command(command)
 
     def _on_reset(self, request: Reset.Request, response: Reset.Response) -> Reset.Response:
         try:
             apex = ApexState(request.height, request.forward_speed)
+            self.limits.check_apex(apex)
         except ParameterError as error:
             response.success, response.message = False, f"reset refused: {error}"
             response.epoch = self._epoch

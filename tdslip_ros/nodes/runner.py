@@ -575,7 +575,17 @@ def main(argv: list[str]) -> int:
     for problem in report.problems:
         print(f"problem: {problem}", file=sys.stderr)
     if not report.recording_complete:
-        print("recording INCOMPLETE: the bag's counts differ from what was published", file=sys.stderr)
+        lost = sum(max(0, n - report.recorded.get(topic, 0)) for topic, n in report.published.items())
+        total = sum(report.published.values())
+        why = (
+            " (realtime: the recorder fell more than a publisher's history behind; the plant did not wait)"
+            if options.mode == "realtime"
+            else ""
+        )
+        print(
+            f"recording INCOMPLETE: {lost} of {total} published messages are not in the bag{why}",
+            file=sys.stderr,
+        )
     if not outcome.ok:
         if report.controller_log.strip():
             print(f"controller output:\n{report.controller_log.rstrip()}", file=sys.stderr)

@@ -11,8 +11,8 @@ The QoS contract (the README states it for users' own nodes):
 * Commands: the plant subscribes reliable and volatile, so a controller must publish reliable (ROS's
   default, ``create_publisher(StanceCommand, 'tdslip/command', 10)``); any durability and depth
   work. A command answers one apex: it copies the apex's ``epoch`` and ``stride``. The suite's
-  controller publishes transient-local (:data:`COMMAND_QOS`), so that a recorder whose
-  subscription it matches only after its first answers still gets them (DDS discovery is not
+  controller publishes transient-local with a history of one (:data:`COMMAND_QOS`), so that a
+  recorder whose subscription it matches only after an answer still gets it (DDS discovery is not
   symmetric: a recorder can hear a publisher before that publisher sends to the recorder).
 * The recorder adapts its subscriptions to what the publishers offer, as rosbag2 does
   (:func:`adapted_qos`).
@@ -62,7 +62,9 @@ STREAM_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-COMMAND_HISTORY = 1000  # answers kept for a late subscriber: minutes of hopping
+COMMAND_HISTORY = 1
+"""Answers kept for a subscriber that matches late: the latest (``ros2 topic echo --once`` shows the
+command in force, not an old one)."""
 COMMAND_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=COMMAND_HISTORY,
@@ -72,12 +74,13 @@ COMMAND_QOS = QoSProfile(
 """What the suite's controller publishes commands with (the plant and the recorder accept any
 reliable publisher)."""
 COMMAND_SUBSCRIPTION_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
+    history=HistoryPolicy.KEEP_ALL,
+    depth=0,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
-"""The plant's command subscription: reliable and volatile (an old answer is of no use to a new run)."""
+"""The plant's command subscription: reliable and volatile (an old answer is of no use to a new run),
+KEEP_ALL so that no later message can push the valid answer out of its queue."""
 RECORDER_STATUS_QOS: QoSProfile = QoSPresetProfiles.DEFAULT.value
 
 
