@@ -2,14 +2,18 @@
 
 Each sub-command lives in its own module as ``main(argv: list[str]) -> int``; they are imported
 only when chosen, so ``tdslip --help`` stays fast and a missing optional dependency of one job
-does not break the others.
+does not break the others. A closed output pipe ends every one of them the same way, here.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
+import signal
 import sys
 
+BROKEN_PIPE = 128 + signal.SIGPIPE
+"""Exit status when the output's reader went away, as a shell reports a command killed by SIGPIPE."""
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "simulate": (
         "tdslip_ros.analysis.simulate",
@@ -28,6 +32,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "tdslip_ros.nodes.replay",
         "re-publish a recording on its topics with its timing (or --rate R)",
     ),
+    "recover": (
+        "tdslip_ros.bag.recover",
+        "make a truncated or unfinalised recording readable again (the original is kept as *.orig)",
+    ),
     "figures": ("tdslip_ros.analysis.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
 }
 
@@ -44,7 +52,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"tdslip: unknown command {name!r}; try 'tdslip --help'", file=sys.stderr)
         return 2
     module = importlib.import_module(SUBCOMMANDS[name][0])
-    return int(module.main(rest))
+    try:
+        code = int(module.main(rest))
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # Whoever read the output is gone (``tdslip analyze RUN | head``): end quietly with the status
+        # of a command killed by SIGPIPE, and spare Python's second error when it flushes at exit.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return BROKEN_PIPE
+    return code
 
 
 if __name__ == "__main__":

@@ -61,12 +61,14 @@ def rewrite(
     keep: Callable[[str], bool] = lambda topic: True,
     retype: dict[str, str] | None = None,
     change: Callable[[str, int, bytes], bytes] = lambda topic, index, data: data,
+    custom_data: dict[str, str] | None = None,
 ) -> Path:
     """A bare .mcap copy of ``source`` with only the topics ``keep`` accepts (channels of dropped topics
-    are kept if listed in ``retype`` with a new type), their messages passed through ``change``."""
+    are kept if listed in ``retype`` with a new type), their messages passed through ``change``, and
+    ``custom_data`` (default: none)."""
     retype = retype or {}
     counts: dict[str, int] = {}
-    with RosbagMcapWriter(target, bag_directory=False) as writer:
+    with RosbagMcapWriter(target, bag_directory=False, custom_data=custom_data) as writer:
         for topic, type_name, log_time, publish_time, data in raw_messages(source):
             if topic in retype:
                 writer.add_topic(topic, retype[topic])

@@ -22,9 +22,9 @@ from tdslip_ros.analysis.reader import (
     StateRecord,
     applied_commands,
     infer_params,
-    mcap_file,
     read_run,
 )
+from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
@@ -151,8 +151,36 @@ def test_parameters_come_from_the_bag_or_are_inferred_from_the_recording(energy:
 
 def test_parameters_that_contradict_the_recording_are_refused(energy: RunReport) -> None:
     wrong = type(energy.params)(m=energy.params.m * 1.01, k=energy.params.k, r0=1.0, c=energy.params.c)
-    with pytest.raises(RunReadError, match="do not follow from the hopper parameters"):
+    with pytest.raises(RunReadError, match="the hopper parameters given contradict the recorded energies"):
         read_run(energy.bag, wrong)
+
+
+@pytest.mark.parametrize("factor", [1.0 + 1e-4, 0.5, 0.0])
+def test_a_damping_that_contradicts_the_recorded_liftoffs_is_refused(
+    energy: RunReport, factor: float
+) -> None:
+    """No energy shows the damping; the liftoffs do (leg force zero): a given damping off by even
+    0.01 % is refused with what to do, not analysed into prediction errors of 1e-2."""
+    params = energy.params
+    wrong = type(params)(m=params.m, k=params.k, r0=params.r0, c=params.c * factor, g=params.g)
+    with pytest.raises(RunReadError) as caught:
+        read_run(energy.bag, wrong)
+    message = str(caught.value)
+    assert "the hopper parameters given contradict the recorded liftoff of stride 0" in message
+    assert f"the liftoff shows c = {params.c:.6g} N s/m" in message and "--params FILE" in message
+
+
+def test_stored_parameters_that_contradict_the_recording_are_refused(
+    energy: RunReport, mcap_path: Path, tmp_path: Path
+) -> None:
+    stored = open_bag(energy.bag).custom_data
+    key = interfaces.custom_data_key("plant", "damping")
+    edited = rewrite(
+        mcap_path, tmp_path / "edited.mcap", custom_data={**stored, key: str(energy.params.c * 2)}
+    )
+    with pytest.raises(RunReadError, match="the hopper parameters stored in the recording contradict"):
+        read_run(edited)
+    assert read_run(edited, energy.params).params == energy.params  # the right ones, given, are taken
 
 
 def test_a_bare_mcap_file_reads_like_its_bag_directory(energy: RunReport, mcap_path: Path) -> None:
@@ -246,14 +274,22 @@ def test_corrupt_chunk(mcap_path: Path, tmp_path: Path, where: str) -> None:
     _expect_error(path, "corrupt data", "near byte")
 
 
-def test_missing_topics_are_named(mcap_path: Path, tmp_path: Path) -> None:
-    path = rewrite(
-        mcap_path,
-        tmp_path / "reduced.mcap",
-        keep=lambda t: t not in (resolve(topics.GRF), resolve(topics.CONTACT)),
-    )
-    message = _expect_error(path, "missing topics", resolve(topics.GRF), resolve(topics.CONTACT))
-    assert resolve(topics.STATE) not in message.split("(recorded:")[0]
+def test_the_apex_topic_is_required(mcap_path: Path, tmp_path: Path) -> None:
+    path = rewrite(mcap_path, tmp_path / "no_apex_topic.mcap", keep=lambda t: t != resolve(topics.APEX))
+    message = _expect_error(path, f"missing topic {resolve(topics.APEX)}")
+    assert resolve(topics.STATE) in message.split("(recorded:")[1]
+
+
+def test_topics_never_written_are_read_as_empty(energy: RunReport, mcap_path: Path, tmp_path: Path) -> None:
+    """A recording without the status, state and force topics (a recorder stopped before the first
+    status; a salvage tool that drops empty channels) still reads: those topics have no messages."""
+    dropped = {resolve(topics.STATUS), resolve(topics.STATE), resolve(topics.GRF)}
+    path = rewrite(mcap_path, tmp_path / "reduced.mcap", keep=lambda t: t not in dropped)
+    run = read_run(path)
+    assert run.outcome is None and run.statuses == () and len(run.samples) == 0
+    assert len(run.samples.grf_t) == 0
+    assert [s.y for s in run.strides] == [a.height for a in energy.apexes]
+    assert dropped.isdisjoint(run.message_counts)
 
 
 def test_a_topic_of_the_wrong_type(mcap_path: Path, tmp_path: Path) -> None:

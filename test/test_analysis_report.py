@@ -9,9 +9,9 @@ import pytest
 from analysis_runs import recorded_run, rewrite
 
 from tdslip_ros import cli
-from tdslip_ros.analysis import reader
 from tdslip_ros.analysis.reader import RunReadError
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml, main
+from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
@@ -86,17 +86,17 @@ def test_a_parameter_file_without_the_hopper_is_refused(tmp_path: Path) -> None:
 def test_analyze_fails_cleanly(
     energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
 ) -> None:
-    source = reader.mcap_file(energy.bag)
+    source = mcap_file(energy.bag)
     arguments = []
     if damage == "missing_topic":
-        path = rewrite(source, tmp_path / "run.mcap", keep=lambda topic: topic != resolve(topics.STATE))
-        expected = f"missing topic {resolve(topics.STATE)}"
+        path = rewrite(source, tmp_path / "run.mcap", keep=lambda topic: topic != resolve(topics.APEX))
+        expected = f"missing topic {resolve(topics.APEX)}"
     elif damage == "truncated":
         path = tmp_path / "run.mcap"
         path.write_bytes(source.read_bytes()[:-1000])
         expected = "truncated or not finalised"
     else:
-        path, arguments = source, ["--policy", "deadbeat", "--pd-kp", "-1"]
+        path, arguments = source, ["--policy", "deadbeat", "--pd-kp", "0.5"]
         expected = ""
     code = main([str(path), "--out", str(tmp_path / "out"), *arguments])
     captured = capsys.readouterr()
@@ -121,3 +121,14 @@ def test_analyze_reports_a_failed_run(
     assert isinstance(summary, dict)
     last = summary["strides"][-1]
     assert last["failure"] == outcome.kind and last["next_apex_predicted"]["exact_map"] == [None, None]
+
+
+def test_a_run_recorded_without_its_1khz_topics_is_analysed(energy: RunReport, tmp_path: Path) -> None:
+    """Topics never written are no reason to refuse a run: without state and force samples the
+    per-stride analysis and its figures still come out."""
+    dropped = (resolve(topics.STATE), resolve(topics.GRF), resolve(topics.STATUS))
+    path = rewrite(mcap_file(energy.bag), tmp_path / "run.mcap", keep=lambda topic: topic not in dropped)
+    assert main([str(path), "--out", str(tmp_path / "out")]) == 0
+    summary = _strict_json(tmp_path / "out" / "summary.json")
+    assert isinstance(summary, dict) and summary["run"]["samples"] == 0
+    assert len(summary["strides"]) == len(energy.apexes)

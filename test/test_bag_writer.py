@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import errno
 import io
 import os
 import signal
@@ -30,11 +31,16 @@ from std_msgs.msg import Header, String
 
 from tdslip_ros.bag import (
     BagClosedError,
+    BagWriteError,
     OfferedQos,
     RosbagMcapWriter,
     message_definition,
+    open_bag,
     type_description_hash,
+    writer,
 )
+from tdslip_ros.bag.recover import recover
+from tdslip_ros.bag.writer import reserve_path
 
 QOS_DEFAULT = OfferedQos()
 QOS_LATCHED = OfferedQos(history="unknown", depth=0, durability="transient_local", deadline_ns=1_500_000_000)
@@ -207,10 +213,13 @@ def test_metadata_yaml_and_rosbag2_record_describe_the_bag(tmp_path: Path) -> No
 
     with bag.mcap_path.open("rb") as stream:
         records = list(make_reader(stream).iter_metadata())
+    # As rosbag2 does: one record when the bag is opened (custom_data, no topics yet), one at close.
     assert [(record.name, set(record.metadata)) for record in records] == [
         ("rosbag2", {"serialized_metadata"})
-    ]
-    assert yaml.safe_load(records[0].metadata["serialized_metadata"]) == information
+    ] * 2
+    opening, closing = (yaml.safe_load(record.metadata["serialized_metadata"]) for record in records)
+    assert closing == information
+    assert opening["custom_data"] == {"policy": "energy"} and opening["topics_with_message_count"] == []
 
 
 def test_bare_mcap_file_has_no_metadata_yaml(tmp_path: Path) -> None:
@@ -460,3 +469,120 @@ def test_sigterm_handler_closing_the_writer_leaves_a_finalised_bag(tmp_path: Pat
         assert [reader.deserialize(raw, "std_msgs/msg/String").data for _, _, raw in reader.messages()] == [
             str(number) for number in range(accepted)
         ]
+
+
+# --- write errors -------------------------------------------------------------------------------
+
+
+class CappedDisk:
+    """Stands in for the writer module's ``os``: ``pwrite`` behaves like a disk of ``capacity`` bytes
+    on which the reserve file (while it exists) takes its share, or fails with ``errno`` for good
+    from byte ``fail_from`` on; everything else is the real ``os``."""
+
+    def __init__(self, capacity: int, reserve: Path, reserve_size: int, fail_from: int | None = None) -> None:
+        self.capacity, self.reserve, self.reserve_size, self.fail_from = (
+            capacity,
+            reserve,
+            reserve_size,
+            fail_from,
+        )
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(os, name)
+
+    def pwrite(self, fd: int, data: Any, offset: int) -> int:
+        if self.fail_from is not None and offset + len(data) > self.fail_from:
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        room = self.capacity - (self.reserve_size if self.reserve.exists() else 0) - offset
+        if room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return os.pwrite(fd, data[:room], offset)
+
+
+def write_until_refused(bag: RosbagMcapWriter, payload: bytes) -> tuple[int, BagWriteError]:
+    """Write ``payload`` messages until the writer raises BagWriteError; the messages given (the
+    refused one included) and the error."""
+    given = 0
+    while given < 10_000_000:
+        given += 1
+        try:
+            bag.write("/chatter", payload, given)
+        except BagWriteError as error:
+            return given, error
+    raise AssertionError("the disk never filled up")
+
+
+STRING_PAYLOAD = bytes([0, 1, 0, 0, 200, 0, 0, 0]) + bytes(range(199)) + b"\0"  # a 199-character String
+
+
+def check_full_disk_bag(bag: RosbagMcapWriter, given: int, error: BagWriteError) -> None:
+    """What a full disk must leave: one clear line, a closed writer, and a finalised bag holding every
+    message given to it, read back by mcap and by rosbags."""
+    assert error.errno == errno.ENOSPC and error.finalised
+    message = str(error)
+    assert "\n" not in message and "No space left on device" in message
+    assert f"finalised with all {given} messages" in message
+    assert bag.closed and bag.message_counts == {"/chatter": given}
+    with pytest.raises(BagClosedError):
+        bag.write("/chatter", STRING_PAYLOAD, given + 1)
+    assert read_message_count(bag.mcap_path) == given
+    assert bag.metadata_path is not None and bag.metadata_path.is_file()
+    assert not reserve_path(bag.mcap_path).exists()
+    with AnyReader([bag.mcap_path.parent]) as reader:
+        assert [timestamp for _, timestamp, _ in reader.messages()] == list(range(1, given + 1))
+
+
+def test_a_full_disk_stops_the_recording_with_a_finalised_bag_of_everything_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Simulated disk of 256 KiB: the writer's reserve is what makes room for the last chunk and the
+    summary."""
+    reserve = 2 * 4096 + 64 * 1024
+    mcap_path = tmp_path / "run" / "run_0.mcap"
+    monkeypatch.setattr(writer, "os", CappedDisk(256 * 1024, reserve_path(mcap_path), reserve))
+    bag = RosbagMcapWriter(tmp_path / "run", chunk_size=4096, reserve=reserve)
+    bag.add_topic("/chatter", "std_msgs/msg/String")
+    given, error = write_until_refused(bag, STRING_PAYLOAD)
+    monkeypatch.undo()
+    assert bag.mcap_path.stat().st_size > 256 * 1024 - reserve  # it got to the reserve
+    check_full_disk_bag(bag, given, error)
+
+
+def test_a_full_tmpfs_leaves_a_finalised_bag(tiny_disk: Path) -> None:
+    bag = RosbagMcapWriter(tiny_disk / "run", chunk_size=16 * 1024, custom_data={"policy": "energy"})
+    bag.add_topic("/chatter", "std_msgs/msg/String")
+    given, error = write_until_refused(bag, STRING_PAYLOAD)
+    check_full_disk_bag(bag, given, error)
+    assert open_bag(tiny_disk / "run").custom_data == {"policy": "energy"}
+
+
+def test_no_room_for_the_reserve_is_one_clear_error(tiny_disk: Path) -> None:
+    with pytest.raises(
+        BagWriteError, match="no room for the bag's 4194304 B reserve: No space left on device"
+    ):
+        RosbagMcapWriter(tiny_disk / "run", reserve=4 * 1024 * 1024)
+    assert list((tiny_disk / "run").iterdir()) == []
+
+
+def test_a_lasting_io_error_leaves_a_file_that_recover_makes_readable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    mcap_path = tmp_path / "run" / "run_0.mcap"
+    monkeypatch.setattr(writer, "os", CappedDisk(2**40, reserve_path(mcap_path), 0, fail_from=100_000))
+    bag = RosbagMcapWriter(tmp_path / "run", chunk_size=4096, custom_data={"policy": "energy"})
+    bag.add_topic("/chatter", "std_msgs/msg/String")
+    given, error = write_until_refused(bag, STRING_PAYLOAD)
+    monkeypatch.undo()
+    assert error.errno == errno.EIO and not error.finalised and "\n" not in str(error)
+    assert f"not finalised: tdslip recover {mcap_path}" in str(error)
+    assert bag.closed and not reserve_path(mcap_path).exists()
+    assert mcap_path.stat().st_size <= 100_000  # the failed chunk was cut off
+    recovery = recover(tmp_path / "run")
+    kept = recovery.recovered["/chatter"]
+    with AnyReader([tmp_path / "run"]) as reader:
+        assert [timestamp for _, timestamp, _ in reader.messages()] == list(range(1, kept + 1))
+    messages_per_chunk = 4096 // len(STRING_PAYLOAD) + 1
+    assert given - messages_per_chunk <= kept <= given  # at most the chunk being written is lost
+    assert recovery.scan.discarded_bytes == 0 and open_bag(tmp_path / "run").custom_data == {
+        "policy": "energy"
+    }

@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
-from tdslip_ros.analysis import reader
+from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import markers, topics
 from tdslip_ros.nodes.runner import RunReport
@@ -35,7 +35,7 @@ def decoded(bag: Path) -> dict[str, dict[str, list[Any]]]:
     """Markers and states of the bag, per reader."""
     names = [resolve(topics.MARKERS), resolve(topics.STATE), resolve(topics.GRF)]
     by_reader: dict[str, dict[str, list[Any]]] = {"mcap": {}, "rosbags": {}}
-    with reader.mcap_file(bag).open("rb") as stream:
+    with mcap_file(bag).open("rb") as stream:
         for _, channel, _, message in make_reader(
             stream, decoder_factories=[DecoderFactory()]
         ).iter_decoded_messages(topics=names):

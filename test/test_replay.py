@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 import rclpy
 from analysis_runs import raw_messages, recorded_run
+from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.qos import HistoryPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from tdslip_ros.analysis import reader
-from tdslip_ros.analysis.reader import open_recording
+from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.replay import ReplayError, check_rate, main, offered_qos, replay, send_offset
@@ -51,7 +51,7 @@ def _by_topic(mcap_path: Path) -> dict[str, list[bytes]]:
 def test_record_replay_record_gives_the_same_messages_in_the_same_order(
     energy: RunReport, tmp_path: Path
 ) -> None:
-    original = reader.mcap_file(energy.bag)
+    original = mcap_file(energy.bag)
     again = tmp_path / "again"
     with ros_domain() as (context, environment):
         recorder = ChildNode.start(
@@ -70,14 +70,14 @@ def test_record_replay_record_gives_the_same_messages_in_the_same_order(
     assert result.acknowledged and not result.stopped
     log_times = [log_time for _, _, log_time, _, _ in raw_messages(original)]
     assert result.duration >= (max(log_times) - min(log_times)) * 1e-9
-    replayed = _by_topic(reader.mcap_file(again))
+    replayed = _by_topic(mcap_file(again))
     assert set(replayed) == set(recorded) == {resolve(topic) for topic in topics.RECORDED_TOPICS}
     for topic, messages in recorded.items():
         assert replayed[topic] == messages, topic  # same CDR bytes, same order, nothing lost
 
 
 def test_replay_publishes_with_the_recorded_qos(energy: RunReport) -> None:
-    recording = open_recording(energy.bag)
+    recording = open_bag(energy.bag)
     for topic in topics.RECORDED_TOPICS:
         replayed, published = offered_qos(recording.topics[resolve(topic)]), topics.qos(topic)
         assert (replayed.reliability, replayed.durability) == (published.reliability, published.durability)
@@ -97,11 +97,40 @@ def test_schedule_scales_the_recorded_spacing() -> None:
             check_rate(rate)
 
 
+def test_replay_refuses_a_flipped_byte_before_publishing_anything(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A flipped byte inside a chunk (the summary still intact) is found by the full checked pass."""
+    source = mcap_file(energy.bag)
+    with source.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    start = min(index.chunk_start_offset for index in summary.chunk_indexes)
+    data = bytearray(source.read_bytes())
+    data[start + 500] ^= 0x01
+    path = tmp_path / "flipped.mcap"
+    path.write_bytes(bytes(data))
+    assert main([str(path), "--rate", "inf"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip replay: ") and "corrupt data" in error and error.count("\n") == 1
+    with pytest.raises(ReplayError, match="corrupt data"):
+        replay(path, math.inf)
+
+
+@pytest.mark.parametrize("rate", ["1e-300", "0", "-1", "nan"])
+def test_a_rate_that_cannot_replay_the_recording_is_one_line(
+    energy: RunReport, capsys: pytest.CaptureFixture[str], rate: str
+) -> None:
+    assert main([str(energy.bag), "--rate", rate]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip replay: ") and error.count("\n") == 1 and "rate" in error
+
+
 def test_replay_of_a_damaged_recording_fails_cleanly(
     energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     path = tmp_path / "cut.mcap"
-    path.write_bytes(reader.mcap_file(energy.bag).read_bytes()[:5000])
+    path.write_bytes(mcap_file(energy.bag).read_bytes()[:5000])
     with pytest.raises(ReplayError, match="truncated"):
         replay(path)
     assert main([str(path)]) == 1

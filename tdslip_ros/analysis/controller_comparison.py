@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 from tdslip_ros.analysis.compare import compare_run, policy_for_run
 from tdslip_ros.analysis.plots import DPI
 from tdslip_ros.analysis.reader import RunReadError, read_run
-from tdslip_ros.analysis.report import to_json
+from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams
 
@@ -241,6 +241,17 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_sweep_options(args: argparse.Namespace) -> None:
+    """ValueError naming the first sweep option that no run can use."""
+    if args.strides < 1:
+        raise ValueError(f"--strides must be at least 1, not {args.strides}")
+    if not 0.0 < args.height < math.inf:
+        raise ValueError(f"--height must be a finite height > 0 m, not {args.height}")
+    bad = [speed for speed in args.speeds if not 0.0 <= speed < math.inf]
+    if bad:
+        raise ValueError(f"--speeds must be finite speeds >= 0, not {', '.join(map(str, bad))}")
+
+
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     out = args.out or Path("runs") / f"compare-{datetime.now():%Y%m%d-%H%M%S}"
@@ -248,13 +259,20 @@ def main(argv: list[str]) -> int:
         if args.analyse_only:
             entries = load_sweep(out)
         else:
+            check_sweep_options(args)
+            output_directory(out)
             entries = record_sweep(out, args.speeds, args.height, args.strides, args.controllers)
         results = [analyse_run(out, entry) for entry in entries]
-    except (RunReadError, RuntimeError, ValueError) as error:
+        (out / "comparison.json").write_text(to_json([asdict(r) for r in results]))
+        plot_tracking(results, out / "tracking_error.png")
+    except (RunReadError, OutputError, RuntimeError, ValueError) as error:
         print(f"tdslip compare: {error}", file=sys.stderr)
         return 1
-    (out / "comparison.json").write_text(to_json([asdict(r) for r in results]))
-    plot_tracking(results, out / "tracking_error.png")
+    except BrokenPipeError:  # the progress lines' reader is gone: tdslip's cli.main ends quietly
+        raise
+    except OSError as error:
+        print(f"tdslip compare: {write_failed(error)}", file=sys.stderr)
+        return 1
     print(table(results))
     for controller in dict.fromkeys(r.controller for r in results):
         span = stable_range(results, controller)

@@ -53,7 +53,7 @@ from matplotlib.axes import Axes
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.report import to_json
+from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
 from tdslip_ros.model import basins, stability, units
 from tdslip_ros.model.analytic import Array, CommandArrays, speed_from_energy
 from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
@@ -736,8 +736,15 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures")
     parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
     args = parser.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-    resolution = FINE if args.fine else DEFAULT
-    for name in args.only or list(FIGURES):
-        write_figure(name, args.out, resolution)
+    try:
+        output_directory(args.out)
+        resolution = FINE if args.fine else DEFAULT
+        for name in args.only or list(FIGURES):
+            write_figure(name, args.out, resolution)
+    except OutputError as error:
+        print(f"tdslip figures: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:
+        print(f"tdslip figures: {write_failed(error)}", file=sys.stderr)
+        return 1
     return 0

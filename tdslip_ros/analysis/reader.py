@@ -1,20 +1,22 @@
 """Load a recorded run (a bare ``.mcap`` or a rosbag2 bag directory) without rclpy.
 
-The file is read with ``mcap`` (one sequential pass, chunk CRCs checked) and the CDR messages are
-decoded with ``mcap-ros2-support`` from the schemas stored in the file. The two 1 kHz topics
-(state and ground reaction force) take a vectorised path instead: their messages have a fixed CDR
-layout, computed here from the same stored schema text, so a batch of them becomes numpy columns
-in one ``frombuffer`` call (``test_analysis_reader.py`` checks it against ``mcap-ros2-support``).
+The recording is opened and checked by :mod:`tdslip_ros.bag.reader` (magic, footer, summary CRC,
+chunk CRCs, message counts) and its messages decoded by :mod:`tdslip_ros.bag.cdr` from the schemas
+stored in it; the two 1 kHz topics (state and ground reaction force) take the vectorised path to
+numpy columns.
 
 What comes out (:class:`Run`) is tidy: one :class:`StrideRecord` per recorded apex (its state, the
 command applied in the stance that follows, that stance's energy flows, the failure that ended the
 run in it), the contact events, every command and status message, and the 1 kHz samples as
 arrays. The hopper parameters are the given ones, else those ``tdslip run`` stored in the bag's
 custom_data, else :func:`infer_params` recovers them from the physics of the recorded events
-(exact to rounding); either way they are checked against the recorded events.
+(exact to rounding); either way they are checked against the recorded events, the damping included.
 
-Every problem with the input -- no such path, not an MCAP file, a truncated or unfinalised file, a
-corrupt chunk, a missing topic, a topic of the wrong type, an undecodable message -- raises
+Only the apex topic is required: a suite topic that was never written (a recorder stopped before
+the first status, a recording salvaged by ``tdslip recover`` or another tool that drops empty
+channels) reads as a topic without messages. Every problem with the input -- no such path, not an
+MCAP file, a truncated or unfinalised file, a corrupt chunk, no apex topic, a topic of the wrong
+type, an undecodable message, parameters that contradict the recording -- raises
 :class:`RunReadError` with a message that names what is missing or wrong.
 """
 
@@ -22,19 +24,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
-from mcap.reader import make_reader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
-from mcap_ros2.decoder import DecoderFactory
+from mcap.records import Schema
 
+from tdslip_ros.bag.cdr import decoded_columns, decoder
+from tdslip_ros.bag.reader import Bag, BagReadError, iter_messages, open_bag
 from tdslip_ros.interfaces import (
     APEX,
     COMMAND,
@@ -53,7 +54,6 @@ from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 FloatArray = npt.NDArray[np.float64]
 
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 FAILURE_KINDS = (
     "toe_stubbing",
     "no_liftoff",
@@ -67,6 +67,10 @@ FAILURE_KINDS = (
 CONTACT_KINDS = {0: "touchdown", 1: "bottom", 2: "liftoff"}
 PARAMETER_CONSISTENCY = 1e-9
 """Largest relative energy mismatch of the recorded events accepted for one set of hopper parameters."""
+DAMPING_CONSISTENCY = 1e-6
+"""Largest mismatch of the damping ratio zeta0 = c / (2 sqrt(m k)) with the recorded liftoffs."""
+REQUIRED_TOPICS = (APEX,)
+"""The suite topics a run cannot be analysed without; the others may be missing (no messages)."""
 
 _STATE_FIELDS = (
     "stride",
@@ -93,67 +97,34 @@ class RunReadError(Exception):
     """The recording cannot be analysed; the message says what is missing or wrong."""
 
 
-# _corrupt: the mcap reader, zstandard, lz4 and the CDR decoder raise many unrelated exception types on
-# damaged input (McapError, struct.error, ValueError, ZstdError, IndexError, ...); the handlers marked
-# "see _corrupt" catch Exception and turn it into a RunReadError that says where the damage is.
+@contextmanager
+def _as_run_error() -> Iterator[None]:
+    """The bag reader's errors, as RunReadError."""
+    try:
+        yield
+    except BagReadError as error:
+        raise RunReadError(str(error)) from None
 
 
 # --- the file -----------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
-class TopicInfo:
-    """One recorded topic: its message type, stored definition text, channel metadata and count."""
-
-    topic: str
-    type_name: str
-    schema: Schema | None
-    metadata: dict[str, str]
-    message_count: int
-
-
-@dataclass(frozen=True)
 class Recording:
-    """A validated MCAP file: where it is, its topics (by recorded name), its message count, the
-    ``custom_data`` of its rosbag2 metadata (``tdslip run`` stores the nodes' parameters there; empty
-    if none) and the namespace the suite's topics were recorded in."""
+    """A checked recording (:class:`~tdslip_ros.bag.reader.Bag`) and the namespace the suite's
+    topics were recorded in."""
 
-    mcap_path: Path
-    topics: dict[str, TopicInfo]
-    message_count: int
-    custom_data: dict[str, str]
+    bag: Bag
     namespace: str = "/"
 
     def name(self, topic: str) -> str:
         """The recorded name of a suite topic given by its relative name (interfaces.STATE, ...)."""
         return resolve(topic, self.namespace)
 
-
-def mcap_file(path: Path) -> Path:
-    """The MCAP file of a run: ``path`` itself, or the one file of a bag directory."""
-    path = Path(path)
-    if not path.exists():
-        raise RunReadError(f"{path}: no such file or directory")
-    if path.is_file():
-        return path
-    names: list[str] = []
-    metadata = path / "metadata.yaml"
-    if metadata.is_file():
-        try:
-            information = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
-            names = [str(name) for name in information["relative_file_paths"]]
-        except (yaml.YAMLError, KeyError, TypeError) as error:
-            raise RunReadError(f"{metadata}: not a rosbag2 metadata file ({error!r})") from None
-    else:
-        names = sorted(candidate.name for candidate in path.glob("*.mcap"))
-    if not names:
-        raise RunReadError(f"{path}: bag directory without an .mcap file")
-    if len(names) > 1:
-        raise RunReadError(f"{path}: split bags ({len(names)} files: {', '.join(names)}) are not supported")
-    mcap_path = path / names[0]
-    if not mcap_path.is_file():
-        raise RunReadError(f"{path}: {names[0]} (listed in metadata.yaml) is missing")
-    return mcap_path
+    def schema(self, topic: str) -> Schema | None:
+        """The stored schema of a suite topic (None if it was not recorded)."""
+        info = self.bag.topics.get(self.name(topic))
+        return None if info is None else info.schema
 
 
 def suite_namespace(topics: Iterable[str], namespace: str | None = None) -> str:
@@ -171,232 +142,27 @@ def suite_namespace(topics: Iterable[str], namespace: str | None = None) -> str:
     return found[0] if found else "/"
 
 
-def open_recording(
-    path: Path, required: dict[str, str] | None = None, namespace: str | None = None
-) -> Recording:
-    """Check that ``path`` is a complete MCAP recording holding the ``required`` suite topics (relative
-    names with their types; default :data:`TOPIC_TYPES`) in ``namespace`` (default: found by
-    :func:`suite_namespace`) and return its layout; RunReadError otherwise."""
-    required = TOPIC_TYPES if required is None else required
-    mcap_path = mcap_file(path)
-    with open(mcap_path, "rb") as stream:
-        _check_magic(mcap_path, stream)
-        try:
-            reader = make_reader(stream)
-            summary = reader.get_summary()
-            rosbag2 = [record.metadata for record in reader.iter_metadata() if record.name == "rosbag2"]
-        except Exception as error:  # see _corrupt
-            raise RunReadError(f"{mcap_path}: the summary section is unreadable ({error!r})") from None
-    if summary is None or summary.statistics is None:
-        raise RunReadError(f"{mcap_path}: no summary statistics (the file was not finalised)")
-    counts = summary.statistics.channel_message_counts
-    topics = {
-        channel.topic: TopicInfo(
-            topic=channel.topic,
-            type_name=summary.schemas[channel.schema_id].name if channel.schema_id in summary.schemas else "",
-            schema=summary.schemas.get(channel.schema_id),
-            metadata=dict(channel.metadata),
-            message_count=counts.get(channel_id, 0),
-        )
-        for channel_id, channel in summary.channels.items()
-    }
-    namespace = suite_namespace(topics, namespace)
-    missing = [resolve(topic, namespace) for topic in required if resolve(topic, namespace) not in topics]
+def open_recording(path: Path, namespace: str | None = None) -> Recording:
+    """Check that ``path`` is a complete recording holding the REQUIRED_TOPICS in ``namespace``
+    (default: found by :func:`suite_namespace`), with each recorded suite topic of its type in
+    :data:`TOPIC_TYPES`, and return it; RunReadError otherwise."""
+    with _as_run_error():
+        bag = open_bag(path)
+    recording = Recording(bag, suite_namespace(bag.topics, namespace))
+    missing = [recording.name(topic) for topic in REQUIRED_TOPICS if recording.name(topic) not in bag.topics]
     if missing:
         raise RunReadError(
-            f"{mcap_path}: missing topic{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
-            f"(recorded: {', '.join(sorted(topics)) or 'none'})"
+            f"{bag.mcap_path}: missing topic{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
+            f"(recorded: {', '.join(sorted(bag.topics)) or 'none'})"
         )
-    for topic, type_name in required.items():
-        recorded = topics[resolve(topic, namespace)]
-        if recorded.type_name != type_name:
+    for topic, type_name in TOPIC_TYPES.items():
+        recorded = bag.topics.get(recording.name(topic))
+        if recorded is not None and recorded.type_name != type_name:
             raise RunReadError(
-                f"{mcap_path}: topic {recorded.topic} has type {recorded.type_name or 'unknown'}, "
+                f"{bag.mcap_path}: topic {recorded.topic} has type {recorded.type_name or 'unknown'}, "
                 f"expected {type_name}"
             )
-    custom_data = _custom_data(mcap_path, rosbag2)
-    return Recording(mcap_path, topics, summary.statistics.message_count, custom_data, namespace)
-
-
-def _custom_data(mcap_path: Path, rosbag2: list[dict[str, str]]) -> dict[str, str]:
-    """The custom_data mapping of the rosbag2 metadata record."""
-    if not rosbag2:
-        return {}
-    try:
-        information = yaml.safe_load(rosbag2[0]["serialized_metadata"])  # metadata.yaml's inner mapping
-        return {str(key): str(value) for key, value in (information.get("custom_data") or {}).items()}
-    except (yaml.YAMLError, KeyError, TypeError, AttributeError) as error:
-        raise RunReadError(f"{mcap_path}: the rosbag2 metadata record is unreadable ({error!r})") from None
-
-
-def _check_magic(path: Path, stream: BinaryIO) -> None:
-    head = stream.read(len(MCAP_MAGIC))
-    if head != MCAP_MAGIC:
-        raise RunReadError(f"{path}: not an MCAP file (it starts with {head!r}, not the MCAP magic)")
-    stream.seek(-len(MCAP_MAGIC), 2)
-    tail = stream.read(len(MCAP_MAGIC))
-    stream.seek(0)
-    if tail != MCAP_MAGIC:
-        raise RunReadError(
-            f"{path}: truncated or not finalised: the MCAP footer and closing magic are missing "
-            f"(the file ends after {path.stat().st_size} bytes)"
-        )
-
-
-def iter_messages(recording: Recording) -> Iterator[tuple[Channel, Message]]:
-    """Every message of the file in file order, with its channel; chunk CRCs are checked."""
-    channels: dict[int, Channel] = {}
-    count = 0
-    with open(recording.mcap_path, "rb") as stream:
-        records = StreamReader(stream, validate_crcs=True).records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                break
-            except Exception as error:  # see _corrupt
-                raise RunReadError(
-                    f"{recording.mcap_path}: corrupt data after {count} messages, near byte "
-                    f"{stream.tell()}: {type(error).__name__}: {error}"
-                ) from None
-            if isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Message):
-                channel = channels.get(record.channel_id)
-                if channel is None:
-                    raise RunReadError(
-                        f"{recording.mcap_path}: message {count} refers to channel {record.channel_id}, "
-                        "which is not defined before it"
-                    )
-                count += 1
-                yield channel, record
-    if count != recording.message_count:
-        raise RunReadError(
-            f"{recording.mcap_path}: the data section holds {count} messages, the summary counts "
-            f"{recording.message_count}"
-        )
-
-
-# --- CDR decoding -------------------------------------------------------------------------------
-
-_PRIMITIVES: dict[str, str] = {
-    "bool": "?",
-    "byte": "u1",
-    "char": "u1",
-    "int8": "i1",
-    "uint8": "u1",
-    "int16": "<i2",
-    "uint16": "<u2",
-    "int32": "<i4",
-    "uint32": "<u4",
-    "int64": "<i8",
-    "uint64": "<u8",
-    "float32": "<f4",
-    "float64": "<f8",
-}
-_SEPARATOR = "\n" + "=" * 80 + "\n"
-_CDR_LITTLE_ENDIAN = b"\x00\x01"
-
-
-def _message_fields(schema: Schema) -> dict[str, list[tuple[str, str]]]:
-    """(type, name) of the fields of the schema's message and of each nested definition, by type name
-    (``pkg/Type``); constants and comments dropped, same-package types qualified."""
-    definitions: dict[str, list[tuple[str, str]]] = {}
-    for index, section in enumerate(schema.data.decode().split(_SEPARATOR)):
-        if index == 0:
-            package, _, name = schema.name.partition("/msg/")
-            type_name, body = f"{package}/{name}", section
-        else:
-            header, _, body = section.partition("\n")
-            type_name = header.removeprefix("MSG: ").strip()
-        package = type_name.split("/")[0]
-        fields = []
-        for line in body.splitlines():
-            tokens = line.split("#", 1)[0].split()
-            if len(tokens) < 2 or "=" in tokens[1]:
-                continue
-            field_type = tokens[0]
-            if field_type not in _PRIMITIVES and field_type != "string" and "/" not in field_type:
-                field_type = f"{package}/{field_type}"
-            fields.append((field_type, tokens[1]))
-        definitions[type_name] = fields
-    return definitions
-
-
-def _fixed_layout(schema: Schema, sample: bytes) -> dict[str, tuple[int, str]] | None:
-    """Byte offset (after the 4-byte encapsulation header) and numpy type of every primitive field,
-    by dotted path, for messages laid out like ``sample``; None if the layout is not fixed
-    (arrays, wide strings) or ``sample`` is not little-endian CDR. Strings take the length that
-    ``sample`` holds; callers check that every message of a batch holds the same lengths."""
-    if sample[:2] != _CDR_LITTLE_ENDIAN:
-        return None
-    definitions = _message_fields(schema)
-    package, _, name = schema.name.partition("/msg/")
-    layout: dict[str, tuple[int, str]] = {}
-    payload = memoryview(sample)[4:]
-    offset = 0
-
-    def walk(type_name: str, prefix: str) -> bool:
-        nonlocal offset
-        for field_type, field_name in definitions.get(type_name, []):
-            path = prefix + field_name
-            if field_type in _PRIMITIVES:
-                dtype = np.dtype(_PRIMITIVES[field_type])
-                offset += -offset % dtype.itemsize
-                layout[path] = (offset, _PRIMITIVES[field_type])
-                offset += dtype.itemsize
-            elif field_type == "string":
-                offset += -offset % 4
-                layout[path + ".__length__"] = (offset, "<u4")
-                if offset + 4 > len(payload):
-                    return False
-                offset += 4 + int.from_bytes(payload[offset : offset + 4], "little")
-            elif field_type in definitions and "[" not in field_type:
-                if not walk(field_type, path + "."):
-                    return False
-            else:
-                return False
-        return True
-
-    if not walk(f"{package}/{name}", "") or offset != len(payload):
-        return None
-    return layout
-
-
-def _decoded_columns(schema: Schema, datas: Sequence[bytes], paths: Sequence[str]) -> dict[str, np.ndarray]:
-    """Columns of the fields ``paths`` (dotted) of CDR messages of one schema, one entry per message."""
-    if not datas:
-        return {path: np.empty(0) for path in paths}
-    layout = _fixed_layout(schema, datas[0])
-    if layout is not None and all(len(data) == len(datas[0]) for data in datas):
-        dtype = np.dtype(
-            {
-                "names": list(layout),
-                "formats": [fmt for _, fmt in layout.values()],
-                "offsets": [offset + 4 for offset, _ in layout.values()],
-                "itemsize": len(datas[0]),
-            }
-        )
-        table = np.frombuffer(b"".join(datas), dtype=dtype)
-        lengths = [name for name in layout if name.endswith(".__length__")]
-        if all(np.all(table[name] == table[name][0]) for name in lengths):
-            return {path: np.array(table[path]) for path in paths}
-    decode = _decoder(schema)
-    messages = [decode(data) for data in datas]
-    return {path: np.array([_attribute(message, path) for message in messages]) for path in paths}
-
-
-def _decoder(schema: Schema) -> Callable[[bytes], Any]:
-    decoder = DecoderFactory().decoder_for("cdr", schema)
-    if decoder is None:
-        raise RunReadError(f"no CDR decoder for schema {schema.name} (encoding {schema.encoding})")
-    return decoder
-
-
-def _attribute(message: object, path: str) -> Any:
-    for name in path.split("."):
-        message = getattr(message, name)
-    return message
+    return recording
 
 
 # --- records ------------------------------------------------------------------------------------
@@ -556,8 +322,8 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
     """Load a run (see the module docstring); ``params`` overrides the inferred hopper parameters,
     ``namespace`` chooses the hopper in a recording of several (see :func:`suite_namespace`)."""
     recording = open_recording(path, namespace=namespace)
+    bag = recording.bag
     suite_topics = {recording.name(topic): topic for topic in TOPIC_TYPES}
-    schemas = {topic: recording.topics[name].schema for name, topic in suite_topics.items()}
     events: dict[str, list[bytes]] = {topic: [] for topic in (APEX, CONTACT, STATUS, COMMAND)}
     log_times: list[int] = []
     stream_batches: dict[str, list[bytes]] = {STATE: [], GRF: []}
@@ -565,32 +331,34 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
     fields = {STATE: (*_STAMP_FIELDS, *_STATE_FIELDS), GRF: (*_STAMP_FIELDS, *_GRF_FIELDS)}
 
     def flush(topic: str) -> None:
-        schema = schemas[topic]
-        assert schema is not None
+        batch, schema = stream_batches[topic], recording.schema(topic)
         columns[topic].append(
             _checked(
                 recording.name(topic),
-                lambda: _decoded_columns(schema, stream_batches[topic], fields[topic]),
+                lambda: (
+                    decoded_columns(_stored(recording, topic, schema), batch, fields[topic])
+                    if batch
+                    else {path: np.empty(0) for path in fields[topic]}
+                ),
             )
         )
         stream_batches[topic] = []
 
-    for channel, message in iter_messages(recording):
-        topic = suite_topics.get(channel.topic, "")
-        if topic in stream_batches:
-            stream_batches[topic].append(message.data)
-            if len(stream_batches[topic]) >= _BATCH:
-                flush(topic)
-        elif topic in events:
-            events[topic].append(message.data)
-            if topic == COMMAND:
-                log_times.append(message.log_time)
+    with _as_run_error():
+        for channel, message in iter_messages(bag, topics=suite_topics):
+            topic = suite_topics[channel.topic]
+            if topic in stream_batches:
+                stream_batches[topic].append(message.data)
+                if len(stream_batches[topic]) >= _BATCH:
+                    flush(topic)
+            else:
+                events[topic].append(message.data)
+                if topic == COMMAND:
+                    log_times.append(message.log_time)
     for topic in stream_batches:
         flush(topic)
 
-    decoded = {
-        topic: _decode_all(recording.name(topic), schemas[topic], datas) for topic, datas in events.items()
-    }
+    decoded = {topic: _decode_all(recording, topic, datas) for topic, datas in events.items()}
     apexes = sorted((_apex(m) for m in decoded[APEX]), key=lambda a: a.t)
     contacts = sorted((_contact(m) for m in decoded[CONTACT]), key=lambda c: c.t)
     commands = [_command(m, log_time) for m, log_time in zip(decoded[COMMAND], log_times, strict=True)]
@@ -598,20 +366,20 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
     resets = [s for s in statuses if s.kind == "reset"]
     if resets:
         raise RunReadError(
-            f"{recording.mcap_path}: the plant was reset {len(resets)} time(s) (first at t = "
+            f"{bag.mcap_path}: the plant was reset {len(resets)} time(s) (first at t = "
             f"{resets[0].t:.3f} s); analysing a recording of several runs is not supported"
         )
     if not apexes:
         raise RunReadError(
-            f"{recording.mcap_path}: topic {recording.name(APEX)} has no messages (not even the initial apex)"
+            f"{bag.mcap_path}: topic {recording.name(APEX)} has no messages (not even the initial apex)"
         )
     samples = _samples(columns)
     source = "given"
     if params is None:
         params, source = _stored_params(recording), "stored in the recording"
     if params is None:
-        params, source = infer_params(apexes, contacts, recording.mcap_path), "inferred from the recording"
-    _check_params(params, apexes, contacts, recording.mcap_path)
+        params, source = infer_params(apexes, contacts, bag.mcap_path), "inferred from the recording"
+    _check_params(params, apexes, contacts, f"{bag.mcap_path}: the hopper parameters {source}")
     outcome = next((s for s in statuses if s.fatal), None)
     return Run(
         path=Path(path),
@@ -624,20 +392,22 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
         statuses=tuple(statuses),
         samples=samples,
         outcome=outcome,
-        message_counts={topic: info.message_count for topic, info in recording.topics.items()},
-        custom_data=recording.custom_data,
+        message_counts={topic: info.message_count for topic, info in bag.topics.items()},
+        custom_data=bag.custom_data,
     )
 
 
 def _stored_params(recording: Recording) -> HopperParams | None:
     """The plant's hopper parameters from the custom_data ``tdslip run`` writes (None if absent)."""
-    values = stored_parameters(recording.custom_data, "plant")
+    values = stored_parameters(recording.bag.custom_data, "plant")
     if not all(name in values for name in HOPPER_PARAMETERS.values()):
         return None
     try:
         return hopper_from_parameters(values)
     except (ValueError, ParameterError) as error:
-        raise RunReadError(f"{recording.mcap_path}: stored hopper parameters are invalid ({error})") from None
+        raise RunReadError(
+            f"{recording.bag.mcap_path}: stored hopper parameters are invalid ({error})"
+        ) from None
 
 
 def _checked(topic: str, decode: Callable[[], Any]) -> Any:
@@ -645,15 +415,23 @@ def _checked(topic: str, decode: Callable[[], Any]) -> Any:
         return decode()
     except RunReadError:
         raise
-    except Exception as error:  # see _corrupt
+    except Exception as error:  # see bag.reader's _damaged
         raise RunReadError(f"topic {topic}: undecodable message ({error!r})") from None
 
 
-def _decode_all(topic: str, schema: Schema | None, datas: list[bytes]) -> list[Any]:
+def _stored(recording: Recording, topic: str, schema: Schema | None) -> Schema:
+    """``schema``, which a topic with messages must have stored."""
     if schema is None:
-        raise RunReadError(f"topic {topic}: no schema stored for its channel")
-    decode = _decoder(schema)
-    return [_checked(topic, partial(decode, data)) for data in datas]
+        raise RunReadError(f"topic {recording.name(topic)}: no schema stored for its channel")
+    return schema
+
+
+def _decode_all(recording: Recording, topic: str, datas: list[bytes]) -> list[Any]:
+    if not datas:
+        return []
+    with _as_run_error():
+        decode = decoder(_stored(recording, topic, recording.schema(topic)))
+    return [_checked(recording.name(topic), partial(decode, data)) for data in datas]
 
 
 def _stamp_seconds(sec: np.ndarray, nanosec: np.ndarray) -> FloatArray:
@@ -862,9 +640,11 @@ def infer_params(
 
 
 def _check_params(
-    params: HopperParams, apexes: Sequence[ApexRecord], contacts: Sequence[ContactRecord], source: Path
+    params: HopperParams, apexes: Sequence[ApexRecord], contacts: Sequence[ContactRecord], what: str
 ) -> None:
-    """The recorded energies of apexes and stance events must follow from ``params``."""
+    """The recorded events must follow from ``params`` (``what`` names them in the error): the energies
+    of apexes and stance events (mass, stiffness, rest length, gravity) and, at every liftoff, a leg
+    force k (r0 - r) - c rdot of zero (the damping, which no energy shows)."""
     worst, where = 0.0, ""
     for apex in apexes:
         expected = params.m * (params.g * apex.y + 0.5 * apex.xdot**2)
@@ -883,6 +663,22 @@ def _check_params(
             worst, where = error, f"{contact.kind} of stride {contact.stride}"
     if worst > PARAMETER_CONSISTENCY:
         raise RunReadError(
-            f"{source}: the recorded energies do not follow from the hopper parameters {params} "
-            f"(relative mismatch {worst:.2e} at the {where})"
+            f"{what} contradict the recorded energies (relative mismatch {worst:.2e} at the {where}); "
+            f"{_PARAMETERS_ADVICE}"
         )
+    critical = 2.0 * math.sqrt(params.m * params.k)
+    for liftoff in (c for c in contacts if c.kind == "liftoff" and c.state.rdot > 0.0):
+        s = liftoff.state
+        shown = params.k * (params.r0 - s.r) / s.rdot
+        if abs(shown - params.c) / critical > DAMPING_CONSISTENCY:
+            raise RunReadError(
+                f"{what} contradict the recorded liftoff of stride {liftoff.stride}: damping c = "
+                f"{params.c:.6g} N s/m (zeta0 {params.c / critical:.6f}), the liftoff shows c = "
+                f"{shown:.6g} N s/m (zeta0 {shown / critical:.6f}); {_PARAMETERS_ADVICE}"
+            )
+
+
+_PARAMETERS_ADVICE = (
+    "give the hopper parameters the run was recorded with (tdslip analyze --params FILE), or none to "
+    "use those stored in or inferred from the recording"
+)

@@ -13,7 +13,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -126,6 +128,8 @@ def analyze(
     }
     if plots.last_complete_stride(run) is None:  # failed in its first stride: nothing per stride to draw
         del files["com_trajectory"], files["energy_flows"]
+    elif len(run.samples) == 0 and stride is None:  # no state recorded: no path to draw
+        del files["com_trajectory"]
     for name, path in files.items():
         drawers[name](path)
     summary = {
@@ -159,6 +163,31 @@ def _json_ready(value: object) -> object:
 def to_json(value: object) -> str:
     """``value`` as indented, strict JSON text (see _json_ready), newline-terminated."""
     return json.dumps(_json_ready(value), indent=1, allow_nan=False) + "\n"
+
+
+class OutputError(Exception):
+    """An output directory cannot be created or written; the message says why."""
+
+
+def output_directory(path: Path) -> Path:
+    """``path`` as a writable directory, created if need be (OutputError naming the obstacle)."""
+    for existing in (path, *path.parents):
+        if existing.exists():
+            if not existing.is_dir():
+                raise OutputError(f"--out {path}: {existing} exists and is not a directory")
+            break
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"--out {path}: cannot create the directory ({error.strerror})") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"--out {path}: the directory is not writable")
+    return path
+
+
+def write_failed(error: OSError) -> str:
+    """One line for an output file that could not be written."""
+    return f"cannot write {error.filename or 'an output file'}: {error.strerror or error}"
 
 
 # --- text ---------------------------------------------------------------------------------------
@@ -302,6 +331,28 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+POLICY_OPTION_DOMAINS: dict[str, tuple[str, Callable[[float], bool]]] = {
+    "angle": ("in (0, 90) deg", lambda value: 0.0 < value < 90.0),
+    "touchdown_power": ("a finite power >= 0 W", lambda value: 0.0 <= value < math.inf),
+    "target_energy": ("a finite energy > 0 J", lambda value: 0.0 < value < math.inf),
+    "target_height": ("a finite height > 0 m", lambda value: 0.0 < value < math.inf),
+    "target_speed": ("a finite speed >= 0 m/s", lambda value: 0.0 <= value < math.inf),
+    "pd_kp": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
+    "pd_kd": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
+    "corrections": ("a count >= 0", lambda value: value >= 0),
+}
+"""What each policy option of ``tdslip analyze`` accepts: a value outside its domain has no
+meaning for the policy (NaN commands, an empty fixed point), so it is refused up front."""
+
+
+def check_policy_options(args: argparse.Namespace) -> None:
+    """PolicyError naming the first policy option given outside its domain."""
+    for name, (domain, valid) in POLICY_OPTION_DOMAINS.items():
+        value = getattr(args, name)
+        if value is not None and not valid(value):
+            raise PolicyError(f"--{name.replace('_', '-')} must be {domain}, not {value}")
+
+
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     out = args.out or (args.run / "report" if args.run.is_dir() else args.run.with_suffix("") / "report")
@@ -317,11 +368,16 @@ def main(argv: list[str]) -> int:
         "corrections": args.corrections,
     }
     try:
+        check_policy_options(args)
+        output_directory(out)
         params = None if args.params is None else hopper_params_from_yaml(args.params)
         run = read_run(args.run, params)
         analysis = analyze(run, out, overrides, args.stride)
-    except (RunReadError, PolicyError, ValueError) as error:
+    except (RunReadError, PolicyError, OutputError, ValueError) as error:
         print(f"tdslip analyze: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:
+        print(f"tdslip analyze: {write_failed(error)}", file=sys.stderr)
         return 1
     print(headline(analysis.comparison))
     figures = sum(1 for path in analysis.files.values() if path.suffix == ".png")

@@ -65,6 +65,10 @@ def _duration_yaml(nanoseconds: int) -> dict[str, int]:
     return {"sec": nanoseconds // _NS_PER_S, "nsec": nanoseconds % _NS_PER_S}
 
 
+def _duration_ns(value: Any) -> int:
+    return int(value["sec"]) * _NS_PER_S + int(value["nsec"])
+
+
 @dataclass(frozen=True)
 class OfferedQos:
     """One publisher's offered QoS. Defaults: rclpy's default publisher profile as rmw reports it."""
@@ -107,6 +111,24 @@ class OfferedQos:
             avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
         )
 
+    @classmethod
+    def from_yaml_mapping(cls, mapping: Any) -> OfferedQos:
+        """The inverse of :meth:`to_yaml_mapping` (ValueError if ``mapping`` is not one)."""
+        try:
+            return cls(
+                history=str(mapping["history"]),
+                depth=int(mapping["depth"]),
+                reliability=str(mapping["reliability"]),
+                durability=str(mapping["durability"]),
+                deadline_ns=_duration_ns(mapping["deadline"]),
+                lifespan_ns=_duration_ns(mapping["lifespan"]),
+                liveliness=str(mapping["liveliness"]),
+                liveliness_lease_duration_ns=_duration_ns(mapping["liveliness_lease_duration"]),
+                avoid_ros_namespace_conventions=bool(mapping["avoid_ros_namespace_conventions"]),
+            )
+        except (KeyError, TypeError) as error:
+            raise ValueError(f"not an offered QoS profile: {mapping!r} ({error!r})") from None
+
     def to_yaml_mapping(self) -> dict[str, Any]:
         """The mapping rosbag2 writes for one profile (keys in rosbag2's order)."""
         return {
@@ -138,3 +160,14 @@ def dump_yaml(data: object) -> str:
 def qos_profiles_yaml(profiles: tuple[OfferedQos, ...]) -> str:
     """The channel-metadata string ``offered_qos_profiles`` for these profiles (``[]`` for none)."""
     return dump_yaml([profile.to_yaml_mapping() for profile in profiles])
+
+
+def parse_qos_profiles(text: str) -> tuple[OfferedQos, ...]:
+    """The profiles of a channel-metadata string ``offered_qos_profiles`` (ValueError if it is not one)."""
+    try:
+        profiles = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ValueError(f"offered_qos_profiles is not YAML ({error})") from None
+    if not isinstance(profiles, list):
+        raise ValueError(f"offered_qos_profiles is not a list: {text!r}")
+    return tuple(OfferedQos.from_yaml_mapping(profile) for profile in profiles)

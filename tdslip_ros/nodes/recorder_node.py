@@ -20,7 +20,10 @@ written and the publishers matched. A plant with ``wait_for_recorder`` paces its
 Stopping (SIGINT or SIGTERM): the recorder first records what has already reached it (it spins
 until no message came for ``DRAIN_QUIET`` s, at most ``DRAIN_LIMIT`` s), then finalises the bag
 (summary, ``metadata.yaml``), so the file is complete and readable. A hard kill (SIGKILL) loses at
-most the open chunk; see :mod:`tdslip_ros.bag.writer`.
+most the open chunk (``tdslip recover`` makes the rest readable); see :mod:`tdslip_ros.bag.writer`.
+A write error (disk full, I/O error) stops the recording with one logged line; the bag is closed,
+finalised with everything written when the writer's reserve made that possible, and reported
+closed on tdslip/recorder_status, so that a plant stops waiting for it.
 
 Run it in a process of its own next to a 1 kHz plant: each message costs a Python callback.
 """
@@ -39,7 +42,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from tdslip_msgs.msg import RecorderStatus
 
-from tdslip_ros.bag import OfferedQos, RosbagMcapWriter
+from tdslip_ros.bag import BagClosedError, BagWriteError, OfferedQos, RosbagMcapWriter
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
@@ -147,7 +150,7 @@ class RecorderNode(Node):
 
     def _register(self, name: str, offered: list[OfferedQos]) -> None:
         """Add the topic to the bag (once) with the QoS profiles its publishers offer."""
-        if name not in self.bag.message_counts:
+        if name not in self.bag.message_counts and not self.bag.closed:
             self.bag.add_topic(name, topics.type_name(self._message_classes[name]), offered_qos=offered)
 
     def _subscribe(self, name: str, qos: QoSProfile) -> None:
@@ -158,7 +161,13 @@ class RecorderNode(Node):
                 self._register(
                     name, [topics.offered_qos(i.qos_profile) for i in self.get_publishers_info_by_topic(name)]
                 )
-            write(name, data, time.time_ns())
+            try:
+                write(name, data, time.time_ns())
+            except BagWriteError as error:  # the bag is closed now (finalised if it could be)
+                self.get_logger().error(str(error))
+                return
+            except BagClosedError:  # after a write error: nothing more is recorded
+                return
             self._unreported += 1
             if self._unreported >= STATUS_MESSAGES:
                 self.publish_status()

@@ -1,18 +1,22 @@
 """``tdslip replay RUN [--rate R]``: re-publish a recording on its original topics, like ``ros2 bag play``.
 
-Every message of the recording (a bag directory or a bare ``.mcap``, checked by
-:func:`tdslip_ros.analysis.reader.open_recording`) is published as the raw CDR bytes it was
-recorded as, in the order of its log (receive) time, and spaced as it was recorded: message i goes
-out ``(log_time_i - log_time_0) / R`` after the first (``--rate inf``: as fast as possible). Each
-topic gets a publisher of its recorded message type with the QoS recorded as offered
-(``offered_qos_profiles``: history, depth, reliability, durability), so reliable KEEP_ALL topics
+Every message of the recording (a bag directory or a bare ``.mcap``) is published as the raw CDR
+bytes it was recorded as, in the order of its log (receive) time, and spaced as it was recorded:
+message i goes out ``(log_time_i - log_time_0) / R`` after the first (``--rate inf``: as fast as
+possible). Each topic gets a publisher of its recorded message type with the QoS recorded as
+offered (``offered_qos_profiles``: history, depth, reliability, durability), so reliable KEEP_ALL topics
 stay lossless. Publishers are reliable within one process and topic, so every subscriber receives
 each topic's messages in the recorded order. Before the first message the replay can wait for
 subscribers (``--wait-for-subscribers N``: N on every topic), since volatile topics are not kept for
 late joiners; at the end it waits until reliable subscribers have acknowledged everything.
 
+The recording is read with the checks of ``tdslip analyze`` (:mod:`tdslip_ros.bag.reader`: magic,
+footer, summary CRC, every chunk's CRC, message counts) in a full pass before ROS starts, so a
+damaged file is refused with one line before anything is published. A rate at which the replay
+would take longer than MAX_REPLAY_DURATION is refused too.
+
 It publishes on the ROS domain of the environment (``ROS_DOMAIN_ID``), as any ROS tool does.
-SIGINT or SIGTERM stops it between two messages.
+SIGINT or SIGTERM stops it between two messages, also while it waits for the next one.
 """
 
 from __future__ import annotations
@@ -29,8 +33,6 @@ from typing import Any
 
 import rclpy
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -38,13 +40,15 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from tdslip_ros.analysis.reader import Recording, RunReadError, TopicInfo, open_recording
+from tdslip_ros.bag.reader import Bag, BagReadError, TopicInfo, iter_messages, open_bag, verify
 from tdslip_ros.bag.schema import split_type_name
 from tdslip_ros.nodes.entry import SPIN_SLICE, stop_on_signals
 
 ACK_TIMEOUT = 10.0  # s for reliable subscribers to acknowledge the last messages
 UNKNOWN_HISTORY_DEPTH = 1000
 """Depth of a replayed topic whose recorded history is unknown: the plant's own (1 s at 1 kHz)."""
+MAX_REPLAY_DURATION = 365 * 24 * 3600.0
+"""s, the longest replay accepted (recording span / rate)."""
 _NS_PER_S = 1_000_000_000
 _HISTORY = {"keep_all": HistoryPolicy.KEEP_ALL, "keep_last": HistoryPolicy.KEEP_LAST}
 _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT}
@@ -96,10 +100,28 @@ def offered_qos(topic: TopicInfo) -> QoSProfile:
     )
 
 
-def check_rate(rate: float) -> float:
+def check_rate(rate: float, bag: Bag | None = None) -> float:
+    """``rate`` if it is positive and, for ``bag``, replays it within MAX_REPLAY_DURATION; else ValueError."""
     if not rate > 0.0:
         raise ValueError(f"rate must be positive (inf: as fast as possible), got {rate}")
+    if bag is not None:
+        span = (bag.end_ns - bag.start_ns) / _NS_PER_S
+        if span / rate > MAX_REPLAY_DURATION:
+            raise ValueError(
+                f"at rate {rate:g} the {span:.3f} s of {bag.mcap_path} would take {span / rate:.3g} s to "
+                f"replay (more than {MAX_REPLAY_DURATION:.3g} s); choose a larger --rate"
+            )
     return rate
+
+
+def checked_bag(path: Path) -> Bag:
+    """The recording at ``path``, opened and read through once with every check (ReplayError if not)."""
+    try:
+        bag = open_bag(path)
+        verify(bag)
+    except BagReadError as error:
+        raise ReplayError(str(error)) from None
+    return bag
 
 
 def send_offset(log_time_ns: int, first_log_time_ns: int, rate: float) -> float:
@@ -110,16 +132,16 @@ def send_offset(log_time_ns: int, first_log_time_ns: int, rate: float) -> float:
 class ReplayNode(Node):
     """Publishers for the topics of a recording; :meth:`play` sends its messages."""
 
-    def __init__(self, recording: Recording, topics: list[str] | None = None, **node_options: object) -> None:
+    def __init__(self, bag: Bag, topics: list[str] | None = None, **node_options: object) -> None:
         super().__init__("replay", **node_options)  # type: ignore[arg-type]
-        chosen = list(recording.topics) if topics is None else topics
-        unknown = [topic for topic in chosen if topic not in recording.topics]
+        chosen = list(bag.topics) if topics is None else topics
+        unknown = [topic for topic in chosen if topic not in bag.topics]
         if unknown:
-            raise ReplayError(f"{recording.mcap_path}: no topic {', '.join(unknown)} in the recording")
-        self.recording = recording
+            raise ReplayError(f"{bag.mcap_path}: no topic {', '.join(unknown)} in the recording")
+        self.bag = bag
         self.topic_publishers: dict[str, Publisher[Any]] = {
             topic: self.create_publisher(
-                message_class(recording.topics[topic].type_name), topic, offered_qos(recording.topics[topic])
+                message_class(bag.topics[topic].type_name), topic, offered_qos(bag.topics[topic])
             )
             for topic in chosen
         }
@@ -139,27 +161,22 @@ class ReplayNode(Node):
 
     def play(self, rate: float = 1.0, stop: Callable[[], bool] = lambda: False) -> ReplayResult:
         """Publish the recording's messages (module docstring); returns the counts per topic."""
-        check_rate(rate)
+        check_rate(rate, self.bag)
         published = dict.fromkeys(self.topic_publishers, 0)
         start, first, stopped = time.monotonic(), None, False
-        with open(self.recording.mcap_path, "rb") as stream:
-            messages = make_reader(stream).iter_messages(
-                topics=list(self.topic_publishers), log_time_order=True
-            )
-            try:
-                for _, channel, message in messages:
-                    if stop():
-                        stopped = True
-                        break
-                    if first is None:
-                        start, first = time.monotonic(), message.log_time
-                    delay = start + send_offset(message.log_time, first, rate) - time.monotonic()
-                    if delay > 0.0:
-                        time.sleep(delay)
-                    self.topic_publishers[channel.topic].publish(message.data)
-                    published[channel.topic] += 1
-            except McapError as error:
-                raise ReplayError(f"{self.recording.mcap_path}: unreadable ({error})") from None
+        try:
+            for channel, message in iter_messages(self.bag, self.topic_publishers, log_time_order=True):
+                if first is None:
+                    start, first = time.monotonic(), message.log_time
+                due = start + send_offset(message.log_time, first, rate)
+                while not (stopped := stop()) and (delay := due - time.monotonic()) > 0.0:
+                    time.sleep(min(delay, SPIN_SLICE))
+                if stopped:
+                    break
+                self.topic_publishers[channel.topic].publish(message.data)
+                published[channel.topic] += 1
+        except BagReadError as error:
+            raise ReplayError(str(error)) from None
         duration = time.monotonic() - start
         acknowledged = all(
             p.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT)) for p in self.topic_publishers.values()
@@ -178,11 +195,7 @@ def replay(
     stop: Callable[[], bool] = lambda: False,
 ) -> ReplayResult:
     """Replay the recording at ``path`` in ``context`` (an initialised rclpy context, default rclpy's)."""
-    try:
-        recording = open_recording(path, required={})
-    except RunReadError as error:
-        raise ReplayError(str(error)) from None
-    node = ReplayNode(recording, topics, context=context)
+    node = ReplayNode(checked_bag(path), topics, context=context)
     try:
         if wait_for_subscribers:
             node.wait_for_subscribers(wait_for_subscribers, wait_timeout, stop)
@@ -211,9 +224,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     try:
-        check_rate(args.rate)
-        open_recording(args.run, required={})  # before ROS starts and takes the signals
-    except (RunReadError, ValueError) as error:
+        check_rate(args.rate, checked_bag(args.run))  # before ROS starts and takes the signals
+    except (ReplayError, ValueError) as error:
         print(f"tdslip replay: {error}", file=sys.stderr)
         return 1
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)

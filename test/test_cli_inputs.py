@@ -1,0 +1,116 @@
+"""Command-line input errors of the offline commands: one line on stderr and exit status 1, never a
+traceback or a hang; a closed output pipe ends every command quietly."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from analysis_runs import recorded_run
+
+from tdslip_ros import cli
+from tdslip_ros.nodes.runner import RunReport
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def a_file(tmp_path: Path) -> Path:
+    path = tmp_path / "afile"
+    path.write_text("not a directory\n")
+    return path
+
+
+def one_line_error(capsys: pytest.CaptureFixture[str], command: str) -> str:
+    captured = capsys.readouterr()
+    assert captured.err.startswith(f"tdslip {command}: ") and captured.err.count("\n") == 1, captured.err
+    assert "Traceback" not in captured.err + captured.out
+    return captured.err
+
+
+@pytest.mark.parametrize("command", ["analyze", "compare", "figures"])
+@pytest.mark.parametrize("where", ["/proc/x", "the file", "below the file"])
+def test_an_unusable_output_directory_is_one_line(
+    tmp_path: Path, a_file: Path, capsys: pytest.CaptureFixture[str], command: str, where: str
+) -> None:
+    out = {"/proc/x": Path("/proc/x"), "the file": a_file, "below the file": a_file / "sub"}[where]
+    arguments = {
+        "analyze": [str(tmp_path / "run"), "--out", str(out)],
+        "compare": ["--out", str(out), "--speeds", "1.0", "--strides", "2"],  # refused before any run
+        "figures": ["--out", str(out), "--only", "fig04"],
+    }[command]
+    assert cli.main([command, *arguments]) == 1
+    error = one_line_error(capsys, command)
+    assert f"--out {out}: " in error
+    assert ("is not a directory" in error) if where != "/proc/x" else ("cannot create the directory" in error)
+    assert a_file.read_text() == "not a directory\n"
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "needle"),
+    [
+        ("--angle", "nan", "--angle must be in (0, 90) deg, not nan"),
+        ("--angle", "90", "--angle must be in (0, 90) deg"),
+        ("--target-energy", "-1", "--target-energy must be a finite energy > 0 J, not -1.0"),
+        ("--target-height", "inf", "--target-height must be a finite height > 0 m"),
+        ("--pd-kd", "-0.1", "--pd-kd must be a finite gain >= 0"),
+        ("--corrections", "-1", "--corrections must be a count >= 0"),
+    ],
+)
+def test_policy_settings_without_meaning_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str, value: str, needle: str
+) -> None:
+    """Before: exit 0 with NaN commands and an empty fixed point."""
+    assert cli.main(["analyze", str(tmp_path / "run"), "--out", str(tmp_path / "out"), option, value]) == 1
+    assert needle in one_line_error(capsys, "analyze")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("arguments", "needle"),
+    [
+        (["--strides", "0"], "--strides must be at least 1, not 0"),
+        (["--strides", "-3"], "--strides must be at least 1, not -3"),
+        (["--height", "nan"], "--height must be a finite height > 0 m"),
+        (["--speeds", "1.0", "-2.0"], "--speeds must be finite speeds >= 0, not -2.0"),
+    ],
+)
+def test_a_sweep_no_run_can_make_is_refused_at_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], arguments: list[str], needle: str
+) -> None:
+    """Before: ``compare --strides 0`` never ended."""
+    assert cli.main(["compare", "--out", str(tmp_path / "sweep"), *arguments]) == 1
+    assert needle in one_line_error(capsys, "compare")
+
+
+def run_with_closed_output(arguments: list[str]) -> subprocess.CompletedProcess[str]:
+    """``tdslip ARGUMENTS`` writing into a pipe whose reader is already gone (``| head`` finished)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        return subprocess.run(
+            [sys.executable, "-m", "tdslip_ros.cli", *arguments],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+            timeout=300,
+            check=False,
+        )
+    finally:
+        os.close(write_end)
+
+
+def test_a_closed_pipe_ends_simulate_quietly() -> None:
+    result = run_with_closed_output(["simulate", "--strides", "3"])
+    assert (result.returncode, result.stderr) == (cli.BROKEN_PIPE, "")
+
+
+def test_a_closed_pipe_ends_analyze_quietly(tmp_path_factory: pytest.TempPathFactory, tmp_path: Path) -> None:
+    energy: RunReport = recorded_run("energy", tmp_path_factory)
+    result = run_with_closed_output(["analyze", str(energy.bag), "--out", str(tmp_path / "report")])
+    assert (result.returncode, result.stderr) == (cli.BROKEN_PIPE, "")
+    assert (tmp_path / "report" / "summary.json").is_file()  # the work was done before the output

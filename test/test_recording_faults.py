@@ -1,0 +1,104 @@
+"""Faults of the recorder node in the middle of a lockstep hop, the recorder in a child process as
+``tdslip run`` runs it: a hard kill (then ``tdslip recover``) and a full disk each leave a bag that
+the analysis and the replay read, and the messages lost are counted against those published."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+from ros_harness import RosGraph, stop_process
+from tdslip_msgs.msg import RecorderStatus
+from test_nodes_recorder import RECORDER, published_counts, start_hopping
+
+from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.bag import open_bag
+from tdslip_ros.bag.recover import recover
+from tdslip_ros.interfaces import resolve
+from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.parameters import PAPER_PARAMS
+from tdslip_ros.nodes.plant_node import FLOW_WINDOW
+from tdslip_ros.nodes.replay import checked_bag
+from tdslip_ros.nodes.runner import RunOptions, run_custom_data
+
+CHUNK_SIZE = 64 * 1024
+
+
+def start_recorder(ros: RosGraph, bag: Path, chunk_size: int, log: Path) -> subprocess.Popen[bytes]:
+    """A recorder child with small chunks and the custom_data ``tdslip run`` gives it."""
+    custom_data = run_custom_data(RunOptions(out=bag), PAPER_PARAMS)
+    arguments = [
+        "-p",
+        f"output:={bag}",
+        "-p",
+        f"chunk_size:={chunk_size}",
+        "-p",
+        f"custom_data:={custom_data}",
+    ]
+    return ros.start_module(RECORDER, arguments, log)
+
+
+def lost_against_published(bag: Path, published: dict[str, int]) -> dict[str, int]:
+    recorded = {topic: info.message_count for topic, info in open_bag(bag).topics.items()}
+    return {topic: count - recorded.get(topic, 0) for topic, count in published.items()}
+
+
+def check_readable(bag: Path, published: dict[str, int]) -> None:
+    """The analysis reads the bag with the parameters stored in it; its 1 kHz samples run gapless
+    from t = 0; the replay accepts it."""
+    run = read_run(bag)
+    assert run.params_source == "stored in the recording" and run.params == PAPER_PARAMS
+    assert np.array_equal(np.round(run.samples.t * 1000.0), np.arange(len(run.samples)))
+    assert 0 < len(run.samples) <= published[resolve(topics.STATE)]
+    checked_bag(bag)
+
+
+def test_a_hard_killed_recorder_loses_only_its_open_chunk(ros: RosGraph, tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    recorder = start_recorder(ros, bag, CHUNK_SIZE, tmp_path / "recorder.log")
+    plant, controller = start_hopping(ros, max_strides=0)
+    ros.spin_until(lambda: plant.published[topics.STATE] >= 2000, "2 s of simulated hopping")
+    recorder.kill()
+    recorder.wait(30)
+    published = published_counts(plant, controller)
+
+    recovery = recover(bag)
+    lost = lost_against_published(bag, published)
+    print(
+        f"\nrecorder killed: published {published}, lost {lost}, {recovery.scan.discarded_bytes} B discarded"
+    )
+    assert all(count >= 0 for count in lost.values()) and sum(lost.values()) > 0
+    # Lost: what was in the open chunk (state and force messages are over 100 B each) and what the
+    # lockstep plant may run ahead of the recorder.
+    assert lost[resolve(topics.STATE)] + lost[resolve(topics.GRF)] <= CHUNK_SIZE // 100 + 2 * FLOW_WINDOW
+    check_readable(bag, published)
+
+
+def test_a_full_disk_stops_the_recording_with_a_finalised_readable_bag(
+    ros: RosGraph, tmp_path: Path, tiny_disk: Path
+) -> None:
+    # Leave about 0.9 MB: the recorder's reserve (two 16 KiB chunks and 512 KiB) and ~350 kB of data.
+    free = os.statvfs(tiny_disk).f_bavail * os.statvfs(tiny_disk).f_frsize
+    (tiny_disk / "filler").write_bytes(bytes(free - 900_000))
+    bag = tiny_disk / "bag"
+    recorder = start_recorder(ros, bag, 16 * 1024, tmp_path / "recorder.log")
+    statuses: list[RecorderStatus] = []
+    ros.node("status_probe").create_subscription(
+        RecorderStatus, topics.RECORDER_STATUS, statuses.append, topics.RECORDER_STATUS_QOS
+    )
+    plant, controller = start_hopping(ros, max_strides=0)
+    ros.spin_until(lambda: any(status.closed for status in statuses), "the recorder to report its bag closed")
+    published = published_counts(plant, controller)
+    assert plant.published[topics.STATE] > 0 and plant.outcome is None  # the plant goes on hopping
+    assert stop_process(recorder) == 0
+
+    log = (tmp_path / "recorder.log").read_text()
+    errors = [line for line in log.splitlines() if "No space left on device" in line]
+    assert len(errors) == 1 and "recording stopped, the bag is finalised with all" in errors[0], log
+    assert "Traceback" not in log
+    lost = lost_against_published(bag, published)
+    print(f"\ndisk full: published {published}, not recorded {lost}")
+    assert (bag / "metadata.yaml").is_file()
+    check_readable(bag, published)
