@@ -158,11 +158,11 @@ def test_a_converged_run_has_its_fixed_point_near_the_analytic_one(run: Run) -> 
 
 
 def test_a_failed_run_is_reported_by_stride(tmp_path_factory: pytest.TempPathFactory) -> None:
-    report = recorded_run("reversal", tmp_path_factory)
+    report = recorded_run("fall", tmp_path_factory)
     run = read_run(report.bag)
     assert run.outcome is not None and run.outcome.fatal and run.outcome.kind == report.outcome.kind
     failed = [s for s in run.strides if s.failure is not None]
-    assert [(s.stride, s.failure) for s in failed] == [(run.outcome.stride, "reversal")]
+    assert [(s.stride, s.failure) for s in failed] == [(run.outcome.stride, "fall")]
     assert failed[0].failure_reason == run.outcome.reason
     comparison = compare_run(run)
     assert comparison.converged_at is None and comparison.recorded_fixed_point is None

@@ -9,9 +9,10 @@ that the analytic map plans, stride by stride, until it fails or the strides run
   point reached (the definition the recorded-run analysis uses too);
 * ``sustained``: no failure, but not converged in the strides given;
 * a failure of the exact plant by kind (:class:`~tdslip_ros.model.events.FailureKind`), the stride it
-  happened in, or ``no_command`` where the analytic policy found no command for the apex (no liftoff
-  predicted, say); an apex too low to place the leg at the commanded angle counts as ``toe_stubbing``,
-  as the exact plant would report it;
+  happened in, or ``no_command`` where the policy found no command for the apex (its map predicts a
+  failure, say); an apex too low to place the leg at the policy's angle (below the touchdown height, or
+  within :data:`~tdslip_ros.model.dynamics.PLACEMENT_LEAD_TIME` of fall above it: the policy's
+  ``leg_placement``) counts as ``toe_stubbing``, as the exact plant would report it;
 * ``impossible``: an initial energy below m g y (no real forward speed).
 
 The regulators are the paper's: open loop (section III, fixed beta and touchdown power alpha, eq. 26)
@@ -28,7 +29,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import Array, ArrayLike, CommandArrays, speed_from_energy
+from tdslip_ros.model.analytic import (
+    Array,
+    ArrayLike,
+    CommandArrays,
+    NoCommand,
+    no_command_code,
+    speed_from_energy,
+)
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
@@ -53,6 +61,7 @@ OUTCOMES: tuple[str, ...] = (
 CONVERGED, SUSTAINED = 0, 1
 NO_COMMAND, IMPOSSIBLE = OUTCOMES.index("no_command"), OUTCOMES.index("impossible")
 _FAILURE_OFFSET = 2  # OUTCOMES index of FAILURE_KINDS[0]
+_LEG_PLACEMENT = no_command_code(NoCommand.LEG_PLACEMENT)
 
 StancePolicy = Callable[[int, Array, Array, Array], CommandArrays]
 """policy(stride, y, xdot, lanes) -> commands for the lanes still hopping (``lanes``: their flat indices
@@ -102,7 +111,10 @@ def run_strides(
         if alive.size:
             command = policy(stride, y[stride, alive], xdot[stride, alive], alive)
             angle, tau0, t_f = (np.broadcast_to(field, alive.shape) for field in command)
-            placed = y[stride, alive] >= dynamics.touchdown_height(params, np.cos(angle))
+            with np.errstate(invalid="ignore"):
+                placed = ~(y[stride, alive] < dynamics.touchdown_height(params, np.cos(angle)))
+            if command.no_command is not None:
+                placed &= np.broadcast_to(command.no_command, alive.shape) != _LEG_PLACEMENT
             planned = placed & np.isfinite(angle) & np.isfinite(tau0) & np.isfinite(t_f)
             lanes = alive[planned]
             step = batch_apex_return_map(

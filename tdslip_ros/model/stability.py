@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tdslip_ros.model import units
+from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic import (
     COMPLEX_STEP,
     Array,
@@ -218,9 +218,9 @@ def height_section(
 
 
 def height_grid(params: HopperParams, beta: float, top: float = 2.8, points: int = 120) -> Array:
-    """Apex heights [m] from just above leg placement, r0 cos(beta), to ``top`` r0 (the scans' default)."""
-    bottom = np.cos(beta) * (1.0 + 1e-6)
-    return np.asarray(units.height_from_bar(params, np.linspace(bottom, top, points)))
+    """Apex heights [m] from the lowest that places the leg at beta (:func:`lowest_height`) to ``top`` r0
+    (the scans' default)."""
+    return np.linspace(lowest_height(params, beta), units.height_from_bar(params, top), points)
 
 
 def open_loop_fixed_points(
@@ -252,7 +252,7 @@ def open_loop_fixed_points(
     y_star, e_star, jacobian = _newton_fixed_point(params, policy, y0, e0, corrections, liftoff)
     inside = (y_star >= heights_[columns]) & (y_star <= heights_[columns + 1])
     values = eigenvalues(jacobian[inside])
-    return _padded(params, alpha_, rows[inside], y_star[inside], e_star[inside], values)
+    return padded_fixed_points(params, alpha_, rows[inside], y_star[inside], e_star[inside], values)
 
 
 def _newton_fixed_point(
@@ -282,7 +282,7 @@ def _newton_fixed_point(
     return np.where(converged, y, np.nan), np.where(converged, energy, np.nan), jacobian
 
 
-def _padded(
+def padded_fixed_points(
     params: HopperParams, parameter: Array, rows: Array, y: Array, energy: Array, values: Array
 ) -> FixedPoints:
     """FixedPoints from flat lists of (row, y, E, eigenvalues), padded to the largest count per row."""
@@ -361,6 +361,12 @@ def infeasible_height(params: HopperParams, beta: float) -> float:
     return float(params.r0 * np.cos(beta))
 
 
+def lowest_height(params: HopperParams, beta: float) -> float:
+    """The lowest apex height [m] from which the policies place the leg at beta: r0 cos(beta) plus the fall
+    of dynamics.PLACEMENT_LEAD_TIME (0.12 mm), and a rounding margin."""
+    return (infeasible_height(params, beta) + dynamics.placement_clearance(params.g)) * (1.0 + 1e-12)
+
+
 def regulated_fixed_points(
     params: HopperParams,
     beta: float,
@@ -375,7 +381,7 @@ def regulated_fixed_points(
     polished by bracketed Newton; the eigenvalue is dy'/dy there (complex step).
     """
     energy_ = np.atleast_1d(np.asarray(energy, dtype=float))
-    bottom = infeasible_height(params, beta) * (1.0 + 1e-6)
+    bottom = lowest_height(params, beta)
     top = energy_ / (params.m * params.g)
     # Denser towards the bottom, where the fixed points of high energies crowd; E/(m g) itself has xdot = 0.
     heights = bottom + np.linspace(0.0, 1.0, points + 1)[:-1] ** 2 * (top - bottom)[:, None]
@@ -392,7 +398,7 @@ def regulated_fixed_points(
     )
     _, slope = evaluate(y_star, np.arange(y_star.size))
     keep = np.isfinite(y_star)
-    return _padded(
+    return padded_fixed_points(
         params, energy_, rows[keep], y_star[keep], lanes_energy[keep], (slope[keep] + 1.0)[:, None] + 0j
     )
 
