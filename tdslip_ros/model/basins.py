@@ -18,7 +18,12 @@ that the analytic map plans, stride by stride, until it fails or the strides run
 The regulators are the paper's: open loop (section III, fixed beta and touchdown power alpha, eq. 26)
 and, for the exact plant, energy regulation that takes the energy of the first stride as its goal
 (section IV.B): each stride's torque aims the analytic map's next apex energy at that goal rather than at
-the current apex energy, so that the map's errors do not accumulate from stride to stride.
+the current apex energy, so that the map's errors do not accumulate from stride to stride; or the ideal
+regulator energy_exact, which aims the exact plant's next apex energy there.
+
+A horizon says what happens within its strides: a slow but stable fixed point (|lambda| near 1) looks
+``sustained``. Stability verdicts come from the fixed points and their eigenvalues
+(:mod:`tdslip_ros.model.exact_stability`); the basins are figures and the cross-check.
 """
 
 from __future__ import annotations
@@ -38,10 +43,9 @@ from tdslip_ros.model.analytic import (
     speed_from_energy,
 )
 from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.controllers import energy_regulation, fixed_power
+from tdslip_ros.model.controllers import energy_regulation, exact_energy_regulation, fixed_power
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.stability import longest_run_range
 
 CONVERGENCE_TOLERANCE = 1e-4
 """Apex change (max of |d ybar|, |d xdotbar|) below which a lane counts as settled (the paper's 1e-4)."""
@@ -214,16 +218,20 @@ def basin(
     )
 
 
-def goal_energy_regulator(params: HopperParams, beta: float, goal_energy: ArrayLike) -> StancePolicy:
+def goal_energy_regulator(
+    params: HopperParams, beta: float, goal_energy: ArrayLike, exact: bool = False
+) -> StancePolicy:
     """The paper's exact-plant energy regulator: theta_td = beta [rad] and the torque that brings the
-    analytic map's next apex energy to each lane's goal [J] (the energy of its first stride), t_f = t_lo.
+    analytic map's next apex energy to each lane's goal [J] (the energy of its first stride), t_f = t_lo;
+    with ``exact``, the ideal regulator energy_exact, which brings the exact plant's next apex energy there.
 
     ``goal_energy`` holds one goal per lane of the grid (flat order) or a single goal for all lanes.
     """
     goal = np.ravel(np.asarray(goal_energy, dtype=float))
+    regulation = exact_energy_regulation if exact else energy_regulation
 
     def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> CommandArrays:
-        return energy_regulation(params, y, xdot, beta, target_energy=goal[lanes % goal.size])
+        return regulation(params, y, xdot, beta, goal[lanes % goal.size])
 
     return policy
 
@@ -246,10 +254,12 @@ def regulated_basin(
     energy0: ArrayLike,
     strides: int = REGULATED_STRIDES,
     progress: Progress | None = None,
+    exact: bool = False,
 ) -> Basin:
-    """Basin of the energy-regulated exact plant (fig. 10): each lane's goal is its initial energy."""
+    """Basin of the energy-regulated exact plant (fig. 10): each lane's goal is its initial energy
+    (``exact``: regulated by energy_exact)."""
     y_start, energy_start = np.broadcast_arrays(np.asarray(y0, dtype=float), np.asarray(energy0, dtype=float))
-    policy = goal_energy_regulator(params, beta, energy_start)
+    policy = goal_energy_regulator(params, beta, energy_start, exact)
     return basin(params, y_start, energy_start, policy, strides, progress)
 
 
@@ -277,28 +287,13 @@ def exact_regulated_fixed_points(
     heights: ArrayLike,
     strides: int = REGULATED_STRIDES,
     progress: Progress | None = None,
+    exact: bool = False,
 ) -> Basin:
-    """The exact plant's energy-regulated fixed points: a basin over the grid (energies [J]) x (heights
-    [m]), from which the converged lanes give, per goal energy, the fixed point(s) the plant reaches."""
+    """The fixed points the energy-regulated exact plant reaches within ``strides``: a basin over the grid
+    (energies [J]) x (heights [m]), whose converged lanes give, per goal energy, the fixed point(s) reached.
+    A horizon verdict: the stability verdict itself comes from the fixed points and their eigenvalues
+    (:mod:`tdslip_ros.model.exact_stability`)."""
     energy_grid, height_grid = np.meshgrid(
         np.asarray(energies, float), np.asarray(heights, float), indexing="ij"
     )
-    return regulated_basin(params, beta, height_grid, energy_grid, strides, progress)
-
-
-def exact_stable_energy_range(
-    params: HopperParams,
-    beta: float,
-    energies: ArrayLike,
-    heights: ArrayLike,
-    bisections: int = 8,
-    strides: int = REGULATED_STRIDES,
-) -> tuple[float, float]:
-    """Goal energies [J] for which the energy-regulated exact plant converges from at least one of the
-    initial ``heights`` [m]: the longest run of ``energies``, its ends refined by bisection."""
-
-    def converges(goal: Array) -> Array:
-        grid = exact_regulated_fixed_points(params, beta, goal, heights, strides)
-        return np.asarray(np.any(grid.outcome == CONVERGED, axis=1))
-
-    return longest_run_range(energies, converges, bisections)
+    return regulated_basin(params, beta, height_grid, energy_grid, strides, progress, exact)
