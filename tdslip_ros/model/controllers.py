@@ -260,7 +260,12 @@ def ramp_to_liftoff(
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
 ) -> CommandArrays:
-    """A given touchdown angle and ramp torque tau0, with t_f the liftoff time the map predicts for them."""
+    """A given touchdown angle and ramp torque tau0, with t_f the liftoff time the map predicts for them.
+
+    Not a policy but the paper's ramp for studies of the map itself (analytic_accuracy): the command is
+    returned wherever t_f exists, also where the map then predicts a fall or a reversal, so that the
+    failures of the analytic and the exact map can be compared.
+    """
     params = ParamArrays.of(params)
     y_, xdot_, angle_, tau0_ = _as_arrays(y, xdot, angle, tau0)
 
@@ -268,7 +273,8 @@ def ramp_to_liftoff(
         return tau0_ + np.zeros_like(t_f)
 
     plan = _planned_stance(params, y_, xdot_, angle_, tau0_rule, corrections, liftoff)
-    return _checked(params, y_, xdot_, angle_, plan, corrections, liftoff)[0]
+    angle_out = np.where(plan.reason == HAS_COMMAND, angle_, np.nan)
+    return CommandArrays(angle_out, plan.tau0, plan.t_f, no_command=plan.reason)
 
 
 def fixed_power(
