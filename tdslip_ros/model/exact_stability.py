@@ -43,6 +43,7 @@ from tdslip_ros.model.stability import (
     height_grid,
     longest_run_range,
     padded_fixed_points,
+    section_brackets,
 )
 
 Regulator = Literal["open_loop", "open_loop_stance_tf", "energy", "energy_exact"]
@@ -233,22 +234,21 @@ def jacobian(loop: ExactLoop, y: ArrayLike, energy: ArrayLike, members: ArrayLik
 
 def fixed_points(loop: ExactLoop, heights: ArrayLike | None = None) -> FixedPoints:
     """All fixed points of the exact closed loop per member (zeros of h on ``heights``, default
-    stability.height_grid; two closer than the grid spacing are missed), with the eigenvalues of P."""
+    stability.height_grid, and up to the edges of h's domain; two closer than the grid spacing are
+    missed), with the eigenvalues of P."""
     heights_ = (
         height_grid(loop.params, loop.beta, points=60) if heights is None else np.asarray(heights, float)
     )
     count = loop.values.size
-    members = np.repeat(np.arange(count), heights_.size)
-    grid_y = np.tile(heights_, count)
-    _, section = height_section(loop, grid_y, members)
+    _, section = height_section(loop, np.tile(heights_, count), np.repeat(np.arange(count), heights_.size))
     section = section.reshape(count, heights_.size)
-    finite = np.isfinite(section[:, :-1]) & np.isfinite(section[:, 1:])
-    rows, columns = np.nonzero(finite & (np.sign(section[:, :-1]) != np.sign(section[:, 1:])))
 
-    def h(y: Array, lanes: Array) -> Array:
-        return height_section(loop, y, rows[lanes])[1]
+    def h(y: Array, members: Array) -> Array:
+        return height_section(loop, y, members)[1]
 
-    y_star = _illinois(h, heights_[columns], heights_[columns + 1])
+    rows, low, high = section_brackets(h, heights_, section)
+
+    y_star = _illinois(lambda y, lanes: h(y, rows[lanes]), low, high)
     energy_star, _ = height_section(loop, y_star, rows)
     keep = np.isfinite(y_star) & np.isfinite(energy_star)
     values = eigenvalues(jacobian(loop, y_star[keep], energy_star[keep], rows[keep]))
