@@ -25,6 +25,8 @@ RUNS: dict[str, dict[str, Any]] = {
     # a failure needs the analytic map to be wrong. Here it is: the stride-1 command lifts off at ydot =
     # +0.05 m/s on the map and -0.97 m/s on the plant, a fall (docs/paper.md, the deadbeat edge).
     "fall": {"strides": 10, "policy": "deadbeat", "target_height": 0.95, "target_speed": 1.5},
+    # The ideal regulator, planned on the exact map, holding the initial apex energy.
+    "energy_exact": {"strides": 6, "policy": "energy_exact"},
     # Deadbeat to a target speed other than the controller's default (5 m/s).
     "deadbeat": {"strides": 4, "policy": "deadbeat", "target_speed": 4.0},
 }

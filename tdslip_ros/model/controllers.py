@@ -187,7 +187,7 @@ def _planned_stance(
     lifts_off = np.ones(shape, dtype=bool)
     converged = np.zeros(shape, dtype=bool)
     probes = _probes(2, shape)
-    with np.errstate(invalid="ignore", divide="ignore"):  # failed lanes carry NaN
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # failed or wild lanes: NaN, inf
         for _ in range(max_iterations):
             tau0, t_f = (x + probes).swapaxes(0, 1) * scales[:, None]
             stance = stance_map(
@@ -357,7 +357,7 @@ def _regulated_plan(
     """
     rule = _energy_tau0_rule(params, y, xdot, target_energy)
     plan = _planned_stance(params, y, xdot, angle, rule, corrections, liftoff, max_iterations)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         rate = _planned_energy_per_torque(params, y, xdot, angle, plan.tau0, plan.t_f, corrections, liftoff)
         backward = rate >= 0.0
         if not np.any(backward):
