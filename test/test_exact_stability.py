@@ -95,4 +95,4 @@ def test_beta_32_analytic_fixed_points_are_classified_on_the_exact_plant() -> No
     assert analytic.count[0] == 3 and exact.count[0] == 1
     assert units.height_to_bar(PARAMS, float(exact.y[0, 0])) == pytest.approx(1.05, abs=0.02)
     assert exact.stable[0, 0]
-    assert list(xs.exists_on_exact_plant(PARAMS, analytic, exact)[0]) == [True, False, False]
+    assert list(xs.exists_on_exact_plant(analytic, exact)[0]) == [True, False, False]

@@ -21,6 +21,7 @@ verdict on the exact plant comes from a fixed point and its eigenvalue, not from
 
 The exact map is deterministic and accurate to ~1e-12, so the differences resolve eigenvalues to ~1e-5.
 Stride horizons (:mod:`tdslip_ros.model.basins`) remain the figures' basins and a cross-check.
+:func:`exists_on_exact_plant` pairs the analytic map's fixed points with the exact plant's.
 """
 
 from __future__ import annotations
@@ -61,8 +62,6 @@ JACOBIAN_STEP = 1e-6
 STANCE_TF_ITERATIONS = 8
 """Bound on the plain iterations t_f <- stance duration(t_f) of ``open_loop_stance_tf`` (it contracts by
 ~1e-3 per step)."""
-MATCH_DISTANCE = 0.25
-"""Largest height difference, in r0, at which an exact fixed point counts as an analytic one's counterpart."""
 
 
 @dataclass(frozen=True)
@@ -274,10 +273,12 @@ def stable_energy_range(
     return longest_run_range(energies, has_stable, bisections)
 
 
-def exists_on_exact_plant(params: HopperParams, analytic: FixedPoints, exact: FixedPoints) -> Array:
-    """Per analytic fixed point (the shape of analytic.y): whether the exact plant has it. It does where the
-    nearest exact fixed point of the same member (in height) has it as its own nearest analytic one and
-    lies within MATCH_DISTANCE r0 (False where there is no analytic fixed point)."""
+def exists_on_exact_plant(analytic: FixedPoints, exact: FixedPoints) -> Array:
+    """Per analytic fixed point (the shape of analytic.y): whether the exact plant has it. It does where
+    it and an exact fixed point of the same member are each other's nearest in height: the two maps have
+    as many fixed points as such pairs, and an analytic fixed point left without a partner is an artifact
+    of the approximation (how far a partner lies shows the map's error in locating it). False where there
+    is no analytic fixed point."""
     exists = np.zeros(analytic.y.shape, dtype=bool)
     for row in range(analytic.y.shape[0]):
         present = np.flatnonzero(np.isfinite(analytic.y[row]))
@@ -286,7 +287,5 @@ def exists_on_exact_plant(params: HopperParams, analytic: FixedPoints, exact: Fi
             continue
         distance = np.abs(analytic.y[row, present][:, None] - found[None, :])
         nearest_exact = np.argmin(distance, axis=1)
-        mutual = np.argmin(distance, axis=0)[nearest_exact] == np.arange(present.size)
-        close = distance[np.arange(present.size), nearest_exact] <= MATCH_DISTANCE * params.r0
-        exists[row, present] = mutual & close
+        exists[row, present] = np.argmin(distance, axis=0)[nearest_exact] == np.arange(present.size)
     return exists
