@@ -112,10 +112,15 @@ def _open_loop_tf(documents: Documents, params: HopperParams) -> tuple[str, str]
     command = fixed_power(params, y, xdot, math.radians(26.0), alphas[at]).command()
     result = apex_return_map(params, ApexState(y, xdot), command)
     assert result.liftoff is not None and result.touchdown is not None
-    scale = math.sqrt(params.m / params.k)
+    scale = units.length_scale(params) / units.speed_scale(params)  # sqrt(r0/g): tbar = t sqrt(g/r0)
     stance = (result.liftoff.t - result.touchdown.t) / scale
     near = int(np.argmin(np.abs(alphas - 1.5)))
-    shift = np.nanmax(np.abs(np.sort(paper_tf[near]) - np.sort(stance_tf[near])))
+    paper_points, stance_points = (
+        points[near][np.isfinite(points[near])] for points in (paper_tf, stance_tf)
+    )
+    # Each fixed point with the paper's t_f against the nearest one with t_f = the stance.
+    distance = np.abs(paper_points[:, None] - stance_points[None, :])
+    shift = float(np.max(np.min(distance, axis=1))) if distance.size else math.nan
     analytic = f"alpha {alphas[at]:g}: tbar_f = {command.t_f / scale:.4f} (the analytic liftoff)"
     exact = (
         f"stance {stance:.4f} with that ramp; with t_f = stance the fixed points move by {shift:.3f} in "
@@ -139,13 +144,14 @@ def _fig10_match(documents: Documents) -> tuple[str, str]:
     goals, exact_y = np.array(exact["parameter"]), np.array(exact["ybar"], dtype=float)
     analytic_y = np.array(analytic["ybar"], dtype=float)
     analytic_stable = np.array(analytic["stable"], dtype=bool)
+    analytic_stable_y = np.where(analytic_stable, analytic_y, -np.inf).max(axis=1)
     lines = np.interp(
         goals,
         np.array(analytic["parameter"]),
-        np.nanmax(np.where(analytic_stable, analytic_y, np.nan), axis=1),
+        np.where(np.isfinite(analytic_stable_y), analytic_stable_y, np.nan),
     )
-    exact_stable_y = np.nanmax(np.where(np.array(exact["stable"], dtype=bool), exact_y, np.nan), axis=1)
-    difference = np.abs(lines - exact_stable_y)
+    exact_stable_y = np.where(np.array(exact["stable"], dtype=bool), exact_y, -np.inf).max(axis=1)
+    difference = np.abs(lines - np.where(np.isfinite(exact_stable_y), exact_stable_y, np.nan))
     worst = int(np.nanargmax(difference)) if np.isfinite(difference).any() else 0
     return (
         "stable fixed points over Ebar 2-6",
