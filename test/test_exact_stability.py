@@ -50,20 +50,23 @@ def test_energy_exact_fixed_points_map_to_themselves_with_the_slope_of_the_scala
 
 
 def test_fixed_point_verdicts_agree_with_the_horizon_wherever_it_converged() -> None:
-    """Energy regulation (analytic planning) at 26 deg. Ebar 3: fast, converged in 50 strides, to the
-    fixed point. Ebar 8: stable but slow (|lambda| ~ 0.89): only sustained after 50 strides (the old
-    verdict's cut), converged within 300. Ebar 10: |lambda| > 1, the horizon never converges."""
-    goals = units.energy_from_bar(PARAMS, np.array([3.0, 8.0, 10.0]))
+    """Energy regulation (analytic planning) at 26 deg. Ebar 2.2: a fixed point just below y_max(E*),
+    where the energy map's bracket reaches out of its domain (found by the edge search). Ebar 3: fast,
+    converged in 50 strides, to the fixed point. Ebar 8: stable but slow (|lambda| ~ 0.89): only sustained
+    after 50 strides (the old verdict's cut), converged within 300. Ebar 10: |lambda| > 1, the horizon
+    never converges."""
+    goals = units.energy_from_bar(PARAMS, np.array([2.2, 3.0, 8.0, 10.0]))
     points = xs.fixed_points(xs.ExactLoop.of(PARAMS, BETA, "energy", goals))
     stable = points.stable.any(axis=1)
-    assert list(stable) == [True, True, False]
-    assert 0.85 < points.spectral_radius[1, 0] < 1.0 < np.nanmin(points.spectral_radius[2])
-    start = np.full(3, PARAMS.r0 * 0.95)  # next to the fixed points of Ebar 8 and 10 (0.923, 0.917 r0)
-    for strides, converged in ((50, [True, False, False]), (300, [True, True, False])):
+    assert list(stable) == [True, True, True, False]
+    assert 0.85 < points.spectral_radius[2, 0] < 1.0 < np.nanmin(points.spectral_radius[3])
+    # Next to the fixed points (0.923 and 0.917 r0 at Ebar 8 and 10; 1.90 r0 at 2.2).
+    start = PARAMS.r0 * np.array([1.8, 0.95, 0.95, 0.95])
+    for strides, converged in ((50, [True, True, False, False]), (300, [True, True, True, False])):
         horizon = basins.regulated_basin(PARAMS, BETA, start, goals, strides=strides)
         assert list(horizon.outcome == basins.CONVERGED) == converged
     # Where the horizon converged it reached the fixed point (to its 1e-4 tolerance, over 1 - |lambda|).
-    for row in (0, 1):
+    for row in (0, 1, 2):
         assert abs(units.height_to_bar(PARAMS, horizon.y[row] - points.y[row, 0])) < 1e-4 / (
             1.0 - points.spectral_radius[row, 0]
         )

@@ -39,6 +39,7 @@ from tdslip_ros.model.controllers import energy_regulation, exact_energy_regulat
 from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.stability import (
+    EDGE_BISECTIONS,
     ENERGY_SCAN,
     FixedPoints,
     height_grid,
@@ -135,12 +136,22 @@ class ExactLoop:
             energy_next[hop[ok]] = self.params.m * (self.params.g * stride.y[ok] + 0.5 * stride.xdot[ok] ** 2)
         return y_next, energy_next
 
+    def forward_energy(self, y: Array) -> Array:
+        """The lowest apex energy [J] at height y from which the leg placed at beta swings forward: at it the
+        touchdown has thetadot = 0 (xdot cos(beta) = |ydot| sin(beta)), E = m g (y + (y - r0 cos beta)
+        tan^2 beta); at height y it is the energy whose y_max(E) is y."""
+        params = self.params
+        drop = y - params.r0 * np.cos(self.beta)
+        return np.asarray(params.m * params.g * (y + drop * np.tan(self.beta) ** 2))
+
     def energy_bracket(self, y: Array, members: Array) -> tuple[Array, Array]:
-        """Energies [J] that bracket E*(y): for a regulator, the goal +-ENERGY_BRACKET; for the open loop,
-        the first fall of E' - E from + to - over stability.ENERGY_SCAN (NaN where there is none)."""
+        """Energies [J] that bracket E*(y): for a regulator, the goal +-ENERGY_BRACKET, but not below the
+        lowest energy from which the leg swings forward at this height (:meth:`forward_energy`); for the open
+        loop, the first fall of E' - E from + to - over stability.ENERGY_SCAN (NaN where there is none)."""
         if self.regulator in ("energy", "energy_exact"):
             goal = self.values[members]
-            return goal * (1.0 - ENERGY_BRACKET), goal * (1.0 + ENERGY_BRACKET)
+            low = np.maximum(goal * (1.0 - ENERGY_BRACKET), self.forward_energy(y) * (1.0 + ROOT_TOLERANCE))
+            return low, goal * (1.0 + ENERGY_BRACKET)
         scale = units.energy_scale(self.params)
         energies = (units.height_to_bar(self.params, y)[:, None] + ENERGY_SCAN) * scale
         rows = np.broadcast_to(np.arange(y.size)[:, None], energies.shape)
@@ -159,8 +170,10 @@ def _illinois(
     function: Callable[[Array, Array], Array], low: Array, high: Array, tolerance: float = ROOT_TOLERANCE
 ) -> Array:
     """Roots per lane of ``function(x, lanes)`` (evaluated for the lanes still open) that changes sign on
-    [low, high] (1-d arrays); the Illinois variant of regula falsi; NaN where there is no sign change, the
-    function fails inside, or ROOT_ITERATIONS do not reach ``tolerance`` (relative)."""
+    [low, high] (1-d arrays); the Illinois variant of regula falsi. An end where the function fails (outside
+    its domain, such as an apex above y_max(E)) is first moved towards the other by up to EDGE_BISECTIONS
+    bisections. NaN where there is no sign change, the function fails inside, or ROOT_ITERATIONS do not
+    reach ``tolerance`` (relative)."""
     low, high = np.array(low, dtype=float), np.array(high, dtype=float)
     lanes = np.arange(low.size)
     f_low = np.full(low.size, np.nan)
@@ -169,6 +182,18 @@ def _illinois(
     if ends.size:
         f_low[ends] = function(low[ends], lanes[ends])
         f_high[ends] = function(high[ends], lanes[ends])
+    # Where one end fails and the other does not, move the failing end to the edge of the domain: bisect
+    # between the last failing point and the finite point nearest to it.
+    for end, value, other, other_value in ((low, f_low, high, f_high), (high, f_high, low, f_low)):
+        failing = np.flatnonzero(np.isfinite(end) & ~np.isfinite(value) & np.isfinite(other_value))
+        far, near, near_value = end[failing], other[failing], other_value[failing]
+        for _ in range(EDGE_BISECTIONS if failing.size else 0):
+            middle = 0.5 * (far + near)
+            middle_value = function(middle, lanes[failing])
+            inside = np.isfinite(middle_value)
+            near, near_value = np.where(inside, middle, near), np.where(inside, middle_value, near_value)
+            far = np.where(inside, far, middle)
+        end[failing], value[failing] = near, near_value
     root = np.full(low.size, np.nan)
     active = np.flatnonzero(np.isfinite(f_low) & np.isfinite(f_high) & (np.sign(f_low) != np.sign(f_high)))
     exact_end = np.flatnonzero(f_low == 0.0)
