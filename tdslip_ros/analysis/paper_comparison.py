@@ -71,29 +71,37 @@ def _three_fixed_points(documents: Documents) -> tuple[str, str]:
     analytic = np.sum(np.isfinite(np.array(panel["ybar"], dtype=float)), axis=1)
     exact = np.sum(np.isfinite(np.array(panel["exact"]["ybar"], dtype=float)), axis=1)
     three = alphas[analytic >= 3]
-    found = f"3 fixed points at alpha {three.min():.3f}-{three.max():.3f}" if three.size else "at most 2"
+    step = alphas[1] - alphas[0]
+    found = (
+        f"3 fixed points at {three.size} alpha(s) of the grid (step {step:.3f}): "
+        f"{three.min():.3f}-{three.max():.3f}"
+        if three.size
+        else "at most 2"
+    )
     exists = np.array(panel["analytic_exists_on_exact_plant"])
     missing = int(np.sum(~exists[analytic >= 3] & np.isfinite(np.array(panel["ybar"], float)[analytic >= 3])))
     return found, f"at most {int(exact.max())} per alpha; {missing} of the analytic ones there do not exist"
 
 
 def _families(documents: Documents) -> tuple[str, str]:
-    """Open loop, beta = 26 deg: the highest and the lowest stable fixed point over alpha."""
+    """Open loop, beta = 26 deg: the most stable high fixed point (ybar > 1.5) and the range of |lambda|
+    of the stable realistic ones (ybar < 1.1) over alpha."""
     panel = documents["fig04"]["c"]
+    alphas = np.array(panel["parameter"])
 
     def families(points: dict[str, Any]) -> str:
         y = np.array(points["ybar"], dtype=float)
-        radius = np.array(points["spectral_radius"], dtype=float)
-        stable = np.array(points["stable"], dtype=bool) & np.isfinite(y)
-        if not stable.any():
-            return "none stable"
-        high, low = (
-            np.unravel_index(np.argmax(np.where(stable, y, -np.inf)), y.shape),
-            np.unravel_index(np.argmin(np.where(stable, y, np.inf)), y.shape),
+        radius = np.where(
+            np.array(points["stable"], dtype=bool), np.array(points["spectral_radius"], float), np.inf
         )
+        high = np.where(y > 1.5, radius, np.inf)
+        low = radius[(y < 1.1) & np.isfinite(radius)]
+        if not np.isfinite(high).any() or low.size == 0:
+            return "one of the families is missing"
+        row, column = np.unravel_index(np.argmin(high), y.shape)
         return (
-            f"highest ybar {y[high]:.2f} (|lambda| {radius[high]:.2f}), "
-            f"lowest ybar {y[low]:.2f} (|lambda| {radius[low]:.3f})"
+            f"(i) ybar {y[row, column]:.2f}, |lambda| {high[row, column]:.2f} at alpha {alphas[row]:g}; "
+            f"(ii) ybar < 1.1, |lambda| {low.min():.3f}-{low.max():.3f}"
         )
 
     return families(panel), families(panel["exact"])
