@@ -322,7 +322,7 @@ def markdown(table: list[Row]) -> str:
     for row in table:
         where = f"docs/paper.md#{row.explanation}" if row.explanation else ""
         cells = (row.claim, row.paper, row.analytic, row.exact, f"`{row.command}`", where)
-        lines.append("| " + " | ".join(cell.replace("|", "/") for cell in cells) + " |")
+        lines.append("| " + " | ".join(cell.replace("|", "\\|") for cell in cells) + " |")
     return "\n".join(lines) + "\n"
 
 
