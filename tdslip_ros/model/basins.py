@@ -18,8 +18,7 @@ that the analytic map plans, stride by stride, until it fails or the strides run
 The regulators are the paper's: open loop (section III, fixed beta and touchdown power alpha, eq. 26)
 and, for the exact plant, energy regulation that takes the energy of the first stride as its goal
 (section IV.B): each stride's torque aims the analytic map's next apex energy at that goal rather than at
-the current apex energy, so that the map's errors do not accumulate from stride to stride; or the ideal
-regulator energy_exact, which aims the exact plant's next apex energy there.
+the current apex energy, so that the map's errors do not accumulate from stride to stride.
 
 A horizon says what happens within its strides: a slow but stable fixed point (|lambda| near 1) looks
 ``sustained``. Stability verdicts come from the fixed points and their eigenvalues
@@ -43,7 +42,7 @@ from tdslip_ros.model.analytic import (
     speed_from_energy,
 )
 from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.controllers import energy_regulation, exact_energy_regulation, fixed_power
+from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
 from tdslip_ros.model.params import HopperParams
 
@@ -218,20 +217,16 @@ def basin(
     )
 
 
-def goal_energy_regulator(
-    params: HopperParams, beta: float, goal_energy: ArrayLike, exact: bool = False
-) -> StancePolicy:
+def goal_energy_regulator(params: HopperParams, beta: float, goal_energy: ArrayLike) -> StancePolicy:
     """The paper's exact-plant energy regulator: theta_td = beta [rad] and the torque that brings the
-    analytic map's next apex energy to each lane's goal [J] (the energy of its first stride), t_f = t_lo;
-    with ``exact``, the ideal regulator energy_exact, which brings the exact plant's next apex energy there.
+    analytic map's next apex energy to each lane's goal [J] (the energy of its first stride), t_f = t_lo.
 
     ``goal_energy`` holds one goal per lane of the grid (flat order) or a single goal for all lanes.
     """
     goal = np.ravel(np.asarray(goal_energy, dtype=float))
-    regulation = exact_energy_regulation if exact else energy_regulation
 
     def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> CommandArrays:
-        return regulation(params, y, xdot, beta, goal[lanes % goal.size])
+        return energy_regulation(params, y, xdot, beta, target_energy=goal[lanes % goal.size])
 
     return policy
 
@@ -254,12 +249,10 @@ def regulated_basin(
     energy0: ArrayLike,
     strides: int = REGULATED_STRIDES,
     progress: Progress | None = None,
-    exact: bool = False,
 ) -> Basin:
-    """Basin of the energy-regulated exact plant (fig. 10): each lane's goal is its initial energy
-    (``exact``: regulated by energy_exact)."""
+    """Basin of the energy-regulated exact plant (fig. 10): each lane's goal is its initial energy."""
     y_start, energy_start = np.broadcast_arrays(np.asarray(y0, dtype=float), np.asarray(energy0, dtype=float))
-    policy = goal_energy_regulator(params, beta, energy_start, exact)
+    policy = goal_energy_regulator(params, beta, energy_start)
     return basin(params, y_start, energy_start, policy, strides, progress)
 
 
@@ -287,7 +280,6 @@ def exact_regulated_fixed_points(
     heights: ArrayLike,
     strides: int = REGULATED_STRIDES,
     progress: Progress | None = None,
-    exact: bool = False,
 ) -> Basin:
     """The fixed points the energy-regulated exact plant reaches within ``strides``: a basin over the grid
     (energies [J]) x (heights [m]), whose converged lanes give, per goal energy, the fixed point(s) reached.
@@ -296,4 +288,4 @@ def exact_regulated_fixed_points(
     energy_grid, height_grid = np.meshgrid(
         np.asarray(energies, float), np.asarray(heights, float), indexing="ij"
     )
-    return regulated_basin(params, beta, height_grid, energy_grid, strides, progress, exact)
+    return regulated_basin(params, beta, height_grid, energy_grid, strides, progress)

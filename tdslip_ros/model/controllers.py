@@ -49,7 +49,6 @@ from tdslip_ros.model.analytic import (
     no_command_of_failure,
     stance_map,
 )
-from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams, ParameterError
 
@@ -460,6 +459,10 @@ def exact_energy_regulation(
     A plan costs about 3 x 4 exact strides: fine in lockstep and in studies. The gap between ``energy``
     and ``energy_exact`` is what the analytic approximation costs.
     """
+    # Imported here: the batched engine imports scipy.integrate (0.6 s), which only this policy needs; a
+    # controller node of the others starts as fast as before (its DDS discovery races the recorder's).
+    from tdslip_ros.model.batch import batch_apex_return_map
+
     arrays = ParamArrays.of(params)
     y_, xdot_, beta_ = _as_arrays(y, xdot, beta)
     start = energy_regulation(arrays, y_, xdot_, beta_, target_energy, corrections)

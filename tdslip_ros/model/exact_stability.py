@@ -49,7 +49,6 @@ from tdslip_ros.model.stability import (
 )
 
 Regulator = Literal["open_loop", "open_loop_stance_tf", "energy", "energy_exact"]
-REGULATORS: tuple[Regulator, ...] = ("open_loop", "open_loop_stance_tf", "energy", "energy_exact")
 EXACT_TOLERANCE = 1e-12
 """rtol = atol of the exact plant's DOP853 in these studies."""
 ENERGY_BRACKET = 0.1
