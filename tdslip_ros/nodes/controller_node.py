@@ -6,7 +6,7 @@ The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.m
   ``touchdown_angle`` [rad] and ``touchdown_power`` [W] (the paper's alpha = C / (m g sqrt(g r0)));
 * ``energy``: energy regulation at a fixed ``touchdown_angle`` (section IV.A, eq. 32), the torque
   planned so that the analytic map's next apex has the energy ``target_energy`` [J];
-* ``energy_exact``: the same, planned on the exact plant's map (the ideal regulator, a few ms per apex);
+* ``energy_exact``: the same, planned on the exact plant's map (the ideal regulator, ~40 ms per apex);
 * ``deadbeat``: inversion of the analytic map towards the apex (``target_height`` [m],
   ``target_speed`` [m/s]) in one stride (section V.A, eqs. 33-34);
 * ``pd``: the PD baseline, foot placement on speed with gains ``pd_kp``, ``pd_kd`` [rad/(m/s)]
