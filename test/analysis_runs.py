@@ -7,7 +7,6 @@ below derive damaged or reduced copies of a recording for the error tests.
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -22,8 +21,12 @@ from tdslip_ros.nodes.runner import RunOptions, RunReport, run
 RUNS: dict[str, dict[str, Any]] = {
     # Energy regulation from the default apex (1 m, 5 m/s): converges in a few strides.
     "energy": {"strides": 12},
-    # At 30 deg the energy-regulated fixed point of the default energy is unstable: reversal at stride 3.
-    "reversal": {"strides": 30, "touchdown_angle": math.radians(30.0)},
+    # Deadbeat towards 0.95 m (below r0) at 1.5 m/s: the policies command only strides their map accepts, so
+    # a failure needs the analytic map to be wrong. Here it is: the stride-1 command lifts off at ydot =
+    # +0.05 m/s on the map and -0.97 m/s on the plant, a fall (docs/paper.md, the deadbeat edge).
+    "fall": {"strides": 10, "policy": "deadbeat", "target_height": 0.95, "target_speed": 1.5},
+    # The ideal regulator, planned on the exact map, holding the initial apex energy.
+    "energy_exact": {"strides": 6, "policy": "energy_exact"},
     # Deadbeat to a target speed other than the controller's default (5 m/s).
     "deadbeat": {"strides": 4, "policy": "deadbeat", "target_speed": 4.0},
 }

@@ -141,6 +141,20 @@ def test_the_policy_settings_come_from_the_parameters_stored_in_the_bag(
     assert read_run(bare).custom_data == run.custom_data
 
 
+def test_energy_exact_holds_the_1khz_plant_at_its_target_energy(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """The ideal regulator in the node suite: every recorded apex has the target energy (the initial
+    one) to the 1 kHz plant's own accuracy (~1e-11), and the analysis replays its commands."""
+    run = read_run(recorded_run("energy_exact", tmp_path_factory).bag)
+    policy = policy_for_run(run)
+    assert policy.name == "energy_exact" and policy.target_energy == run.strides[0].energy
+    energies = np.array([stride.energy for stride in run.strides])
+    assert len(energies) == 7
+    np.testing.assert_allclose(energies, policy.target_energy, rtol=1e-10)
+    assert compare_run(run, policy).policy_reproduced
+
+
 def test_a_converged_run_has_its_fixed_point_near_the_analytic_one(run: Run) -> None:
     comparison = compare_run(run)
     assert comparison.converged_at is not None and comparison.converged_at < 8  # the paper's "at most 8"
@@ -158,11 +172,11 @@ def test_a_converged_run_has_its_fixed_point_near_the_analytic_one(run: Run) -> 
 
 
 def test_a_failed_run_is_reported_by_stride(tmp_path_factory: pytest.TempPathFactory) -> None:
-    report = recorded_run("reversal", tmp_path_factory)
+    report = recorded_run("fall", tmp_path_factory)
     run = read_run(report.bag)
     assert run.outcome is not None and run.outcome.fatal and run.outcome.kind == report.outcome.kind
     failed = [s for s in run.strides if s.failure is not None]
-    assert [(s.stride, s.failure) for s in failed] == [(run.outcome.stride, "reversal")]
+    assert [(s.stride, s.failure) for s in failed] == [(run.outcome.stride, "fall")]
     assert failed[0].failure_reason == run.outcome.reason
     comparison = compare_run(run)
     assert comparison.converged_at is None and comparison.recorded_fixed_point is None

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tdslip_ros import cli
-from tdslip_ros.analysis import figures
+from tdslip_ros.analysis import figures, paper_comparison
 from tdslip_ros.model import stability, units
 
 TINY = figures.Resolution(
@@ -22,6 +22,9 @@ TINY = figures.Resolution(
     energies=8,
     basin_energies=3,
     speed_step=1.25,
+    exact_heights=16,
+    exact_energies=6,
+    bisections=2,
 )
 PARAMS = figures.PARAMS
 
@@ -30,15 +33,21 @@ def _quiet() -> figures.Reporter:
     return figures.Reporter("test", interval=math.inf)
 
 
-def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(tmp_path: Path) -> None:
+def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     module, _ = cli.SUBCOMMANDS["figures"]
     assert module == "tdslip_ros.analysis.figures"
+    monkeypatch.setattr(figures, "DEFAULT", TINY)  # the default resolution takes a minute per figure
     assert cli.main(["figures", "--out", str(tmp_path), "--only", "fig09"]) == 0
     assert (tmp_path / "fig09.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     document = json.loads((tmp_path / "fig09.json").read_text(), parse_constant=pytest.fail)
     assert document["figure"] == "fig09" and document["params"]["kbar"] == pytest.approx(36.0)
-    assert document["resolution"] == vars(figures.DEFAULT)
-    assert sorted(path.name for path in tmp_path.iterdir()) == ["fig09.json", "fig09.png"]
+    assert document["resolution"] == vars(TINY)
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["comparison.md", "fig09.json", "fig09.png"]
+    # The comparison table: rows of figures not computed say so, the others have our numbers.
+    table = (tmp_path / "comparison.md").read_text()
+    assert table.count("not computed in this run") >= 10 and "4.70 m/s" in table
 
 
 def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
@@ -95,3 +104,23 @@ def test_fig04_traces_the_open_loop_fixed_points_and_their_saddle_nodes() -> Non
     heights = units.height_from_bar(PARAMS, np.array(section["ybar"]))
     _, mapped = stability.open_loop_energy_map(PARAMS, beta, section["alpha"], heights, energies)
     np.testing.assert_allclose(mapped, energies, rtol=1e-10)
+
+
+def test_the_comparison_table_reads_our_numbers_from_the_figure_documents() -> None:
+    nan = float("nan")
+    documents = {
+        "ranges": {
+            "analytic": {"20": [0.969, 3.316], "22": [0.98, 4.6], "26": [1.1, 8.2], "30": [nan, nan]},
+            "energy": {"20": [1.55, 3.341], "22": [1.7, 4.7], "26": [2.5, 9.2], "30": [3.44, 16.85]},
+            "energy_exact": {"20": [1.094, 3.344], "22": [1.3, 4.7], "26": [2.1, 9.2], "30": [3.24, 16.9]},
+        }
+    }
+    table = {row.claim: row for row in paper_comparison.rows(documents, PARAMS)}
+    twenty = table["stable Ebar range, beta = 20 deg (IV.C)"]
+    assert (twenty.paper, twenty.analytic) == ("[1.1, 3.4]", "[0.97, 3.32]")
+    assert twenty.exact == "energy [1.55, 3.34]; energy_exact [1.09, 3.34]"
+    assert twenty.command == "tdslip figures --out DIR --only ranges"
+    assert table["stable Ebar range, beta = 30 deg (IV.C)"].analytic == "none"
+    assert table["fig. 11: the range grows with beta"].analytic == "not computed in this run"
+    markdown = paper_comparison.markdown(list(table.values()))
+    assert markdown.count("\n") == len(table) + 2 and "docs/paper.md#stable-ranges" in markdown

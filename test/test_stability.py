@@ -127,14 +127,14 @@ def test_heights_below_leg_placement_are_infeasible() -> None:
 @pytest.mark.parametrize(
     ("beta_deg", "low", "high"),
     [
-        # Paper: [1.1, 3.4]. Ours: about [1.16, 3.32]. The ends are where the fixed point leaves the region
-        # where the map works (low) and where its eigenvalue crosses -1 (high), both sensitive to the
-        # approximation's details: bounds of about +-15 % around the paper's values.
-        (20.0, (0.95, 1.3), (3.0, 3.8)),
-        # Paper: [3.45, 11.9]. Ours: about [2.88, 12.6]: the upper end within 10 %; the lower end is the
-        # analytic map's family of slow, ~2.4 r0 high hops that the exact plant does not have (it fails by
-        # reversal there; test_basins checks the exact plant's end against 3.45).
-        (30.0, (2.6, 3.2), (10.7, 13.1)),
+        # Paper: [1.1, 3.4]. Ours: about [0.97, 3.32]; both ends are where the fixed point's eigenvalue
+        # crosses -1 (a flip), sensitive to the approximation's details.
+        (20.0, (0.9, 1.05), (3.2, 3.45)),
+        # Paper: [3.45, 11.9]. Ours: about [1.91, 12.69]: the upper end is the flip at -1; the lower end is
+        # where the stable fixed point reaches y_max(E), the highest apex from which the leg placed at beta
+        # still swings forward. With the backward torque root (before issue 10) the map failed there and the
+        # range began at 2.88; docs/paper.md compares the exact plant's ranges.
+        (30.0, (1.85, 2.0), (12.4, 13.0)),
     ],
 )
 def test_energy_regulation_has_stable_fixed_points_over_the_paper_s_energy_ranges(

@@ -22,7 +22,8 @@
 Policy settings (:func:`policy_for_run`) come from the caller, else from the controller parameters
 ``tdslip run`` stores in the bag's custom_data, else from the recorded commands (policy name, fixed
 touchdown angle) and the installed controller defaults (``config/controller.yaml``; energy
-regulation's target defaults to the initial apex energy, as ``tdslip run`` sets it).
+regulation's target, for ``energy`` and ``energy_exact``, defaults to the initial apex energy, as
+``tdslip run`` sets it).
 :func:`compare_run` then replays the policy on the recorded apexes and reports how closely it
 reproduces the recorded commands, so wrong settings are visible.
 """
@@ -43,7 +44,7 @@ from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic import CommandArrays, approximate_map, eigenvalues
 from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.controllers import POLICIES, PolicyError, PolicySpec
+from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES, POLICIES, PolicyError, PolicySpec
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
 
@@ -98,7 +99,7 @@ def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
     values: dict[str, Any] = {key: defaults[key] for key in PolicySpec.settings()}
     values["target_energy"] = run.strides[0].energy
     first_command = next((s.command for s in run.strides if s.command is not None), None)
-    if name in ("open_loop", "energy") and first_command is not None:
+    if name in FIXED_ANGLE_POLICIES and first_command is not None:
         values["touchdown_angle"] = first_command.touchdown_angle
     values |= stored
     values |= {key: value for key, value in given.items() if key != "name"}

@@ -1,10 +1,17 @@
 """``tdslip figures``: the paper's figures 4-11 and 13 from the model core, as PNG plus the numbers as JSON.
 
-    tdslip figures --out DIR [--only fig04 fig10 ...] [--fine]
+    tdslip figures --out DIR [--only fig04 fig10 ranges ...] [--fine]
 
 Each figure is named after the paper's (fig04.png with fig04.json, ...); the JSON holds the numbers drawn
 (dimensionless, eq. 24; NaN as null) and the settings. Parameters: kbar = 36, zeta0 = 0.08, m = 80 kg,
 r0 = 1 m (figs 8-11, 13 and the paper's section V); the open-loop figures 4-7 use them too.
+
+Every analytic fixed point drawn (figs 4-6, 8, 9) is checked on the exact plant
+(:mod:`tdslip_ros.model.exact_stability`, the open-loop rule with the paper's t_f, or the ideal regulator
+energy_exact for the energy-regulated map): red markers are the exact plant's fixed points (filled where
+stable, by their eigenvalues), a red cross marks an analytic fixed point the exact plant does not have.
+At the end the command prints the paper's claims beside ours (:mod:`.paper_comparison`) and writes them to
+DIR/comparison.md; docs/paper.md explains the differences.
 
 * fig04: open loop, beta = 26 deg: (a) energy map E' vs E at alpha = 1.5 for several heights, with the
   energy fixed points E*(y) (eq. 27); (b) the height section y' vs y on E*(y) for several alpha (eq. 28);
@@ -15,27 +22,33 @@ r0 = 1 m (figs 8-11, 13 and the paper's section V); the open-loop figures 4-7 us
 * fig06: largest eigenvalue modulus at every open-loop fixed point over alpha, beta = 26 and 32 deg.
 * fig07: exact plant, open loop, beta = 26 deg, up to 150 strides from initial heights y0 on the energy
   fixed point E*(y0) of eq. 27: outcome per (alpha, y0), analytic fixed points (black: solid stable,
-  dashed unstable) and the fixed points the exact plant reaches (red); (b), (c) convergence at alpha = 1
-  and 1.5 from the green crosses.
+  dashed unstable), the fixed points the exact plant reaches (red dots) and its fixed points by
+  eigenvalue with the paper's t_f and with t_f = the stance it produces (squares); (b), (c) convergence
+  at alpha = 1 and 1.5 from the green crosses.
 * fig08: energy-regulated height map y' vs y for Ebar = 1..8 and its fixed points over Ebar, beta = 22
   and 30 deg; grey: kinematically infeasible heights (y < r0 cos beta).
 * fig09: the eigenvalue dy'/dy at those fixed points.
 * fig10: beta = 26 deg, Ebar in [2, 6]: fixed points of the analytic map (black) and of the exact plant
-  under the paper's goal-energy regulator (red) in apex height (a) and speed (b); blue: the exact plant's
-  basin after 50 strides, lighter for slower convergence.
+  under the paper's goal-energy regulator (red line: reached in the basin; markers: by eigenvalue) in apex
+  height (a) and speed (b); blue: the exact plant's basin after 50 strides, lighter for slower
+  convergence.
 * fig11: stable regulated fixed points (xdotbar*, ybar*) as beta, kbar or zeta0 vary (one curve over Ebar
-  per value, circles at its ends, the arrow from the smallest value to the largest).
+  per value, circles at its ends, the arrow from the smallest value to the largest); the legend gives each
+  value's stable Ebar range, analytic and on the exact plant (energy_exact).
+* ranges: the stable Ebar ranges at beta = 20, 22, 26, 30 deg: the paper's, the analytic map's, and the
+  exact plant's under the paper's goal regulator (energy) and the ideal one (energy_exact).
 * fig13: deadbeat against the PD baseline on the exact plant, 50 strides per desired speed from the apex
   (1 m, 5 m/s) towards (1 m, xdot*): final speed and height errors in percent; crosses where a controller
-  loses stability (fails, or does not converge to 1e-4).
+  loses stability (fails, or does not converge to 1e-4). The JSON adds deadbeat towards y* = 0.95 m.
 
-Defaults finish in minutes on two cores; ``--fine`` uses the paper's resolutions. Long sweeps report
-their progress on stderr.
+Defaults take some ten minutes on two cores (the exact-plant checks and ranges most of it); ``--fine``
+uses the paper's resolutions. Long sweeps report their progress on stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 import time
@@ -53,8 +66,9 @@ from matplotlib.axes import Axes
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
+from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
-from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model import basins, exact_stability, stability, units
 from tdslip_ros.model.analytic import Array, CommandArrays, speed_from_energy
 from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
 from tdslip_ros.model.params import HopperParams
@@ -77,10 +91,13 @@ class Resolution:
     energies: int  # regulated fixed points over Ebar
     basin_energies: int  # fig10 initial energies
     speed_step: float  # fig13 desired speeds
+    exact_heights: int  # height grid of the exact plant's fixed points (sections of eq. 28)
+    exact_energies: int  # goal energies of the exact stable ranges (ranges, fig11)
+    bisections: int  # of each end of a stable range
 
 
-DEFAULT = Resolution(80, 41, 7, 17, 20, 57, 21, 0.25)
-FINE = Resolution(160, 101, 13, 41, 60, 141, 81, 0.1)
+DEFAULT = Resolution(80, 41, 7, 17, 20, 57, 21, 0.25, 40, 22, 5)
+FINE = Resolution(160, 101, 13, 41, 60, 141, 81, 0.1, 80, 54, 8)
 
 
 class Reporter:
@@ -132,6 +149,46 @@ def _fixed_points_json(points: stability.FixedPoints, parameter: Array) -> dict[
         "spectral_radius": points.spectral_radius.tolist(),
         "stable": points.stable.tolist(),
     }
+
+
+@dataclass(frozen=True)
+class ExactCheck:
+    """The exact plant's fixed points for the members of an analytic trace, and per analytic fixed point
+    whether the exact plant has it (exact_stability.exists_on_exact_plant)."""
+
+    exact: stability.FixedPoints
+    exists: Array
+
+    def json(self, parameter: Array) -> dict[str, Any]:
+        return {
+            "exact": _fixed_points_json(self.exact, parameter),
+            "analytic_exists_on_exact_plant": self.exists.tolist(),
+        }
+
+
+def _exact_check(
+    beta: float, regulator: exact_stability.Regulator, analytic: stability.FixedPoints, resolution: Resolution
+) -> ExactCheck:
+    """Every analytic fixed point of ``analytic`` (members: its parameter, alpha or the energy [J])
+    checked on the exact plant under ``regulator``."""
+    loop = exact_stability.ExactLoop.of(PARAMS, beta, regulator, analytic.parameter)
+    heights = stability.height_grid(PARAMS, beta, points=resolution.exact_heights)
+    exact = exact_stability.fixed_points(loop, heights)
+    return ExactCheck(exact, exact_stability.exists_on_exact_plant(analytic, exact))
+
+
+def _plot_exact_check(
+    axes: Axes, x: Array, analytic_values: Array, check: ExactCheck, exact_values: Array
+) -> None:
+    """The exact plant's fixed points in red (filled: stable), and a red cross on every analytic fixed point
+    the exact plant does not have."""
+    x_, exact_, stable_ = np.broadcast_arrays(x, exact_values, check.exact.stable)
+    axes.plot(x_[stable_], exact_[stable_], "o", color=EXACT, markersize=3, label="exact plant")
+    unstable = ~stable_ & np.isfinite(exact_)
+    axes.plot(x_[unstable], exact_[unstable], "o", color=EXACT, markersize=3, mfc="none")
+    x_, values_, exists_ = np.broadcast_arrays(x, analytic_values, check.exists)
+    missing = ~exists_ & np.isfinite(values_)
+    axes.plot(x_[missing], values_[missing], "x", color=EXACT, markersize=6, label="not on the exact plant")
 
 
 # --- Open loop (section III) -----------------------------------------------------------------------------
@@ -187,19 +244,15 @@ def fig04(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     )
     middle.legend(fontsize=7)
 
-    reporter.stage(f"fixed points over {resolution.alphas} alphas")
-    alphas = np.linspace(0.5, 2.5, resolution.alphas)
-    traced = stability.open_loop_fixed_points(
-        PARAMS, beta, alphas, stability.height_grid(PARAMS, beta, points=resolution.heights)
-    )
-    reporter.stage("saddle-node bifurcations")
-    bifurcations = stability.saddle_nodes(
-        PARAMS, beta, traced, stability.height_grid(PARAMS, beta, points=resolution.heights)
-    )
-    _plot_fixed_points(right, alphas[:, None], _bar_height(traced.y), traced.stable)
+    reporter.stage(f"fixed points over {resolution.alphas} alphas, saddle-nodes, the exact plant's")
+    alphas, traced, bifurcations = _open_loop_trace(26.0, resolution)
+    check = _open_loop_exact(26.0, resolution)
+    _plot_fixed_points(right, alphas[:, None], _bar_height(traced.y), traced.stable, label="analytic")
+    _plot_exact_check(right, alphas[:, None], _bar_height(traced.y), check, _bar_height(check.exact.y))
     for alpha in bifurcations:
         right.axvline(alpha, ls=":", color="0.5")
     right.set(xlabel="alpha", ylabel="ybar*", title="(c) fixed points (open: unstable)")
+    right.legend(fontsize=7)
     data = {
         "beta_deg": 26.0,
         "a": {
@@ -215,11 +268,22 @@ def fig04(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
             "Ebar_fixed": _bar_energy(section_energy).tolist(),
             "ybar_next": _bar_height(section_next).tolist(),
         },
-        "c": _fixed_points_json(traced, alphas) | {"saddle_node_alpha": bifurcations.tolist()},
+        "c": _fixed_points_json(traced, alphas)
+        | {"saddle_node_alpha": bifurcations.tolist()}
+        | check.json(alphas),
     }
     return figure, data
 
 
+@functools.lru_cache(maxsize=4)
+def _open_loop_exact(beta_deg: float, resolution: Resolution) -> ExactCheck:
+    """The open-loop analytic fixed points of _open_loop_trace checked on the exact plant (paper's t_f)."""
+    return _exact_check(
+        math.radians(beta_deg), "open_loop", _open_loop_trace(beta_deg, resolution)[1], resolution
+    )
+
+
+@functools.lru_cache(maxsize=4)
 def _open_loop_trace(beta_deg: float, resolution: Resolution) -> tuple[Array, stability.FixedPoints, Array]:
     beta = math.radians(beta_deg)
     alphas = np.linspace(0.5, 2.5, resolution.alphas)
@@ -232,13 +296,15 @@ def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     betas = np.linspace(20.0, 32.0, resolution.betas)
     alphas = np.linspace(0.5, 2.5, max(resolution.alphas // 2, 11))
     radius = np.full((betas.size, alphas.size), np.nan)
-    height, energy, count = (
+    height, energy, count, exact_count = (
         np.full_like(radius, np.nan),
         np.full_like(radius, np.nan),
         np.zeros(radius.shape, int),
+        np.zeros(radius.shape, int),
     )
+    exists = np.zeros(radius.shape, dtype=bool)
     for row, beta_deg in enumerate(betas):
-        reporter.stage(f"beta = {beta_deg:.1f} deg ({row + 1}/{betas.size})")
+        reporter.stage(f"beta = {beta_deg:.1f} deg ({row + 1}/{betas.size}), analytic and exact plant")
         beta = math.radians(beta_deg)
         points = stability.open_loop_fixed_points(
             PARAMS, beta, alphas, stability.height_grid(PARAMS, beta, points=resolution.heights)
@@ -249,6 +315,9 @@ def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         height[row] = np.take_along_axis(_bar_height(points.y), best, 1)[:, 0]
         energy[row] = np.take_along_axis(_bar_energy(points.energy), best, 1)[:, 0]
         count[row] = points.count
+        check = _exact_check(beta, "open_loop", points, resolution)
+        exists[row] = np.take_along_axis(check.exists, best, 1)[:, 0]
+        exact_count[row] = check.exact.count
     figure = Figure(figsize=(15, 4.5))
     unstable = np.where(radius >= 1.0, 1.0, np.nan)
     panels = (
@@ -265,8 +334,14 @@ def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         axes.contourf(
             alphas, betas, (count >= 3).astype(float), levels=[0.5, 1.5], hatches=["//"], colors="none"
         )
+        missing = np.isfinite(radius) & ~exists
+        alpha_grid, beta_grid = np.meshgrid(alphas, betas)
+        axes.plot(alpha_grid[missing], beta_grid[missing], "x", color=EXACT, markersize=5)
         axes.set(xlabel="alpha", ylabel="beta [deg]", title=f"{name}, most stable fixed point")
-    figure.suptitle("open loop: dark green = unstable, hatched = three fixed points, white = none found")
+    figure.suptitle(
+        "open loop: dark green = unstable, hatched = three fixed points, white = none found, "
+        "red x = not on the exact plant"
+    )
     data = {
         "beta_deg": betas.tolist(),
         "alpha": alphas.tolist(),
@@ -274,6 +349,8 @@ def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         "ybar": height.tolist(),
         "Ebar": energy.tolist(),
         "fixed_point_count": count.tolist(),
+        "exact_fixed_point_count": exact_count.tolist(),
+        "most_stable_exists_on_exact_plant": exists.tolist(),
     }
     return figure, data
 
@@ -284,7 +361,10 @@ def fig06(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     for axes, beta_deg, label in zip(figure.subplots(2, 1), (26.0, 32.0), "ab", strict=True):
         reporter.stage(f"beta = {beta_deg} deg")
         alphas, traced, bifurcations = _open_loop_trace(beta_deg, resolution)
-        _plot_fixed_points(axes, alphas[:, None], traced.spectral_radius, traced.stable)
+        check = _open_loop_exact(beta_deg, resolution)
+        _plot_fixed_points(axes, alphas[:, None], traced.spectral_radius, traced.stable, label="analytic")
+        _plot_exact_check(axes, alphas[:, None], traced.spectral_radius, check, check.exact.spectral_radius)
+        axes.legend(fontsize=7)
         axes.axhline(1.0, color="0.6", lw=0.8)
         for alpha in bifurcations:
             axes.axvline(alpha, ls=":", color="0.5")
@@ -295,6 +375,7 @@ def fig06(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
             "beta_deg": beta_deg,
             **_fixed_points_json(traced, alphas),
             "saddle_node_alpha": bifurcations.tolist(),
+            **check.json(alphas),
         }
     return figure, data
 
@@ -350,10 +431,14 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     outcome = everything.outcome[grid].reshape(alpha_grid.shape)
     colour = _basin_colours(everything, basins.OPEN_LOOP_STRIDES)[grid].reshape(alpha_grid.shape)
     reporter.stage("analytic fixed points")
-    analytic_alphas = np.linspace(0.5, 2.5, resolution.alphas)
-    traced = stability.open_loop_fixed_points(
-        PARAMS, beta, analytic_alphas, stability.height_grid(PARAMS, beta, points=resolution.heights)
-    )
+    analytic_alphas, traced, _ = _open_loop_trace(26.0, resolution)
+    by_eigenvalue = {}
+    for regulator in ("open_loop", "open_loop_stance_tf"):
+        reporter.stage(f"the exact plant's fixed points and eigenvalues, {regulator}")
+        by_eigenvalue[regulator] = exact_stability.fixed_points(
+            exact_stability.ExactLoop.of(PARAMS, beta, regulator, alphas),
+            stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
+        )
 
     figure = Figure(figsize=(12, 7.5))
     top = figure.add_subplot(2, 1, 1)
@@ -370,6 +455,19 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     exact_y = everything.y[grid].reshape(alpha_grid.shape)
     top.plot(alpha_grid.ravel(), _bar_height(exact_y).ravel(), ".", color=EXACT, markersize=4)
     top.plot(cross_alpha, cross_height, "x", color=START, markersize=9, mew=2)
+    for regulator, colour in (("open_loop", EXACT), ("open_loop_stance_tf", "tab:purple")):
+        points = by_eigenvalue[regulator]
+        x, y, stable = np.broadcast_arrays(alphas[:, None], _bar_height(points.y), points.stable)
+        top.plot(x[stable], y[stable], "s", color=colour, mfc="none", markersize=6, label=regulator)
+        top.plot(
+            x[~stable & np.isfinite(y)],
+            y[~stable & np.isfinite(y)],
+            "d",
+            color=colour,
+            mfc="none",
+            markersize=5,
+        )
+    top.legend(fontsize=7, title="exact fixed points (square: stable)")
     top.set(
         xlabel="alpha",
         ylabel="ybar0 (E0 = E*(y0))",
@@ -397,6 +495,9 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         "outcome": [[basins.OUTCOMES[o] for o in row] for row in outcome],
         "convergence_stride": everything.convergence_stride[grid].reshape(alpha_grid.shape).tolist(),
         "exact_fixed_ybar": _bar_height(exact_y).tolist(),
+        "exact_by_eigenvalue": {
+            regulator: _fixed_points_json(points, alphas) for regulator, points in by_eigenvalue.items()
+        },
         "exact_fixed_Ebar": _bar_energy(everything.energy[grid].reshape(alpha_grid.shape)).tolist(),
         "outcome_counts": _outcome_counts(everything),
         "analytic": _fixed_points_json(traced, analytic_alphas),
@@ -416,14 +517,14 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
 # --- Energy regulation (section IV) ----------------------------------------------------------------------
 
 
-def _regulated(
-    beta_deg: float, resolution: Resolution, params: HopperParams = PARAMS
-) -> tuple[Array, stability.FixedPoints]:
+@functools.lru_cache(maxsize=4)
+def _regulated(beta_deg: float, resolution: Resolution) -> tuple[Array, stability.FixedPoints, ExactCheck]:
+    """Regulated fixed points over Ebar in [1, 8] (figs 8, 9), checked on the exact plant held at each
+    energy exactly (energy_exact, the exact counterpart of the map's energy conservation)."""
     energies_bar = np.linspace(1.0, 8.0, resolution.energies)
-    points = stability.regulated_fixed_points(
-        params, math.radians(beta_deg), units.energy_from_bar(params, energies_bar)
-    )
-    return energies_bar, points
+    beta = math.radians(beta_deg)
+    points = stability.regulated_fixed_points(PARAMS, beta, units.energy_from_bar(PARAMS, energies_bar))
+    return energies_bar, points, _exact_check(beta, "energy_exact", points, resolution)
 
 
 def _shade_infeasible(axes: Axes, bottom: float, horizontal: bool = True, vertical: bool = False) -> None:
@@ -438,7 +539,7 @@ def fig08(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     rows = figure.subplots(2, 2)
     data: dict[str, Any] = {}
     for (left, right), beta_deg in zip(rows, (22.0, 30.0), strict=True):
-        reporter.stage(f"beta = {beta_deg} deg")
+        reporter.stage(f"beta = {beta_deg} deg, analytic and exact plant (energy_exact)")
         beta = math.radians(beta_deg)
         bottom = stability.infeasible_height(PARAMS, beta)
         curves: dict[str, Any] = {}
@@ -459,14 +560,17 @@ def fig08(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
             ylim=(0.7, 3.0),
         )
         left.legend(fontsize=7, ncol=2)
-        energies_bar, points = _regulated(beta_deg, resolution)
-        _plot_fixed_points(right, energies_bar[:, None], _bar_height(points.y), points.stable)
+        energies_bar, points, check = _regulated(beta_deg, resolution)
+        analytic_y = _bar_height(points.y)
+        _plot_fixed_points(right, energies_bar[:, None], analytic_y, points.stable, label="analytic")
+        _plot_exact_check(right, energies_bar[:, None], analytic_y, check, _bar_height(check.exact.y))
         _shade_infeasible(right, bottom)
         right.set(xlabel="Ebar", ylabel="ybar*", title="fixed points (open: unstable)", ylim=(0.7, 3.0))
+        right.legend(fontsize=7)
         data[f"beta_{beta_deg:g}"] = {
             "infeasible_below_ybar": bottom,
             "maps": curves,
-            "fixed_points": _fixed_points_json(points, energies_bar),
+            "fixed_points": _fixed_points_json(points, energies_bar) | check.json(energies_bar),
         }
     return figure, data
 
@@ -475,16 +579,23 @@ def fig09(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     figure = Figure(figsize=(7, 6))
     data: dict[str, Any] = {}
     for axes, beta_deg, label in zip(figure.subplots(2, 1), (22.0, 30.0), "ab", strict=True):
-        reporter.stage(f"beta = {beta_deg} deg")
-        energies_bar, points = _regulated(beta_deg, resolution)
+        reporter.stage(f"beta = {beta_deg} deg, analytic and exact plant (energy_exact)")
+        energies_bar, points, check = _regulated(beta_deg, resolution)
         eigenvalue = np.real(points.eigenvalues[..., 0])
-        _plot_fixed_points(axes, energies_bar[:, None], eigenvalue, points.stable)
+        _plot_fixed_points(axes, energies_bar[:, None], eigenvalue, points.stable, label="analytic")
+        exact_eigenvalue = np.real(check.exact.eigenvalues[..., 0])
+        _plot_exact_check(axes, energies_bar[:, None], eigenvalue, check, exact_eigenvalue)
+        axes.legend(fontsize=7)
         for level in (-1.0, 1.0):
             axes.axhline(level, color="0.6", lw=0.8)
         axes.set(
             xlabel="Ebar", ylabel="lambda = dy'/dy", title=f"({label}) beta = {beta_deg:g} deg", ylim=(-3, 2)
         )
-        data[label] = {"beta_deg": beta_deg, **_fixed_points_json(points, energies_bar)}
+        data[label] = {
+            "beta_deg": beta_deg,
+            **_fixed_points_json(points, energies_bar),
+            **check.json(energies_bar),
+        }
     return figure, data
 
 
@@ -502,6 +613,11 @@ def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     )
     fine_energies = np.linspace(2.0, 6.0, 4 * resolution.energies)
     analytic = stability.regulated_fixed_points(PARAMS, beta, units.energy_from_bar(PARAMS, fine_energies))
+    reporter.stage("the exact plant's fixed points and eigenvalues")
+    by_eigenvalue = exact_stability.fixed_points(
+        exact_stability.ExactLoop.of(PARAMS, beta, "energy", units.energy_from_bar(PARAMS, energies_bar)),
+        stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
+    )
     exact_y, exact_xdot, exact_energy = (
         _row_median(values) for values in (exact.y, exact.xdot, exact.energy)
     )
@@ -534,7 +650,16 @@ def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         (right, _bar_speed(analytic.xdot), _bar_speed(exact_xdot), "xdotbar"),
     ):
         _plot_fixed_points(axes, fine_energies[:, None], analytic_values, analytic.stable, label="analytic")
-        axes.plot(_bar_energy(exact_energy), exact_values, "-", color=EXACT, lw=2, label="exact plant")
+        axes.plot(
+            _bar_energy(exact_energy), exact_values, "-", color=EXACT, lw=2, label="exact plant, reached"
+        )
+        _plot_exact_check(
+            axes,
+            _bar_energy(by_eigenvalue.energy),
+            np.full(by_eigenvalue.y.shape, np.nan),
+            ExactCheck(by_eigenvalue, np.ones(by_eigenvalue.y.shape, dtype=bool)),
+            _bar_height(by_eigenvalue.y) if name == "ybar" else _bar_speed(by_eigenvalue.xdot),
+        )
         axes.set(xlabel="Ebar", ylabel=f"{name} (fixed points; basin: initial {name}0)", xlim=(2, 6))
         axes.legend(fontsize=7)
     left.set_title("(a) apex height, beta = 26 deg (blue: basin after 50 strides)")
@@ -556,7 +681,66 @@ def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
             "xdotbar": _bar_speed(exact_xdot).tolist(),
         },
         "analytic": _fixed_points_json(analytic, fine_energies),
+        "exact_by_eigenvalue": _fixed_points_json(by_eigenvalue, energies_bar),
     }
+    return figure, data
+
+
+RANGE_EBAR = (0.8, 22.0)
+"""Goal energies Ebar scanned for the stable ranges (at beta = 30 deg the exact plant's reaches ~17)."""
+PAPER_RANGES = {20.0: (1.1, 3.4), 30.0: (3.45, 11.9)}
+"""The paper's stable Ebar ranges (section IV.C)."""
+RANGE_SOURCES = ("analytic", "energy", "energy_exact")
+"""analytic: the analytic regulated map; energy, energy_exact: the exact plant, planned on the analytic
+map (the paper's goal regulator) or on the exact map (the ideal regulator)."""
+
+
+@functools.lru_cache(maxsize=64)
+def stable_range(
+    kbar: float, zeta0: float, beta_deg: float, source: str, resolution: Resolution
+) -> tuple[float, float]:
+    """Stable Ebar range of ``source`` (RANGE_SOURCES) for the hopper (kbar, zeta0) at beta [deg]: the
+    analytic map's from its fixed points (stability.stable_energy_range), the exact plant's from its fixed
+    points and eigenvalues (exact_stability.stable_energy_range); (NaN, NaN) where none is stable."""
+    params = HopperParams.from_dimensionless(kbar, zeta0)
+    beta = math.radians(beta_deg)
+    energies = units.energy_from_bar(params, np.linspace(*RANGE_EBAR, resolution.exact_energies))
+    if source == "analytic":
+        ends = stability.stable_energy_range(params, beta, energies, bisections=resolution.bisections + 6)
+    else:
+        heights = stability.height_grid(params, beta, points=resolution.exact_heights)
+        regulator: exact_stability.Regulator = "energy" if source == "energy" else "energy_exact"
+        ends = exact_stability.stable_energy_range(
+            params, beta, regulator, energies, resolution.bisections, heights
+        )
+    low, high = (float(units.energy_to_bar(params, end)) for end in ends)
+    return low, high
+
+
+def ranges(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    """Stable Ebar ranges at beta = 20, 22, 26, 30 deg: the paper's, the analytic map's, and the exact
+    plant's under the paper's goal regulator (energy) and the ideal one (energy_exact)."""
+    betas = (20.0, 22.0, 26.0, 30.0)
+    figure = Figure(figsize=(8, 4.5))
+    axes = figure.subplots()
+    styles = {"paper": "0.6", "analytic": STABLE, "energy": "tab:orange", "energy_exact": EXACT}
+    data: dict[str, Any] = {"beta_deg": list(betas), "paper": {}, **{source: {} for source in RANGE_SOURCES}}
+    for row, beta_deg in enumerate(betas):
+        found = {"paper": PAPER_RANGES.get(beta_deg)}
+        for source in RANGE_SOURCES:
+            reporter.stage(f"beta = {beta_deg:g} deg: stable range of {source}")
+            found[source] = stable_range(36.0, 0.08, beta_deg, source, resolution)
+        for offset, (source, ends) in enumerate(found.items()):
+            data[source][f"{beta_deg:g}"] = ends
+            if ends is None:
+                continue
+            level = beta_deg + 0.35 * (offset - 1.5)
+            axes.plot(
+                ends, [level, level], "-", color=styles[source], lw=4, label=source if row == 0 else None
+            )
+    axes.set(xlabel="Ebar", ylabel="beta [deg] (bars offset per source)", title="stable energy ranges")
+    axes.set_yticks(betas)
+    axes.legend(fontsize=8)
     return figure, data
 
 
@@ -570,16 +754,16 @@ def fig11(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     figure = Figure(figsize=(14, 4.5))
     data: dict[str, Any] = {}
     for axes, (name, values) in zip(figure.subplots(1, 3), studies.items(), strict=True):
-        reporter.stage(f"varying {name}")
         ends = []
         data[name] = []
         for value in values:
+            reporter.stage(f"varying {name}: {value:g}, analytic and exact plant (energy_exact)")
             kbar = value if name == "kbar" else 36.0
             zeta0 = value if name == "zeta0" else 0.08
-            beta = math.radians(value if name == "beta_deg" else 26.0)
+            beta_deg = value if name == "beta_deg" else 26.0
             params = HopperParams.from_dimensionless(kbar, zeta0)
             points = stability.regulated_fixed_points(
-                params, beta, units.energy_from_bar(params, energies_bar)
+                params, math.radians(beta_deg), units.energy_from_bar(params, energies_bar)
             )
             stable = points.stable
             keep = stable.any(axis=1)
@@ -587,27 +771,34 @@ def fig11(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
             y = np.take_along_axis(units.height_to_bar(params, points.y), pick, 1)[:, 0]
             xdot = np.take_along_axis(units.speed_to_bar(params, points.xdot), pick, 1)[:, 0]
             y, xdot = np.where(keep, y, np.nan), np.where(keep, xdot, np.nan)
-            (line,) = axes.plot(xdot, y, lw=1.2, label=f"{name} = {value:g}")
+            analytic = stable_range(kbar, zeta0, beta_deg, "analytic", resolution)
+            exact = stable_range(kbar, zeta0, beta_deg, "energy_exact", resolution)
+            label = (
+                f"{name} = {value:g}: Ebar [{analytic[0]:.2f}, {analytic[1]:.2f}], "
+                f"exact [{exact[0]:.2f}, {exact[1]:.2f}]"
+            )
+            (line,) = axes.plot(xdot, y, lw=1.2, label=label)
             finite = np.flatnonzero(np.isfinite(y))
             if finite.size:
                 axes.plot(xdot[finite[[0, -1]]], y[finite[[0, -1]]], "o", color=line.get_color(), mfc="none")
                 ends.append((float(np.mean(xdot[finite])), float(np.mean(y[finite]))))
-            stable_range = (
-                [float(energies_bar[finite[0]]), float(energies_bar[finite[-1]])] if finite.size else None
-            )
             data[name].append(
                 {
                     "value": value,
                     "Ebar": energies_bar.tolist(),
                     "ybar": y.tolist(),
                     "xdotbar": xdot.tolist(),
-                    "stable_Ebar_range": stable_range,
+                    "stable_Ebar_range": list(analytic),
+                    "exact_stable_Ebar_range": list(exact),
                 }
             )
         if len(ends) >= 2:
             axes.annotate("", xy=ends[-1], xytext=ends[0], arrowprops={"arrowstyle": "->", "color": "0.3"})
         axes.set(xlabel="xdotbar*", ylabel="ybar*", title=f"stable fixed points, varying {name}")
-        axes.legend(fontsize=7)
+        axes.legend(fontsize=6)
+    figure.suptitle(
+        "analytic map's stable fixed points; legend: stable Ebar ranges, analytic and exact plant"
+    )
     return figure, data
 
 
@@ -638,6 +829,10 @@ def track_targets(
     y0 = np.full(speeds.shape, start[0])
     energy0 = params.m * (params.g * y0 + 0.5 * start[1] ** 2)
     return basins.basin(params, y0, energy0, policy, strides, progress)
+
+
+EDGE_HEIGHT, EDGE_SPEEDS, EDGE_STRIDES = 0.95, (1.5, 2.0, 2.5, 3.0, 3.5), 20
+"""Deadbeat towards an apex below r0 (m, m/s, strides): the edges of leg placement and of the fall."""
 
 
 def fig13(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
@@ -691,6 +886,17 @@ def fig13(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
             if stable.any()
             else None,
         }
+    reporter.stage(f"deadbeat towards y* = {EDGE_HEIGHT} m, below r0 (the edge of leg placement)")
+    edge = track_targets(PARAMS, "deadbeat", EDGE_HEIGHT, np.array(EDGE_SPEEDS), start, EDGE_STRIDES)
+    data["edge"] = {
+        "target_y": EDGE_HEIGHT,
+        "target_xdot": list(EDGE_SPEEDS),
+        "strides": EDGE_STRIDES,
+        "outcome": [basins.OUTCOMES[o] for o in edge.history.outcome],
+        "failure_stride": edge.history.failure_stride.tolist(),
+        "last_y": edge.history.y[-1].tolist(),
+        "last_xdot": edge.history.xdot[-1].tolist(),
+    }
     top.set(ylabel="|speed error| [%]", yscale="log", title="deadbeat vs PD, 50 strides (x: loses stability)")
     bottom.set(xlabel="xdotbar*", ylabel="|height error| [%]", yscale="log")
     top.legend(fontsize=8)
@@ -706,6 +912,7 @@ FIGURES: dict[str, Callable[[Resolution, Reporter], tuple[Figure, dict[str, Any]
     "fig09": fig09,
     "fig10": fig10,
     "fig11": fig11,
+    "ranges": ranges,
     "fig13": fig13,
 }
 
@@ -739,12 +946,14 @@ def main(argv: list[str]) -> int:
     try:
         output_directory(args.out)
         resolution = FINE if args.fine else DEFAULT
-        for name in args.only or list(FIGURES):
-            write_figure(name, args.out, resolution)
+        documents = {name: write_figure(name, args.out, resolution) for name in args.only or list(FIGURES)}
+        table = paper_comparison.rows(documents, PARAMS)
+        (args.out / "comparison.md").write_text(paper_comparison.markdown(table))
     except OutputError as error:
         print(f"tdslip figures: {error}", file=sys.stderr)
         return 1
     except OSError as error:
         print(f"tdslip figures: {write_failed(error)}", file=sys.stderr)
         return 1
+    print(paper_comparison.text(table), end="")
     return 0

@@ -38,6 +38,7 @@ from tdslip_ros.analysis.compare import (
 from tdslip_ros.analysis.reader import Run, RunReadError, read_run
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import units
+from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
 
 FIGURES = {
@@ -201,9 +202,9 @@ def _outcome_text(run: Run) -> str:
 
 def _policy_text(comparison: Comparison) -> str:
     policy, params = comparison.policy, comparison.run.params
-    if policy.name in ("open_loop", "energy"):
+    if policy.name in FIXED_ANGLE_POLICIES:
         detail = f"beta = {math.degrees(policy.touchdown_angle):.2f} deg, "
-        if policy.name == "energy":
+        if policy.name != "open_loop":  # energy, energy_exact
             ebar = units.energy_to_bar(params, policy.target_energy)
             detail += f"E* = {policy.target_energy:.1f} J (Ebar {ebar:.4f})"
         else:
@@ -318,9 +319,11 @@ def _parser() -> argparse.ArgumentParser:
         "policy settings (default: as stored in the bag, else the recording and config/controller.yaml)"
     )
     policy.add_argument("--policy", dest="name", choices=POLICIES)
-    policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy)")
+    policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy, energy_exact)")
     policy.add_argument("--touchdown-power", type=float, help="hip power at touchdown [W] (open_loop)")
-    policy.add_argument("--target-energy", type=float, help="[J] (energy; default: initial apex energy)")
+    policy.add_argument(
+        "--target-energy", type=float, help="[J] (energy, energy_exact; default: initial apex energy)"
+    )
     policy.add_argument("--target-height", type=float, help="[m] (deadbeat, pd)")
     policy.add_argument("--target-speed", type=float, help="[m/s] (deadbeat, pd)")
     policy.add_argument("--pd-kp", type=float, help="[rad/(m/s)] (pd)")

@@ -77,7 +77,8 @@ them, including the controllers of :mod:`tdslip_ros.model.controllers`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import enum
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple
 
@@ -177,15 +178,88 @@ class ParamArrays:
         )
 
 
-class CommandArrays(NamedTuple):
-    """The fields of :class:`StanceCommand` as broadcastable arrays (rad, N m, s)."""
+class NoCommand(enum.StrEnum):
+    """Why a policy has no command for an apex (codes per lane: the index in NO_COMMAND_KINDS)."""
+
+    LEG_PLACEMENT = "leg_placement"  # the leg cannot be placed at the angle (dynamics.can_place_leg)
+    NO_LIFTOFF = "no_liftoff"  # the map the policy plans with predicts no liftoff
+    PREDICTED_FALL = "predicted_fall"  # ... predicts a fall with the policy's command
+    PREDICTED_REVERSAL = "predicted_reversal"  # ... predicts a reversal (or touchdown swings back)
+    NO_SOLUTION = "no_solution"  # no torque solves the policy's equations with the body swinging forward
+
+    def describe(self) -> str:
+        return _NO_COMMAND_TEXT[self]
+
+
+_NO_COMMAND_TEXT = {
+    NoCommand.LEG_PLACEMENT: "the leg cannot be placed at the touchdown angle from this apex "
+    "(dynamics.can_place_leg)",
+    NoCommand.NO_LIFTOFF: "the map the policy plans with predicts no liftoff",
+    NoCommand.PREDICTED_FALL: "the map the policy plans with predicts a fall with its command",
+    NoCommand.PREDICTED_REVERSAL: "the map the policy plans with predicts a reversal with its command",
+    NoCommand.NO_SOLUTION: "no torque solves the policy's equations with the body swinging forward",
+}
+NO_COMMAND_KINDS: tuple[NoCommand, ...] = tuple(NoCommand)
+HAS_COMMAND = -1
+"""no_command code of a lane that has its command."""
+_NO_COMMAND_OF_FAILURE = {
+    FailureKind.TOE_STUBBING: NoCommand.LEG_PLACEMENT,
+    FailureKind.NO_LIFTOFF: NoCommand.NO_LIFTOFF,
+    FailureKind.FALL: NoCommand.PREDICTED_FALL,
+    FailureKind.REVERSAL: NoCommand.PREDICTED_REVERSAL,
+}
+
+
+def no_command_code(kind: NoCommand) -> int:
+    return NO_COMMAND_KINDS.index(kind)
+
+
+def no_command_of_failure(failure: ArrayLike) -> Array:
+    """no_command codes for map failure codes (events.failure_code); HAS_COMMAND where none."""
+    codes = np.full(np.shape(failure), HAS_COMMAND)
+    for kind, reason in _NO_COMMAND_OF_FAILURE.items():
+        codes = np.where(np.asarray(failure) == failure_code(kind), no_command_code(reason), codes)
+    return codes
+
+
+class NoCommandError(ParameterError):
+    """A policy has no command for the apex; ``reason`` says why."""
+
+    def __init__(self, reason: NoCommand) -> None:
+        super().__init__(f"no command ({reason.value}): {reason.describe()}")
+        self.reason = reason
+
+
+@dataclass(frozen=True, eq=False)
+class CommandArrays:
+    """The fields of :class:`StanceCommand` as broadcastable arrays (rad, N m, s).
+
+    Iterates (and unpacks) as (touchdown_angle, tau0, t_f). ``no_command`` is set by the policies
+    (:mod:`tdslip_ros.model.controllers`): per lane HAS_COMMAND, or the code of the reason
+    (:class:`NoCommand`) why the policy has none there, where the fields are NaN.
+    """
 
     touchdown_angle: Array
     tau0: Array
     t_f: Array
+    no_command: Array | None = None
+
+    def __iter__(self) -> Iterator[Array]:
+        return iter((self.touchdown_angle, self.tau0, self.t_f))
+
+    def reason(self, index: int | tuple[int, ...] = ()) -> NoCommand | None:
+        """Why lane ``index`` has no command, or None where it has one (or no reason was given)."""
+        if self.no_command is None:
+            return None
+        code = int(np.asarray(self.no_command)[index])
+        return None if code == HAS_COMMAND else NO_COMMAND_KINDS[code]
 
     def command(self, index: int | tuple[int, ...] = ()) -> StanceCommand:
-        """One lane as a validated StanceCommand."""
+        """One lane as a validated StanceCommand; NoCommandError (a ParameterError) where the policy has
+        none."""
+        reason = self.reason(index)
+        if reason is not None:
+            raise NoCommandError(reason)
         return StanceCommand(*(float(np.real(np.asarray(field)[index])) for field in self))
 
 

@@ -9,15 +9,20 @@ that the analytic map plans, stride by stride, until it fails or the strides run
   point reached (the definition the recorded-run analysis uses too);
 * ``sustained``: no failure, but not converged in the strides given;
 * a failure of the exact plant by kind (:class:`~tdslip_ros.model.events.FailureKind`), the stride it
-  happened in, or ``no_command`` where the analytic policy found no command for the apex (no liftoff
-  predicted, say); an apex too low to place the leg at the commanded angle counts as ``toe_stubbing``,
-  as the exact plant would report it;
+  happened in, or ``no_command`` where the policy found no command for the apex (its map predicts a
+  failure, say); an apex too low to place the leg at the policy's angle (below the touchdown height, or
+  within :data:`~tdslip_ros.model.dynamics.PLACEMENT_LEAD_TIME` of fall above it: the policy's
+  ``leg_placement``) counts as ``toe_stubbing``, as the exact plant would report it;
 * ``impossible``: an initial energy below m g y (no real forward speed).
 
 The regulators are the paper's: open loop (section III, fixed beta and touchdown power alpha, eq. 26)
 and, for the exact plant, energy regulation that takes the energy of the first stride as its goal
 (section IV.B): each stride's torque aims the analytic map's next apex energy at that goal rather than at
 the current apex energy, so that the map's errors do not accumulate from stride to stride.
+
+A horizon says what happens within its strides: a slow but stable fixed point (|lambda| near 1) looks
+``sustained``. Stability verdicts come from the fixed points and their eigenvalues
+(:mod:`tdslip_ros.model.exact_stability`); the basins are figures and the cross-check.
 """
 
 from __future__ import annotations
@@ -28,12 +33,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import Array, ArrayLike, CommandArrays, speed_from_energy
+from tdslip_ros.model.analytic import (
+    Array,
+    ArrayLike,
+    CommandArrays,
+    NoCommand,
+    no_command_code,
+    speed_from_energy,
+)
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.stability import longest_run_range
 
 CONVERGENCE_TOLERANCE = 1e-4
 """Apex change (max of |d ybar|, |d xdotbar|) below which a lane counts as settled (the paper's 1e-4)."""
@@ -53,6 +64,7 @@ OUTCOMES: tuple[str, ...] = (
 CONVERGED, SUSTAINED = 0, 1
 NO_COMMAND, IMPOSSIBLE = OUTCOMES.index("no_command"), OUTCOMES.index("impossible")
 _FAILURE_OFFSET = 2  # OUTCOMES index of FAILURE_KINDS[0]
+_LEG_PLACEMENT = no_command_code(NoCommand.LEG_PLACEMENT)
 
 StancePolicy = Callable[[int, Array, Array, Array], CommandArrays]
 """policy(stride, y, xdot, lanes) -> commands for the lanes still hopping (``lanes``: their flat indices
@@ -102,7 +114,10 @@ def run_strides(
         if alive.size:
             command = policy(stride, y[stride, alive], xdot[stride, alive], alive)
             angle, tau0, t_f = (np.broadcast_to(field, alive.shape) for field in command)
-            placed = y[stride, alive] >= dynamics.touchdown_height(params, np.cos(angle))
+            with np.errstate(invalid="ignore"):
+                placed = ~(y[stride, alive] < dynamics.touchdown_height(params, np.cos(angle)))
+            if command.no_command is not None:
+                placed &= np.broadcast_to(command.no_command, alive.shape) != _LEG_PLACEMENT
             planned = placed & np.isfinite(angle) & np.isfinite(tau0) & np.isfinite(t_f)
             lanes = alive[planned]
             step = batch_apex_return_map(
@@ -266,27 +281,11 @@ def exact_regulated_fixed_points(
     strides: int = REGULATED_STRIDES,
     progress: Progress | None = None,
 ) -> Basin:
-    """The exact plant's energy-regulated fixed points: a basin over the grid (energies [J]) x (heights
-    [m]), from which the converged lanes give, per goal energy, the fixed point(s) the plant reaches."""
+    """The fixed points the energy-regulated exact plant reaches within ``strides``: a basin over the grid
+    (energies [J]) x (heights [m]), whose converged lanes give, per goal energy, the fixed point(s) reached.
+    A horizon verdict: the stability verdict itself comes from the fixed points and their eigenvalues
+    (:mod:`tdslip_ros.model.exact_stability`)."""
     energy_grid, height_grid = np.meshgrid(
         np.asarray(energies, float), np.asarray(heights, float), indexing="ij"
     )
     return regulated_basin(params, beta, height_grid, energy_grid, strides, progress)
-
-
-def exact_stable_energy_range(
-    params: HopperParams,
-    beta: float,
-    energies: ArrayLike,
-    heights: ArrayLike,
-    bisections: int = 8,
-    strides: int = REGULATED_STRIDES,
-) -> tuple[float, float]:
-    """Goal energies [J] for which the energy-regulated exact plant converges from at least one of the
-    initial ``heights`` [m]: the longest run of ``energies``, its ends refined by bisection."""
-
-    def converges(goal: Array) -> Array:
-        grid = exact_regulated_fixed_points(params, beta, goal, heights, strides)
-        return np.asarray(np.any(grid.outcome == CONVERGED, axis=1))
-
-    return longest_run_range(energies, converges, bisections)

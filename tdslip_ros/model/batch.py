@@ -62,8 +62,9 @@ class BatchStrideResult:
     """One stride for every lane (arrays of the broadcast input shape).
 
     y, xdot: next apex [m, m/s], NaN where the lane failed; failure: code per lane (-1 none);
-    hip_work, damping_loss, spring_loss [J]: the stance's energy flows, NaN where the leg did
-    not lift off; stride_time [s]: apex to next apex, NaN on failure.
+    hip_work, damping_loss, spring_loss [J]: the stance's energy flows, and stance_time [s] its
+    duration (touchdown to liftoff), NaN where the leg did not lift off; stride_time [s]: apex to
+    next apex, NaN on failure.
     """
 
     y: FloatArray
@@ -72,6 +73,7 @@ class BatchStrideResult:
     hip_work: FloatArray
     damping_loss: FloatArray
     spring_loss: FloatArray
+    stance_time: FloatArray
     stride_time: FloatArray
 
 
@@ -231,7 +233,8 @@ def _stride(
     lanes = y.size
     failure = np.full(lanes, NO_FAILURE_CODE, dtype=np.int64)
     out = {
-        name: np.full(lanes, np.nan) for name in ("y", "xdot", "hip_work", "damping_loss", "spring_loss", "t")
+        name: np.full(lanes, np.nan)
+        for name in ("y", "xdot", "hip_work", "damping_loss", "spring_loss", "stance", "t")
     }
     sin_td, cos_td = np.sin(angle), np.cos(angle)
     y_td = dynamics.touchdown_height(params, cos_td)
@@ -267,6 +270,7 @@ def _stride(
     out["hip_work"][lanes_lo] = y_end[4, lifted]
     out["damping_loss"][lanes_lo] = y_end[5, lifted]
     out["spring_loss"][lanes_lo] = dynamics.spring_energy(params, r)
+    out["stance"][lanes_lo] = s_end[lifted]
     # The same rules, in the same order, as dynamics.takeoff_failure.
     falls = ydot_lo <= 0.0
     reversals = ~falls & (xdot_lo <= 0.0)
@@ -292,6 +296,7 @@ def _stride(
         hip_work=out["hip_work"],
         damping_loss=out["damping_loss"],
         spring_loss=out["spring_loss"],
+        stance_time=out["stance"],
         stride_time=out["t"],
     )
 

@@ -2,11 +2,22 @@
 
 Every policy returns :class:`~tdslip_ros.model.analytic.CommandArrays` (touchdown angle [rad], ramp torque
 tau0 [N m], ramp duration t_f [s]) broadcast over the inputs; ``.command()`` turns one lane into a validated
-:class:`~tdslip_ros.model.params.StanceCommand`. Lanes where no command exists (the apex is too low to place
-the leg at the angle asked for, or the analytic map predicts no liftoff) get NaN fields; the analytic map
-reports such lanes as failures. ``t_f`` is always the liftoff time that the analytic map predicts *for the
-returned command itself* (a fixed point t_f = t_lo(t_f), since the torque correction of p_hat depends on
-t_f), so the map evaluated with the command is exactly the map the policy planned with.
+:class:`~tdslip_ros.model.params.StanceCommand`. A returned command always maps, in the map the policy
+planned with, to a valid stride: where no such command exists the lane's fields are NaN and its
+``no_command`` code names the reason (:class:`~tdslip_ros.model.analytic.NoCommand`: the leg cannot be
+placed, no liftoff, a predicted fall or reversal, no forward torque solution), and ``.command()`` raises
+:class:`~tdslip_ros.model.analytic.NoCommandError` with it. Touchdown angles are planned only where
+:func:`~tdslip_ros.model.dynamics.can_place_leg` holds, the test the plant applies to every command.
+
+``t_f`` is the liftoff time that the map predicts *for the returned command itself* (a fixed point
+t_f = t_lo(t_f), since the torque correction of p_hat depends on t_f), so the map evaluated with the command
+is exactly the map the policy planned with. The ideal regulator :func:`exact_energy_regulation`
+(``energy_exact``) plans on the exact plant's map instead, with t_f the stance duration the plant produces.
+
+Energy regulation has two torque roots. The hip energy E_tau = tau0 e(tau0), e the ramp-weighted mean
+angular rate, is close to quadratic in tau0 because the torque's own momentum correction moves e; the
+root the policies return is the *forward* one, where the body swings forward on average (e < 0, so forward
+thrust tau0 < 0 does positive work). The other root drives the body backward and the map rejects it.
 
 The torque-based policies are complex-step safe (for :func:`~tdslip_ros.model.analytic.map_jacobian`).
 """
@@ -20,21 +31,26 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model import units
+from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic import (
+    HAS_COMMAND,
     Array,
     ArrayLike,
     CommandArrays,
     LiftoffMethod,
+    NoCommand,
     ParamArrays,
     Stance,
+    Stride,
     approximate_map,
     descent_map,
     lanes_converged,
+    no_command_code,
+    no_command_of_failure,
     stance_map,
 )
 from tdslip_ros.model.events import NO_FAILURE_CODE
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.params import HopperParams, ParameterError
 
 FIXED_POINT_TOLERANCE = 1e-13
 """Relative change of t_f and tau0 below which the policies' fixed-point iterations stop."""
@@ -49,11 +65,40 @@ DEADBEAT_TORQUE_TRUST = 0.02
 DEADBEAT_ITERATIONS = 40
 """Bound on the deadbeat refinement's steps (about 5 where the target is reachable, 30 when bisecting)."""
 ANGLE_MARGIN = 1e-6
-"""rad kept from the ends of the admissible touchdown interval (leg placement, pi/2)."""
+"""rad kept inside the ends of the admissible touchdown interval, so that rounding cannot take an angle
+at its end out of it (the physical margin is dynamics.PLACEMENT_LEAD_TIME)."""
+EXACT_ENERGY_TOLERANCE = 1e-11
+"""Dimensionless energy E/(m g r0) to which energy_exact meets its target on the exact map."""
+EXACT_STANCE_TOLERANCE = 1e-10
+"""|t_f - stance duration| in units of sqrt(m/k) to which energy_exact ends the ramp at liftoff."""
+EXACT_ITERATIONS = 12
+"""Bound on energy_exact's Newton steps (3-4 from the analytic plan)."""
+EXACT_JACOBIAN_STEP = 1e-6
+"""Forward-difference step of energy_exact's Jacobian in the scaled (tau0, t_f): large against the exact
+map's integration error (~1e-12), small against the curvature."""
+EXACT_MAP_TOLERANCE = 1e-12
+"""rtol = atol of the exact map energy_exact plans on (the batched engine's default)."""
+
+_NO_LIFTOFF = no_command_code(NoCommand.NO_LIFTOFF)
+_NO_SOLUTION = no_command_code(NoCommand.NO_SOLUTION)
+_LEG_PLACEMENT = no_command_code(NoCommand.LEG_PLACEMENT)
+_PREDICTED_REVERSAL = no_command_code(NoCommand.PREDICTED_REVERSAL)
 
 
 TauRule = Callable[[Stance, Array, Array], Array]
 """tau0 from a planned stance, the touchdown angular rate and the ramp duration t_f."""
+
+
+class _Plan(NamedTuple):
+    """A planned (tau0, t_f) per lane and the no_command code (HAS_COMMAND where planned; NaN fields else)."""
+
+    tau0: Array
+    t_f: Array
+    reason: Array
+
+    def pick(self, other: _Plan, mask: Array) -> _Plan:
+        """Lanes of ``other`` where mask is set, of self elsewhere."""
+        return _Plan(*(np.where(mask, o, s) for s, o in zip(self, other, strict=True)))
 
 
 def _lane_shape(params: ParamArrays, *arrays: Array) -> tuple[int, ...]:
@@ -68,10 +113,10 @@ def _torque_scales(params: ParamArrays, shape: tuple[int, ...]) -> Array:
     )
 
 
-def _probes(count: int, shape: tuple[int, ...]) -> Array:
-    """A point and its JACOBIAN_STEP shifts along each of ``count`` coordinates: (count + 1, count, 1...)."""
+def _probes(count: int, shape: tuple[int, ...], step: float = JACOBIAN_STEP) -> Array:
+    """A point and its ``step`` shifts along each of ``count`` coordinates: (count + 1, count, 1...)."""
     directions = np.vstack([np.zeros(count), np.eye(count)])
-    return JACOBIAN_STEP * directions.reshape(count + 1, count, *(1,) * len(shape))
+    return step * directions.reshape(count + 1, count, *(1,) * len(shape))
 
 
 def _solve2(matrix: Array, vector: Array) -> Array:
@@ -84,6 +129,18 @@ def _solve2(matrix: Array, vector: Array) -> Array:
     return np.asarray(np.stack(solution) / determinant)
 
 
+def _placeable(params: ParamArrays, y: Array, angle: Array) -> Array:
+    """Where the leg can be placed at ``angle`` from the apex height y (dynamics.can_place_leg)."""
+    return np.asarray(
+        dynamics.can_place_leg(params.r0, params.g, np.real(y), np.cos(np.real(angle))), dtype=bool
+    )
+
+
+def _require_at_least(name: str, value: int, least: int) -> None:
+    if value < least:
+        raise ParameterError(f"{name} must be at least {least}, got {value!r}")
+
+
 def _planned_stance(
     params: ParamArrays,
     y: Array,
@@ -93,31 +150,43 @@ def _planned_stance(
     corrections: int,
     liftoff: LiftoffMethod,
     max_iterations: int = FIXED_POINT_ITERATIONS,
-) -> tuple[Array, Array]:
-    """Solve (tau0, t_f) = (tau0_rule(stance), t_lo) for the stance they produce; returns (tau0, t_f).
+    start: tuple[Array, Array] | None = None,
+) -> _Plan:
+    """Solve (tau0, t_f) = (tau0_rule(stance), t_lo) for the stance they produce.
 
-    Lanes without liftoff, or that do not converge in ``max_iterations``, get NaN.
-    Starts from the unforced stance (tau0 = 0, corrections = 0, where t_lo does not depend on t_f; starting
-    from the rule's tau0 for it instead loses about 2 % of the solvable lanes). The
-    plain iteration x <- G(x) contracts only linearly (about -1/3 per step for energy regulation, where tau0
-    moves t_lo and the losses through p_hat), so this is Newton's method on G(x) - x = 0 per lane,
-    x = (tau0, t_f) scaled by :func:`_torque_scales`. G is evaluated at x and at x + JACOBIAN_STEP e_j in
-    one vectorised call (the three points are a leading axis), which gives its Jacobian by forward
-    differences; that Jacobian's error of ~JACOBIAN_STEP only slows the final convergence to a rate of about
-    that size. Where the Newton step is not finite the plain step is taken. Under a complex step the
-    Jacobian is that of the real parts; the (linear) imaginary parts then converge at the same rate.
+    Lanes where the leg cannot be placed, without liftoff, or that do not converge in ``max_iterations``
+    get NaN and their reason. By default the iteration starts from the unforced stance (tau0 = 0,
+    corrections = 0, where t_lo does not depend on t_f; starting from the rule's tau0 for it instead loses
+    about 2 % of the solvable lanes); ``start`` gives another (tau0, t_f). The plain iteration x <- G(x)
+    contracts only linearly (about -1/3 per step for energy regulation, where tau0 moves t_lo and the losses
+    through p_hat), so this is Newton's method on G(x) - x = 0 per lane, x = (tau0, t_f) scaled by
+    :func:`_torque_scales`. G is evaluated at x and at x + JACOBIAN_STEP e_j in one vectorised call (the
+    three points are a leading axis), which gives its Jacobian by forward differences; that Jacobian's error
+    of ~JACOBIAN_STEP only slows the final convergence to a rate of about that size. Where the Newton step
+    is not finite the plain step is taken. Under a complex step the Jacobian is that of the real parts; the
+    (linear) imaginary parts then converge at the same rate.
     """
     touchdown = descent_map(params, y, xdot, angle)
+    placeable = _placeable(params, y, angle)
     unforced = stance_map(params, angle, touchdown.rdot, touchdown.thetadot, 0.0, 1.0, 0, liftoff)
     with np.errstate(invalid="ignore", divide="ignore"):
         # The rule's own arrays (targets, powers) may add lanes: the lanes are those of its result too.
         lanes = np.zeros_like(tau0_rule(unforced, touchdown.thetadot, unforced.t_lo))
-    shape = _lane_shape(params, touchdown.rdot, lanes)
+    shape = _lane_shape(params, touchdown.rdot, lanes, placeable)
     scales = _torque_scales(params, shape)
-    valid = np.broadcast_to((touchdown.failure == NO_FAILURE_CODE) & unforced.liftoff_exists, shape)
+    reason = np.select(
+        [~placeable, touchdown.failure != NO_FAILURE_CODE, ~unforced.liftoff_exists],
+        [_LEG_PLACEMENT, _PREDICTED_REVERSAL, _NO_LIFTOFF],  # the touchdown's only other failure
+        HAS_COMMAND,
+    )
+    reason = np.broadcast_to(reason, shape)
     x = np.stack(np.broadcast_arrays(lanes, unforced.t_lo, np.zeros(shape))[:2]) / scales
+    if start is not None:
+        x = np.stack(np.broadcast_arrays(*start, np.zeros(shape))[:2]) / scales
+    lifts_off = np.ones(shape, dtype=bool)
+    converged = np.zeros(shape, dtype=bool)
     probes = _probes(2, shape)
-    with np.errstate(invalid="ignore", divide="ignore"):  # failed lanes carry NaN
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # failed or wild lanes: NaN, inf
         for _ in range(max_iterations):
             tau0, t_f = (x + probes).swapaxes(0, 1) * scales[:, None]
             stance = stance_map(
@@ -129,11 +198,12 @@ def _planned_stance(
                 ).swapaxes(0, 1)
                 / scales
             )
-            valid = valid & stance.liftoff_exists[0]
+            # Without corrections the stance does not depend on (tau0, t_f): no leading axis of points.
+            lifts_off = lifts_off & np.broadcast_to(stance.liftoff_exists, (3, *shape))[0]
             converged = lanes_converged(mapped[0, 0], x[0], FIXED_POINT_TOLERANCE) & lanes_converged(
                 mapped[0, 1], x[1], FIXED_POINT_TOLERANCE
             )
-            if np.all(converged | ~valid):
+            if np.all(converged | ~lifts_off | (reason != HAS_COMMAND)):
                 x = mapped[0]
                 break
             residual = mapped[0] - x
@@ -143,8 +213,33 @@ def _planned_stance(
             )
             newton = -_solve2(slope, residual)
             x = x + np.where(np.isfinite(newton), newton, residual)
-    valid = valid & converged  # a lane that did not converge has no command
-    return np.where(valid, x[0] * scales[0], np.nan), np.where(valid, x[1] * scales[1], np.nan)
+    reason = np.select(
+        [reason != HAS_COMMAND, ~lifts_off, ~converged], [reason, _NO_LIFTOFF, _NO_SOLUTION], HAS_COMMAND
+    )
+    solved = reason == HAS_COMMAND
+    return _Plan(
+        np.where(solved, x[0] * scales[0], np.nan), np.where(solved, x[1] * scales[1], np.nan), reason
+    )
+
+
+def _checked(
+    params: ParamArrays,
+    y: Array,
+    xdot: Array,
+    angle: Array,
+    plan: _Plan,
+    corrections: int,
+    liftoff: LiftoffMethod,
+) -> tuple[CommandArrays, Stride]:
+    """The planned commands with every lane the analytic map rejects turned into a named no-command, and
+    the map's stride with them."""
+    planned = CommandArrays(*np.broadcast_arrays(angle, plan.tau0, plan.t_f))
+    stride = approximate_map(params, y, xdot, planned, corrections, liftoff)
+    reason = np.broadcast_to(plan.reason, stride.failure.shape)
+    reason = np.where(reason == HAS_COMMAND, no_command_of_failure(stride.failure), reason)
+    keep = reason == HAS_COMMAND
+    angle_, tau0, t_f = (np.where(keep, field, np.nan) for field in planned)
+    return CommandArrays(angle_, tau0, t_f, no_command=reason), stride
 
 
 def _as_arrays(*values: ArrayLike) -> list[Array]:
@@ -164,16 +259,21 @@ def ramp_to_liftoff(
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
 ) -> CommandArrays:
-    """A given touchdown angle and ramp torque tau0, with t_f the liftoff time the map predicts for them."""
+    """A given touchdown angle and ramp torque tau0, with t_f the liftoff time the map predicts for them.
+
+    Not a policy but the paper's ramp for studies of the map itself (analytic_accuracy): the command is
+    returned wherever t_f exists, also where the map then predicts a fall or a reversal, so that the
+    failures of the analytic and the exact map can be compared.
+    """
+    params = ParamArrays.of(params)
     y_, xdot_, angle_, tau0_ = _as_arrays(y, xdot, angle, tau0)
 
     def tau0_rule(stance: Stance, thetadot_td: Array, t_f: Array) -> Array:
         return tau0_ + np.zeros_like(t_f)
 
-    tau0_out, t_f = _planned_stance(
-        ParamArrays.of(params), y_, xdot_, angle_, tau0_rule, corrections, liftoff
-    )
-    return CommandArrays(np.broadcast_to(angle_, np.shape(t_f)), tau0_out, t_f)
+    plan = _planned_stance(params, y_, xdot_, angle_, tau0_rule, corrections, liftoff)
+    angle_out = np.where(plan.reason == HAS_COMMAND, angle_, np.nan)
+    return CommandArrays(angle_out, plan.tau0, plan.t_f, no_command=plan.reason)
 
 
 def fixed_power(
@@ -188,16 +288,19 @@ def fixed_power(
     """Open-loop regime of section III: theta_td = beta, tau0 = C/thetadot_td (eq. 26), t_f = predicted t_lo.
 
     ``alpha`` is the dimensionless touchdown power C/(m g sqrt(g r0)); C = tau0 thetadot_td > 0 is the hip
-    power at touchdown (thetadot_td < 0, so tau0 < 0: forward thrust).
+    power at touchdown (thetadot_td < 0, so tau0 < 0: forward thrust). t_f is the paper's choice, the
+    liftoff time the analytic map predicts, not the stance duration the plant will produce (on the exact
+    plant the ramp then ends a little before or after liftoff; docs/paper.md quantifies the difference).
     """
+    arrays = ParamArrays.of(params)
     y_, xdot_, beta_ = _as_arrays(y, xdot, beta)
     power = np.asarray(units.power_from_alpha(params, np.asarray(alpha, dtype=float)))
 
     def tau0_rule(stance: Stance, thetadot_td: Array, t_f: Array) -> Array:
         return power / thetadot_td
 
-    tau0, t_f = _planned_stance(ParamArrays.of(params), y_, xdot_, beta_, tau0_rule, corrections, liftoff)
-    return CommandArrays(np.broadcast_to(beta_, np.shape(tau0)), tau0, t_f)
+    plan = _planned_stance(arrays, y_, xdot_, beta_, tau0_rule, corrections, liftoff)
+    return _checked(arrays, y_, xdot_, beta_, plan, corrections, liftoff)[0]
 
 
 def _energy_tau0_rule(params: ParamArrays, y: Array, xdot: Array, target_energy: ArrayLike | None) -> TauRule:
@@ -206,10 +309,107 @@ def _energy_tau0_rule(params: ParamArrays, y: Array, xdot: Array, target_energy:
     change = np.zeros_like(energy) if target_energy is None else np.asarray(target_energy) - energy
 
     def tau0_rule(stance: Stance, thetadot_td: Array, t_f: Array) -> Array:
-        energy_per_torque = stance.approximation.hip_energy(1.0, t_f, stance.t_lo)
-        return (change + stance.energy_loss) / energy_per_torque
+        return (change + stance.energy_loss) / _energy_per_torque(stance, t_f)
 
     return tau0_rule
+
+
+def _energy_per_torque(stance: Stance, t_f: Array) -> Array:
+    """e = E_tau/tau0 of a stance: negative while the body swings forward over the ramp."""
+    return stance.approximation.hip_energy(1.0, t_f, stance.t_lo)
+
+
+def _planned_energy_per_torque(
+    params: ParamArrays,
+    y: Array,
+    xdot: Array,
+    angle: Array,
+    tau0: Array,
+    t_f: Array,
+    corrections: int,
+    liftoff: LiftoffMethod,
+) -> Array:
+    """Real part of e for the stance of (tau0, t_f) from the apex."""
+    touchdown = descent_map(params, y, xdot, angle)
+    stance = stance_map(params, angle, touchdown.rdot, touchdown.thetadot, tau0, t_f, corrections, liftoff)
+    return np.real(_energy_per_torque(stance, np.asarray(t_f)))
+
+
+def _regulated_plan(
+    params: ParamArrays,
+    y: Array,
+    xdot: Array,
+    angle: Array,
+    target_energy: ArrayLike | None,
+    corrections: int,
+    liftoff: LiftoffMethod,
+    max_iterations: int,
+) -> _Plan:
+    """Energy regulation's (tau0, t_f) on the forward root (e < 0, module docstring).
+
+    Newton from the unforced stance finds the forward root wherever the unforced stance swings forward
+    under the corrections (e(0) < 0). Near the highest apex at which the leg still swings forward,
+    gravity's correction makes e(0) >= 0 and Newton finds the backward root tau_b. There e is close to
+    linear in tau0, e = e1 (tau0 - tau_e), so the two roots of tau0 e(tau0) = E_loss + dE sum to tau_e:
+    Newton starts again from tau_e - tau_b, next to the forward root. A lane without a forward root gets
+    no_solution.
+    """
+    rule = _energy_tau0_rule(params, y, xdot, target_energy)
+    plan = _planned_stance(params, y, xdot, angle, rule, corrections, liftoff, max_iterations)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        rate = _planned_energy_per_torque(params, y, xdot, angle, plan.tau0, plan.t_f, corrections, liftoff)
+        backward = rate >= 0.0
+        if not np.any(backward):
+            return plan
+        tau0 = np.real(plan.tau0)
+        at_zero = _planned_energy_per_torque(
+            params, y, xdot, angle, np.zeros_like(tau0), plan.t_f, corrections, liftoff
+        )
+        root_sum = tau0 - rate * tau0 / (rate - at_zero)  # tau_e
+        # Only the backward lanes start again, as a flat batch of their own.
+        shape = backward.shape
+        lanes = ParamArrays(*(np.broadcast_to(field, shape)[backward] for field in vars(params).values()))
+        y_, xdot_, angle_, start, t_f = (
+            np.broadcast_to(value, shape)[backward] for value in (y, xdot, angle, root_sum - tau0, plan.t_f)
+        )
+        goal = None if target_energy is None else np.broadcast_to(target_energy, shape)[backward]
+        again = _planned_stance(
+            lanes,
+            y_,
+            xdot_,
+            angle_,
+            _energy_tau0_rule(lanes, y_, xdot_, goal),
+            corrections,
+            liftoff,
+            max_iterations,
+            (start, t_f),
+        )
+        forward = (
+            _planned_energy_per_torque(lanes, y_, xdot_, angle_, again.tau0, again.t_f, corrections, liftoff)
+            < 0.0
+        )
+    unsolved = _Plan(*(np.asarray(value) for value in (np.nan, np.nan, _NO_SOLUTION)))
+    again = again.pick(unsolved, ~forward & (again.reason == HAS_COMMAND))
+    fields_ = [np.array(np.broadcast_to(field, shape)) for field in plan]
+    for field, value in zip(fields_, again, strict=True):
+        field[backward] = value
+    return _Plan(*fields_)
+
+
+def _regulated(
+    params: ParamArrays,
+    y: Array,
+    xdot: Array,
+    angle: Array,
+    target_energy: ArrayLike | None,
+    corrections: int,
+    liftoff: LiftoffMethod,
+    max_iterations: int = FIXED_POINT_ITERATIONS,
+) -> tuple[CommandArrays, Stride]:
+    """Energy regulation's commands and the map's stride with them."""
+    _require_at_least("max_iterations", max_iterations, 1)
+    plan = _regulated_plan(params, y, xdot, angle, target_energy, corrections, liftoff, max_iterations)
+    return _checked(params, y, xdot, angle, plan, corrections, liftoff)
 
 
 def energy_regulation(
@@ -228,25 +428,125 @@ def energy_regulation(
     With ``target_energy`` E* [J], E_tau = E_loss + (E* - E_a): the energy of the next apex predicted by the
     analytic map is E* (this is the regulator the exact-plant studies use, with the first stride's energy as
     E*, so that prediction errors do not accumulate). Without it, E* = E_a (the paper's eq. 32).
-    For a given stance E_tau is linear in tau0, so each fixed-point step solves that linear equation.
-    Lanes not solved in ``max_iterations`` Newton steps get NaN.
+    For a given stance E_tau is linear in tau0, so each fixed-point step solves that linear equation; of
+    the two roots the forward one is returned (:func:`_regulated_plan`). Lanes not solved in
+    ``max_iterations`` (at least 1) Newton steps get no_solution.
     """
     params = ParamArrays.of(params)
     y_, xdot_, beta_ = _as_arrays(y, xdot, beta)
-    tau0_rule = _energy_tau0_rule(params, y_, xdot_, target_energy)
-    tau0, t_f = _planned_stance(params, y_, xdot_, beta_, tau0_rule, corrections, liftoff, max_iterations)
-    return CommandArrays(np.broadcast_to(beta_, np.shape(tau0)), tau0, t_f)
+    return _regulated(params, y_, xdot_, beta_, target_energy, corrections, liftoff, max_iterations)[0]
+
+
+def exact_energy_regulation(
+    params: HopperParams,
+    y: ArrayLike,
+    xdot: ArrayLike,
+    beta: ArrayLike,
+    target_energy: ArrayLike | None = None,
+    corrections: int = 1,
+) -> CommandArrays:
+    """The ideal regulator ``energy_exact``: theta_td = beta and the (tau0, t_f) with which the exact plant's
+    next apex has the energy E* [J] (E* = E_a without a target) to EXACT_ENERGY_TOLERANCE, t_f being the
+    stance duration the plant itself produces with that command (the ramp ends at the exact liftoff).
+
+    Newton's method on the exact map (the batched engine, DOP853 at EXACT_MAP_TOLERANCE) for
+    x = (tau0, t_f) scaled as in :func:`_planned_stance` and the residuals ((E' - E*)/(m g r0),
+    T_stance/sqrt(m/k) - x_1); its Jacobian by forward differences, the three points being lanes of one
+    batched call. It starts from :func:`energy_regulation`'s forward root (``corrections`` of its map) and
+    returns a command only where the exact map, evaluated with that very command, succeeds and meets both
+    tolerances. Lanes where the analytic plan has no command keep its reason, lanes where the exact map
+    fails at an iterate get that failure's, and lanes not converged in EXACT_ITERATIONS get no_solution.
+    A plan costs about 3 x 4 exact strides: fine in lockstep and in studies. The gap between ``energy``
+    and ``energy_exact`` is what the analytic approximation costs.
+    """
+    # Imported here: the batched engine imports scipy.integrate (0.6 s), which only this policy needs; a
+    # controller node of the others starts as fast as before (its DDS discovery races the recorder's).
+    from tdslip_ros.model.batch import batch_apex_return_map
+
+    arrays = ParamArrays.of(params)
+    y_, xdot_, beta_ = _as_arrays(y, xdot, beta)
+    start = energy_regulation(arrays, y_, xdot_, beta_, target_energy, corrections)
+    shape = np.shape(start.tau0)
+    energy_scale = units.energy_scale(params)
+    goal = (
+        _apex_energy(arrays, y_, xdot_) if target_energy is None else np.asarray(target_energy, dtype=float)
+    )
+    goal_bar = np.broadcast_to(goal / energy_scale, shape).ravel()
+    y_l, xdot_l, angle = (np.broadcast_to(np.real(v), shape).ravel() for v in (y_, xdot_, beta_))
+    scales = np.array([units.torque_from_bar(params, 1.0), np.sqrt(params.m / params.k)])[:, None]
+    x = np.stack([np.ravel(np.real(start.tau0)), np.ravel(np.real(start.t_f))]) / scales
+    assert start.no_command is not None
+    reason = np.array(np.broadcast_to(start.no_command, shape)).ravel()
+    active = np.flatnonzero(reason == HAS_COMMAND)
+    solved = np.zeros(reason.shape, dtype=bool)
+    probes = _probes(2, (1,), EXACT_JACOBIAN_STEP)  # (3, 2, 1)
+    for _ in range(EXACT_ITERATIONS):
+        wild = ~np.all(np.isfinite(x[:, active]) & (x[1, active] > 0.0), axis=0)
+        reason[active[wild]] = _NO_SOLUTION
+        active = active[~wild]
+        if active.size == 0:
+            break
+        points = x[:, active] + probes  # (3, 2, n): the point and its two shifts
+        stride = batch_apex_return_map(
+            params,
+            y_l[active],
+            xdot_l[active],
+            angle[active],
+            points[:, 0] * scales[0],
+            points[:, 1] * scales[1],
+            rtol=EXACT_MAP_TOLERANCE,
+            atol=EXACT_MAP_TOLERANCE,
+        )
+        energy_bar = units.energy_to_bar(params, params.m * (params.g * stride.y + 0.5 * stride.xdot**2))
+        residual = np.stack(
+            [energy_bar - goal_bar[active], stride.stance_time / scales[1] - points[:, 1]]
+        )  # (2, 3, n)
+        failed = stride.failure[0] != NO_FAILURE_CODE
+        reason[active[failed]] = no_command_of_failure(stride.failure[0][failed])
+        done = ~failed & (np.abs(residual[0, 0]) <= EXACT_ENERGY_TOLERANCE)
+        done &= np.abs(residual[1, 0]) <= EXACT_STANCE_TOLERANCE
+        solved[active[done]] = True
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = -_solve2((residual[:, 1:] - residual[:, :1]) / EXACT_JACOBIAN_STEP, residual[:, 0])
+        moving = ~failed & ~done
+        x[:, active[moving]] += step[:, moving]
+        active = active[moving]
+    reason[active] = _NO_SOLUTION  # still iterating: not converged
+    reason[~solved & (reason == HAS_COMMAND)] = _NO_SOLUTION
+    tau0, t_f = (
+        np.where(reason == HAS_COMMAND, row * scale, np.nan).reshape(shape)
+        for row, scale in zip(x, scales, strict=True)
+    )
+    angle_out = np.where(reason == HAS_COMMAND, angle, np.nan).reshape(shape)
+    return CommandArrays(angle_out, tau0, t_f, no_command=reason.reshape(shape))
 
 
 def admissible_angles(params: HopperParams | ParamArrays, y: ArrayLike) -> tuple[Array, Array]:
-    """Touchdown angles that place the leg from apex height y: (arccos(min(y/r0, 1)), pi/2) less ANGLE_MARGIN.
+    """Touchdown angles that place the leg from apex height y: (arccos(min((y - d)/r0, 1)), pi/2) less
+    ANGLE_MARGIN, d = dynamics.placement_clearance (the angles dynamics.can_place_leg accepts).
 
     This is eq. 34's interval (-pi/2, pi/2) cut to forward running (StanceCommand's (0, pi/2)) and to
-    feasible leg placement (y > r0 cos(theta_td), no toe stubbing).
+    feasible leg placement (y - d >= r0 cos(theta_td)). The interval is empty (lower > upper) for an apex
+    below d.
     """
     params = ParamArrays.of(params)
-    lowest = np.arccos(np.minimum(np.real(np.asarray(y)) / params.r0, 1.0))
+    placeable_top = np.real(np.asarray(y)) - dynamics.placement_clearance(params.g)
+    lowest = np.arccos(np.clip(placeable_top / params.r0, -1.0, 1.0))
     return lowest + ANGLE_MARGIN, np.broadcast_to(np.pi / 2 - ANGLE_MARGIN, np.shape(lowest))
+
+
+def _rises_clear(params: ParamArrays, stride: Stride) -> Array:
+    """Where the map's stride succeeds and its next flight climbs at least dynamics.placement_clearance from
+    liftoff to apex (rises for at least PLACEMENT_LEAD_TIME): deadbeat's margin from a fall.
+
+    Deadbeat's best angle often lies where the predicted liftoff speed reaches zero, the edge of the map's
+    fall region (to come down to a low target apex); the exact plant's edge is a few mrad away, so an
+    angle on the map's edge makes the plant fall (docs/paper.md, the deadbeat edge).
+    """
+    liftoff_height = stride.stance.r_lo * np.cos(stride.stance.theta_lo)
+    with np.errstate(invalid="ignore"):
+        climb = np.real(stride.y - liftoff_height)
+        return np.asarray(stride.ok & (climb >= dynamics.placement_clearance(params.g)))
 
 
 class _DeadbeatPoint(NamedTuple):
@@ -312,20 +612,25 @@ def deadbeat(
       point for the new angle, so both converge together; the result solves that fixed point to
       FIXED_POINT_TOLERANCE, like :func:`energy_regulation` at the returned angle.
 
-    Lanes where every scanned angle fails get NaN.
+    The returned command is the refined one where the map accepts it, else the best scanned one (which
+    it accepts). Lanes where every scanned angle fails get no_solution (leg_placement where no angle can
+    place the leg). ``grid`` must be at least 2.
     """
+    _require_at_least("grid", grid, 2)
     params = ParamArrays.of(params)
     y_, xdot_, target_y_, target_xdot_ = _as_arrays(y, xdot, target_y, target_xdot)
     target_energy = _apex_energy(params, target_y_, target_xdot_)
     lower, upper = admissible_angles(params, y_)
     shape = _lane_shape(params, lower, xdot_, target_energy, target_xdot_)
     lower, upper = np.broadcast_to(lower, shape), np.broadcast_to(upper, shape)
+    placeable = lower < upper
     scales = _torque_scales(params, shape)
 
     # Scan: the candidate angles as a trailing axis of lanes.
     scan_lanes = ParamArrays(*(np.asarray(field)[..., None] for field in vars(params).values()))
     angles = lower[..., None] + (upper - lower)[..., None] * np.linspace(0.0, 1.0, grid)
-    command = energy_regulation(
+    angles = np.where(placeable[..., None], angles, np.nan)
+    command, stride = _regulated(
         scan_lanes,
         y_[..., None],
         xdot_[..., None],
@@ -333,13 +638,12 @@ def deadbeat(
         target_energy[..., None],
         corrections,
         liftoff,
-        max_iterations=DEADBEAT_SCAN_ITERATIONS,
+        DEADBEAT_SCAN_ITERATIONS,
     )
-    stride = approximate_map(scan_lanes, y_[..., None], xdot_[..., None], command, corrections, liftoff)
     cost = (stride.xdot - target_xdot_[..., None]) ** 2
-    cost = np.where(stride.ok & np.isfinite(cost), cost, np.inf)
+    cost = np.where(_rises_clear(scan_lanes, stride) & np.isfinite(cost), cost, np.inf)
     best = np.argmin(cost, axis=-1)[..., None]
-    found = np.isfinite(np.take_along_axis(cost, best, axis=-1)[..., 0])
+    scan_found = np.isfinite(np.take_along_axis(cost, best, axis=-1)[..., 0])
 
     def scanned(values: Array, offset: int) -> Array:
         index = np.clip(best + offset, 0, grid - 1)
@@ -370,12 +674,12 @@ def deadbeat(
             value[1] + z[2], z[2], FIXED_POINT_TOLERANCE
         )
         finite = np.isfinite(r) & np.isfinite(slope) & np.all(np.isfinite(u) & np.isfinite(w), axis=0)
-        return _DeadbeatPoint(z, r, slope, u, w, converged, stride.ok[0] & finite)
+        return _DeadbeatPoint(z, r, slope, u, w, converged, _rises_clear(params, stride)[0] & finite)
 
     with np.errstate(invalid="ignore", divide="ignore"):  # lanes without a command carry NaN
         torque = np.stack([scanned(command.tau0, 0), scanned(command.t_f, 0)]) / scales
         here = linearise(np.concatenate([scanned(angles, 0)[None], torque]))
-        found = found & here.ok
+        found = scan_found & here.ok
         # f' = 2 r r' < 0: f falls to the right of the best scan angle, so its minimum lies on that side.
         rightwards = here.r * here.slope < 0.0
         a = np.where(rightwards, here.angle, scanned(angles, -1))
@@ -401,7 +705,9 @@ def deadbeat(
             # solve the torque at that angle from scratch, as energy_regulation does, and linearise there.
             unsure = ~(new.ok & new.trusted) & ~done
             if unsure.any():
-                solved = energy_regulation(params, y_, xdot_, new.angle, target_energy, corrections, liftoff)
+                solved = _regulated_plan(
+                    params, y_, xdot_, new.angle, target_energy, corrections, liftoff, FIXED_POINT_ITERATIONS
+                )
                 torque = np.stack([solved.tau0, solved.t_f]) / scales
                 new = new.pick(linearise(np.concatenate([new.angle[None], torque])), unsure)
             good = new.ok & new.trusted
@@ -414,10 +720,23 @@ def deadbeat(
             previous_slope = np.where(accept & moved, here.slope, previous_slope)
             here = here.pick(new, accept)
     angle, tau0, t_f = (np.where(found, field, np.nan) for field in (here.angle, *(here.z[1:] * scales)))
-    if np.all(here.converged | ~found):
-        return CommandArrays(angle, tau0, t_f)
-    # Out of steps with the torque not yet solved (an optimum at the edge of the failures): solve it there.
-    return energy_regulation(params, y_, xdot_, angle, target_energy, corrections, liftoff)
+    plan = _Plan(tau0, t_f, np.where(found, HAS_COMMAND, np.where(placeable, _NO_SOLUTION, _LEG_PLACEMENT)))
+    if not np.all(here.converged | ~found):
+        # Out of steps with the torque not yet solved (an optimum at the edge of the failures): solve it.
+        solved = _regulated_plan(
+            params, y_, xdot_, angle, target_energy, corrections, liftoff, FIXED_POINT_ITERATIONS
+        )
+        plan = plan.pick(solved, found & ~here.converged)
+    refined, refined_stride = _checked(params, y_, xdot_, angle, plan, corrections, liftoff)
+    # Where the map rejects the refined command (or it leaves no margin from a fall), the best scanned one
+    # (its cost was finite) stands.
+    assert refined.no_command is not None
+    fallback = scan_found & ~_rises_clear(params, refined_stride)
+    best_scanned = (scanned(np.asarray(field), 0) for field in (angles, command.tau0, command.t_f))
+    angle, tau0, t_f = (
+        np.where(fallback, scan, field) for scan, field in zip(best_scanned, refined, strict=True)
+    )
+    return CommandArrays(angle, tau0, t_f, no_command=np.where(fallback, HAS_COMMAND, refined.no_command))
 
 
 def neutral_angle(params: HopperParams | ParamArrays, xdot: ArrayLike) -> Array:
@@ -460,12 +779,16 @@ def pd_speed_energy_height(
     y_, xdot_, previous_, target_y_, target_xdot_ = _as_arrays(y, xdot, previous_xdot, target_y, target_xdot)
     angle = neutral_angle(params, xdot_) + kp * (xdot_ - target_xdot_) + kd * (xdot_ - previous_)
     lower, upper = admissible_angles(params, y_)
-    angle = np.clip(angle, lower, upper)
+    angle = np.where(lower < upper, np.clip(angle, lower, upper), np.nan)  # NaN: no angle places the leg
     target_energy = _apex_energy(params, target_y_, target_xdot_)
     return energy_regulation(params, y_, xdot_, angle, target_energy, corrections, liftoff)
 
 
-POLICIES = ("open_loop", "energy", "deadbeat", "pd")
+POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "pd")
+FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
+"""Policies that touch down at the fixed ``touchdown_angle``."""
+TARGET_APEX_POLICIES = ("deadbeat", "pd")
+"""Policies that steer towards the target apex (``target_height``, ``target_speed``)."""
 
 
 class PolicyError(ValueError):
@@ -497,6 +820,10 @@ class PolicySpec:
             return fixed_power(params, y, xdot, self.touchdown_angle, alpha, self.corrections)
         if self.name == "energy":
             return energy_regulation(
+                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
+            )
+        if self.name == "energy_exact":
+            return exact_energy_regulation(
                 params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
             )
         if self.name == "deadbeat":
@@ -531,6 +858,6 @@ class PolicySpec:
     @property
     def target(self) -> tuple[float, float] | None:
         """The target apex (y, xdot) of a policy that has one."""
-        if self.name in ("deadbeat", "pd"):
+        if self.name in TARGET_APEX_POLICIES:
             return self.target_height, self.target_speed
         return None

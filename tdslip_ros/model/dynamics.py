@@ -45,6 +45,32 @@ def touchdown_height(params: HopperParams, cos_touchdown: Real) -> Real:
     return params.r0 * cos_touchdown
 
 
+PLACEMENT_LEAD_TIME = 5e-3
+"""s: the least fall from an apex to the touchdown after it that a commanded leg placement may have.
+
+A command answering an apex arrives a little after it (a lockstep plant takes it at the end of the tick
+that held the apex, up to 1 ms later; realtime latencies stay below 2 ms at p99), while the body already
+falls. With this lead the touchdown height lies at least g T^2/2 (0.12 mm) below the apex, so a command
+planned at the apex still finds the body above its touchdown height when it arrives, instead of being
+refused for a difference of a micrometre."""
+
+
+def placement_clearance(g: Real) -> Real:
+    """Height [m] the body falls from its apex in PLACEMENT_LEAD_TIME: the least apex-to-touchdown drop."""
+    return 0.5 * g * PLACEMENT_LEAD_TIME**2
+
+
+def can_place_leg(r0: Real, g: Real, apex_y: Real, cos_touchdown: Real) -> bool | npt.NDArray[np.bool_]:
+    """True where a leg placed at theta_td (its cosine given) in a flight with apex height apex_y [m]
+    touches down at least PLACEMENT_LEAD_TIME after the apex: the one admissibility test of a touchdown
+    angle, shared by the controllers (which plan only such angles) and the plant (which refuses others).
+
+    Arrays broadcast (r0 [m] and g [m/s^2] may hold several parameter sets); floats give a bool.
+    """
+    clear: bool | npt.NDArray[np.bool_] = apex_y - r0 * cos_touchdown >= placement_clearance(g)
+    return clear
+
+
 def fall_time(y: Real, ydot: Real, y_target: Real, g: float) -> Real:
     """Time [s] for a ballistic body at (y, ydot) to reach y_target while descending.
 

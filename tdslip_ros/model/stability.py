@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tdslip_ros.model import units
+from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic import (
     COMPLEX_STEP,
     Array,
@@ -47,6 +47,8 @@ ENERGY_SCAN = np.geomspace(0.005, 14.0, 30)
 ROOT_TOLERANCE = 1e-12
 """Relative tolerance of the polished fixed points (height and energy)."""
 ROOT_ITERATIONS = 60
+EDGE_BISECTIONS = 14
+"""Bisections towards the edge of a section's domain from the grid height next to it (section_brackets)."""
 SADDLE_NODE_BISECTIONS = 14
 """Bisection steps in alpha per saddle-node bifurcation (the bracket shrinks by 2^-14)."""
 
@@ -218,9 +220,9 @@ def height_section(
 
 
 def height_grid(params: HopperParams, beta: float, top: float = 2.8, points: int = 120) -> Array:
-    """Apex heights [m] from just above leg placement, r0 cos(beta), to ``top`` r0 (the scans' default)."""
-    bottom = np.cos(beta) * (1.0 + 1e-6)
-    return np.asarray(units.height_from_bar(params, np.linspace(bottom, top, points)))
+    """Apex heights [m] from the lowest that places the leg at beta (:func:`lowest_height`) to ``top`` r0
+    (the scans' default)."""
+    return np.linspace(lowest_height(params, beta), units.height_from_bar(params, top), points)
 
 
 def open_loop_fixed_points(
@@ -252,7 +254,7 @@ def open_loop_fixed_points(
     y_star, e_star, jacobian = _newton_fixed_point(params, policy, y0, e0, corrections, liftoff)
     inside = (y_star >= heights_[columns]) & (y_star <= heights_[columns + 1])
     values = eigenvalues(jacobian[inside])
-    return _padded(params, alpha_, rows[inside], y_star[inside], e_star[inside], values)
+    return padded_fixed_points(params, alpha_, rows[inside], y_star[inside], e_star[inside], values)
 
 
 def _newton_fixed_point(
@@ -282,7 +284,7 @@ def _newton_fixed_point(
     return np.where(converged, y, np.nan), np.where(converged, energy, np.nan), jacobian
 
 
-def _padded(
+def padded_fixed_points(
     params: HopperParams, parameter: Array, rows: Array, y: Array, energy: Array, values: Array
 ) -> FixedPoints:
     """FixedPoints from flat lists of (row, y, E, eigenvalues), padded to the largest count per row."""
@@ -361,6 +363,12 @@ def infeasible_height(params: HopperParams, beta: float) -> float:
     return float(params.r0 * np.cos(beta))
 
 
+def lowest_height(params: HopperParams, beta: float) -> float:
+    """The lowest apex height [m] from which the policies place the leg at beta: r0 cos(beta) plus the fall
+    of dynamics.PLACEMENT_LEAD_TIME (0.12 mm), and a rounding margin."""
+    return (infeasible_height(params, beta) + dynamics.placement_clearance(params.g)) * (1.0 + 1e-12)
+
+
 def regulated_fixed_points(
     params: HopperParams,
     beta: float,
@@ -372,28 +380,63 @@ def regulated_fixed_points(
     """Fixed points of the energy-regulated height map for each apex energy [J] of a 1-D array.
 
     Zeros of y' - y are bracketed on ``points`` heights spread over [r0 cos beta, E/(m g)) per energy and
-    polished by bracketed Newton; the eigenvalue is dy'/dy there (complex step).
+    up to the edges of the map's domain (:func:`section_brackets`), and polished by bracketed Newton; the
+    eigenvalue is dy'/dy there (complex step).
     """
     energy_ = np.atleast_1d(np.asarray(energy, dtype=float))
-    bottom = infeasible_height(params, beta) * (1.0 + 1e-6)
+    bottom = lowest_height(params, beta)
     top = energy_ / (params.m * params.g)
     # Denser towards the bottom, where the fixed points of high energies crowd; E/(m g) itself has xdot = 0.
     heights = bottom + np.linspace(0.0, 1.0, points + 1)[:-1] ** 2 * (top - bottom)[:, None]
     gap = regulated_height_map(params, beta, energy_[:, None], heights, corrections, liftoff) - heights
-    rows, columns = np.nonzero(_sign_changes(gap))
+
+    def section(y: Array, rows: Array) -> Array:
+        return regulated_height_map(params, beta, energy_[rows], y, corrections, liftoff) - y
+
+    rows, low, high = section_brackets(section, heights, gap)
     lanes_energy = energy_[rows]
 
     def residual(y: Array, lanes: Array) -> Array:
-        return regulated_height_map(params, beta, lanes_energy[lanes], y, corrections, liftoff) - y
+        return section(y, rows[lanes])
 
     evaluate = _complex_step(residual)
-    y_star = _bracketed_newton(
-        evaluate, heights[rows, columns], heights[rows, columns + 1], gap[rows, columns]
-    )
+    y_star = _bracketed_newton(evaluate, low, high, section(low, rows))
     _, slope = evaluate(y_star, np.arange(y_star.size))
     keep = np.isfinite(y_star)
-    return _padded(
+    return padded_fixed_points(
         params, energy_, rows[keep], y_star[keep], lanes_energy[keep], (slope[keep] + 1.0)[:, None] + 0j
+    )
+
+
+def section_brackets(
+    section: Callable[[Array, Array], Array], heights: Array, values: Array
+) -> tuple[Array, Array, Array]:
+    """Brackets (row, low, high) of the zeros of a 1-D section h, evaluated as ``values`` (rows, k) on
+    ``heights`` ((rows, k) or (k,)): every sign change between neighbours, and every one between a grid
+    height and the edge of h's domain next to it (NaN beyond: the policy has no command or the map fails,
+    e.g. above y_max(E), where the leg swings back), the edge found by EDGE_BISECTIONS bisections with
+    ``section(y, rows)`` (vectorised). Without the edges, a fixed point between the last grid height and
+    the edge is missed, and a stable range ends early by up to a grid step."""
+    heights = np.broadcast_to(heights, values.shape)
+    finite = np.isfinite(values)
+    rows, columns = np.nonzero(_sign_changes(values))
+    edge_rows, edge_columns = np.nonzero(finite[:, :-1] != finite[:, 1:])
+    inner = np.where(finite[edge_rows, edge_columns], edge_columns, edge_columns + 1)  # the finite end
+    outer = np.where(finite[edge_rows, edge_columns], edge_columns + 1, edge_columns)
+    start, start_value = heights[edge_rows, inner], values[edge_rows, inner]
+    near, far, near_value = start.copy(), heights[edge_rows, outer].copy(), start_value.copy()
+    for _ in range(EDGE_BISECTIONS if edge_rows.size else 0):
+        middle = 0.5 * (near + far)
+        value = np.real(section(middle, edge_rows))
+        inside = np.isfinite(value)
+        near, near_value = np.where(inside, middle, near), np.where(inside, value, near_value)
+        far = np.where(inside, far, middle)
+    crossing = np.sign(near_value) != np.sign(start_value)
+    ends = np.sort(np.stack([start, near]), axis=0)
+    return (
+        np.concatenate([rows, edge_rows[crossing]]),
+        np.concatenate([heights[rows, columns], ends[0, crossing]]),
+        np.concatenate([heights[rows, columns + 1], ends[1, crossing]]),
     )
 
 

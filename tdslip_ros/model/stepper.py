@@ -149,23 +149,27 @@ class FixedStepStepper:
     def set_command(self, command: StanceCommand) -> None:
         """Use ``command`` for the next touchdown.
 
-        Raises ParameterError in stance, and in flight when the body can no longer reach the new
-        touchdown height r0 cos(theta_td): ascending, the coming apex is below it; descending,
-        the body already is.
+        Raises ParameterError in stance, when the angle fails the controllers' own admissibility test
+        for this flight's apex (:func:`dynamics.can_place_leg`, touchdown at least
+        PLACEMENT_LEAD_TIME after the apex), and when the body is already below the new touchdown
+        height r0 cos(theta_td) (a command that came too late).
         """
         if self._phase is Phase.STANCE:
             raise ParameterError("the stance command cannot change during stance")
         _, _, y_ref, _, ydot_ref = self._flight_ref
-        highest = (
-            y_ref + ydot_ref**2 / (2.0 * self._params.g)
-            if not self._descending
-            else self._flight_state(self.t).y
-        )
-        y_td = dynamics.touchdown_height(self._params, math.cos(command.touchdown_angle))
-        if highest < y_td:
+        apex = y_ref + ydot_ref**2 / (2.0 * self._params.g)  # descending, the reference is the apex
+        cos_td = math.cos(command.touchdown_angle)
+        y_td = dynamics.touchdown_height(self._params, cos_td)
+        if not dynamics.can_place_leg(self._params.r0, self._params.g, apex, cos_td):
+            raise ParameterError(
+                f"touchdown_angle {command.touchdown_angle!r} rad needs the body at {y_td:.6g} m, but it "
+                f"reaches at most {apex:.6g} m in this flight, and placement needs a fall of "
+                f"{dynamics.PLACEMENT_LEAD_TIME:g} s from the apex to touchdown"
+            )
+        if self._descending and self._flight_state(self.t).y < y_td:
             raise ParameterError(
                 f"touchdown_angle {command.touchdown_angle!r} rad needs the body at {y_td:.6g} m, "
-                f"but it reaches at most {highest:.6g} m in this flight"
+                f"but it is already below, at {self._flight_state(self.t).y:.6g} m"
             )
         self._command = command
 

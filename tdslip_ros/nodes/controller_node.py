@@ -6,6 +6,7 @@ The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.m
   ``touchdown_angle`` [rad] and ``touchdown_power`` [W] (the paper's alpha = C / (m g sqrt(g r0)));
 * ``energy``: energy regulation at a fixed ``touchdown_angle`` (section IV.A, eq. 32), the torque
   planned so that the analytic map's next apex has the energy ``target_energy`` [J];
+* ``energy_exact``: the same, planned on the exact plant's map (the ideal regulator, ~40 ms per apex);
 * ``deadbeat``: inversion of the analytic map towards the apex (``target_height`` [m],
   ``target_speed`` [m/s]) in one stride (section V.A, eqs. 33-34);
 * ``pd``: the PD baseline, foot placement on speed with gains ``pd_kp``, ``pd_kd`` [rad/(m/s)]
@@ -45,12 +46,14 @@ TUNABLE: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "touchdown_angle",
         parameters.DEFAULT_TOUCHDOWN_ANGLE,
-        "open_loop, energy: touchdown angle beta [rad]",
+        "open_loop, energy, energy_exact: touchdown angle beta [rad]",
         1e-6,
         1.5707953,
     ),
     ParameterSpec("touchdown_power", 925.0, "open_loop: hip power C at touchdown [W]", 0.0, 1e7),
-    ParameterSpec("target_energy", DEFAULT_TARGET_ENERGY, "energy: apex energy to hold [J]", 1e-6, 1e9),
+    ParameterSpec(
+        "target_energy", DEFAULT_TARGET_ENERGY, "energy, energy_exact: apex energy to hold [J]", 1e-6, 1e9
+    ),
     ParameterSpec(
         "target_height", parameters.DEFAULT_APEX_HEIGHT, "deadbeat, pd: target apex height [m]", 1e-3, 1e2
     ),
