@@ -238,6 +238,16 @@ class PlausibilityLimits:
         reason = self.apex_violation(y_apex, xdot)
         return None if reason is None else (FailureKind.STATE_LIMIT, f"liftoff towards an {reason}")
 
+    def push_failure(self, y: float, xdot: float, push: float) -> tuple[FailureKind, str] | None:
+        """The failure of a push of ``push`` [m/s] at the apex (y, xdot before it) that takes the apex beyond
+        the limits, or None."""
+        reason = self.apex_violation(y, xdot + push)
+        return (
+            None
+            if reason is None
+            else (FailureKind.STATE_LIMIT, f"a push of {push:.6g} m/s at the apex: {reason}")
+        )
+
     def state_violation(self, state: HopperState) -> str | None:
         """Why a reported state is not finite or beyond the limits (torque, energy), or None.
 
