@@ -519,8 +519,23 @@ def _dop853_step(
 ) -> FloatArray:
     """One DOP853 step of lengths h; k[0] must hold the field at (s, y); fills k[1:12]."""
     for stage in range(1, _STAGES):
-        field(s + _C[stage] * h, y + h * np.tensordot(_A[stage, :stage], k[:stage], axes=1), k[stage])
-    return y + h * np.tensordot(_B, k[:_STAGES], axes=1)
+        field(s + _C[stage] * h, y + h * _combine(_A[stage, :stage], k), k[stage])
+    return y + h * _combine(_B, k)
+
+
+def _combine(weights: FloatArray, k: FloatArray) -> FloatArray:
+    """sum_j weights[j] k[j], term by term in the order of j, skipping the tableau's zero weights.
+
+    Elementwise, so every lane's value is a function of that lane alone: a BLAS product (np.tensordot)
+    sums in an order that depends on how many lanes the call holds, which would make a lane's last bits
+    depend on the other lanes of its call (and a study's results on how it is split into calls)."""
+    terms = [(weight, k[j]) for j, weight in enumerate(weights) if weight != 0.0]
+    total: FloatArray = terms[0][0] * terms[0][1]
+    term = np.empty_like(total)
+    for weight, stage in terms[1:]:
+        np.multiply(stage, weight, out=term)
+        total += term
+    return total
 
 
 def _terminal_values(params: HopperParams, y: FloatArray) -> FloatArray:
@@ -571,8 +586,8 @@ def _integrate_stance(
             y_new = _dop853_step(field, s, y, h, k)
             field(s + h, y_new, k[_STAGES])
             scale = atol + np.maximum(np.abs(y), np.abs(y_new)) * rtol
-            err5 = np.sum((np.tensordot(_E5, k, axes=1) / scale) ** 2, axis=0)
-            err3 = np.sum((np.tensordot(_E3, k, axes=1) / scale) ** 2, axis=0)
+            err5 = np.sum((_combine(_E5, k) / scale) ** 2, axis=0)
+            err3 = np.sum((_combine(_E3, k) / scale) ** 2, axis=0)
             denominator = err5 + 0.01 * err3
             error = np.where(denominator > 0.0, h * err5 / np.sqrt(denominator * _STATE_SIZE), 0.0)
             # A step that left the floats (overflow, NaN) fails its error test and shrinks by _MIN_FACTOR.
