@@ -39,6 +39,8 @@ def test_text_form_reads_back_to_the_same_ground(terrain: Terrain) -> None:
     assert again.spec() == terrain.spec()
     x = np.linspace(-3.0, 6.0, 2001)
     assert np.array_equal(again.height(x), terrain.height(x))
+    # One point at a time (the plant's 1 kHz path) gives the same heights, bit for bit.
+    assert [terrain.height_at(value) for value in x] == terrain.height(x).tolist()
 
 
 def test_heights_of_each_terrain() -> None:

@@ -42,6 +42,7 @@ import numpy.typing as npt
 
 from tdslip_ros.model.analytic import ParamArrays
 from tdslip_ros.model.dynamics import FloatArray
+from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.terrain import FLAT, IntArray, Terrain, parse_terrain, spec_fields
 
@@ -127,6 +128,14 @@ class PlacementNoise:
     @property
     def active(self) -> bool:
         return not _is_zero(self.sigma)
+
+    @classmethod
+    def parse_degrees(cls, text: str) -> PlacementNoise:
+        """From ``sigma=DEG,seed=N``, sigma in degrees (as the command line gives angles)."""
+        values = spec_fields(text, f"angle noise {text!r}", {"sigma": float, "seed": int})
+        if "sigma" in values:
+            values["sigma"] = math.radians(values["sigma"])
+        return _built(f"angle noise {text!r}", lambda: cls(**values))
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,6 +341,33 @@ class Perturbations:
             or self.saturates
             or self.pushes.active
         )
+
+    def check_limits(self, limits: PlausibilityLimits) -> None:
+        """Refuse pushes larger than the hopper's speed bound (an input beyond the limits, :mod:`.limits`)."""
+        if self.pushes.largest() > limits.max_apex_speed:
+            raise ParameterError(
+                f"a push of {self.pushes.largest()!r} m/s exceeds max_apex_speed = "
+                f"{limits.max_apex_speed:.6g} m/s"
+            )
+
+    def summary(self) -> str:
+        """One line naming the perturbations that act (``no perturbations`` when none do)."""
+        parts = []
+        if not self.terrain.is_flat:
+            parts.append(f"terrain {self.terrain.spec() if self.terrain.kind != 'profile' else 'profile'}")
+        if self.sensing.active:
+            parts.append(f"apex noise {self.sensing.spec()}")
+        if self.placement.active:
+            parts.append(
+                f"angle noise {_scalar(self.placement.sigma):g} rad (seed {int(self.placement.seed)})"
+            )
+        if self.saturates:
+            parts.append(f"tau_max {_scalar(self.tau_max):g} N m")
+        if self.pushes.active:
+            parts.append(f"pushes {self.pushes.spec()}")
+        if self.mismatch.active:
+            parts.append(f"mismatch {self.mismatch.spec()}")
+        return "perturbations: " + "; ".join(parts) if parts else "no perturbations"
 
     def take(self, lanes: IntArray) -> Perturbations:
         """These perturbations for the given lanes (per-lane fields indexed)."""

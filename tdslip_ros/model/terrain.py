@@ -30,8 +30,10 @@ toe stubbing. Only the toe touches the ground (the leg and the body pass through
 from __future__ import annotations
 
 import abc
+import bisect
 import csv
 import functools
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,7 +112,8 @@ class Terrain(abc.ABC):
         return self.pieces(self.piece_index(x)).height(x)
 
     def height_at(self, x: float) -> float:
-        """h(x) [m] at one x, for a terrain whose fields are scalars."""
+        """h(x) [m] at one x, for a terrain whose fields are scalars: the value of :meth:`height`, bit for
+        bit (the plant asks for it at every tick, so the terrains compute it without numpy's overhead)."""
         return float(self.height(x))
 
 
@@ -165,6 +168,9 @@ class Flat(Terrain):
     def spec(self) -> str:
         return "flat"
 
+    def height_at(self, x: float) -> float:
+        return 0.0
+
     def take(self, lanes: IntArray) -> Terrain:
         return self
 
@@ -202,6 +208,9 @@ class Step(Terrain):
 
     def spec(self) -> str:
         return f"step:height={_number(self.height_change)},x={_number(self.x)}"
+
+    def height_at(self, x: float) -> float:
+        return float(self.height_change) if x >= self.x else 0.0
 
     def take(self, lanes: IntArray) -> Terrain:
         return Step(_take(self.height_change, lanes), _take(self.x, lanes))
@@ -272,6 +281,13 @@ class Blocks(Terrain):
             np.where(before, -np.inf, lo), np.where(before, np.broadcast_to(self.start, lo.shape), hi), level
         )
 
+    def height_at(self, x: float) -> float:
+        block = math.floor((x - self.start) / self.length)
+        if block < 0:
+            return 0.0
+        chunk, offset = divmod(block, BLOCK_CHUNK)
+        return float(self.sigma * _normal_chunk(int(self.seed), chunk)[offset])
+
     def spec(self) -> str:
         return (
             f"blocks:sigma={_number(self.sigma)},length={_number(self.length)},"
@@ -293,6 +309,9 @@ class Profile(Terrain):
     breaks: FloatArray = field(init=False, repr=False)
     _levels: FloatArray = field(init=False, repr=False)
     _slopes: FloatArray = field(init=False, repr=False)
+    _break_list: list[float] = field(init=False, repr=False)
+    _level_list: list[float] = field(init=False, repr=False)
+    _slope_list: list[float] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         xs = np.asarray(self.x, dtype=np.float64)
@@ -316,6 +335,9 @@ class Profile(Terrain):
         object.__setattr__(self, "breaks", breaks)
         object.__setattr__(self, "_levels", levels)
         object.__setattr__(self, "_slopes", slopes)
+        object.__setattr__(self, "_break_list", breaks.tolist())
+        object.__setattr__(self, "_level_list", levels.tolist())
+        object.__setattr__(self, "_slope_list", slopes.tolist())
 
     @classmethod
     def from_csv(cls, path: Path | str) -> Profile:
@@ -351,6 +373,13 @@ class Profile(Terrain):
     def pieces(self, index: IntArray) -> Pieces:
         bounds = np.concatenate([[-np.inf], self.breaks, [np.inf]])
         return Pieces(bounds[index], bounds[index + 1], self._levels[index], self._slopes[index])
+
+    def height_at(self, x: float) -> float:
+        index = bisect.bisect_right(self._break_list, x)
+        level, slope = self._level_list[index], self._slope_list[index]
+        if slope == 0.0:
+            return level
+        return level + slope * (x - self._break_list[index - 1])
 
     def spec(self) -> str:
         points = ";".join(f"{x!r}/{h!r}" for x, h in zip(self.x, self.heights, strict=True))
