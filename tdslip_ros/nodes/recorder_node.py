@@ -66,6 +66,14 @@ SPECS: tuple[ParameterSpec, ...] = (
     ),
     ParameterSpec("chunk_size", 768 * 1024, "MCAP chunk size [bytes]", 1024, 1 << 30, read_only=True),
     ParameterSpec(
+        "flush_interval",
+        1.0,
+        "close the open chunk after this much log time [s]: a hard kill loses at most that (0: by size)",
+        0.0,
+        3600.0,
+        read_only=True,
+    ),
+    ParameterSpec(
         "record_clock", False, "also record /clock (lockstep runs publish it at 1 kHz)", read_only=True
     ),
     ParameterSpec(
@@ -100,6 +108,7 @@ class RecorderNode(Node):
             Path(output),
             compression=values["compression"],  # type: ignore[arg-type]
             chunk_size=int(values["chunk_size"]),
+            flush_interval_ns=round(float(values["flush_interval"]) * 1e9),
             custom_data=parse_custom_data(str(values["custom_data"])),
         )
         relative = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if values["record_clock"] else ())]
@@ -108,6 +117,8 @@ class RecorderNode(Node):
         self._message_classes = {
             name: topics.MESSAGE_TYPES[topic] for name, topic in zip(self.topic_names, relative, strict=True)
         }
+        self.write_error: str | None = None
+        """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
         self._topic_subscriptions: dict[str, Subscription[Any]] = {}
         self._warned: set[str] = set()
         self._unreported = 0
@@ -164,7 +175,9 @@ class RecorderNode(Node):
             try:
                 write(name, data, time.time_ns())
             except BagWriteError as error:  # the bag is closed now (finalised if it could be)
-                self.get_logger().error(str(error))
+                self.write_error = str(error)
+                self.get_logger().error(self.write_error)
+                self.publish_status()
                 return
             except BagClosedError:  # after a write error: nothing more is recorded
                 return
@@ -243,7 +256,8 @@ def main(argv: list[str] | None = None) -> int:
         RecorderNode,
         "recorder.yaml",
         sys.argv if argv is None else argv,
-        lambda node: False,
+        lambda node: node.write_error is not None,  # nothing more can be recorded
+        exit_status=lambda node: 1 if node.write_error is not None else 0,
         on_stop=finish,
         specs=SPECS,
     )
