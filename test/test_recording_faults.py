@@ -9,7 +9,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-from ros_harness import RosGraph, stop_process
+from ros_harness import RosGraph
 from tdslip_msgs.msg import RecorderStatus
 from test_nodes_recorder import RECORDER, published_counts, start_hopping
 
