@@ -248,11 +248,8 @@ def simulate_strides(
         raise ParameterError(
             f"trajectories must hold one index per lane ({lanes_total}), got {trajectory.shape}"
         )
-    draws = (
-        None
-        if perturbed is None or not perturbed.random and not perturbed.pushes.active
-        else perturbed.draws(trajectory, 0, n_strides)
-    )
+    drawn = perturbed is not None and (perturbed.random or perturbed.pushes.active)
+    draws = perturbed.draws(trajectory, 0, n_strides) if perturbed is not None and drawn else None
     y_hist = np.full((n_strides + 1, lanes_total), np.nan)
     xdot_hist = np.full((n_strides + 1, lanes_total), np.nan)
     x_hist = np.full((n_strides + 1, lanes_total), np.nan)

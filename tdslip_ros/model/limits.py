@@ -20,9 +20,10 @@ What happens at a limit depends on what crosses it:
   themselves refuse an initial apex beyond the limits (they cannot start from it);
 * a **state** beyond the limits, reached by the motion, ends the run as the named failure
   ``state_limit`` (:class:`~.events.FailureKind`). Every integrator (the 1 kHz stepper, the exact map,
-  the batched engine) applies the same two rules, :meth:`PlausibilityLimits.torque_failure` when the leg
-  touches down (the hip would have to produce the commanded torque) and
-  :meth:`PlausibilityLimits.apex_failure` when it lifts off (the coming apex is known in closed form);
+  the batched engine) applies the same rules, :meth:`PlausibilityLimits.torque_failure` when the leg
+  touches down (the hip would have to produce the commanded torque),
+  :meth:`PlausibilityLimits.apex_failure` when it lifts off (the coming apex is known in closed form) and
+  :meth:`PlausibilityLimits.push_failure` when a push at the apex changes its speed (:mod:`.perturbations`);
   the stance itself is bounded by ``max_stance_time`` (the failure ``no_liftoff``).
 
 These rules bound every reported number without a check inside the integration: a stance that

@@ -73,7 +73,7 @@ def _seed(name: str, value: npt.ArrayLike) -> Any:
     return int(array) if array.ndim == 0 else array.astype(np.int64)
 
 
-def _take(value: Any, lanes: IntArray) -> Any:
+def _take(value: Any, lanes: IntArray | int) -> Any:
     return value if np.ndim(value) == 0 else np.asarray(value)[lanes]
 
 
@@ -369,8 +369,8 @@ class Perturbations:
             parts.append(f"mismatch {self.mismatch.spec()}")
         return "perturbations: " + "; ".join(parts) if parts else "no perturbations"
 
-    def take(self, lanes: IntArray) -> Perturbations:
-        """These perturbations for the given lanes (per-lane fields indexed)."""
+    def take(self, lanes: IntArray | int) -> Perturbations:
+        """These perturbations for the given lanes (per-lane fields indexed; an int: one lane's scalars)."""
 
         def taken(part: Any) -> Any:
             names = [name for name in vars(part) if not name.startswith("_") and name != "at"]

@@ -98,7 +98,7 @@ class Terrain(abc.ABC):
         """Canonical text of this terrain (``kind:key=value,...``); :func:`parse_terrain` reads it back."""
 
     @abc.abstractmethod
-    def take(self, lanes: IntArray) -> Terrain:
+    def take(self, lanes: IntArray | int) -> Terrain:
         """This terrain for the given lanes (per-lane fields indexed; a shared terrain is returned as is)."""
 
     @property
@@ -137,7 +137,7 @@ def _positive(name: str, value: npt.ArrayLike) -> Any:
     return _as_field(name, value, lambda a: a > 0.0, "finite and > 0")
 
 
-def _take(value: Any, lanes: IntArray) -> Any:
+def _take(value: Any, lanes: IntArray | int) -> Any:
     return value if np.ndim(value) == 0 else np.asarray(value)[lanes]
 
 
@@ -171,7 +171,7 @@ class Flat(Terrain):
     def height_at(self, x: float) -> float:
         return 0.0
 
-    def take(self, lanes: IntArray) -> Terrain:
+    def take(self, lanes: IntArray | int) -> Terrain:
         return self
 
     @property
@@ -212,7 +212,7 @@ class Step(Terrain):
     def height_at(self, x: float) -> float:
         return float(self.height_change) if x >= self.x else 0.0
 
-    def take(self, lanes: IntArray) -> Terrain:
+    def take(self, lanes: IntArray | int) -> Terrain:
         return Step(_take(self.height_change, lanes), _take(self.x, lanes))
 
 
@@ -294,7 +294,7 @@ class Blocks(Terrain):
             f"seed={int(np.asarray(self.seed))},start={_number(self.start)}"
         )
 
-    def take(self, lanes: IntArray) -> Terrain:
+    def take(self, lanes: IntArray | int) -> Terrain:
         return Blocks(*(_take(getattr(self, name), lanes) for name in ("sigma", "length", "seed", "start")))
 
 
@@ -385,7 +385,7 @@ class Profile(Terrain):
         points = ";".join(f"{x!r}/{h!r}" for x, h in zip(self.x, self.heights, strict=True))
         return f"profile:points={points}"
 
-    def take(self, lanes: IntArray) -> Terrain:
+    def take(self, lanes: IntArray | int) -> Terrain:
         return self
 
 
