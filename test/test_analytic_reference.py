@@ -4,7 +4,16 @@ test/data/analytic_reference.npz holds inputs and outputs written by the numpy i
 test/data/make_analytic_reference.py) before the maths moved to compiled kernels: strides of the map on
 wide ranges with per-lane parameters (every failure kind occurs), commands of every analytic policy with
 their no-command reasons, and complex-step Jacobians of closed loops. Values must agree to 1e-12 (relative,
-with the quantity's typical size as the floor near zero), failure codes and reasons exactly.
+with the quantity's typical size as the floor near zero), failure codes and reasons exactly, with two
+exceptions that the last bit of a transcendental function decides (numpy's SIMD loops and the C library
+differ there), each allowed on at most 2 % of the lanes:
+
+* A lane without a command may name no_liftoff where it named no_solution, or the reverse: Newton's
+  method for a torque that does not exist wanders chaotically, and whether an iterate meets a stance
+  without liftoff within the bound on the steps is then a matter of rounding.
+* Deadbeat towards a target it cannot reach stops at the extremum of the next speed, where the speed is
+  flat in the angle: its angle agrees to its own tolerance (1e-9 rad), and the next apexes the two
+  commands give agree to 1e-12.
 """
 
 from __future__ import annotations
@@ -14,7 +23,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdslip_ros.model.analytic import CommandArrays, ParamArrays, approximate_map, map_jacobian
+from tdslip_ros.model.analytic import (
+    CommandArrays,
+    NoCommand,
+    ParamArrays,
+    approximate_map,
+    map_jacobian,
+    no_command_code,
+)
 from tdslip_ros.model.controllers import (
     deadbeat,
     energy_regulation,
@@ -81,13 +97,42 @@ def _policy_commands() -> dict[str, CommandArrays]:
     }
 
 
+_WANDERING = {no_command_code(NoCommand.NO_LIFTOFF), no_command_code(NoCommand.NO_SOLUTION)}
+
+
+def _flat_extremum_lanes(command: CommandArrays, recorded: CommandArrays) -> np.ndarray:
+    """Deadbeat lanes whose commands differ by more than AGREEMENT but within the angle tolerance, giving
+    the same next apex to 1e-12 (module docstring)."""
+    differ = np.zeros(command.tau0.shape, dtype=bool)
+    for new, old in zip(command, recorded, strict=True):
+        differ |= np.abs(new - old) > AGREEMENT * (np.abs(old) + np.nanmedian(np.abs(old)))
+    y, xdot = RECORD["target_y"][differ], RECORD["target_xdot"][differ]
+    assert np.all(np.abs(command.touchdown_angle - recorded.touchdown_angle)[differ] <= 2e-9)
+    new_apex = approximate_map(PARAMS, y, xdot, CommandArrays(*(field[differ] for field in command)))
+    old_apex = approximate_map(PARAMS, y, xdot, CommandArrays(*(field[differ] for field in recorded)))
+    _assert_agrees("deadbeat next height", new_apex.y, old_apex.y)
+    _assert_agrees("deadbeat next speed", new_apex.xdot, old_apex.xdot)
+    return differ
+
+
 def test_the_policies_give_the_recorded_commands_and_reasons() -> None:
     for name, command in _policy_commands().items():
         assert command.no_command is not None
-        assert np.array_equal(command.no_command, RECORD[f"command_{name}_reason"]), name
+        reason = RECORD[f"command_{name}_reason"]
+        swapped = command.no_command != reason
+        assert all(
+            {int(a), int(b)} <= _WANDERING
+            for a, b in zip(command.no_command[swapped], reason[swapped], strict=True)
+        )
+        assert swapped.sum() <= 0.02 * reason.size, name
         assert (command.no_command == -1).sum() > 0.5 * command.no_command.size, name
-        for field, value in zip(("angle", "tau0", "t_f"), command, strict=True):
-            _assert_agrees(f"{name} {field}", value, RECORD[f"command_{name}_{field}"])
+        recorded = CommandArrays(*(RECORD[f"command_{name}_{field}"] for field in ("angle", "tau0", "t_f")))
+        same = np.ones(reason.shape, dtype=bool)
+        if name == "deadbeat":
+            same = ~_flat_extremum_lanes(command, recorded)
+            assert same.sum() >= 0.98 * same.size
+        for field, new, old in zip(("angle", "tau0", "t_f"), command, recorded, strict=True):
+            _assert_agrees(f"{name} {field}", new[same], old[same])
 
 
 def test_complex_step_jacobians_of_the_closed_loops_are_the_recorded_ones() -> None:
