@@ -8,23 +8,26 @@ in compiled code; the complex step (``analytic.map_jacobian``) runs the very sam
 (numba compiles one specialisation per argument type).
 
 Cache. Compiling every kernel takes about a minute (once for float64 and once for complex128 arguments),
-so the machine code is kept on disk and a new process only loads it. Where, in this order:
+so the machine code is kept on disk and a new process only loads it (about 0.4 s). It goes to a folder
+``model-<hash>``, the hash of every source file of ``tdslip_ros.model`` (kernels call kernels and use
+constants of other modules, so any change to the model recompiles; numba alone would only watch each
+kernel's own file), in the first of these that is writable:
 
-1. ``$NUMBA_CACHE_DIR`` when set (numba's own setting; use it for a read-only install, such as a colcon
-   install space or a system site-packages);
-2. ``__pycache__`` beside the kernel's source file, if writable (a source checkout, an editable install);
-3. numba's user-wide cache directory (``~/.cache/numba``, or ``$XDG_CACHE_HOME/numba``).
+1. ``$NUMBA_CACHE_DIR`` when set (numba's own setting);
+2. the user's cache directory, ``~/.cache/tdslip_ros`` (``$XDG_CACHE_HOME/tdslip_ros``): shared by every
+   copy of the same sources, so a colcon install of a checkout finds what ``./run.sh setup`` compiled;
+3. ``__pycache__`` beside the model's sources.
 
-If none is writable, the kernels are compiled in memory in every process (a warning says so once): slow to
-start, never wrong. numba invalidates a cached kernel when its own source file changes; since kernels call
-kernels and constants of other modules, the stamp here is the hash of every source file of
-``tdslip_ros.model`` instead, so any change to the model recompiles.
+If none is writable (a read-only install run by a user without a home), the kernels are compiled in memory
+in every process and a warning says so once: slow to start (a minute), never wrong. Set NUMBA_CACHE_DIR to
+a writable folder there. Folders of older sources are not removed (about 13 MB each).
 """
 
 from __future__ import annotations
 
 import hashlib
 import math
+import os
 import warnings
 from collections.abc import Callable
 from functools import cache
@@ -51,24 +54,48 @@ def model_source_stamp() -> str:
     return digest.hexdigest()
 
 
-class _ModelStamp:
-    """A cache locator mixin whose freshness stamp covers the whole model package (module docstring)."""
-
-    def get_source_stamp(self) -> str:
-        return model_source_stamp()
+def _cache_bases() -> list[str]:
+    """The folders the cache may go to, in order (module docstring)."""
+    numba_cache = str(getattr(numba.config, "CACHE_DIR", ""))  # $NUMBA_CACHE_DIR, as numba read it
+    user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tdslip_ros"
+    return [*([numba_cache] if numba_cache else []), str(user_cache), str(MODEL_DIR / "__pycache__")]
 
 
 def _kernel_cache_class() -> type | None:
-    """numba's function cache with the locators of the module docstring and the model package's stamp;
-    None where numba lacks those locators (another numba than the pinned one: its own cache=True)."""
+    """numba's function cache in the first writable folder of :func:`_cache_bases`, stamped with the model
+    package's hash; None where numba lacks the classes this builds on (another numba than the pinned one:
+    then its own cache=True)."""
     try:
-        bases = (caching.UserProvidedCacheLocator, caching.InTreeCacheLocator, caching.UserWideCacheLocator)
+        base_locator, implementation_base = caching._CacheLocator, caching.CompileResultCacheImpl
     except AttributeError:
         return None
-    locators = [type(f"Model{base.__name__}", (_ModelStamp, base), {}) for base in bases]
-    implementation = type(
-        "KernelCacheImpl", (caching.CompileResultCacheImpl,), {"_locator_classes": locators}
-    )
+
+    class ModelLocator(base_locator):  # type: ignore[valid-type,misc]  # a class of the numba found
+        def __init__(self, py_func: Callable[..., Any], path: str) -> None:
+            self._lineno = py_func.__code__.co_firstlineno
+            self._path = path
+
+        def get_cache_path(self) -> str:
+            return self._path
+
+        def get_source_stamp(self) -> str:
+            return model_source_stamp()
+
+        def get_disambiguator(self) -> str:
+            return str(self._lineno)
+
+        @classmethod
+        def from_function(cls, py_func: Callable[..., Any], py_file: str) -> ModelLocator | None:
+            for base in _cache_bases():
+                locator = cls(py_func, os.path.join(base, f"model-{model_source_stamp()[:16]}"))
+                try:
+                    locator.ensure_cache_path()
+                except OSError:
+                    continue
+                return locator
+            return None
+
+    implementation = type("KernelCacheImpl", (implementation_base,), {"_locator_classes": [ModelLocator]})
     return type("KernelCache", (caching.FunctionCache,), {"_impl_class": implementation})
 
 
