@@ -778,11 +778,12 @@ def check_corrections(corrections: int) -> None:
 
 @dataclass(frozen=True)
 class Lanes:
-    """Inputs broadcast to one shape and flattened for a compiled lane loop: the hopper parameters as
-    float64, the values as complex128 where any of them is complex (the complex step), else float64."""
+    """Inputs broadcast to one shape and flattened for a compiled lane loop: the hopper parameters as rows
+    m, k, r0, c, g of one float64 block, the values as complex128 where any of them is complex (the complex
+    step), else float64."""
 
     shape: tuple[int, ...]
-    params: tuple[Array, Array, Array, Array, Array]
+    params: Array
     values: tuple[Array, ...]
     dtype: type
 
@@ -796,12 +797,12 @@ class Lanes:
         def flat(value: Array, kind: type) -> Array:
             return np.ascontiguousarray(np.broadcast_to(value, shape), dtype=kind).reshape(-1)
 
-        m, k, r0, c, g = (flat(field, float) for field in fields)
-        return cls(shape, (m, k, r0, c, g), tuple(flat(a, dtype) for a in arrays), dtype)
+        block = np.stack([flat(field, float) for field in fields])
+        return cls(shape, block, tuple(flat(a, dtype) for a in arrays), dtype)
 
     def run(self, loop: Callable[..., None], *arguments: Any) -> None:
         """Call a compiled lane loop with the parameters, the values and then ``arguments``."""
-        loop(*self.params, *self.values, *arguments)
+        loop(self.params, *self.values, *arguments)
 
     def rows(self, count: int) -> Array:
         """An output block of ``count`` rows, one column per lane."""
@@ -826,14 +827,24 @@ def elementwise(function: Callable[..., Any], kinds: Sequence[type], *args: Arra
     return tuple(np.asarray(r) for r in (results if len(kinds) > 1 else (results,)))
 
 
-_APPROXIMATION_VALUES = LaneApproximation._fields[5:19]
-"""The fields of LaneApproximation after the parameters, up to the phases (each phase adds cos and sin)."""
+_FLAT_APPROXIMATION = 25
+"""Scalars of a LaneApproximation with its three phases flattened to (cos, sin)."""
+
+
+def _flatten(lane: LaneApproximation) -> tuple[Any, ...]:
+    return (*lane[:19], *lane.phase1, *lane.phase2, *lane.phase3)
+
+
+def _unflatten(values: Sequence[Any]) -> LaneApproximation:
+    phases = (Angle(*values[19:21]), Angle(*values[21:23]), Angle(*values[23:25]))
+    return LaneApproximation._make((*values[:19], *phases))
 
 
 @dataclass(frozen=True)
 class StanceApproximation:
     """Closed-form stance of section II.C for a constant angular momentum ``m r0^2 omega`` (module docstring),
-    as arrays (the fields of :class:`LaneApproximation`, the parameters as ParamArrays).
+    as arrays: ``lanes`` is a LaneApproximation whose fields are arrays, readable as attributes of this
+    object (``amplitude``, ``bottom_time``, ``phase1``, ...; ``params`` gives m, k, r0, c, g as ParamArrays).
 
     ``t`` arguments broadcast against the fields. The phases phi1, phi2, phi3 are kept as (cos, sin) pairs:
     cos phi1 = A/M, sin phi1 = -B/M, cos phi2 = zeta, sin phi2 = -sqrt(1 - zeta^2),
@@ -842,52 +853,39 @@ class StanceApproximation:
     serve checks against quadrature and plots; the map itself runs in the compiled lane loop).
     """
 
-    params: ParamArrays
-    theta_td: Array
-    rdot_td: Array
-    omega: Array
-    omega_hat: Array
-    zeta: Array
-    omega_d: Array
-    decay: Array  # a = zeta omega_hat = c/(2m)
-    equilibrium: Array  # F/omega_hat^2
-    amplitude_a: Array  # A
-    amplitude: Array  # M
-    force_amplitude: Array  # Mbar
-    x_rate: Array  # X
-    y_amplitude: Array  # Y
-    bottom_time: Array
-    phase1: Angle
-    phase2: Angle
-    phase3: Angle
+    lanes: LaneApproximation
 
     @classmethod
     def build(
         cls, params: ParamArrays, theta_td: ArrayLike, rdot_td: ArrayLike, omega: ArrayLike
     ) -> StanceApproximation:
-        def flat(*lane: Any) -> tuple[Any, ...]:
-            s = lane_approximation(*lane)
-            return (*s[5:19], *s.phase1, *s.phase2, *s.phase3)
-
         fields = (params.m, params.k, params.r0, params.c, params.g)
-        values = elementwise(flat, [complex] * 20, *fields, theta_td, rdot_td, omega)
-        fields_: dict[str, Any] = dict(zip(_APPROXIMATION_VALUES, values[:14], strict=True))
-        fields_ |= {"phase1": Angle(*values[14:16]), "phase2": Angle(*values[16:18])}
-        return cls(params=params, phase3=Angle(*values[18:20]), **fields_)
+        values = elementwise(
+            lambda *lane: _flatten(lane_approximation(*lane)),
+            [float] * 5 + [complex] * 20,
+            *fields,
+            theta_td,
+            rdot_td,
+            omega,
+        )
+        return cls(_unflatten(values))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.lanes, name)
+
+    @property
+    def params(self) -> ParamArrays:
+        return ParamArrays(*(np.asarray(value) for value in self.lanes[:5]))
 
     def _call(
         self, function: Callable[..., Any], kinds: Sequence[type], *args: ArrayLike
     ) -> tuple[Array, ...]:
         """function(lane, *args) per lane, lane the LaneApproximation of that lane."""
-        fields = [getattr(self.params, name) for name in ("m", "k", "r0", "c", "g")]
-        fields += [getattr(self, name) for name in _APPROXIMATION_VALUES]
-        fields += [*self.phase1, *self.phase2, *self.phase3]
 
         def one(*values: Any) -> Any:
-            phases = (Angle(*values[19:21]), Angle(*values[21:23]), Angle(*values[23:25]))
-            return function(LaneApproximation._make((*values[:19], *phases)), *values[25:])
+            return function(_unflatten(values[:_FLAT_APPROXIMATION]), *values[_FLAT_APPROXIMATION:])
 
-        return elementwise(one, kinds, *fields, *args)
+        return elementwise(one, kinds, *_flatten(self.lanes), *args)
 
     @property
     def phi1(self) -> Array:
@@ -1122,11 +1120,7 @@ def strides_of_block(params: ParamArrays, lanes: Lanes, angle: Array, block: Arr
 
 @kernel
 def _stride_lanes(
-    m: Array,
-    k: Array,
-    r0: Array,
-    c: Array,
-    g: Array,
+    params: Array,
     y: Array,
     xdot: Array,
     angle: Array,
@@ -1137,14 +1131,9 @@ def _stride_lanes(
     out: Array,
 ) -> None:
     for i in range(y.size):
-        stride = lane_stride(
-            m[i], k[i], r0[i], c[i], g[i], y[i], xdot[i], angle[i], tau0[i], t_f[i], corrections, liftoff
-        )
+        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
+        stride = lane_stride(m, k, r0, c, g, y[i], xdot[i], angle[i], tau0[i], t_f[i], corrections, liftoff)
         write_stride(out, i, stride)
-
-
-def _apex_energy(params: ParamArrays, y: Array, xdot: Array) -> Array:
-    return params.m * (params.g * y + 0.5 * xdot**2)
 
 
 def command_arrays(command: CommandArrays | StanceCommand) -> CommandArrays:

@@ -622,11 +622,7 @@ def write_command(out: Array, lane: int, command: LaneCommand) -> None:
 
 @kernel
 def _planned_lanes(
-    m: Array,
-    k: Array,
-    r0: Array,
-    c: Array,
-    g: Array,
+    params: Array,
     y: Array,
     xdot: Array,
     angle: Array,
@@ -639,7 +635,8 @@ def _planned_lanes(
 ) -> None:
     """A rule's plan per lane, checked in the map (fixed_power) or not (ramp_to_liftoff)."""
     for i in range(y.size):
-        apex = lane_apex(m[i], k[i], r0[i], c[i], g[i], y[i], xdot[i], angle[i], liftoff)
+        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
+        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], liftoff)
         plan = lane_plan(
             y[i],
             angle[i],
@@ -663,11 +660,7 @@ def _planned_lanes(
 
 @kernel
 def _regulated_lanes(
-    m: Array,
-    k: Array,
-    r0: Array,
-    c: Array,
-    g: Array,
+    params: Array,
     y: Array,
     xdot: Array,
     angle: Array,
@@ -679,8 +672,9 @@ def _regulated_lanes(
     out: Array,
 ) -> None:
     for i in range(y.size):
-        apex = lane_apex(m[i], k[i], r0[i], c[i], g[i], y[i], xdot[i], angle[i], liftoff)
-        change = energy_change(m[i], g[i], y[i], xdot[i], has_target, target[i])
+        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
+        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], liftoff)
+        change = energy_change(m, g, y[i], xdot[i], has_target, target[i])
         write_command(
             out, i, lane_energy_regulation(apex, change, corrections, liftoff, max_iterations).command
         )
@@ -688,11 +682,7 @@ def _regulated_lanes(
 
 @kernel
 def _pd_lanes(
-    m: Array,
-    k: Array,
-    r0: Array,
-    c: Array,
-    g: Array,
+    params: Array,
     y: Array,
     xdot: Array,
     previous_xdot: Array,
@@ -705,13 +695,14 @@ def _pd_lanes(
     out: Array,
 ) -> None:
     for i in range(y.size):
-        angle = neutral_angle_of(m[i], k[i], r0[i], xdot[i])
+        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
+        angle = neutral_angle_of(m, k, r0, xdot[i])
         angle = angle + kp * (xdot[i] - target_xdot[i]) + kd * (xdot[i] - previous_xdot[i])
-        lower, upper = lane_admissible_angles(r0[i], g[i], y[i])
+        lower, upper = lane_admissible_angles(r0, g, y[i])
         angle = clip(angle, lower, upper) if lower < upper else np.nan  # NaN: no angle places the leg
-        apex = lane_apex(m[i], k[i], r0[i], c[i], g[i], y[i], xdot[i], angle, liftoff)
-        target = apex_energy(m[i], g[i], target_y[i], target_xdot[i])
-        change = energy_change(m[i], g[i], y[i], xdot[i], True, target)
+        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle, liftoff)
+        target = apex_energy(m, g, target_y[i], target_xdot[i])
+        change = energy_change(m, g, y[i], xdot[i], True, target)
         write_command(
             out, i, lane_energy_regulation(apex, change, corrections, liftoff, FIXED_POINT_ITERATIONS).command
         )
@@ -719,11 +710,7 @@ def _pd_lanes(
 
 @kernel
 def _deadbeat_lanes(
-    m: Array,
-    k: Array,
-    r0: Array,
-    c: Array,
-    g: Array,
+    params: Array,
     y: Array,
     xdot: Array,
     target_y: Array,
@@ -735,12 +722,9 @@ def _deadbeat_lanes(
     out: Array,
 ) -> None:
     for i in range(y.size):
-        change = real(
-            apex_energy(m[i], g[i], target_y[i], target_xdot[i]) - apex_energy(m[i], g[i], y[i], xdot[i])
-        )
-        goal = DeadbeatGoal(
-            m[i], k[i], r0[i], c[i], g[i], y[i], xdot[i], target_xdot[i], change, corrections, liftoff
-        )
+        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
+        change = real(apex_energy(m, g, target_y[i], target_xdot[i]) - apex_energy(m, g, y[i], xdot[i]))
+        goal = DeadbeatGoal(m, k, r0, c, g, y[i], xdot[i], target_xdot[i], change, corrections, liftoff)
         write_command(out, i, lane_deadbeat(goal, fractions, angle_tolerance))
 
 
