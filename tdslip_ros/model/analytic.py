@@ -85,7 +85,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
@@ -164,7 +164,7 @@ class ParamArrays:
         if isinstance(params, ParamArrays):
             return params
         if isinstance(params, HopperParams):
-            return cls(*(np.asarray(getattr(params, name)) for name in ("m", "k", "r0", "c", "g")))
+            return _arrays_of_hopper(params)
         return cls(*(np.array([getattr(p, name) for p in params]) for name in ("m", "k", "r0", "c", "g")))
 
     @classmethod
@@ -186,6 +186,16 @@ class ParamArrays:
             c=2.0 * np.asarray(zeta0, dtype=float) * np.sqrt(m_ * k),
             g=g_,
         )
+
+
+@lru_cache(maxsize=64)
+def _arrays_of_hopper(params: HopperParams) -> ParamArrays:
+    """ParamArrays of one parameter set, kept: a controller plans every apex with the same parameters, and
+    building and checking the arrays costs more than planning (their arrays are read-only, being shared)."""
+    arrays = [np.array(getattr(params, name)) for name in ("m", "k", "r0", "c", "g")]
+    for array in arrays:
+        array.flags.writeable = False
+    return ParamArrays(*arrays)
 
 
 class NoCommand(enum.StrEnum):
@@ -611,8 +621,8 @@ class StanceStart(NamedTuple):
     approximation: LaneApproximation
     t_lo: complex
     liftoff_exists: bool
-    r_lo: complex
-    theta_lo: complex
+    wave: Wave  # at t_lo
+    gravity_correction: complex  # dp_g of the first correction
 
 
 @kernel
@@ -630,8 +640,10 @@ def lane_stance_start(
     momentum_td = m * r0**2 * thetadot_td
     s = lane_approximation(m, k, r0, c, g, theta_td, rdot_td, momentum_td / (m * r0**2))
     t_lo, exists = lane_liftoff(s, liftoff)
-    at_liftoff = lane_state(s, lane_wave(s, t_lo), t_lo)
-    return StanceStart(momentum_td, s, t_lo, exists, at_liftoff.r, at_liftoff.theta)
+    wave = lane_wave(s, t_lo)
+    at_liftoff = lane_state(s, wave, t_lo)
+    gravity = lane_gravity_correction(m, g, r0, theta_td, t_lo, at_liftoff.r, at_liftoff.theta)
+    return StanceStart(momentum_td, s, t_lo, exists, wave, gravity)
 
 
 class LaneStance(NamedTuple):
@@ -665,17 +677,13 @@ def lane_stance(
     s = start.approximation
     m, k, r0, c, g = s.m, s.k, s.r0, s.c, s.g
     momentum = start.momentum_td
-    t_lo, exists, r_lo, theta_lo = start.t_lo, start.liftoff_exists, start.r_lo, start.theta_lo
+    t_lo, exists, gravity = start.t_lo, start.liftoff_exists, start.gravity_correction
     done = 0
     while done < corrections:
         if done > 0:
             at_liftoff = lane_state(s, lane_wave(s, t_lo), t_lo)
-            r_lo, theta_lo = at_liftoff.r, at_liftoff.theta
-        corrected = (
-            start.momentum_td
-            + lane_torque_correction(tau0, t_f, t_lo)
-            + lane_gravity_correction(m, g, r0, s.theta_td, t_lo, r_lo, theta_lo)
-        )
+            gravity = lane_gravity_correction(m, g, r0, s.theta_td, t_lo, at_liftoff.r, at_liftoff.theta)
+        corrected = start.momentum_td + lane_torque_correction(tau0, t_f, t_lo) + gravity
         stop = converged(corrected, momentum, CORRECTION_TOLERANCE) or not exists
         momentum = corrected
         done += 1
@@ -683,7 +691,7 @@ def lane_stance(
         t_lo, exists = lane_liftoff(s, liftoff)
         if stop:
             break
-    wave = lane_wave(s, t_lo)
+    wave = start.wave if done == 0 else lane_wave(s, t_lo)
     at_liftoff = lane_state(s, wave, t_lo)
     return LaneStance(
         momentum,
@@ -738,6 +746,15 @@ def lane_stride(
     touchdown = lane_descent(r0, g, y, xdot, angle)
     start = lane_stance_start(m, k, r0, c, g, angle, touchdown.rdot, touchdown.thetadot, liftoff)
     stance = lane_stance(start, tau0, t_f, corrections, liftoff)
+    return lane_ascent(m, g, y, xdot, touchdown, stance)
+
+
+@kernel
+def lane_ascent(
+    m: float, g: float, y: complex, xdot: complex, touchdown: Touchdown, stance: LaneStance
+) -> LaneStride:
+    """The stride from the apex (y, xdot) through its touchdown and stance: the ascent P_a (eq. 7) to the next
+    apex, the next energy from the energy balance, and the stride's failure."""
     sin, cos = np.sin(stance.theta_lo), np.cos(stance.theta_lo)
     ydot_lo = stance.rdot_lo * cos - stance.r_lo * stance.thetadot_lo * sin
     xdot_lo = -stance.rdot_lo * sin - stance.r_lo * stance.thetadot_lo * cos
@@ -791,8 +808,12 @@ class Lanes:
     def of(cls, params: ParamArrays, *values: ArrayLike) -> Lanes:
         fields = (params.m, params.k, params.r0, params.c, params.g)
         arrays = [np.asarray(value) for value in values]
+        dtype: type = complex if any(a.dtype.kind == "c" for a in arrays) else float
+        if all(np.ndim(field) == 0 for field in fields) and all(a.ndim == 0 for a in arrays):
+            # One lane, the controller's call: nothing to broadcast.
+            block = np.array(fields, dtype=float).reshape(5, 1)
+            return cls((), block, tuple(a.astype(dtype).reshape(1) for a in arrays), dtype)
         shape = np.broadcast_shapes(*(np.shape(field) for field in fields), *(a.shape for a in arrays))
-        dtype: type = complex if any(np.iscomplexobj(a) for a in arrays) else float
 
         def flat(value: Array, kind: type) -> Array:
             return np.ascontiguousarray(np.broadcast_to(value, shape), dtype=kind).reshape(-1)
@@ -1171,11 +1192,15 @@ def approximate_map(
     return strides_of_block(params, lanes, lanes.values[2], block)
 
 
-def validate_command(angle: Array, t_f: Array) -> None:
-    angle, t_f = np.real(angle), np.real(t_f)
+def validate_angle(angle: ArrayLike) -> None:
+    angle = np.real(angle)
     if np.any((angle <= 0.0) | (angle >= np.pi / 2)):
         raise ParameterError("touchdown_angle must lie in (0, pi/2) rad on every lane")
-    if np.any(t_f <= 0.0):
+
+
+def validate_command(angle: Array, t_f: Array) -> None:
+    validate_angle(angle)
+    if np.any(np.real(t_f) <= 0.0):
         raise ParameterError("t_f (ramp duration) must be positive on every lane")
 
 

@@ -57,17 +57,17 @@ from tdslip_ros.model.analytic import (
     converged,
     elementwise,
     fixed_command,
+    lane_ascent,
     lane_descent,
     lane_hip_energy,
     lane_stance,
     lane_stance_start,
-    lane_stride,
     liftoff_code,
     map_jacobian,
     no_command_code,
     no_command_of_failure,
     reason_of_failure,
-    validate_command,
+    validate_angle,
 )
 from tdslip_ros.model.compiled import kernel, real
 from tdslip_ros.model.events import NO_FAILURE_CODE
@@ -221,11 +221,16 @@ def lane_plan(
     if has_start:
         x0, x1 = start_tau0 / scale_tau, start_t_f / scale_t
     lifts_off, solved = True, False
-    for _ in range(max_iterations):
-        # G at x and at its two shifts.
+    for _ in range(max_iterations if reason == HAS_COMMAND else 0):  # a lane with its reason has no plan
         tau0, t_f = x0 * scale_tau, x1 * scale_t
         stance = lane_stance(start, tau0, t_f, corrections, liftoff)
         g0, g1 = rule_torque(rule, value, stance, touchdown.thetadot, t_f) / scale_tau, stance.t_lo / scale_t
+        lifts_off = lifts_off and stance.liftoff_exists
+        solved = converged(g0, x0, FIXED_POINT_TOLERANCE) and converged(g1, x1, FIXED_POINT_TOLERANCE)
+        if solved or not lifts_off:
+            x0, x1 = g0, g1
+            break
+        # G at the two shifts of x, for its Jacobian.
         tau0 = (x0 + JACOBIAN_STEP) * scale_tau
         shifted = lane_stance(start, tau0, t_f, corrections, liftoff)
         g00 = rule_torque(rule, value, shifted, touchdown.thetadot, t_f) / scale_tau
@@ -234,11 +239,6 @@ def lane_plan(
         shifted = lane_stance(start, tau0, t_f, corrections, liftoff)
         g10 = rule_torque(rule, value, shifted, touchdown.thetadot, t_f) / scale_tau
         g11 = shifted.t_lo / scale_t
-        lifts_off = lifts_off and stance.liftoff_exists
-        solved = converged(g0, x0, FIXED_POINT_TOLERANCE) and converged(g1, x1, FIXED_POINT_TOLERANCE)
-        if solved or not lifts_off or reason != HAS_COMMAND:
-            x0, x1 = g0, g1
-            break
         residual0, residual1 = g0 - x0, g1 - x1
         # d residual_i / d x_j = dG_i/dx_j - delta_ij
         step0, step1 = solve2(
@@ -292,10 +292,17 @@ def planned_energy_per_torque(
     return real(energy_per_torque(lane_stance(apex.start, tau0, t_f, corrections, liftoff), t_f))
 
 
+class Planned(NamedTuple):
+    """A plan and the stance it produces (no stance of meaning where it has no command)."""
+
+    plan: Plan
+    stance: LaneStance
+
+
 @kernel
 def lane_regulated_plan(
     apex: Apex, change: complex, corrections: int, liftoff: int, max_iterations: int
-) -> Plan:
+) -> Planned:
     """Energy regulation's (tau0, t_f) on the forward root (e < 0, module docstring), dE = change.
 
     Newton from the unforced stance finds the forward root wherever the unforced stance swings forward
@@ -310,7 +317,8 @@ def lane_regulated_plan(
         y, angle, touchdown, start, ENERGY_RULE, change, corrections, liftoff, max_iterations, False, 0.0, 0.0
     )
     tau0, t_f, reason = plan.tau0, plan.t_f, plan.reason
-    rate = planned_energy_per_torque(apex, tau0, t_f, corrections, liftoff)
+    stance = lane_stance(start, tau0, t_f, corrections, liftoff)
+    rate = real(energy_per_torque(stance, t_f))
     if rate >= 0.0:  # the backward root
         backward = real(tau0)
         at_zero = planned_energy_per_torque(apex, 0.0, t_f, corrections, liftoff)
@@ -330,10 +338,11 @@ def lane_regulated_plan(
             t_f,
         )
         tau0, t_f, reason = again.tau0, again.t_f, again.reason
-        forward = planned_energy_per_torque(apex, tau0, t_f, corrections, liftoff) < 0.0
+        stance = lane_stance(start, tau0, t_f, corrections, liftoff)
+        forward = real(energy_per_torque(stance, t_f)) < 0.0
         if reason == HAS_COMMAND and not forward:
             tau0, t_f, reason = np.nan, np.nan, _NO_SOLUTION
-    return Plan(tau0, t_f, reason)
+    return Planned(Plan(tau0, t_f, reason), stance)
 
 
 class Checked(NamedTuple):
@@ -342,23 +351,11 @@ class Checked(NamedTuple):
 
 
 @kernel
-def lane_checked(apex: Apex, plan: Plan, corrections: int, liftoff: int) -> Checked:
+def lane_checked(apex: Apex, planned: Planned) -> Checked:
     """The planned command, or no command with the reason the analytic map rejects it, and the map's
     stride with the planned command."""
-    stride = lane_stride(
-        apex.m,
-        apex.k,
-        apex.r0,
-        apex.c,
-        apex.g,
-        apex.y,
-        apex.xdot,
-        apex.angle,
-        plan.tau0,
-        plan.t_f,
-        corrections,
-        liftoff,
-    )
+    plan = planned.plan
+    stride = lane_ascent(apex.m, apex.g, apex.y, apex.xdot, apex.touchdown, planned.stance)
     reason = plan.reason
     if reason == HAS_COMMAND:
         reason = reason_of_failure(stride.failure)
@@ -373,8 +370,7 @@ def lane_energy_regulation(
     apex: Apex, change: complex, corrections: int, liftoff: int, max_iterations: int
 ) -> Checked:
     """Energy regulation's command (E_tau = E_loss + change) and the map's stride with it."""
-    plan = lane_regulated_plan(apex, change, corrections, liftoff, max_iterations)
-    return lane_checked(apex, plan, corrections, liftoff)
+    return lane_checked(apex, lane_regulated_plan(apex, change, corrections, liftoff, max_iterations))
 
 
 @kernel
@@ -457,27 +453,13 @@ class DeadbeatGoal(NamedTuple):
 
 
 @kernel
-def deadbeat_values(
-    goal: DeadbeatGoal, angle: float, z1: float, z2: float
-) -> tuple[float, float, float, bool]:
-    """(c, r) at z = (angle, z1, z2) (:class:`DeadbeatPoint`) and whether the map's stride rises clear."""
+def deadbeat_values(goal: DeadbeatGoal, apex: Apex, z1: float, z2: float) -> tuple[float, float, float, bool]:
+    """(c, r) at z = (apex.angle, z1, z2) (:class:`DeadbeatPoint`) and whether the stride rises clear."""
     scale_tau, scale_t = torque_scales(goal.m, goal.k, goal.r0, goal.g)
     tau0, t_f = z1 * scale_tau, z2 * scale_t
     t_f = t_f if t_f > 0.0 else np.nan  # a wild step fails its point, not the lane
-    stride = lane_stride(
-        goal.m,
-        goal.k,
-        goal.r0,
-        goal.c,
-        goal.g,
-        goal.y,
-        goal.xdot,
-        angle,
-        tau0,
-        t_f,
-        goal.corrections,
-        goal.liftoff,
-    )
+    stance = lane_stance(apex.start, tau0, t_f, goal.corrections, goal.liftoff)
+    stride = lane_ascent(goal.m, goal.g, goal.y, goal.xdot, apex.touchdown, stance)
     torque = rule_torque(ENERGY_RULE, goal.change, stride.stance, stride.touchdown.thetadot, t_f)
     return (
         real(torque / scale_tau - z1),
@@ -490,10 +472,13 @@ def deadbeat_values(
 @kernel
 def linearise(goal: DeadbeatGoal, angle: float, z1: float, z2: float) -> DeadbeatPoint:
     """The point z and its linearisation, from the values at z and at its three forward shifts."""
-    c0, c1, r, clear = deadbeat_values(goal, angle, z1, z2)
-    a0, a1, ar, _ = deadbeat_values(goal, angle + JACOBIAN_STEP, z1, z2)
-    b0, b1, br, _ = deadbeat_values(goal, angle, z1 + JACOBIAN_STEP, z2)
-    d0, d1, dr, _ = deadbeat_values(goal, angle, z1, z2 + JACOBIAN_STEP)
+    m, k, r0, c, g, y, xdot = goal.m, goal.k, goal.r0, goal.c, goal.g, goal.y, goal.xdot
+    apex = lane_apex(m, k, r0, c, g, y, xdot, angle, goal.liftoff)
+    shifted = lane_apex(m, k, r0, c, g, y, xdot, angle + JACOBIAN_STEP, goal.liftoff)
+    c0, c1, r, clear = deadbeat_values(goal, apex, z1, z2)
+    a0, a1, ar, _ = deadbeat_values(goal, shifted, z1, z2)
+    b0, b1, br, _ = deadbeat_values(goal, apex, z1 + JACOBIAN_STEP, z2)
+    d0, d1, dr, _ = deadbeat_values(goal, apex, z1, z2 + JACOBIAN_STEP)
     # d(c, r)_i / dz_j by forward differences
     c0_angle, c0_z1, c0_z2 = (a0 - c0) / JACOBIAN_STEP, (b0 - c0) / JACOBIAN_STEP, (d0 - c0) / JACOBIAN_STEP
     c1_angle, c1_z1, c1_z2 = (a1 - c1) / JACOBIAN_STEP, (b1 - c1) / JACOBIAN_STEP, (d1 - c1) / JACOBIAN_STEP
@@ -568,7 +553,7 @@ def lane_deadbeat(goal: DeadbeatGoal, fractions: Array, angle_tolerance: float) 
             # Far from the torque's fixed point (or where the map fails there) the joint step says little:
             # solve the torque at that angle from scratch, as energy_regulation does, and linearise there.
             apex = lane_apex(m, k, r0, c, g, y, xdot, new.angle, liftoff)
-            solved = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS)
+            solved = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS).plan
             new = linearise(goal, new.angle, real(solved.tau0) / scale_tau, real(solved.t_f) / scale_t)
         good = new.ok and trusted(new)
         if not settled:
@@ -586,11 +571,12 @@ def lane_deadbeat(goal: DeadbeatGoal, fractions: Array, angle_tolerance: float) 
     if not found:
         angle, tau0, t_f = np.nan, np.nan, np.nan
     apex = lane_apex(m, k, r0, c, g, y, xdot, angle, liftoff)
-    plan = Plan(tau0, t_f, reason)
     if found and not here.converged:
         # Out of steps with the torque not yet solved (an optimum at the edge of the failures): solve it.
-        plan = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS)
-    refined = lane_checked(apex, plan, corrections, liftoff)
+        planned = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS)
+    else:
+        planned = Planned(Plan(tau0, t_f, reason), lane_stance(apex.start, tau0, t_f, corrections, liftoff))
+    refined = lane_checked(apex, planned)
     if scan_found and not rises_clear(g, refined.stride):
         # The map rejects the refined command (or it leaves no margin from a fall): the best scanned one (its
         # cost was finite) stands.
@@ -652,7 +638,8 @@ def _planned_lanes(
             0.0,
         )
         if check:
-            write_command(out, i, lane_checked(apex, plan, corrections, liftoff).command)
+            stance = lane_stance(apex.start, plan.tau0, plan.t_f, corrections, liftoff)
+            write_command(out, i, lane_checked(apex, Planned(plan, stance)).command)
         else:
             planned = angle[i] if plan.reason == HAS_COMMAND else np.nan
             write_command(out, i, LaneCommand(planned, plan.tau0, plan.t_f, plan.reason))
@@ -798,7 +785,7 @@ def fixed_power(
     liftoff time the analytic map predicts, not the stance duration the plant will produce (on the exact
     plant the ramp then ends a little before or after liftoff; docs/paper.md quantifies the difference).
     """
-    validate_command(np.asarray(beta), np.asarray(1.0))
+    validate_angle(beta)
     power = units.power_from_alpha(params, np.asarray(alpha, dtype=float))
     return _planned(ParamArrays.of(params), y, xdot, beta, power, POWER_RULE, True, corrections, liftoff)
 
@@ -824,7 +811,7 @@ def energy_regulation(
     ``max_iterations`` (at least 1) Newton steps get no_solution.
     """
     _require_at_least("max_iterations", max_iterations, 1)
-    validate_command(np.asarray(beta), np.asarray(1.0))
+    validate_angle(beta)
     check_corrections(corrections)
     code = liftoff_code(liftoff)
     params = ParamArrays.of(params)
