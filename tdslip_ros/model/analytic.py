@@ -83,6 +83,7 @@ result does not depend on the other lanes of its batch.
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
@@ -827,7 +828,7 @@ class Lanes:
 
     def rows(self, count: int) -> Array:
         """An output block of ``count`` rows, one column per lane."""
-        return np.empty((count, int(np.prod(self.shape, dtype=int))), dtype=self.dtype)
+        return np.empty((count, math.prod(self.shape)), dtype=self.dtype)
 
     def shaped(self, row: Array) -> Array:
         return np.asarray(row.reshape(self.shape))

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from functools import lru_cache
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -931,6 +932,14 @@ def admissible_angles(params: HopperParams | ParamArrays, y: ArrayLike) -> tuple
     return lower, upper
 
 
+@lru_cache(maxsize=8)
+def _scan_fractions(grid: int) -> Array:
+    """Deadbeat's scan angles as fractions of the admissible interval (read-only, being shared)."""
+    fractions = np.linspace(0.0, 1.0, grid)
+    fractions.flags.writeable = False
+    return fractions
+
+
 def deadbeat(
     params: HopperParams | ParamArrays,
     y: ArrayLike,
@@ -975,8 +984,7 @@ def deadbeat(
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, *(np.real(v) for v in (y, xdot, target_y, target_xdot)))
     block = lanes.rows(COMMAND_ROWS)
-    fractions = np.linspace(0.0, 1.0, grid)
-    lanes.run(_deadbeat_lanes, fractions, angle_tolerance, corrections, code, block)
+    lanes.run(_deadbeat_lanes, _scan_fractions(grid), angle_tolerance, corrections, code, block)
     return _commands(lanes, block)
 
 
