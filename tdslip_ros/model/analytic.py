@@ -548,6 +548,13 @@ def lane_hip_energy(
 ) -> complex:
     """E_tau = int_0^T tau thetadot dt for the ramp tau0 (1 - t/t_f), T = min(t_f, t_end) (eq. 25);
     wave_end is the wave at t_end."""
+    energy: complex = tau0 * lane_energy_per_torque(s, t_f, t_end, wave_end)
+    return energy
+
+
+@kernel
+def lane_energy_per_torque(s: LaneApproximation, t_f: complex, t_end: complex, wave_end: Wave) -> complex:
+    """E_tau/tau0 (:func:`lane_hip_energy`): the ramp-weighted mean angular rate, times the ramp's length."""
     if real(t_f) <= real(t_end):
         t = t_f
         wave = lane_wave(s, t_f)
@@ -560,8 +567,8 @@ def lane_hip_energy(
     i1 = -t * wave_at(wave, lag1) / s.omega_hat - (wave_at(wave, lag2) - lag2.cos) / s.omega_hat**2
     mean_part = s.x_rate * (t - t**2 / (2.0 * t_f))
     oscillating_part = 2.0 * s.omega * s.amplitude / s.r0 * (i0 - i1 / t_f)
-    energy: complex = tau0 * (mean_part - oscillating_part)
-    return energy
+    rate: complex = mean_part - oscillating_part
+    return rate
 
 
 @kernel
@@ -662,7 +669,7 @@ class LaneStance(NamedTuple):
     liftoff_exists: bool
     corrections_done: int
     approximation: LaneApproximation  # the last (most corrected) one
-    wave: Wave  # at t_lo
+    energy_per_torque: complex  # e = E_tau/tau0: negative while the body swings forward over the ramp
 
 
 LANE_STANCE_VALUES = 11
@@ -694,6 +701,7 @@ def lane_stance(
             break
     wave = start.wave if done == 0 else lane_wave(s, t_lo)
     at_liftoff = lane_state(s, wave, t_lo)
+    energy_per_torque = lane_energy_per_torque(s, t_f, t_lo, wave)
     return LaneStance(
         momentum,
         t_lo,
@@ -701,13 +709,13 @@ def lane_stance(
         at_liftoff.theta,
         at_liftoff.rdot,
         at_liftoff.thetadot,
-        lane_hip_energy(s, tau0, t_f, t_lo, wave),
+        tau0 * energy_per_torque,
         lane_damping_loss(s, wave),
         0.5 * k * (at_liftoff.r - r0) ** 2,
         exists,
         done,
         s,
-        wave,
+        energy_per_torque,
     )
 
 

@@ -60,7 +60,6 @@ from tdslip_ros.model.analytic import (
     fixed_command,
     lane_ascent,
     lane_descent,
-    lane_hip_energy,
     lane_stance,
     lane_stance_start,
     liftoff_code,
@@ -155,18 +154,12 @@ def torque_scales(m: float, k: float, r0: float, g: float) -> tuple[float, float
 
 
 @kernel
-def energy_per_torque(stance: LaneStance, t_f: complex) -> complex:
-    """e = E_tau/tau0 of a stance: negative while the body swings forward over the ramp."""
-    return lane_hip_energy(stance.approximation, 1.0, t_f, stance.t_lo, stance.wave)
-
-
-@kernel
 def rule_torque(rule: int, value: complex, stance: LaneStance, thetadot_td: complex, t_f: complex) -> complex:
     """tau0 by the policy's rule (TORQUE_RULE, POWER_RULE, ENERGY_RULE) for a planned stance."""
     if rule == POWER_RULE:
         return value / thetadot_td
     if rule == ENERGY_RULE:
-        return (value + (stance.damping_loss + stance.spring_energy)) / energy_per_torque(stance, t_f)
+        return (value + (stance.damping_loss + stance.spring_energy)) / stance.energy_per_torque
     return value
 
 
@@ -290,7 +283,7 @@ def planned_energy_per_torque(
     apex: Apex, tau0: complex, t_f: complex, corrections: int, liftoff: int
 ) -> float:
     """Real part of e for the stance of (tau0, t_f) from the apex."""
-    return real(energy_per_torque(lane_stance(apex.start, tau0, t_f, corrections, liftoff), t_f))
+    return real(lane_stance(apex.start, tau0, t_f, corrections, liftoff).energy_per_torque)
 
 
 class Planned(NamedTuple):
@@ -319,7 +312,7 @@ def lane_regulated_plan(
     )
     tau0, t_f, reason = plan.tau0, plan.t_f, plan.reason
     stance = lane_stance(start, tau0, t_f, corrections, liftoff)
-    rate = real(energy_per_torque(stance, t_f))
+    rate = real(stance.energy_per_torque)
     if rate >= 0.0:  # the backward root
         backward = real(tau0)
         at_zero = planned_energy_per_torque(apex, 0.0, t_f, corrections, liftoff)
@@ -340,7 +333,7 @@ def lane_regulated_plan(
         )
         tau0, t_f, reason = again.tau0, again.t_f, again.reason
         stance = lane_stance(start, tau0, t_f, corrections, liftoff)
-        forward = real(energy_per_torque(stance, t_f)) < 0.0
+        forward = real(stance.energy_per_torque) < 0.0
         if reason == HAS_COMMAND and not forward:
             tau0, t_f, reason = np.nan, np.nan, _NO_SOLUTION
     return Planned(Plan(tau0, t_f, reason), stance)
