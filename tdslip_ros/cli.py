@@ -37,6 +37,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "make a truncated or unfinalised recording readable again (the original is kept as *.orig)",
     ),
     "figures": ("tdslip_ros.analysis.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
+    "terrain": (
+        "tdslip_ros.analysis.rough_terrain",
+        "energy regulation against open loop over rough ground: COM paths and apex energies (PNG)",
+    ),
 }
 
 
