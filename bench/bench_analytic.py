@@ -1,10 +1,12 @@
 """Benchmark of the analytic apex return map, and its accuracy against the exact plant.
 
-    python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy]
+    python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy] [--baseline DIR]
 
 Times are CPU seconds of this single-threaded process (time.process_time), best of several runs.
-Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1; target >= 1e6)
-for several lanes per call,
+Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1) for several
+lanes per call, beside the target of issue 13 (1e7 per second) and, with --baseline DIR, beside the same
+measurement of the tdslip_ros of another checkout (e.g. ``git worktree add /tmp/tdslip-main main``) in a
+child process,
 (2) the time per stride of the analytic map against the exact plant (exact_map.apex_return_map), measured
 side by side in this run, as a ratio, and (3) the accuracy table: mean and max relative errors of the next
 apex height and speed, analytic vs exact, for corrections 0 and 1, on a broad grid and on the operating
@@ -14,8 +16,12 @@ region of the paper's energy-regulated gaits (kbar = 36, zeta0 = 0.08, m = 80 kg
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -49,25 +55,56 @@ def _random_strides(lanes: int) -> tuple[np.ndarray, np.ndarray, CommandArrays]:
     return y, xdot, command
 
 
-def throughput(lanes: int, blocks: list[int], repeat: int) -> None:
-    """The same ``lanes`` evaluations in calls of ``block`` lanes each: past the CPU caches (tens of
-    thousands of lanes) every array operation waits on memory, so moderate blocks are fastest."""
+TARGET_RATE = 1e7
+"""Analytic-map evaluations per second on one core that issue 13 asks for."""
+
+
+def throughput(lanes: int, blocks: list[int], repeat: int) -> dict[str, float]:
+    """Evaluations per second of the same ``lanes`` evaluations in calls of ``block`` lanes each, keyed
+    "block/corrections": past the CPU caches (tens of thousands of lanes) every array operation of a numpy
+    implementation waits on memory, so moderate blocks were its fastest."""
     params = ParamArrays.of(PARAMS)
     y, xdot, command = _random_strides(lanes)
-    print(f"analytic map, {lanes} lanes in calls of `block` lanes, best of {repeat} (evaluations/s):")
-    print(f"  {'block':>8} {'corrections=0':>14} {'corrections=1':>14}")
 
     def evaluate(block: int, corrections: int) -> None:
         for i in range(0, lanes, block):
             part = CommandArrays(*(field[i : i + block] for field in command))
             approximate_map(params, y[i : i + block], xdot[i : i + block], part, corrections)
 
+    evaluate(16, 0)  # load (or compile) the kernels before timing
+    evaluate(16, 1)
+    return {
+        f"{block}/{corrections}": lanes / _best_time(lambda b=block, c=corrections: evaluate(b, c), repeat)
+        for block in blocks
+        for corrections in (0, 1)
+    }
+
+
+def _baseline_throughput(directory: Path, lanes: int, blocks: list[int], repeat: int) -> dict[str, float]:
+    """throughput() in a child process that imports tdslip_ros from ``directory``."""
+    command = [sys.executable, __file__, "--throughput-json", "--lanes", str(lanes), "--repeat", str(repeat)]
+    command += ["--blocks", *map(str, blocks)]
+    environment = dict(os.environ, PYTHONPATH=str(directory.resolve()))
+    child = subprocess.run(command, env=environment, capture_output=True, text=True, check=True, timeout=3600)
+    rates: dict[str, float] = json.loads(child.stdout)
+    return rates
+
+
+def print_throughput(lanes: int, blocks: list[int], repeat: int, baseline: Path | None) -> None:
+    rates = throughput(lanes, blocks, repeat)
+    old = _baseline_throughput(baseline, lanes, blocks, repeat) if baseline else None
+    print(
+        f"analytic map, {lanes} lanes in calls of `block` lanes, best of {repeat} (evaluations/s, one core):"
+    )
+    print(f"  {'block':>8} {'corr':>4} {'this':>10} {'/ 1e7':>6}", end="")
+    print(f" {'baseline':>10} {'this/baseline':>13}" if old else "")
     for block in blocks:
-        rates = [
-            lanes / _best_time(lambda b=block, c=corrections: evaluate(b, c), repeat)
-            for corrections in (0, 1)
-        ]
-        print(f"  {block:>8} {rates[0]:>14.4g} {rates[1]:>14.4g}")
+        for corrections in (0, 1):
+            key = f"{block}/{corrections}"
+            print(
+                f"  {block:>8} {corrections:>4} {rates[key]:>10.4g} {rates[key] / TARGET_RATE:>6.2f}", end=""
+            )
+            print(f" {old[key]:>10.4g} {rates[key] / old[key]:>12.2f}x" if old else "")
 
 
 def speed_ratio(strides: int) -> None:
@@ -122,8 +159,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=5, help="repetitions (best time counts)")
     parser.add_argument("--strides", type=int, default=300, help="strides of the exact-vs-analytic timing")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy table")
+    parser.add_argument("--baseline", type=Path, help="checkout whose tdslip_ros to measure beside")
+    parser.add_argument(
+        "--throughput-json", action="store_true", help=argparse.SUPPRESS
+    )  # the child's report
     args = parser.parse_args(argv)
-    throughput(args.lanes, args.blocks, args.repeat)
+    if args.throughput_json:
+        print(json.dumps(throughput(args.lanes, args.blocks, args.repeat)))
+        return 0
+    print_throughput(args.lanes, args.blocks, args.repeat, args.baseline)
     speed_ratio(args.strides)
     if not args.no_accuracy:
         accuracy_table()

@@ -70,22 +70,31 @@ keeps the torque's effect even with zero corrections, makes eq. (32) (``E_tau = 
 energy exactly as the paper states, and is more accurate than the liftoff speed of (7) (see
 ``bench/bench_analytic.py``, which prints the accuracy table).
 
-All functions broadcast over arrays of states, parameters and commands and are complex-step safe (the
-imaginary parts are treated as infinitesimal perturbations) so that :func:`map_jacobian` can differentiate
-them, including the controllers of :mod:`tdslip_ros.model.controllers`.
+Implementation. The equations are written once, as compiled scalar kernels of one lane (``lane_*``,
+:mod:`tdslip_ros.model.compiled`): the one-apex controller calls them directly and the vectorised API
+below runs them in a compiled loop over the lanes of a batch. The public functions broadcast over arrays
+of states, parameters and commands and are complex-step safe (the imaginary parts are treated as
+infinitesimal perturbations; a batch with any complex input runs the complex128 specialisation of the same
+kernels) so that :func:`map_jacobian` can differentiate them, including the controllers of
+:mod:`tdslip_ros.model.controllers`. Iterations (the corrections, the force root) stop per lane, so a lane's
+result does not depend on the other lanes of its batch.
 """
 
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from functools import cached_property, lru_cache
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
+from tdslip_ros.model.compiled import atan2, is_complex, kernel, real
 from tdslip_ros.model.events import (
+    FAILURE_KINDS,
     NO_FAILURE_CODE,
     FailureKind,
     failure_code,
@@ -104,9 +113,11 @@ LiftoffMethod = Literal["paper", "force_root"]
 Coordinates = Literal["speed", "energy"]
 
 CORRECTION_TOLERANCE = 1e-12
-"""Relative change of p_hat below which further correction iterations stop (on every lane)."""
+"""Relative change of p_hat below which further correction iterations stop."""
 FORCE_ROOT_TOLERANCE = 1e-14
 """Relative step in t below which the safeguarded Newton search for the force root stops."""
+FORCE_ROOT_ITERATIONS = 100
+"""Bound on the steps of the force-root search (bisection alone needs about 50)."""
 COMPLEX_STEP = 1e-30
 """Imaginary step of the complex-step Jacobian (any tiny value works: there is no subtraction)."""
 
@@ -154,7 +165,7 @@ class ParamArrays:
         if isinstance(params, ParamArrays):
             return params
         if isinstance(params, HopperParams):
-            return cls(*(np.asarray(getattr(params, name)) for name in ("m", "k", "r0", "c", "g")))
+            return _arrays_of_hopper(params)
         return cls(*(np.array([getattr(p, name) for p in params]) for name in ("m", "k", "r0", "c", "g")))
 
     @classmethod
@@ -176,6 +187,16 @@ class ParamArrays:
             c=2.0 * np.asarray(zeta0, dtype=float) * np.sqrt(m_ * k),
             g=g_,
         )
+
+
+@lru_cache(maxsize=64)
+def _arrays_of_hopper(params: HopperParams) -> ParamArrays:
+    """ParamArrays of one parameter set, kept: a controller plans every apex with the same parameters, and
+    building and checking the arrays costs more than planning (their arrays are read-only, being shared)."""
+    arrays = [np.array(getattr(params, name)) for name in ("m", "k", "r0", "c", "g")]
+    for array in arrays:
+        array.flags.writeable = False
+    return ParamArrays(*arrays)
 
 
 class NoCommand(enum.StrEnum):
@@ -214,12 +235,25 @@ def no_command_code(kind: NoCommand) -> int:
     return NO_COMMAND_KINDS.index(kind)
 
 
+REASON_OF_FAILURE = np.array(
+    [
+        no_command_code(_NO_COMMAND_OF_FAILURE[kind]) if kind in _NO_COMMAND_OF_FAILURE else HAS_COMMAND
+        for kind in FAILURE_KINDS
+    ]
+)
+"""The no_command code for each failure code (HAS_COMMAND for the exact plant's other kinds)."""
+
+
 def no_command_of_failure(failure: ArrayLike) -> Array:
     """no_command codes for map failure codes (events.failure_code); HAS_COMMAND where none."""
-    codes = np.full(np.shape(failure), HAS_COMMAND)
-    for kind, reason in _NO_COMMAND_OF_FAILURE.items():
-        codes = np.where(np.asarray(failure) == failure_code(kind), no_command_code(reason), codes)
-    return codes
+    failure = np.asarray(failure)
+    return np.where(failure == NO_FAILURE_CODE, HAS_COMMAND, REASON_OF_FAILURE[failure])
+
+
+@kernel
+def reason_of_failure(failure: int) -> int:
+    """The no_command code of one lane's failure code."""
+    return HAS_COMMAND if failure == NO_FAILURE_CODE else int(REASON_OF_FAILURE[failure])
 
 
 class NoCommandError(ParameterError):
@@ -263,318 +297,715 @@ class CommandArrays:
         return StanceCommand(*(float(np.real(np.asarray(field)[index])) for field in self))
 
 
-def _real(x: Array) -> Array:
-    return np.real(x)
+# --- the equations: compiled kernels of one lane (float or complex; see the module docstring) -------------
 
 
-def _atan2(y: Array, x: Array) -> Array:
-    """atan2 carrying infinitesimal imaginary parts (complex step): d atan2 = (x dy - y dx)/(x^2 + y^2)."""
-    if not (np.iscomplexobj(y) or np.iscomplexobj(x)):
-        return np.arctan2(y, x)
-    yr, xr = np.real(y), np.real(x)
-    return np.asarray(np.arctan2(yr, xr) + 1j * (xr * np.imag(y) - yr * np.imag(x)) / (xr**2 + yr**2))
+class Angle(NamedTuple):
+    """A constant phase held as its cosine and sine, so that cos(wd t + phase) needs no new trigonometry
+    (scalars in a kernel, arrays in StanceApproximation)."""
+
+    cos: Any
+    sin: Any
 
 
-def _where_real_le(a: Array, b: Array) -> Array:
-    """Elementwise min(a, b) chosen on the real parts (complex-step safe away from a tie)."""
-    return np.where(_real(a) <= _real(b), a, b)
+@kernel
+def angle_sum(a: Angle, b: Angle) -> Angle:
+    return Angle(a.cos * b.cos - a.sin * b.sin, a.sin * b.cos + a.cos * b.sin)
 
 
-class _Angle(NamedTuple):
-    """A constant phase held as its cosine and sine, so that cos(wd t + phase) needs no new trigonometry."""
-
-    cos: Array
-    sin: Array
-
-    def __add__(self, other: object) -> _Angle:
-        assert isinstance(other, _Angle)
-        return _Angle(
-            self.cos * other.cos - self.sin * other.sin, self.sin * other.cos + self.cos * other.sin
-        )
-
-    def __sub__(self, other: object) -> _Angle:
-        assert isinstance(other, _Angle)
-        return _Angle(
-            self.cos * other.cos + self.sin * other.sin, self.sin * other.cos - self.cos * other.sin
-        )
-
-    def angle(self) -> Array:
-        return _atan2(self.sin, self.cos)
+@kernel
+def angle_difference(a: Angle, b: Angle) -> Angle:
+    return Angle(a.cos * b.cos + a.sin * b.sin, a.sin * b.cos - a.cos * b.sin)
 
 
-class _Oscillation(NamedTuple):
-    """e^{-a t}, cos(wd t) and sin(wd t) at the times t: the only transcendental functions of t needed."""
+@kernel
+def angle_of(a: Angle) -> complex:
+    return atan2(a.sin, a.cos)
 
-    envelope: Array
-    cos: Array
-    sin: Array
 
-    def at(self, phase: _Angle) -> Array:
-        """e^{-a t} cos(wd t + phase)."""
-        return np.asarray(self.envelope * (self.cos * phase.cos - self.sin * phase.sin))
+class Wave(NamedTuple):
+    """e^{-a t}, cos(wd t) and sin(wd t) at a time t: the only transcendental functions of t needed."""
+
+    envelope: complex
+    cos: complex
+    sin: complex
+
+
+@kernel
+def wave_at(wave: Wave, phase: Angle) -> complex:
+    """e^{-a t} cos(wd t + phase)."""
+    value: complex = wave.envelope * (wave.cos * phase.cos - wave.sin * phase.sin)
+    return value
+
+
+class LaneApproximation(NamedTuple):
+    """The closed-form stance of one lane (the fields of :class:`StanceApproximation`, parameters inline)."""
+
+    m: float
+    k: float
+    r0: float
+    c: float
+    g: float
+    theta_td: complex
+    rdot_td: complex
+    omega: complex
+    omega_hat: complex
+    zeta: complex
+    omega_d: complex
+    decay: float  # a = zeta omega_hat = c/(2m)
+    equilibrium: complex  # F/omega_hat^2
+    amplitude_a: complex  # A
+    amplitude: complex  # M
+    force_amplitude: complex  # Mbar
+    x_rate: complex  # X
+    y_amplitude: complex  # Y
+    bottom_time: complex
+    phase1: Angle
+    phase2: Angle
+    phase3: Angle
+
+
+@kernel
+def lane_approximation(
+    m: float, k: float, r0: float, c: float, g: float, theta_td: complex, rdot_td: complex, omega: complex
+) -> LaneApproximation:
+    omega_hat = np.sqrt(k / m + 3.0 * omega**2)
+    zeta = c / (2.0 * m * omega_hat)
+    decay = c / (2.0 * m)
+    damped_fraction = np.sqrt(1.0 - zeta**2)
+    omega_d = omega_hat * damped_fraction
+    amplitude_a = (g - r0 * omega**2) / omega_hat**2  # A = r0 - F/wh^2
+    amplitude_b = (rdot_td + decay * amplitude_a) / omega_d
+    amplitude = np.sqrt(amplitude_a**2 + amplitude_b**2)
+    spring_term = k - c**2 / (2.0 * m)
+    force_amplitude = np.sqrt(spring_term**2 + (c * omega_d) ** 2)
+    phase1 = Angle(amplitude_a / amplitude, -amplitude_b / amplitude)
+    phase2 = Angle(zeta, -damped_fraction)
+    # Bottom: wd t_b + phi1 + phi2 = pi/2 (mod 2 pi), the first such t_b > 0.
+    bottom_phase = np.pi / 2 - angle_of(angle_sum(phase1, phase2))
+    bottom_phase = bottom_phase - 2.0 * np.pi * np.floor(real(bottom_phase) / (2.0 * np.pi))
+    equilibrium = r0 - amplitude_a
+    return LaneApproximation(
+        m,
+        k,
+        r0,
+        c,
+        g,
+        theta_td,
+        rdot_td,
+        omega,
+        omega_hat,
+        zeta,
+        omega_d,
+        decay,
+        equilibrium,
+        amplitude_a,
+        amplitude,
+        force_amplitude,
+        omega * (3.0 - 2.0 * equilibrium / r0),
+        2.0 * omega * amplitude / (r0 * omega_hat),
+        bottom_phase / omega_d,
+        phase1,
+        phase2,
+        Angle(spring_term / force_amplitude, c * omega_d / force_amplitude),
+    )
+
+
+@kernel
+def lane_real_part(s: LaneApproximation) -> LaneApproximation:
+    return LaneApproximation(
+        s.m,
+        s.k,
+        s.r0,
+        s.c,
+        s.g,
+        real(s.theta_td),
+        real(s.rdot_td),
+        real(s.omega),
+        real(s.omega_hat),
+        real(s.zeta),
+        real(s.omega_d),
+        s.decay,
+        real(s.equilibrium),
+        real(s.amplitude_a),
+        real(s.amplitude),
+        real(s.force_amplitude),
+        real(s.x_rate),
+        real(s.y_amplitude),
+        real(s.bottom_time),
+        Angle(real(s.phase1.cos), real(s.phase1.sin)),
+        Angle(real(s.phase2.cos), real(s.phase2.sin)),
+        Angle(real(s.phase3.cos), real(s.phase3.sin)),
+    )
+
+
+@kernel
+def lane_wave(s: LaneApproximation, t: complex) -> Wave:
+    angle = s.omega_d * t
+    return Wave(np.exp(-s.decay * t), np.cos(angle), np.sin(angle))
 
 
 class StanceState(NamedTuple):
-    r: Array
-    rdot: Array
-    theta: Array
-    thetadot: Array
+    """Arrays in the API, scalars in a kernel."""
+
+    r: Any
+    rdot: Any
+    theta: Any
+    thetadot: Any
+
+
+@kernel
+def lane_state(s: LaneApproximation, wave: Wave, t: complex) -> StanceState:
+    """r, rdot, theta, thetadot at t (eqs. 12-15), from the wave at t."""
+    radial = wave_at(wave, s.phase1)
+    lag = angle_difference(s.phase1, s.phase2)
+    swing = wave_at(wave, lag) - lag.cos
+    return StanceState(
+        s.amplitude * radial + s.equilibrium,
+        -s.omega_hat * s.amplitude * wave_at(wave, angle_sum(s.phase1, s.phase2)),
+        s.theta_td + s.x_rate * t + s.y_amplitude * swing,
+        s.x_rate - 2.0 * s.omega * s.amplitude * radial / s.r0,
+    )
+
+
+@kernel
+def lane_leg_force(s: LaneApproximation, t: complex) -> complex:
+    """Spring-damper force along the leg, k (r0 - r) - c rdot, in the closed form of (16)."""
+    oscillation = wave_at(lane_wave(s, t), angle_sum(s.phase1, s.phase3))
+    return s.k * s.amplitude_a - s.force_amplitude * s.amplitude * oscillation
+
+
+@kernel
+def lane_leg_force_rate(s: LaneApproximation, t: complex) -> complex:
+    """Time derivative of :func:`lane_leg_force`."""
+    oscillation = wave_at(lane_wave(s, t), angle_sum(angle_sum(s.phase1, s.phase3), s.phase2))
+    return s.force_amplitude * s.omega_hat * s.amplitude * oscillation
+
+
+@kernel
+def lane_paper_liftoff(s: LaneApproximation) -> tuple[complex, bool]:
+    q = s.k * s.amplitude_a / (s.force_amplitude * s.amplitude * np.exp(-2.0 * s.decay * s.bottom_time))
+    after_bottom = (1.5 * np.pi + angle_of(angle_difference(s.phase2, s.phase3)) - np.arccos(q)) / s.omega_d
+    exists = abs(real(q)) <= 1.0 and real(after_bottom) > 0.0
+    return s.bottom_time + after_bottom, exists
+
+
+@kernel
+def lane_force_root_liftoff(s: LaneApproximation) -> tuple[complex, bool]:
+    # The force decreases monotonically from the bottom to its minimum at phase 3 pi/2 - phi2.
+    lower = real(s.bottom_time)
+    upper = lower + real((np.pi - angle_of(s.phase3)) / s.omega_d)
+    exists = real(lane_leg_force(s, upper)) <= 0.0
+    start = real(lane_paper_liftoff(s)[0])
+    t = start if np.isfinite(start) else 0.5 * (lower + upper)
+    t = min(max(t, lower), upper)
+    real_s = lane_real_part(s)
+    for _ in range(FORCE_ROOT_ITERATIONS):
+        force = real(lane_leg_force(real_s, t))
+        rate = real(lane_leg_force_rate(real_s, t))
+        if force > 0.0:
+            lower = t
+        else:
+            upper = t
+        newton = t - force / (rate if rate < 0.0 else -np.inf)
+        t_new = newton if newton > lower and newton < upper else 0.5 * (lower + upper)
+        done = abs(t_new - t) <= FORCE_ROOT_TOLERANCE * abs(t_new)
+        t = t_new
+        if done or not exists:
+            break
+    if is_complex(s.omega) or is_complex(s.rdot_td):
+        # One complex Newton step from the real root carries the perturbation (implicit function theorem).
+        return t - lane_leg_force(s, t) / lane_leg_force_rate(s, t), exists
+    return t, exists
+
+
+PAPER_LIFTOFF, FORCE_ROOT_LIFTOFF = 0, 1
+"""Codes of the liftoff methods in the kernels."""
+
+
+@kernel
+def lane_liftoff(s: LaneApproximation, method: int) -> tuple[complex, bool]:
+    """Liftoff time and whether it exists (see the module docstring for both methods)."""
+    if method == FORCE_ROOT_LIFTOFF:
+        return lane_force_root_liftoff(s)
+    return lane_paper_liftoff(s)
+
+
+@kernel
+def lane_damping_loss(s: LaneApproximation, wave: Wave) -> complex:
+    """E_c = int_0^t c rdot^2 (closed form of eq. 31, re-derived), from the wave at t."""
+    double = Wave(wave.envelope**2, wave.cos**2 - wave.sin**2, 2.0 * wave.sin * wave.cos)
+    phase = angle_sum(angle_sum(s.phase1, s.phase2), s.phase1)
+    oscillation = phase.cos - wave_at(double, phase)
+    scale = 0.5 * s.m * (s.amplitude * s.omega_hat) ** 2
+    loss: complex = scale * (1.0 - double.envelope + s.zeta * oscillation)
+    return loss
+
+
+@kernel
+def lane_hip_energy(
+    s: LaneApproximation, tau0: complex, t_f: complex, t_end: complex, wave_end: Wave
+) -> complex:
+    """E_tau = int_0^T tau thetadot dt for the ramp tau0 (1 - t/t_f), T = min(t_f, t_end) (eq. 25);
+    wave_end is the wave at t_end."""
+    energy: complex = tau0 * lane_energy_per_torque(s, t_f, t_end, wave_end)
+    return energy
+
+
+@kernel
+def lane_energy_per_torque(s: LaneApproximation, t_f: complex, t_end: complex, wave_end: Wave) -> complex:
+    """E_tau/tau0 (:func:`lane_hip_energy`): the ramp-weighted mean angular rate, times the ramp's length."""
+    if real(t_f) <= real(t_end):
+        t = t_f
+        wave = lane_wave(s, t_f)
+    else:
+        t = t_end
+        wave = wave_end
+    lag1 = angle_difference(s.phase1, s.phase2)
+    lag2 = angle_difference(lag1, s.phase2)
+    i0 = -(wave_at(wave, lag1) - lag1.cos) / s.omega_hat
+    i1 = -t * wave_at(wave, lag1) / s.omega_hat - (wave_at(wave, lag2) - lag2.cos) / s.omega_hat**2
+    mean_part = s.x_rate * (t - t**2 / (2.0 * t_f))
+    oscillating_part = 2.0 * s.omega * s.amplitude / s.r0 * (i0 - i1 / t_f)
+    rate: complex = mean_part - oscillating_part
+    return rate
+
+
+@kernel
+def lane_torque_correction(tau0: complex, t_f: complex, t_lo: complex) -> complex:
+    """dp_tau: time average over [0, t_lo] of the integrated ramp torque (eq. 21 for general t_f)."""
+    shorter = t_lo if real(t_lo) <= real(t_f) else t_f
+    longer = t_lo + t_f - shorter
+    return tau0 * (shorter / 2.0 - shorter**2 / (6.0 * longer))
+
+
+@kernel
+def lane_gravity_correction(
+    m: float, g: float, r0: float, theta_td: complex, t_lo: complex, r_lo: complex, theta_lo: complex
+) -> complex:
+    """dp_g of eq. 22: r sin(theta) interpolated linearly from touchdown to liftoff, then time-averaged."""
+    correction: complex = m * g * t_lo / 6.0 * (2.0 * r0 * np.sin(theta_td) + r_lo * np.sin(theta_lo))
+    return correction
+
+
+class Touchdown(NamedTuple):
+    """Arrays in the API, scalars in a kernel."""
+
+    rdot: Any
+    thetadot: Any
+    failure: Any
+
+
+@kernel
+def lane_descent(r0: float, g: float, y: complex, xdot: complex, theta_td: complex) -> Touchdown:
+    """P_d (eq. 6): apex (y, xdot) and touchdown angle to the polar touchdown velocities."""
+    drop = y - r0 * np.cos(theta_td)
+    ydot = -np.sqrt(2.0 * g * drop)
+    sin, cos = np.sin(theta_td), np.cos(theta_td)
+    rdot = -xdot * sin + ydot * cos
+    thetadot = (-xdot * cos - ydot * sin) / r0
+    failure = NO_FAILURE_CODE
+    if real(drop) < 0.0:
+        failure = TOE_STUBBING
+    elif real(thetadot) >= 0.0:
+        failure = REVERSAL
+    return Touchdown(rdot, thetadot, failure)
+
+
+@kernel
+def converged(new: complex, old: complex, tolerance: float) -> bool:
+    """new and old agree to ``tolerance`` relative, real and imaginary parts separately."""
+    ok = abs(real(new) - real(old)) <= tolerance * abs(real(new))
+    if is_complex(new) or is_complex(old):
+        ok = ok and abs(new.imag - old.imag) <= tolerance * abs(new.imag)
+    return ok
+
+
+class StanceStart(NamedTuple):
+    """The unforced stance of a touchdown: the start of the corrections, whatever the ramp (probes of the
+    policies' solvers share it)."""
+
+    momentum_td: complex
+    approximation: LaneApproximation
+    t_lo: complex
+    liftoff_exists: bool
+    wave: Wave  # at t_lo
+    gravity_correction: complex  # dp_g of the first correction
+
+
+@kernel
+def lane_stance_start(
+    m: float,
+    k: float,
+    r0: float,
+    c: float,
+    g: float,
+    theta_td: complex,
+    rdot_td: complex,
+    thetadot_td: complex,
+    liftoff: int,
+) -> StanceStart:
+    momentum_td = m * r0**2 * thetadot_td
+    s = lane_approximation(m, k, r0, c, g, theta_td, rdot_td, momentum_td / (m * r0**2))
+    t_lo, exists = lane_liftoff(s, liftoff)
+    wave = lane_wave(s, t_lo)
+    at_liftoff = lane_state(s, wave, t_lo)
+    gravity = lane_gravity_correction(m, g, r0, theta_td, t_lo, at_liftoff.r, at_liftoff.theta)
+    return StanceStart(momentum_td, s, t_lo, exists, wave, gravity)
+
+
+class LaneStance(NamedTuple):
+    """Outcome of the approximate stance map P_s with corrections, one lane (fields of :class:`Stance`)."""
+
+    momentum: complex
+    t_lo: complex
+    r_lo: complex
+    theta_lo: complex
+    rdot_lo: complex
+    thetadot_lo: complex
+    hip_energy: complex
+    damping_loss: complex
+    spring_energy: complex
+    liftoff_exists: bool
+    corrections_done: int
+    approximation: LaneApproximation  # the last (most corrected) one
+    energy_per_torque: complex  # e = E_tau/tau0: negative while the body swings forward over the ramp
+
+
+LANE_STANCE_VALUES = 11
+"""The fields of LaneStance that Stance holds as arrays (the others stay in the kernels)."""
+
+
+@kernel
+def lane_stance(
+    start: StanceStart, tau0: complex, t_f: complex, corrections: int, liftoff: int
+) -> LaneStance:
+    """P_s (eqs. 17, 19-22) from the unforced stance: ``corrections`` updates of p_hat = p(0) + dp_tau + dp_g,
+    fewer once p_hat changes by less than CORRECTION_TOLERANCE (relative)."""
+    s = start.approximation
+    m, k, r0, c, g = s.m, s.k, s.r0, s.c, s.g
+    momentum = start.momentum_td
+    t_lo, exists, gravity = start.t_lo, start.liftoff_exists, start.gravity_correction
+    done = 0
+    while done < corrections:
+        if done > 0:
+            at_liftoff = lane_state(s, lane_wave(s, t_lo), t_lo)
+            gravity = lane_gravity_correction(m, g, r0, s.theta_td, t_lo, at_liftoff.r, at_liftoff.theta)
+        corrected = start.momentum_td + lane_torque_correction(tau0, t_f, t_lo) + gravity
+        stop = converged(corrected, momentum, CORRECTION_TOLERANCE) or not exists
+        momentum = corrected
+        done += 1
+        s = lane_approximation(m, k, r0, c, g, s.theta_td, s.rdot_td, momentum / (m * r0**2))
+        t_lo, exists = lane_liftoff(s, liftoff)
+        if stop:
+            break
+    wave = start.wave if done == 0 else lane_wave(s, t_lo)
+    at_liftoff = lane_state(s, wave, t_lo)
+    energy_per_torque = lane_energy_per_torque(s, t_f, t_lo, wave)
+    return LaneStance(
+        momentum,
+        t_lo,
+        at_liftoff.r,
+        at_liftoff.theta,
+        at_liftoff.rdot,
+        at_liftoff.thetadot,
+        tau0 * energy_per_torque,
+        lane_damping_loss(s, wave),
+        0.5 * k * (at_liftoff.r - r0) ** 2,
+        exists,
+        done,
+        s,
+        energy_per_torque,
+    )
+
+
+class LaneStride(NamedTuple):
+    """One stride of the approximate map, one lane (fields of :class:`Stride`)."""
+
+    y: complex
+    xdot: complex
+    energy: complex
+    failure: int
+    touchdown: Touchdown
+    stance: LaneStance
+    liftoff_xdot: complex
+
+
+@kernel
+def apex_energy(m: float, g: float, y: complex, xdot: complex) -> complex:
+    return m * (g * y + 0.5 * xdot**2)
+
+
+@kernel
+def lane_stride(
+    m: float,
+    k: float,
+    r0: float,
+    c: float,
+    g: float,
+    y: complex,
+    xdot: complex,
+    angle: complex,
+    tau0: complex,
+    t_f: complex,
+    corrections: int,
+    liftoff: int,
+) -> LaneStride:
+    """The approximate apex return map P = P_a o P_s o P_d (eqs. 3-7) of one lane."""
+    touchdown = lane_descent(r0, g, y, xdot, angle)
+    start = lane_stance_start(m, k, r0, c, g, angle, touchdown.rdot, touchdown.thetadot, liftoff)
+    stance = lane_stance(start, tau0, t_f, corrections, liftoff)
+    return lane_ascent(m, g, y, xdot, touchdown, stance)
+
+
+@kernel
+def lane_ascent(
+    m: float, g: float, y: complex, xdot: complex, touchdown: Touchdown, stance: LaneStance
+) -> LaneStride:
+    """The stride from the apex (y, xdot) through its touchdown and stance: the ascent P_a (eq. 7) to the next
+    apex, the next energy from the energy balance, and the stride's failure."""
+    sin, cos = np.sin(stance.theta_lo), np.cos(stance.theta_lo)
+    ydot_lo = stance.rdot_lo * cos - stance.r_lo * stance.thetadot_lo * sin
+    xdot_lo = -stance.rdot_lo * sin - stance.r_lo * stance.thetadot_lo * cos
+    y_next = stance.r_lo * cos + ydot_lo**2 / (2.0 * g)
+    energy_next = (
+        apex_energy(m, g, y, xdot) + stance.hip_energy - (stance.damping_loss + stance.spring_energy)
+    )
+    kinetic = energy_next / m - g * y_next
+    xdot_next = np.sqrt(2.0 * kinetic)
+    failure = touchdown.failure
+    if failure == NO_FAILURE_CODE and not stance.liftoff_exists:
+        failure = NO_LIFTOFF
+    if failure == NO_FAILURE_CODE and not real(ydot_lo) > 0.0:
+        failure = FALL
+    if failure == NO_FAILURE_CODE and not (real(kinetic) > 0.0 and real(xdot_lo) > 0.0):
+        failure = REVERSAL
+    if failure != NO_FAILURE_CODE:
+        y_next, xdot_next, energy_next, xdot_lo = np.nan, np.nan, np.nan, np.nan
+    return LaneStride(y_next, xdot_next, energy_next, failure, touchdown, stance, xdot_lo)
+
+
+# --- the vectorised API: broadcasting, lane loops, results as arrays --------------------------------------
+
+
+def liftoff_code(method: str) -> int:
+    """The kernels' code of a liftoff method; ValueError names the methods."""
+    if method == "paper":
+        return PAPER_LIFTOFF
+    if method == "force_root":
+        return FORCE_ROOT_LIFTOFF
+    raise ValueError(f"unknown liftoff method {method!r}; use 'paper' or 'force_root'")
+
+
+def check_corrections(corrections: int) -> None:
+    if corrections < 0:
+        raise ValueError(f"corrections must be >= 0, got {corrections}")
+
+
+@dataclass(frozen=True)
+class Lanes:
+    """Inputs broadcast to one shape and flattened for a compiled lane loop: the hopper parameters as rows
+    m, k, r0, c, g of one float64 block, the values as complex128 where any of them is complex (the complex
+    step), else float64."""
+
+    shape: tuple[int, ...]
+    params: Array
+    values: tuple[Array, ...]
+    dtype: type
+
+    @classmethod
+    def of(cls, params: ParamArrays, *values: ArrayLike) -> Lanes:
+        fields = (params.m, params.k, params.r0, params.c, params.g)
+        arrays = [np.asarray(value) for value in values]
+        dtype: type = complex if any(a.dtype.kind == "c" for a in arrays) else float
+        if all(np.ndim(field) == 0 for field in fields) and all(a.ndim == 0 for a in arrays):
+            # One lane, the controller's call: nothing to broadcast.
+            block = np.array(fields, dtype=float).reshape(5, 1)
+            return cls((), block, tuple(a.astype(dtype).reshape(1) for a in arrays), dtype)
+        shape = np.broadcast_shapes(*(np.shape(field) for field in fields), *(a.shape for a in arrays))
+
+        def flat(value: Array, kind: type) -> Array:
+            return np.ascontiguousarray(np.broadcast_to(value, shape), dtype=kind).reshape(-1)
+
+        block = np.stack([flat(field, float) for field in fields])
+        return cls(shape, block, tuple(flat(a, dtype) for a in arrays), dtype)
+
+    def run(self, loop: Callable[..., None], *arguments: Any) -> None:
+        """Call a compiled lane loop with the parameters, the values and then ``arguments``."""
+        loop(self.params, *self.values, *arguments)
+
+    def rows(self, count: int) -> Array:
+        """An output block of ``count`` rows, one column per lane."""
+        return np.empty((count, math.prod(self.shape)), dtype=self.dtype)
+
+    def shaped(self, row: Array) -> Array:
+        return np.asarray(row.reshape(self.shape))
+
+    def codes(self, row: Array) -> Array:
+        """A row of integer codes (failure, no-command reason), held as numbers in the block."""
+        return np.asarray(np.real(row).astype(int).reshape(self.shape))
+
+
+def elementwise(function: Callable[..., Any], kinds: Sequence[type], *args: ArrayLike) -> tuple[Array, ...]:
+    """``function`` (of one lane's scalars, returning len(kinds) scalars) over broadcast arrays, one Python
+    call per lane: for the closed forms' API (checks, plots), not for batches. A kind of complex means the
+    dtype of the arguments (complex128 if any is complex, else float64)."""
+    dtype = complex if any(np.iscomplexobj(a) for a in args) else float
+    otypes = [dtype if kind is complex else kind for kind in kinds]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # failed lanes: NaN, inf
+        results = np.vectorize(function, otypes=otypes)(*args)
+    return tuple(np.asarray(r) for r in (results if len(kinds) > 1 else (results,)))
+
+
+_FLAT_APPROXIMATION = 25
+"""Scalars of a LaneApproximation with its three phases flattened to (cos, sin)."""
+
+
+def _flatten(lane: LaneApproximation) -> tuple[Any, ...]:
+    return (*lane[:19], *lane.phase1, *lane.phase2, *lane.phase3)
+
+
+def _unflatten(values: Sequence[Any]) -> LaneApproximation:
+    phases = (Angle(*values[19:21]), Angle(*values[21:23]), Angle(*values[23:25]))
+    return LaneApproximation._make((*values[:19], *phases))
 
 
 @dataclass(frozen=True)
 class StanceApproximation:
-    """Closed-form stance of section II.C for a constant angular momentum ``m r0^2 omega`` (module docstring).
+    """Closed-form stance of section II.C for a constant angular momentum ``m r0^2 omega`` (module docstring),
+    as arrays: ``lanes`` is a LaneApproximation whose fields are arrays, readable as attributes of this
+    object (``amplitude``, ``bottom_time``, ``phase1``, ...; ``params`` gives m, k, r0, c, g as ParamArrays).
 
-    All fields are broadcast arrays; ``t`` arguments broadcast against them. The phases phi1, phi2, phi3 are
-    kept as (cos, sin) pairs: cos phi1 = A/M, sin phi1 = -B/M, cos phi2 = zeta, sin phi2 = -sqrt(1 - zeta^2),
+    ``t`` arguments broadcast against the fields. The phases phi1, phi2, phi3 are kept as (cos, sin) pairs:
+    cos phi1 = A/M, sin phi1 = -B/M, cos phi2 = zeta, sin phi2 = -sqrt(1 - zeta^2),
     cos phi3 = (k - c^2/(2m))/Mbar, sin phi3 = c wd/Mbar, which makes every evaluation cost one exp, one cos
-    and one sin per time, whatever is evaluated.
+    and one sin per time, whatever is evaluated. The methods run the lane kernels one lane at a time (they
+    serve checks against quadrature and plots; the map itself runs in the compiled lane loop).
     """
 
-    params: ParamArrays
-    theta_td: Array
-    rdot_td: Array
-    omega: Array
-    omega_hat: Array
-    zeta: Array
-    omega_d: Array
-    decay: Array  # a = zeta omega_hat = c/(2m)
-    equilibrium: Array  # F/omega_hat^2
-    amplitude_a: Array  # A
-    amplitude: Array  # M
-    force_amplitude: Array  # Mbar
-    x_rate: Array  # X
-    y_amplitude: Array  # Y
-    bottom_time: Array
-    phase1: _Angle
-    phase2: _Angle
-    phase3: _Angle
+    lanes: LaneApproximation
 
     @classmethod
-    def build(cls, params: ParamArrays, theta_td: Array, rdot_td: Array, omega: Array) -> StanceApproximation:
-        m, k, r0, c, g = params.m, params.k, params.r0, params.c, params.g
-        omega_hat = np.sqrt(k / m + 3.0 * omega**2)
-        zeta = c / (2.0 * m * omega_hat)
-        decay = c / (2.0 * m)
-        damped_fraction = np.sqrt(1.0 - zeta**2)
-        omega_d = omega_hat * damped_fraction
-        amplitude_a = (g - r0 * omega**2) / omega_hat**2  # A = r0 - F/wh^2
-        amplitude_b = (rdot_td + decay * amplitude_a) / omega_d
-        amplitude = np.sqrt(amplitude_a**2 + amplitude_b**2)
-        spring_term = k - c**2 / (2.0 * m)
-        force_amplitude = np.sqrt(spring_term**2 + (c * omega_d) ** 2)
-        phase1 = _Angle(amplitude_a / amplitude, -amplitude_b / amplitude)
-        phase2 = _Angle(zeta, -damped_fraction)
-        # Bottom: wd t_b + phi1 + phi2 = pi/2 (mod 2 pi), the first such t_b > 0.
-        bottom_phase = np.pi / 2 - (phase1 + phase2).angle()
-        bottom_phase = bottom_phase - 2.0 * np.pi * np.floor(_real(bottom_phase) / (2.0 * np.pi))
-        equilibrium = r0 - amplitude_a
-        return cls(
-            params=params,
-            theta_td=theta_td,
-            rdot_td=rdot_td,
-            omega=omega,
-            omega_hat=omega_hat,
-            zeta=zeta,
-            omega_d=omega_d,
-            decay=decay,
-            equilibrium=equilibrium,
-            amplitude_a=amplitude_a,
-            amplitude=amplitude,
-            force_amplitude=force_amplitude,
-            x_rate=omega * (3.0 - 2.0 * equilibrium / r0),
-            y_amplitude=2.0 * omega * amplitude / (r0 * omega_hat),
-            bottom_time=bottom_phase / omega_d,
-            phase1=phase1,
-            phase2=phase2,
-            phase3=_Angle(spring_term / force_amplitude, c * omega_d / force_amplitude),
+    def build(
+        cls, params: ParamArrays, theta_td: ArrayLike, rdot_td: ArrayLike, omega: ArrayLike
+    ) -> StanceApproximation:
+        fields = (params.m, params.k, params.r0, params.c, params.g)
+        values = elementwise(
+            lambda *lane: _flatten(lane_approximation(*lane)),
+            [float] * 5 + [complex] * 20,
+            *fields,
+            theta_td,
+            rdot_td,
+            omega,
         )
+        return cls(_unflatten(values))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.lanes, name)
+
+    @property
+    def params(self) -> ParamArrays:
+        return ParamArrays(*(np.asarray(value) for value in self.lanes[:5]))
+
+    def _call(
+        self, function: Callable[..., Any], kinds: Sequence[type], *args: ArrayLike
+    ) -> tuple[Array, ...]:
+        """function(lane, *args) per lane, lane the LaneApproximation of that lane."""
+
+        def one(*values: Any) -> Any:
+            return function(_unflatten(values[:_FLAT_APPROXIMATION]), *values[_FLAT_APPROXIMATION:])
+
+        return elementwise(one, kinds, *_flatten(self.lanes), *args)
 
     @property
     def phi1(self) -> Array:
-        return self.phase1.angle()
+        return self._call(lambda s: angle_of(s.phase1), [complex])[0]
 
     @property
     def phi3(self) -> Array:
         """In [0, pi): the force phase lag of the damper."""
-        return self.phase3.angle()
-
-    def _oscillation(self, t: ArrayLike) -> _Oscillation:
-        t = np.asarray(t)
-        angle = self.omega_d * t
-        return _Oscillation(np.exp(-self.decay * t), np.cos(angle), np.sin(angle))
+        return self._call(lambda s: angle_of(s.phase3), [complex])[0]
 
     def state(self, t: ArrayLike) -> StanceState:
         """r, rdot, theta, thetadot at t (eqs. 12-15), sharing one exp, cos and sin."""
-        return self._state(self._oscillation(t), t)
-
-    def _state(self, wave: _Oscillation, t: ArrayLike) -> StanceState:
-        radial = wave.at(self.phase1)
-        lag = self.phase1 - self.phase2
-        swing = wave.at(lag) - lag.cos
-        return StanceState(
-            r=self.amplitude * radial + self.equilibrium,
-            rdot=-self.omega_hat * self.amplitude * wave.at(self.phase1 + self.phase2),
-            theta=self.theta_td + self.x_rate * np.asarray(t) + self.y_amplitude * swing,
-            thetadot=self.x_rate - 2.0 * self.omega * self.amplitude * radial / self.params.r0,
-        )
+        return StanceState(*self._call(lambda s, t: lane_state(s, lane_wave(s, t), t), [complex] * 4, t))
 
     def length_and_angle(self, t: ArrayLike) -> tuple[Array, Array]:
         """r and theta at t (eqs. 12 and 15), all the momentum corrections need."""
-        wave = self._oscillation(t)
-        lag = self.phase1 - self.phase2
-        swing = wave.at(lag) - lag.cos
-        theta = self.theta_td + self.x_rate * np.asarray(t) + self.y_amplitude * swing
-        return self.amplitude * wave.at(self.phase1) + self.equilibrium, theta
+        state = self.state(t)
+        return state.r, state.theta
 
     def r(self, t: ArrayLike) -> Array:
         """Leg length (12)."""
-        return self.state(t).r
+        return np.asarray(self.state(t).r)
 
     def rdot(self, t: ArrayLike) -> Array:
         """Leg length rate (13)."""
-        return self.state(t).rdot
+        return np.asarray(self.state(t).rdot)
 
     def thetadot(self, t: ArrayLike) -> Array:
         """Leg angular rate (14), from the linearised 1/r^2."""
-        return self.state(t).thetadot
+        return np.asarray(self.state(t).thetadot)
 
     def theta(self, t: ArrayLike) -> Array:
         """Leg angle (15), the integral of (14)."""
-        return self.state(t).theta
+        return np.asarray(self.state(t).theta)
 
     def leg_force(self, t: ArrayLike) -> Array:
         """Spring-damper force along the leg, k (r0 - r) - c rdot, in the closed form of (16)."""
-        oscillation = self._oscillation(t).at(self.phase1 + self.phase3)
-        return np.asarray(
-            self.params.k * self.amplitude_a - self.force_amplitude * self.amplitude * oscillation
-        )
+        return self._call(lane_leg_force, [complex], t)[0]
 
     def leg_force_rate(self, t: ArrayLike) -> Array:
         """Time derivative of :meth:`leg_force`."""
-        oscillation = self._oscillation(t).at(self.phase1 + self.phase3 + self.phase2)
-        return self.force_amplitude * self.omega_hat * self.amplitude * oscillation
+        return self._call(lane_leg_force_rate, [complex], t)[0]
 
     def liftoff_time(self, method: LiftoffMethod = "paper") -> tuple[Array, Array]:
         """Liftoff time and a mask of lanes where it exists (see the module docstring for both methods)."""
-        if method == "paper":
-            return self._paper_liftoff_time()
-        if method == "force_root":
-            return self._force_root_liftoff_time()
-        raise ValueError(f"unknown liftoff method {method!r}; use 'paper' or 'force_root'")
-
-    def _paper_liftoff_time(self) -> tuple[Array, Array]:
-        q = (
-            self.params.k
-            * self.amplitude_a
-            / (self.force_amplitude * self.amplitude * np.exp(-2.0 * self.decay * self.bottom_time))
-        )
-        with np.errstate(invalid="ignore"):
-            after_bottom = (1.5 * np.pi + (self.phase2 - self.phase3).angle() - np.arccos(q)) / self.omega_d
-        exists = (np.abs(_real(q)) <= 1.0) & (_real(after_bottom) > 0.0)
-        return self.bottom_time + after_bottom, exists
-
-    def _force_root_liftoff_time(self) -> tuple[Array, Array]:
-        # The force decreases monotonically from the bottom to its minimum at phase 3 pi/2 - phi2.
-        lower = _real(self.bottom_time) + np.zeros(np.shape(self.bottom_time))
-        upper = lower + _real((np.pi - self.phi3) / self.omega_d)
-        exists = _real(self.leg_force(upper)) <= 0.0
-        paper_time, _ = self._paper_liftoff_time()
-        start = _real(paper_time)
-        t = np.clip(np.where(np.isfinite(start), start, 0.5 * (lower + upper)), lower, upper)
-        real_self = self._real_part()
-        for _ in range(100):
-            force = real_self.leg_force(t)
-            rate = real_self.leg_force_rate(t)
-            lower = np.where(force > 0.0, t, lower)
-            upper = np.where(force > 0.0, upper, t)
-            newton = t - force / np.where(rate < 0.0, rate, -np.inf)
-            inside = (newton > lower) & (newton < upper)
-            t_new = np.where(inside, newton, 0.5 * (lower + upper))
-            done = np.abs(t_new - t) <= FORCE_ROOT_TOLERANCE * np.abs(t_new)
-            t = t_new
-            if np.all(done | ~exists):
-                break
-        if np.iscomplexobj(self.omega) or np.iscomplexobj(self.rdot_td):
-            # One complex Newton step from the real root carries the perturbation (implicit function theorem).
-            t = t - self.leg_force(t) / self.leg_force_rate(t)
-        return t, exists
-
-    def _real_part(self) -> StanceApproximation:
-        def real(value: object) -> object:
-            if isinstance(value, _Angle):
-                return _Angle(_real(value.cos), _real(value.sin))
-            return value if isinstance(value, ParamArrays) else _real(np.asarray(value))
-
-        return StanceApproximation(**{name: real(value) for name, value in vars(self).items()})  # type: ignore[arg-type]
+        code = liftoff_code(method)
+        t_lo, exists = self._call(lambda s: lane_liftoff(s, code), [complex, bool])
+        return t_lo, exists
 
     def damping_loss(self, t: ArrayLike) -> Array:
         """E_c = int_0^t c rdot^2 (closed form of eq. 31, re-derived)."""
-        return self._damping_loss(self._oscillation(t))
-
-    def _damping_loss(self, wave: _Oscillation) -> Array:
-        double = _Oscillation(wave.envelope**2, wave.cos**2 - wave.sin**2, 2.0 * wave.sin * wave.cos)
-        phase = self.phase1 + self.phase2 + self.phase1
-        oscillation = phase.cos - double.at(phase)
-        scale = 0.5 * self.params.m * (self.amplitude * self.omega_hat) ** 2
-        return np.asarray(scale * (1.0 - double.envelope + self.zeta * oscillation))
+        return self._call(lambda s, t: lane_damping_loss(s, lane_wave(s, t)), [complex], t)[0]
 
     def hip_energy(self, tau0: ArrayLike, t_f: ArrayLike, t_end: ArrayLike) -> Array:
         """E_tau = int_0^T tau thetadot dt for the ramp tau0 (1 - t/t_f), T = min(t_f, t_end) (eq. 25)."""
-        tau0, t_f, t_end = np.asarray(tau0), np.asarray(t_f), np.asarray(t_end)
-        t = _where_real_le(t_f, t_end)
-        wave = self._oscillation(t)
-        lag1 = self.phase1 - self.phase2
-        lag2 = lag1 - self.phase2
-        i0 = -(wave.at(lag1) - lag1.cos) / self.omega_hat
-        i1 = -t * wave.at(lag1) / self.omega_hat - (wave.at(lag2) - lag2.cos) / self.omega_hat**2
-        mean_part = self.x_rate * (t - t**2 / (2.0 * t_f))
-        oscillating_part = 2.0 * self.omega * self.amplitude / self.params.r0 * (i0 - i1 / t_f)
-        return np.asarray(tau0 * (mean_part - oscillating_part))
+
+        def energy(s: LaneApproximation, tau0: complex, t_f: complex, t_end: complex) -> complex:
+            return lane_hip_energy(s, tau0, t_f, t_end, lane_wave(s, t_end))
+
+        return self._call(energy, [complex], tau0, t_f, t_end)[0]
 
 
 def torque_momentum_correction(tau0: ArrayLike, t_f: ArrayLike, t_lo: ArrayLike) -> Array:
     """dp_tau: time average over [0, t_lo] of the integrated ramp torque (eq. 21 for general t_f)."""
-    tau0, t_f, t_lo = np.asarray(tau0), np.asarray(t_f), np.asarray(t_lo)
-    shorter = _where_real_le(t_lo, t_f)
-    longer = t_lo + t_f - shorter
-    return np.asarray(tau0 * (shorter / 2.0 - shorter**2 / (6.0 * longer)))
+    return elementwise(lane_torque_correction, [complex], tau0, t_f, t_lo)[0]
 
 
 def gravity_momentum_correction(
-    params: ParamArrays, theta_td: Array, t_lo: Array, r_lo: Array, theta_lo: Array
+    params: ParamArrays, theta_td: ArrayLike, t_lo: ArrayLike, r_lo: ArrayLike, theta_lo: ArrayLike
 ) -> Array:
     """dp_g of eq. 22: r sin(theta) interpolated linearly from touchdown to liftoff, then time-averaged."""
-    return np.asarray(
-        params.m * params.g * t_lo / 6.0 * (2.0 * params.r0 * np.sin(theta_td) + r_lo * np.sin(theta_lo))
-    )
-
-
-class Touchdown(NamedTuple):
-    rdot: Array
-    thetadot: Array
-    failure: Array
+    return elementwise(
+        lane_gravity_correction, [complex], params.m, params.g, params.r0, theta_td, t_lo, r_lo, theta_lo
+    )[0]
 
 
 def descent_map(params: ParamArrays, y: ArrayLike, xdot: ArrayLike, theta_td: ArrayLike) -> Touchdown:
     """P_d (eq. 6): apex (y, xdot) and touchdown angle to the polar touchdown velocities."""
-    y, xdot, theta_td = np.asarray(y), np.asarray(xdot), np.asarray(theta_td)
-    drop = y - params.r0 * np.cos(theta_td)
-    with np.errstate(invalid="ignore"):
-        ydot = -np.sqrt(2.0 * params.g * drop)
-    sin, cos = np.sin(theta_td), np.cos(theta_td)
-    rdot = -xdot * sin + ydot * cos
-    thetadot = (-xdot * cos - ydot * sin) / params.r0
-    failure = np.where(_real(drop) < 0.0, TOE_STUBBING, NO_FAILURE_CODE)
-    failure = np.where((failure == NO_FAILURE_CODE) & (_real(thetadot) >= 0.0), REVERSAL, failure)
-    return Touchdown(rdot, thetadot, failure)
+    return Touchdown(
+        *elementwise(lane_descent, [complex, complex, int], params.r0, params.g, y, xdot, theta_td)
+    )
 
 
 @dataclass(frozen=True)
 class Stance:
     """Outcome of the approximate stance map P_s with corrections, per lane."""
 
-    approximation: StanceApproximation  # the last (most corrected) one
+    params: ParamArrays
+    theta_td: Array
+    rdot_td: Array
     momentum: Array  # p_hat [kg m^2/s]
     t_lo: Array
     r_lo: Array
@@ -585,11 +1016,46 @@ class Stance:
     damping_loss: Array  # E_c
     spring_energy: Array  # E_k
     liftoff_exists: Array  # bool
-    corrections_done: int
+    corrections_done: int  # the most of any lane
+
+    @classmethod
+    def of_rows(
+        cls,
+        params: ParamArrays,
+        theta_td: Array,
+        rdot_td: Array,
+        rows: Sequence[Array],
+        liftoff_exists: Array,
+        corrections_done: int,
+    ) -> Stance:
+        """From the rows momentum, t_lo, r_lo, theta_lo, rdot_lo, thetadot_lo, hip_energy, damping_loss,
+        spring_energy (the order of LaneStance)."""
+        return cls(
+            params,
+            theta_td,
+            rdot_td,
+            momentum=rows[0],
+            t_lo=rows[1],
+            r_lo=rows[2],
+            theta_lo=rows[3],
+            rdot_lo=rows[4],
+            thetadot_lo=rows[5],
+            hip_energy=rows[6],
+            damping_loss=rows[7],
+            spring_energy=rows[8],
+            liftoff_exists=liftoff_exists,
+            corrections_done=corrections_done,
+        )
 
     @property
     def energy_loss(self) -> Array:
         return self.damping_loss + self.spring_energy
+
+    @cached_property
+    def approximation(self) -> StanceApproximation:
+        """The last (most corrected) closed-form stance, for p_hat."""
+        omega = self.momentum / (self.params.m * self.params.r0**2)
+        return StanceApproximation.build(self.params, self.theta_td, self.rdot_td, omega)
 
 
 def stance_map(
@@ -605,69 +1071,22 @@ def stance_map(
     """P_s (eqs. 17, 19-22): touchdown state and ramp torque to liftoff state and energy pieces.
 
     ``corrections`` is the number of p_hat = p(0) + dp_tau + dp_g updates (0 = the unforced map of II.C);
-    iterations stop early once p_hat changes by less than CORRECTION_TOLERANCE (relative) on every lane.
+    iterations stop early once p_hat changes by less than CORRECTION_TOLERANCE (relative).
     """
-    if corrections < 0:
-        raise ValueError(f"corrections must be >= 0, got {corrections}")
-    theta_td, rdot_td, thetadot_td = (
-        np.asarray(theta_td),
-        np.asarray(rdot_td),
-        np.asarray(thetadot_td),
-    )
-    tau0, t_f = np.asarray(tau0), np.asarray(t_f)
-    momentum_td = params.m * params.r0**2 * thetadot_td
-    momentum = momentum_td
-    done = 0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        approximation = StanceApproximation.build(
-            params, theta_td, rdot_td, momentum / (params.m * params.r0**2)
-        )
-        t_lo, exists = approximation.liftoff_time(liftoff)
-        while done < corrections:
-            r_lo, theta_lo = approximation.length_and_angle(t_lo)
-            corrected = (
-                momentum_td
-                + torque_momentum_correction(tau0, t_f, t_lo)
-                + gravity_momentum_correction(params, theta_td, t_lo, r_lo, theta_lo)
-            )
-            converged = _converged(corrected, momentum, CORRECTION_TOLERANCE, exists)
-            momentum = corrected
-            done += 1
-            approximation = StanceApproximation.build(
-                params, theta_td, rdot_td, momentum / (params.m * params.r0**2)
-            )
-            t_lo, exists = approximation.liftoff_time(liftoff)
-            if converged:
-                break
-        wave = approximation._oscillation(t_lo)
-        at_liftoff = approximation._state(wave, t_lo)
-        return Stance(
-            approximation=approximation,
-            momentum=momentum,
-            t_lo=t_lo,
-            r_lo=at_liftoff.r,
-            theta_lo=at_liftoff.theta,
-            rdot_lo=at_liftoff.rdot,
-            thetadot_lo=at_liftoff.thetadot,
-            hip_energy=approximation.hip_energy(tau0, t_f, t_lo),
-            damping_loss=approximation._damping_loss(wave),
-            spring_energy=0.5 * params.k * (at_liftoff.r - params.r0) ** 2,
-            liftoff_exists=exists,
-            corrections_done=done,
-        )
+    check_corrections(corrections)
+    code = liftoff_code(liftoff)
 
+    def one(
+        m: float, k: float, r0: float, c: float, g: float, *touchdown_and_ramp: complex
+    ) -> tuple[Any, ...]:
+        theta, rdot, thetadot, tau0, t_f = touchdown_and_ramp
+        start = lane_stance_start(m, k, r0, c, g, theta, rdot, thetadot, code)
+        return lane_stance(start, tau0, t_f, corrections, code)[:LANE_STANCE_VALUES]
 
-def lanes_converged(new: Array, old: Array, tolerance: float) -> Array:
-    """Per lane: new and old agree to ``tolerance`` relative, real and imaginary parts separately."""
-    ok = np.abs(_real(new) - _real(old)) <= tolerance * np.abs(_real(new))
-    if np.iscomplexobj(new) or np.iscomplexobj(old):
-        ok &= np.abs(np.imag(new) - np.imag(old)) <= tolerance * np.abs(np.imag(new))
-    return np.asarray(ok)
-
-
-def _converged(new: Array, old: Array, tolerance: float, mask: Array) -> bool:
-    """:func:`lanes_converged` on every lane of mask."""
-    return bool(np.all(lanes_converged(new, old, tolerance) | ~mask))
+    fields = (params.m, params.k, params.r0, params.c, params.g)
+    values = elementwise(one, [complex] * 9 + [bool, int], *fields, theta_td, rdot_td, thetadot_td, tau0, t_f)
+    done = int(values[10].max(initial=0))
+    return Stance.of_rows(params, np.asarray(theta_td), np.asarray(rdot_td), values[:9], values[9], done)
 
 
 @dataclass(frozen=True)
@@ -691,8 +1110,60 @@ class Stride:
         return np.asarray(self.failure == NO_FAILURE_CODE)
 
 
-def _apex_energy(params: ParamArrays, y: Array, xdot: Array) -> Array:
-    return params.m * (params.g * y + 0.5 * xdot**2)
+STRIDE_ROWS = 19
+"""Rows of a block of strides (write_stride)."""
+
+
+@kernel
+def write_stride(out: Array, lane: int, stride: LaneStride) -> None:
+    """One lane's stride into column ``lane`` of a block, in the order strides_of_block reads."""
+    stance = stride.stance
+    out[0, lane] = stride.y
+    out[1, lane] = stride.xdot
+    out[2, lane] = stride.energy
+    out[3, lane] = stride.failure
+    out[4, lane] = stride.touchdown.rdot
+    out[5, lane] = stride.touchdown.thetadot
+    out[6, lane] = stride.touchdown.failure
+    out[7, lane] = stance.momentum
+    out[8, lane] = stance.t_lo
+    out[9, lane] = stance.r_lo
+    out[10, lane] = stance.theta_lo
+    out[11, lane] = stance.rdot_lo
+    out[12, lane] = stance.thetadot_lo
+    out[13, lane] = stance.hip_energy
+    out[14, lane] = stance.damping_loss
+    out[15, lane] = stance.spring_energy
+    out[16, lane] = stance.liftoff_exists
+    out[17, lane] = stance.corrections_done
+    out[18, lane] = stride.liftoff_xdot
+
+
+def strides_of_block(params: ParamArrays, lanes: Lanes, angle: Array, block: Array) -> Stride:
+    """The Stride of a block of lanes written by write_stride (angle: the lanes' touchdown angles)."""
+    row = [lanes.shaped(values) for values in block]
+    done = int(np.real(block[17]).max(initial=0))
+    stance = Stance.of_rows(params, lanes.shaped(angle), row[4], row[7:16], row[16].real != 0.0, done)
+    touchdown = Touchdown(row[4], row[5], lanes.codes(block[6]))
+    return Stride(row[0], row[1], row[2], lanes.codes(block[3]), touchdown, stance, row[18])
+
+
+@kernel
+def _stride_lanes(
+    params: Array,
+    y: Array,
+    xdot: Array,
+    angle: Array,
+    tau0: Array,
+    t_f: Array,
+    corrections: int,
+    liftoff: int,
+    out: Array,
+) -> None:
+    for i in range(y.size):
+        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
+        stride = lane_stride(m, k, r0, c, g, y[i], xdot[i], angle[i], tau0[i], t_f[i], corrections, liftoff)
+        write_stride(out, i, stride)
 
 
 def command_arrays(command: CommandArrays | StanceCommand) -> CommandArrays:
@@ -721,51 +1192,24 @@ def approximate_map(
     """
     params = ParamArrays.of(params)
     angle, tau0, t_f = command_arrays(command)
-    _validate_command(angle, t_f)
-    y, xdot = np.asarray(y), np.asarray(xdot)
-    touchdown = descent_map(params, y, xdot, angle)
-    stance = stance_map(
-        params,
-        angle,
-        touchdown.rdot,
-        touchdown.thetadot,
-        tau0,
-        t_f,
-        corrections,
-        liftoff,
-    )
-    with np.errstate(invalid="ignore"):
-        sin, cos = np.sin(stance.theta_lo), np.cos(stance.theta_lo)
-        ydot_lo = stance.rdot_lo * cos - stance.r_lo * stance.thetadot_lo * sin
-        xdot_lo = -stance.rdot_lo * sin - stance.r_lo * stance.thetadot_lo * cos
-        y_next = stance.r_lo * cos + ydot_lo**2 / (2.0 * params.g)
-        energy_next = _apex_energy(params, y, xdot) + stance.hip_energy - stance.energy_loss
-        kinetic = energy_next / params.m - params.g * y_next
-        xdot_next = np.sqrt(2.0 * kinetic)
-    failure = touchdown.failure
-    unset = failure == NO_FAILURE_CODE
-    failure = np.where(unset & ~stance.liftoff_exists, NO_LIFTOFF, failure)
-    unset = failure == NO_FAILURE_CODE
-    failure = np.where(unset & ~(_real(ydot_lo) > 0.0), FALL, failure)
-    unset = failure == NO_FAILURE_CODE
-    failure = np.where(unset & ~((_real(kinetic) > 0.0) & (_real(xdot_lo) > 0.0)), REVERSAL, failure)
-    failed = failure != NO_FAILURE_CODE
-    return Stride(
-        y=np.where(failed, np.nan, y_next),
-        xdot=np.where(failed, np.nan, xdot_next),
-        energy=np.where(failed, np.nan, energy_next),
-        failure=failure,
-        touchdown=touchdown,
-        stance=stance,
-        liftoff_xdot=np.where(failed, np.nan, xdot_lo),
-    )
+    validate_command(angle, t_f)
+    check_corrections(corrections)
+    code = liftoff_code(liftoff)
+    lanes = Lanes.of(params, y, xdot, angle, tau0, t_f)
+    block = lanes.rows(STRIDE_ROWS)
+    lanes.run(_stride_lanes, corrections, code, block)
+    return strides_of_block(params, lanes, lanes.values[2], block)
 
 
-def _validate_command(angle: Array, t_f: Array) -> None:
-    angle, t_f = _real(angle), _real(t_f)
+def validate_angle(angle: ArrayLike) -> None:
+    angle = np.real(angle)
     if np.any((angle <= 0.0) | (angle >= np.pi / 2)):
         raise ParameterError("touchdown_angle must lie in (0, pi/2) rad on every lane")
-    if np.any(t_f <= 0.0):
+
+
+def validate_command(angle: Array, t_f: Array) -> None:
+    validate_angle(angle)
+    if np.any(np.real(t_f) <= 0.0):
         raise ParameterError("t_f (ramp duration) must be positive on every lane")
 
 
