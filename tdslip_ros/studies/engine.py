@@ -42,6 +42,8 @@ IN_FLIGHT_PER_THREAD = 2
 """Chunks submitted per worker thread at a time: one running, one queued behind it."""
 CONNECT_TIMEOUT = 10.0
 """s to reach an existing scheduler."""
+WORKER_TIMEOUT = 60.0
+"""s to wait for the first worker of an existing scheduler."""
 
 
 class EngineError(Exception):
@@ -79,6 +81,13 @@ def connect(where: Where) -> Iterator[Client]:
         except (OSError, TimeoutError, ValueError) as error:
             raise EngineError(f"cannot reach the Dask scheduler at {where.scheduler}: {error}") from None
         with client:
+            try:
+                client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
+            except TimeoutError:
+                raise EngineError(
+                    f"no worker joined the Dask scheduler at {where.scheduler} within {WORKER_TIMEOUT:g} s "
+                    "(start some with: dask worker " + where.scheduler + ")"
+                ) from None
             yield client
         return
     with (
