@@ -380,14 +380,14 @@ def fig06(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     return figure, data
 
 
-def _basin_colours(basin: basins.Basin, strides: int) -> Array:
-    """Colour index per lane: convergence stride (0..strides) where converged, strides + 1 sustained,
-    NaN for failures and impossible starts (drawn white)."""
-    colour = np.where(basin.outcome == basins.CONVERGED, basin.convergence_stride, np.nan)
-    return np.where(basin.outcome == basins.SUSTAINED, strides + 1, colour)
+def basin_colours(outcome: Array, convergence_stride: Array, strides: int) -> Array:
+    """Colour index per lane (basins.OUTCOMES indices): convergence stride (0..strides) where converged,
+    strides + 1 sustained, NaN for failures and impossible starts (drawn white)."""
+    colour = np.where(outcome == basins.CONVERGED, convergence_stride, np.nan)
+    return np.where(outcome == basins.SUSTAINED, strides + 1, colour)
 
 
-def _basin_map(strides: int) -> ListedColormap:
+def basin_colour_map(strides: int) -> ListedColormap:
     shades = matplotlib.colormaps["Blues_r"](np.linspace(0.15, 0.85, strides + 1))
     return ListedColormap(np.vstack([shades, [[0.85, 0.9, 0.95, 1.0]]]))
 
@@ -396,7 +396,7 @@ def _settled_text(stride: int) -> str:
     return "not settled" if stride < 0 else f"settled from stride {stride}"
 
 
-def _row_median(values: Array) -> Array:
+def row_median(values: Array) -> Array:
     """Median of the finite values of each row; NaN for rows without any."""
     sorted_rows = np.sort(values, axis=1)  # NaN last
     count = np.sum(np.isfinite(values), axis=1)
@@ -429,7 +429,9 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     )
     grid = slice(0, alpha_grid.size)
     outcome = everything.outcome[grid].reshape(alpha_grid.shape)
-    colour = _basin_colours(everything, basins.OPEN_LOOP_STRIDES)[grid].reshape(alpha_grid.shape)
+    colour = basin_colours(everything.outcome, everything.convergence_stride, basins.OPEN_LOOP_STRIDES)[
+        grid
+    ].reshape(alpha_grid.shape)
     reporter.stage("analytic fixed points")
     analytic_alphas, traced, _ = _open_loop_trace(26.0, resolution)
     by_eigenvalue = {}
@@ -446,7 +448,7 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         alphas,
         _bar_height(heights),
         colour.T,
-        cmap=_basin_map(basins.OPEN_LOOP_STRIDES),
+        cmap=basin_colour_map(basins.OPEN_LOOP_STRIDES),
         vmin=0,
         vmax=basins.OPEN_LOOP_STRIDES + 1,
         shading="nearest",
@@ -618,11 +620,9 @@ def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         exact_stability.ExactLoop.of(PARAMS, beta, "energy", units.energy_from_bar(PARAMS, energies_bar)),
         stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
     )
-    exact_y, exact_xdot, exact_energy = (
-        _row_median(values) for values in (exact.y, exact.xdot, exact.energy)
-    )
-    colour = _basin_colours(exact, basins.REGULATED_STRIDES)
-    colour_map = _basin_map(basins.REGULATED_STRIDES)
+    exact_y, exact_xdot, exact_energy = (row_median(values) for values in (exact.y, exact.xdot, exact.energy))
+    colour = basin_colours(exact.outcome, exact.convergence_stride, basins.REGULATED_STRIDES)
+    colour_map = basin_colour_map(basins.REGULATED_STRIDES)
     figure = Figure(figsize=(12, 4.8))
     left, right = figure.subplots(1, 2)
     left.pcolormesh(

@@ -18,6 +18,7 @@ chunk_size (0.8 MB for 1,000 trajectories of 50 strides), plus the batched engin
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import itertools
 import logging
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+import pyarrow as pa
 from distributed import Client, Future, LocalCluster, as_completed
 
 from tdslip_ros.studies import chunk, table
@@ -268,3 +270,37 @@ def compute(
 def _call_key(function: Callable[..., Any], args: tuple[Any, ...]) -> str:
     digest = hashlib.sha256(repr(args).encode()).hexdigest()[:16]
     return f"tdslip-{function.__name__}-{digest}"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of every command that runs on the engine: where, and --resume."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="an existing Dask cluster's scheduler")
+    where.add_argument(
+        "--workers", type=int, help="worker processes of the local cluster (default: one per core)"
+    )
+    parser.add_argument("--resume", action="store_true", help="complete an interrupted run in the same --out")
+
+
+def where_of(args: argparse.Namespace) -> Where:
+    return Where(scheduler=args.scheduler, workers=args.workers)
+
+
+def run_studies(
+    studies: dict[str, Study], directory: Path, where: Where, resume: bool, label: str
+) -> dict[str, pa.Table]:
+    """Run each study into directory/name on one cluster, with a progress line on stderr, and read their
+    tables."""
+    tables = {}
+    with connect(where) as client:
+        for name, study in studies.items():
+            progress = Progress(f"{label} {name}".strip(), "trajectories")
+            summary = run_study(study, directory / name, client, resume, progress)
+            if summary.reused:
+                print(
+                    f"{progress.label}: {summary.reused} of {summary.chunks} chunks were on disk, "
+                    f"{summary.computed} computed",
+                    file=sys.stderr,
+                )
+            tables[name] = table.read(directory / name)
+    return tables
