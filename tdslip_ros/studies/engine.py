@@ -140,7 +140,7 @@ class Progress:
         if self.done >= self.total:
             return text + f", done in {_duration(elapsed)}"
         if rate > 0:
-            text += f", {rate:,.1f}/s, about {_duration((self.total - self.done) / rate)} left"
+            text += f", {rate:,.3g}/s, about {_duration((self.total - self.done) / rate)} left"
         return text
 
     def _show(self) -> None:
@@ -236,22 +236,22 @@ def _stream(
         running.clear()
 
 
-def compute(
-    client: Client,
-    calls: Sequence[tuple[Callable[..., Any], tuple[Any, ...]]],
-    progress: Progress | None = None,
-) -> list[Any]:
-    """The results of pure calls function(*args), in order, computed as tasks on the cluster (at most
-    IN_FLIGHT_PER_THREAD per thread at a time); EngineError where one fails for good."""
+Call = tuple[str, Callable[..., Any], tuple[Any, ...]]
+"""(name, function, args): a pure call function(*args); the name labels its task and its errors."""
+
+
+def compute(client: Client, calls: Sequence[Call], progress: Progress | None = None) -> list[Any]:
+    """The results of pure calls, in order, computed as tasks on the cluster (at most IN_FLIGHT_PER_THREAD
+    per thread at a time, in the order given); EngineError where one fails for good."""
     results: list[Any] = [None] * len(calls)
     positions: dict[str, list[int]] = {}  # a call made twice is computed once
-    for position, (function, args) in enumerate(calls):
-        positions.setdefault(_call_key(function, args), []).append(position)
+    for position, (name, _, args) in enumerate(calls):
+        positions.setdefault(_call_key(name, args), []).append(position)
     if progress is not None:
         progress.start(len(positions))
 
     def submit(key: str) -> Future[Any]:
-        function, args = calls[positions[key][0]]
+        _, function, args = calls[positions[key][0]]
         return client.submit(function, *args, key=key, retries=RETRIES)
 
     def receive(future: Future[Any]) -> None:
@@ -261,25 +261,28 @@ def compute(
         if progress is not None:
             progress.advance(1)
 
-    _stream(client, list(positions), submit, receive, lambda future: future.key.split("-")[1])
+    _stream(client, list(positions), submit, receive, lambda future: calls[positions[future.key][0]][0])
     if progress is not None:
         progress.finish()
     return results
 
 
-def _call_key(function: Callable[..., Any], args: tuple[Any, ...]) -> str:
+def _call_key(name: str, args: tuple[Any, ...]) -> str:
     digest = hashlib.sha256(repr(args).encode()).hexdigest()[:16]
-    return f"tdslip-{function.__name__}-{digest}"
+    return f"tdslip-{name}-{digest}"
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of every command that runs on the engine: where, and --resume."""
+def add_arguments(parser: argparse.ArgumentParser, resume: bool = True) -> None:
+    """The options of the commands that run on the engine: where, and (for studies) --resume."""
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="an existing Dask cluster's scheduler")
     where.add_argument(
         "--workers", type=int, help="worker processes of the local cluster (default: one per core)"
     )
-    parser.add_argument("--resume", action="store_true", help="complete an interrupted run in the same --out")
+    if resume:
+        parser.add_argument(
+            "--resume", action="store_true", help="complete an interrupted run in the same --out"
+        )
 
 
 def where_of(args: argparse.Namespace) -> Where:

@@ -43,6 +43,7 @@ from matplotlib.figure import Figure
 from tdslip_ros.analysis.figures import (
     DPI,
     EXACT,
+    FIG11_STUDIES,
     PARAMS,
     STABLE,
     basin_colour_map,
@@ -55,12 +56,6 @@ from tdslip_ros.studies import engine, table
 from tdslip_ros.studies.design import Study, StudyError
 
 BETA_DEG = 26.0
-FIG11_VALUES: dict[str, tuple[float, ...]] = {
-    "beta_deg": (20.0, 22.0, 24.0, 26.0, 28.0, 30.0),
-    "kbar": (20.0, 28.0, 36.0, 44.0, 52.0),
-    "zeta0": (0.04, 0.08, 0.12, 0.16),
-}
-"""fig. 11's parameter values (the others at beta = 26 deg, kbar = 36, zeta0 = 0.08)."""
 
 
 @dataclass(frozen=True)
@@ -205,7 +200,7 @@ def fig11_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -
     energies_bar = np.linspace(0.8, 14.0, grid[0])
     heights = np.linspace(1.0, 2.0, grid[1]) * PARAMS.r0
     studies = {}
-    for name, values in FIG11_VALUES.items():
+    for name, values in FIG11_STUDIES.items():
         axis: dict[str, Any] = {
             "beta_deg": {"touchdown_angle": np.radians(values)},
             "kbar": {"kbar": values},
@@ -224,7 +219,7 @@ def fig11_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -
 def fig11_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[Figure, dict[str, Any]]:
     figure = Figure(figsize=(14, 4.5))
     data: dict[str, Any] = {}
-    for axes, (name, values) in zip(figure.subplots(1, 3), FIG11_VALUES.items(), strict=True):
+    for axes, (name, values) in zip(figure.subplots(1, 3), FIG11_STUDIES.items(), strict=True):
         study, rows = studies[name], tables[name]
         energies = np.asarray(dict(study.grid)["energy0"])
         shape = (len(values), energies.size, -1)
