@@ -277,12 +277,23 @@ def add_arguments(parser: argparse.ArgumentParser, resume: bool = True) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="an existing Dask cluster's scheduler")
     where.add_argument(
-        "--workers", type=int, help="worker processes of the local cluster (default: one per core)"
+        "--workers", type=positive_int, help="worker processes of the local cluster (default: one per core)"
     )
     if resume:
         parser.add_argument(
             "--resume", action="store_true", help="complete an interrupted run in the same --out"
         )
+
+
+def positive_int(text: str) -> int:
+    """A positive integer option (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
 
 
 def where_of(args: argparse.Namespace) -> Where:

@@ -292,16 +292,6 @@ def grid_size(text: str) -> tuple[int, int]:
     return sizes[0], sizes[1]
 
 
-def positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
-
-
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="tdslip sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -309,8 +299,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("sweep", choices=list(SWEEPS), help="which figure's sweep")
     parser.add_argument("--out", type=Path, required=True, help="directory for the table, figure and summary")
     parser.add_argument("--grid", type=grid_size, help="resolution AxB (see above)")
-    parser.add_argument("--strides", type=positive, help="strides per trajectory")
-    parser.add_argument("--chunk-size", type=positive, help="trajectories per chunk (default: from the size)")
+    parser.add_argument("--strides", type=engine.positive_int, help="strides per trajectory")
+    parser.add_argument(
+        "--chunk-size", type=engine.positive_int, help="trajectories per chunk (default: from the size)"
+    )
     engine.add_arguments(parser)
     args = parser.parse_args(argv)
     sweep = SWEEPS[args.sweep]
