@@ -11,9 +11,9 @@
   ``distributed.scheduler.allowed-failures``, 3), and an exception in it is retried RETRIES times.
 * :func:`compute`: other pure calls (the figures' sweeps) as tasks, results in order.
 
-Memory per worker is that of one chunk at a time: the chunk's apex histories, 2 x 8 bytes x (strides + 1) x
-chunk_size (0.8 MB for 1,000 trajectories of 50 strides), plus the batched engine's per-lane work arrays
-(some 1.5 kB per lane), on top of the Python process with numpy, scipy and Dask (about 150 MB).
+Memory per worker is that of one chunk at a time: about 3.5 kB per trajectory of 50 strides at the chunk's
+peak (its apex histories, 16 bytes x (strides + 1), and the batched engine's and the policies' work arrays),
+on top of the worker process with numpy, scipy, pyarrow and Dask (about 170 MB).
 """
 
 from __future__ import annotations
