@@ -67,7 +67,7 @@ def run_checked(options: RunOptions) -> RunReport:
     report = run(options)
     after, steal = cpu_seconds(), steal_seconds() - steal
     if not report.ok:
-        print(counts_table(report))
+        print(counts_table(report.published, report.recorded))
         sys.exit(f"the run failed: {report.outcome.kind}: {report.outcome.reason} {report.problems}")
     plant_cpu, children_cpu = (b - a for a, b in zip(before, after, strict=True))
     print(

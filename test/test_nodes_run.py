@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -148,3 +150,93 @@ def test_a_run_in_a_namespace_records_and_analyses_its_topics_there(tmp_path: Pa
     assert counts["/h1/tdslip/apex"] == 4 and not any(topic.startswith("/tdslip/") for topic in counts)
     run = read_run(bag)
     assert len(run.strides) == 4 and run.params_source == "stored in the recording"
+
+
+def child_pid(parent: int, module: str) -> int | None:
+    """The pid of ``parent``'s child process running ``python -m <module>``, if there is one."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            command = (stat.parent / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if int(fields[1]) == parent and module.encode() in command:
+            return int(stat.parent.name)
+    return None
+
+
+def hopping_run(tmp_path: Path, *arguments: str) -> tuple[subprocess.Popen[str], Path]:
+    """``tdslip run`` hopping until stopped (up to a minute), once it has passed stride 3."""
+    bag = tmp_path / "run"
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tdslip_ros.cli",
+            "run",
+            "--strides",
+            "0",
+            "--duration",
+            "60",
+            "--out",
+            str(bag),
+        ]
+        + list(arguments),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stderr is not None
+    for line in process.stderr:  # the progress lines
+        if line.startswith("stride ") and int(line.split()[1].split("/")[0]) >= 3:
+            break
+    return process, bag
+
+
+def assert_finalised_and_analysable(bag: Path, stdout: str) -> dict[str, tuple[int, int]]:
+    """The bag is finalised, the analysis reads it, and the printed table accounts for every topic:
+    (published, recorded) per topic, as printed."""
+    assert (bag / "metadata.yaml").is_file()
+    run = read_run(bag)
+    assert len(run.strides) >= 3
+    printed = {line.split()[0]: line.split()[1:3] for line in stdout.splitlines() if line.startswith("/")}
+    counts = {topic: (int(published), int(recorded)) for topic, (published, recorded) in printed.items()}
+    assert {topic: recorded for topic, (_, recorded) in counts.items()} == {
+        topic: count for topic, count in bag_counts(bag).items() if topic in counts
+    }
+    return counts
+
+
+def test_a_controller_killed_mid_run_leaves_a_finalised_bag_and_a_count_of_what_was_lost(
+    tmp_path: Path,
+) -> None:
+    process, bag = hopping_run(tmp_path)
+    controller = child_pid(process.pid, "tdslip_ros.nodes.controller_node")
+    assert controller is not None
+    os.kill(controller, signal.SIGKILL)
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode == 1
+    assert "controller_node exited early (-9)" in stderr and "(finalised: tdslip analyze" in stderr
+    counts = assert_finalised_and_analysable(bag, stdout)
+    lost = {topic: published - recorded for topic, (published, recorded) in counts.items()}
+    print(f"messages lost after the controller's kill -9: {lost}")
+    assert all(n == 0 for n in lost.values())  # the recorder got everything the plant had sent
+
+
+def test_a_double_ctrl_c_leaves_a_finalised_bag(tmp_path: Path) -> None:
+    process, bag = hopping_run(tmp_path)
+    process.send_signal(signal.SIGINT)
+    process.send_signal(signal.SIGINT)  # impatient: the second one interrupts at once
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode in (0, 130), stderr
+    assert "Traceback" not in stderr
+    read_run(bag)  # finalised and readable
+    assert (bag / "metadata.yaml").is_file()
+
+
+def test_a_realtime_run_that_records_clock_completes_with_every_message(tmp_path: Path) -> None:
+    bag = tmp_path / "clock"
+    result = tdslip_run("--strides", "3", "--mode", "realtime", "--record-clock", "--out", str(bag))
+    assert result.returncode == 0, result.stdout + result.stderr
+    counts = bag_counts(bag)
+    assert counts["/clock"] == counts[resolve(topics.STATE)] > 700  # /clock at every tick, like the state

@@ -220,7 +220,13 @@ def test_the_readmes_colcon_command_builds_both_packages_and_plant_node_runs_fro
         )
         try:
             plant = subprocess.run(
-                ["bash", "-c", f'{sourced}exec "{executables["plant_node"]}" --ros-args -p max_strides:=2'],
+                # command_timeout: on a loaded machine sourcing the overlay takes the controller seconds.
+                [
+                    "bash",
+                    "-c",
+                    f'{sourced}exec "{executables["plant_node"]}" --ros-args -p max_strides:=2 '
+                    "-p command_timeout:=60.0",
+                ],
                 env=hop,
                 capture_output=True,
                 text=True,

@@ -29,6 +29,7 @@ import fcntl
 import os
 import random
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -36,6 +37,7 @@ from pathlib import Path
 VALID_DOMAIN_IDS = range(0, 233)
 """The ids Fast DDS can use: its port arithmetic runs out of ports above 232."""
 DOMAIN_POOL = range(120, 230)
+DOMAIN_COOL_DOWN = 60.0  # s after its release before a pool id is handed out again
 DISCOVERY_RANGE = "LOCALHOST"
 HEARTBEAT_PERIOD_NS = 50_000_000
 FASTDDS_PROFILE = f"""<?xml version="1.0" encoding="UTF-8" ?>
@@ -57,16 +59,23 @@ _STATE_DIRECTORY = Path(tempfile.gettempdir()) / "tdslip_ros_domains"
 
 @contextmanager
 def reserved_domain(domain_id: int | None = None) -> Iterator[int]:
-    """Hold a free domain id from DOMAIN_POOL (or exactly ``domain_id``) for the with-block."""
+    """Hold a free domain id from DOMAIN_POOL (or exactly ``domain_id``) for the with-block.
+
+    An id from the pool is also one not released in the last DOMAIN_COOL_DOWN seconds: processes of
+    the previous holder (a node child still shutting down, an orphan) must not meet the next run.
+    """
     _STATE_DIRECTORY.mkdir(exist_ok=True)
     if domain_id is not None:
         candidates: list[int] = [domain_id]
     else:
         # A random start spreads concurrent reservations over the pool instead of racing for one id.
         start = random.randrange(len(DOMAIN_POOL))
-        candidates = [*DOMAIN_POOL[start:], *DOMAIN_POOL[:start]]
+        rotated = [*DOMAIN_POOL[start:], *DOMAIN_POOL[:start]]
+        cool = [candidate for candidate in rotated if not _recently_released(candidate)]
+        candidates = cool or rotated
     for candidate in candidates:
-        descriptor = os.open(_STATE_DIRECTORY / f"{candidate}.lock", os.O_CREAT | os.O_RDWR, 0o666)
+        lock = _STATE_DIRECTORY / f"{candidate}.lock"
+        descriptor = os.open(lock, os.O_CREAT | os.O_RDWR, 0o666)
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -75,6 +84,7 @@ def reserved_domain(domain_id: int | None = None) -> Iterator[int]:
         try:
             yield candidate
         finally:
+            os.utime(descriptor)  # the release time, for the cool-down
             os.close(descriptor)  # releases the lock
         return
     raise RuntimeError(
@@ -82,6 +92,14 @@ def reserved_domain(domain_id: int | None = None) -> Iterator[int]:
         if domain_id is not None
         else "every domain id of the pool is in use"
     )
+
+
+def _recently_released(domain_id: int) -> bool:
+    try:
+        released = (_STATE_DIRECTORY / f"{domain_id}.lock").stat().st_mtime
+    except FileNotFoundError:
+        return False
+    return time.time() - released < DOMAIN_COOL_DOWN
 
 
 def fastdds_profile_file() -> Path:

@@ -7,11 +7,10 @@ start. Like rosbag2 it adapts to what the publishers offer (the graph is looked 
 :data:`DISCOVERY_PERIOD` s; :func:`~tdslip_ros.nodes.topics.adapted_qos`): a topic is registered in
 the bag with its publishers' offered profiles when the first one appears, and a subscription that
 has recorded nothing yet is made best-effort or transient-local if every publisher is.
-Subscriptions are raw (the CDR bytes go to
-:class:`~tdslip_ros.bag.RosbagMcapWriter` untouched). Log and publish time are both the system
-time [ns] at which the callback takes the message (rosbag2 before Jazzy did the same): rclpy's
-EventsExecutor cannot yet pass the MessageInfo with the publisher's source timestamp (Kilted:
-"SystemError: null argument to internal routine"), and the Python executors are too slow for 1 kHz.
+The messages are taken raw (the CDR bytes go to :class:`~tdslip_ros.bag.RosbagMcapWriter`
+untouched) by a thread, in batches, without a Python callback per message (see
+:class:`RecorderNode`); the log time is the system time [ns] at which the message was taken, the
+publish time the publisher's source timestamp.
 
 Progress goes out on ``tdslip/recorder_status`` (``tdslip_msgs/RecorderStatus``) every
 :data:`STATUS_MESSAGES` recorded messages and every DISCOVERY_PERIOD: per topic the messages
@@ -31,6 +30,7 @@ Run it in a process of its own next to a 1 kHz plant: each message costs a Pytho
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from datetime import datetime
 from pathlib import Path
@@ -49,6 +49,7 @@ from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
 
 DISCOVERY_PERIOD = 0.05  # s between two looks for new publishers (and status reports)
+TAKE_PERIOD = 0.001  # s the taker thread sleeps when it found nothing to take
 STATUS_MESSAGES = 100
 """Recorded messages between two status reports: a lockstep plant's flow control sees progress
 every ~50 ticks."""
@@ -65,6 +66,14 @@ SPECS: tuple[ParameterSpec, ...] = (
         "compression", "zstd", "MCAP chunk compression", choices=("zstd", "lz4", "none"), read_only=True
     ),
     ParameterSpec("chunk_size", 768 * 1024, "MCAP chunk size [bytes]", 1024, 1 << 30, read_only=True),
+    ParameterSpec(
+        "flush_interval",
+        1.0,
+        "close the open chunk after this much log time [s]: a hard kill loses at most that (0: by size)",
+        0.0,
+        3600.0,
+        read_only=True,
+    ),
     ParameterSpec(
         "record_clock", False, "also record /clock (lockstep runs publish it at 1 kHz)", read_only=True
     ),
@@ -89,10 +98,19 @@ def parse_custom_data(text: str) -> dict[str, str]:
 
 
 class RecorderNode(Node):
-    """Records into ``bag`` from construction until :meth:`close`."""
+    """Records into ``bag`` from construction until :meth:`close`.
+
+    The subscriptions live on a second node (``<name>_reader``) that no executor spins: a thread of
+    this node takes their messages in batches every TAKE_PERIOD, with the MessageInfo of each, at
+    about two thirds of the cost of a callback per message. The log time is when the message was
+    taken (in DDS's order, so each topic's log times rise with its messages even when one was
+    repaired after a loss in transport), the publish time the publisher's source timestamp.
+    """
 
     def __init__(self, **node_options: object) -> None:
         super().__init__("recorder", **node_options)  # type: ignore[arg-type]
+        self._taker: threading.Thread | None = None  # first: destroy_node must work if the rest raises
+        self._reader: Node | None = None
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         values = parameters.declare(self, SPECS)
         output = str(values["output"]) or f"rosbag2_{datetime.now():%Y_%m_%d-%H_%M_%S}"
@@ -100,6 +118,7 @@ class RecorderNode(Node):
             Path(output),
             compression=values["compression"],  # type: ignore[arg-type]
             chunk_size=int(values["chunk_size"]),
+            flush_interval_ns=round(float(values["flush_interval"]) * 1e9),
             custom_data=parse_custom_data(str(values["custom_data"])),
         )
         relative = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if values["record_clock"] else ())]
@@ -108,8 +127,19 @@ class RecorderNode(Node):
         self._message_classes = {
             name: topics.MESSAGE_TYPES[topic] for name, topic in zip(self.topic_names, relative, strict=True)
         }
+        self.write_error: str | None = None
+        """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
+        self._reader = Node(
+            f"{self.get_name()}_reader",
+            namespace=self.get_namespace(),
+            context=self.context,
+            use_global_arguments=False,  # the names are resolved already; no second remap of the node
+        )
         self._topic_subscriptions: dict[str, Subscription[Any]] = {}
+        self._subscriptions_lock = threading.Lock()  # the taker thread and the discovery timer
+        self._status_lock = threading.Lock()
         self._warned: set[str] = set()
+        self._registered: set[str] = set()
         self._unreported = 0
         self._status = RecorderStatus(bag=str(self.bag.mcap_path), topics=self.topic_names)
         self._status_publisher = self.create_publisher(
@@ -119,6 +149,9 @@ class RecorderNode(Node):
         # a publisher that appears later has the recorder's subscription to match from its start.
         for name in self.topic_names:
             self._subscribe(name, topics.adapted_qos([]))
+        self._stop_taking = threading.Event()
+        self._taker = threading.Thread(target=self._take_loop, name="tdslip-recorder-take", daemon=True)
+        self._taker.start()
         self.create_timer(DISCOVERY_PERIOD, self._discover)
         self._discover()
         self.get_logger().info(f"recording {', '.join(self.topic_names)} into {self.bag.mcap_path}")
@@ -138,8 +171,10 @@ class RecorderNode(Node):
             if _same_policies(subscription.qos_profile, wanted):
                 continue
             if self.bag.message_counts.get(name, 0) == 0:
-                self.destroy_subscription(subscription)
-                self._subscribe(name, wanted)
+                with self._subscriptions_lock:
+                    assert self._reader is not None
+                    self._reader.destroy_subscription(subscription)
+                    self._subscribe(name, wanted)
             elif name not in self._warned and not _compatible(subscription.qos_profile, offered):
                 self._warned.add(name)
                 self.get_logger().warning(
@@ -150,52 +185,82 @@ class RecorderNode(Node):
 
     def _register(self, name: str, offered: list[OfferedQos]) -> None:
         """Add the topic to the bag (once) with the QoS profiles its publishers offer."""
-        if name not in self.bag.message_counts and not self.bag.closed:
+        if name not in self._registered and not self.bag.closed:
             self.bag.add_topic(name, topics.type_name(self._message_classes[name]), offered_qos=offered)
+            self._registered.add(name)
 
     def _subscribe(self, name: str, qos: QoSProfile) -> None:
-        write = self.bag.write
+        assert self._reader is not None
+        self._topic_subscriptions[name] = self._reader.create_subscription(
+            self._message_classes[name], name, lambda message: None, qos, raw=True
+        )
 
-        def record(data: bytes) -> None:
-            if name not in self.bag.message_counts:  # a message before its publisher was discovered
+    def _take_loop(self) -> None:
+        while not self._stop_taking.is_set():
+            if not self.take_and_write():
+                self._stop_taking.wait(TAKE_PERIOD)
+
+    def take_and_write(self) -> int:
+        """Take every message waiting on the subscriptions and write them, each topic in the order
+        DDS delivers it; the number written."""
+        taken: list[tuple[int, int, str, bytes]] = []
+        with self._subscriptions_lock:
+            for name, subscription in self._topic_subscriptions.items():
+                handle, message_type = subscription.handle, subscription.msg_type
+                with handle:
+                    while (message := handle.take_message(message_type, True)) is not None:
+                        data, info = message
+                        taken.append((time.time_ns(), info["source_timestamp"], name, data))
+        if not taken or self.write_error is not None:
+            return 0
+        write = self.bag.write
+        for received, sent, name, data in taken:
+            if name not in self._registered:  # a message before its publisher was discovered
                 self._register(
                     name, [topics.offered_qos(i.qos_profile) for i in self.get_publishers_info_by_topic(name)]
                 )
             try:
-                write(name, data, time.time_ns())
+                write(name, data, received, sent)
             except BagWriteError as error:  # the bag is closed now (finalised if it could be)
-                self.get_logger().error(str(error))
-                return
-            except BagClosedError:  # after a write error: nothing more is recorded
-                return
-            self._unreported += 1
-            if self._unreported >= STATUS_MESSAGES:
+                self.write_error = str(error)
+                self.get_logger().error(self.write_error)
                 self.publish_status()
-
-        self._topic_subscriptions[name] = self.create_subscription(
-            self._message_classes[name], name, record, qos, raw=True
-        )
+                return 0
+            except BagClosedError:  # closed meanwhile: nothing more is recorded
+                return 0
+        self._unreported += len(taken)
+        if self._unreported >= STATUS_MESSAGES:
+            self.publish_status()
+        return len(taken)
 
     def publish_status(self) -> None:
         """Report what has been written so far (tdslip/recorder_status)."""
-        self._unreported = 0
-        counts = self.bag.message_counts
-        status = self._status
-        status.header.stamp = self.get_clock().now().to_msg()
-        status.recorded = [counts.get(name, 0) for name in self.topic_names]
-        status.publishers = [
-            subscription.get_publisher_count() if (subscription := self._topic_subscriptions.get(name)) else 0
-            for name in self.topic_names
-        ]
-        status.closed = self.bag.closed
-        self._status_publisher.publish(status)
+        with self._status_lock:
+            self._unreported = 0
+            counts = self.bag.message_counts
+            status = self._status
+            status.header.stamp = self.get_clock().now().to_msg()
+            status.recorded = [counts.get(name, 0) for name in self.topic_names]
+            status.publishers = [
+                subscription.get_publisher_count()
+                if (subscription := self._topic_subscriptions.get(name))
+                else 0
+                for name in self.topic_names
+            ]
+            status.closed = self.bag.closed
+            self._status_publisher.publish(status)
 
     @property
     def message_count(self) -> int:
         return sum(self.bag.message_counts.values())
 
     def close(self) -> None:
-        """Finalise the bag (idempotent); the subscriptions stay but write nothing more."""
+        """Take what has arrived, stop taking and finalise the bag (idempotent)."""
+        if self._taker is not None:
+            self._stop_taking.set()
+            self._taker.join()
+            self._taker = None
+            self.take_and_write()
         if not self.bag.closed:
             self.bag.close()
             counts = ", ".join(f"{topic} {count}" for topic, count in self.bag.message_counts.items())
@@ -203,7 +268,11 @@ class RecorderNode(Node):
             self.publish_status()
 
     def destroy_node(self) -> None:
-        self.close()
+        if hasattr(self, "bag"):
+            self.close()
+        if self._reader is not None:
+            self._reader.destroy_node()
+            self._reader = None
         super().destroy_node()
 
 
@@ -223,7 +292,8 @@ def _compatible(requested: QoSProfile, offered: list[OfferedQos]) -> bool:
 
 
 def drain(executor: Executor, recorder: RecorderNode) -> None:
-    """Spin until no message arrived for DRAIN_QUIET s (at most DRAIN_LIMIT s)."""
+    """Spin (status reports) while the taker records, until no message came for DRAIN_QUIET s (at
+    most DRAIN_LIMIT s)."""
     deadline = time.monotonic() + DRAIN_LIMIT
     count, quiet_since = recorder.message_count, time.monotonic()
     while (now := time.monotonic()) < deadline and now - quiet_since < DRAIN_QUIET:
@@ -243,7 +313,8 @@ def main(argv: list[str] | None = None) -> int:
         RecorderNode,
         "recorder.yaml",
         sys.argv if argv is None else argv,
-        lambda node: False,
+        lambda node: node.write_error is not None,  # nothing more can be recorded
+        exit_status=lambda node: 1 if node.write_error is not None else 0,
         on_stop=finish,
         specs=SPECS,
     )

@@ -74,7 +74,12 @@ ProgressCallback = Callable[[ApexEvent], None]
 
 
 class RunError(RuntimeError):
-    """The suite could not run or record (a node did not start, crashed, or lost messages)."""
+    """The suite could not run or record (a node did not start, crashed, or lost messages). When a node
+    died mid-run, ``published`` holds what had been published, and ``recorded`` what the finalised
+    bag holds (None if it could not be finalised), both by topic."""
+
+    published: dict[str, int] | None = None
+    recorded: dict[str, int] | None = None
 
 
 @dataclass
@@ -377,19 +382,32 @@ def run(
         )
         stack.callback(controller.close)
 
-        _wait_for_graph(executor, plant, monitor, (recorder, controller))
+        recorded_topics = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if options.record_clock else ())]
 
-        start = time.monotonic()
-        deadline = math.inf if options.duration is None else start + options.duration
-        plant.start()
-        while plant.outcome is None:
-            executor.spin_once(timeout_sec=0.1)
-            if time.monotonic() >= deadline:
-                plant.end_run(f"reached the wall-time limit of {options.duration} s")
-            elif stop_requested():
-                plant.end_run("stopped on request")
-            controller.check_alive()
-            recorder.check_alive()
+        def published_counts() -> dict[str, int]:
+            counts = {**plant.published, topics.COMMAND: plant.received_commands}
+            return {resolve(topic, options.namespace): counts.get(topic, 0) for topic in recorded_topics}
+
+        try:
+            _wait_for_graph(executor, plant, monitor, (recorder, controller))
+            start = time.monotonic()
+            deadline = math.inf if options.duration is None else start + options.duration
+            plant.start()
+            while plant.outcome is None:
+                executor.spin_once(timeout_sec=0.1)
+                if time.monotonic() >= deadline:
+                    plant.end_run(f"reached the wall-time limit of {options.duration} s")
+                elif stop_requested():
+                    plant.end_run("stopped on request")
+                controller.check_alive()
+                recorder.check_alive()
+        except RunError as error:
+            # A node died: stop the others (the recorder finalises what it has), then say what is in the bag.
+            error.published = published_counts()
+            stack.close()
+            if (bag / "metadata.yaml").is_file():
+                error.recorded = read_bag_counts(bag)
+            raise
         outcome = plant.outcome
 
         problems = []
@@ -400,9 +418,7 @@ def run(
         _spin_until_quiet(executor, lambda: plant.received_commands)
         spin_until(executor, lambda: len(monitor.apexes) == plant.published[topics.APEX], timeout=5.0)
         recorder.stop()
-        recorded_topics = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if options.record_clock else ())]
-        counts = {**plant.published, topics.COMMAND: plant.received_commands}
-        published = {resolve(topic, options.namespace): counts.get(topic, 0) for topic in recorded_topics}
+        published = published_counts()
         in_bag = read_bag_counts(bag)
         recorded = {topic: in_bag.get(topic, 0) for topic in published}
         report = RunReport(
@@ -469,15 +485,23 @@ def apex_table(params: HopperParams, apexes: list[ApexEvent]) -> str:
     return "\n".join(rows)
 
 
-def counts_table(report: RunReport) -> str:
-    names = sorted(set(report.published) | set(report.recorded))
+def counts_table(published_counts: dict[str, int], recorded_counts: dict[str, int]) -> str:
+    """Messages published and recorded per topic, marking the topics where they differ."""
+    names = sorted(set(published_counts) | set(recorded_counts))
     width = max(len("topic"), *map(len, names))
     rows = [f"{'topic':<{width}} {'published':>10} {'recorded':>10}"]
     for topic in names:
-        published, recorded = report.published.get(topic, 0), report.recorded.get(topic, 0)
+        published, recorded = published_counts.get(topic, 0), recorded_counts.get(topic, 0)
         mark = "" if published == recorded else "  LOST" if recorded < published else "  EXTRA"
         rows.append(f"{topic:<{width}} {published:>10d} {recorded:>10d}{mark}")
     return "\n".join(rows)
+
+
+def recording_note(bag: Path) -> str:
+    """What became of the recording of a run that ended early."""
+    if not (bag / "metadata.yaml").is_file():
+        return f"The recording in {bag} was not finalised; make it readable with: tdslip recover {bag}"
+    return f"The recording so far is in {bag} (finalised: tdslip analyze and replay read it)."
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -551,19 +575,26 @@ def main(argv: list[str]) -> int:
             print(line, file=sys.stderr)
 
     stop = stop_on_signals()
+    ours = not options.out.exists()  # a bag directory there afterwards is this run's recording
     try:
         report = run(options, progress, stop.is_set)
     except RunError as error:
         print(f"\ntdslip run: {error}", file=sys.stderr)
+        if error.published is not None:
+            recorded = error.recorded or {}
+            print(counts_table(error.published, {topic: recorded.get(topic, 0) for topic in error.published}))
+        if ours and options.out.exists():
+            print(recording_note(options.out), file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # a second Ctrl-C: the children were stopped on the way out
-        print(f"\ntdslip run: interrupted; the recording so far is in {options.out}", file=sys.stderr)
+        note = recording_note(options.out) if ours and options.out.exists() else "Nothing was recorded."
+        print(f"\ntdslip run: interrupted. {note}", file=sys.stderr)
         return 130
     if interactive:
         print(file=sys.stderr)
     print(apex_table(report.params, report.apexes))
     print()
-    print(counts_table(report))
+    print(counts_table(report.published, report.recorded))
     print()
     outcome = report.outcome
     speed_up = outcome.sim_time / outcome.wall_time if outcome.wall_time > 0 else math.inf
