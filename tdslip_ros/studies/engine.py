@@ -26,7 +26,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -179,28 +179,45 @@ def run_study(
     """Compute every chunk of ``study`` missing from ``directory`` on ``client``'s cluster, writing each one's
     rows as they arrive. table.StudyDirectoryError where the directory cannot take the study, EngineError
     where a chunk fails for good (the chunks written so far stay: --resume goes on from them)."""
-    started = time.monotonic()
-    table.prepare(directory, study, resume)
-    done = table.complete_parts(directory, study)
-    todo = [index for index in range(study.chunks) if index not in done]
-    if progress is not None:
-        progress.start(study.size, sum(_chunk_size(study, index) for index in done))
+    return run_many({directory: study}, client, resume, progress)
 
-    def submit(index: int) -> Future[Any]:
-        key = f"tdslip-chunk-{study.digest}-{index:06d}"
+
+def run_many(
+    studies: Mapping[Path, Study], client: Client, resume: bool = False, progress: Progress | None = None
+) -> Summary:
+    """:func:`run_study` for several studies (directory: study) at once: their missing chunks go through one
+    stream, so the cluster stays busy from the first study's chunks to the last one's."""
+    started = time.monotonic()
+    todo: dict[str, list[tuple[Path, Study, int]]] = {}  # by task key (the same chunk twice: computed once)
+    reused = chunks = size = on_disk = 0
+    for directory, study in studies.items():
+        table.prepare(directory, study, resume)
+        done = table.complete_parts(directory, study)
+        for index in range(study.chunks):
+            if index not in done:
+                todo.setdefault(f"tdslip-chunk-{study.digest}-{index:06d}", []).append(
+                    (directory, study, index)
+                )
+        reused, chunks, size = reused + len(done), chunks + study.chunks, size + study.size
+        on_disk += sum(_chunk_size(study, index) for index in done)
+    if progress is not None:
+        progress.start(size, on_disk)
+
+    def submit(key: str) -> Future[Any]:
+        _, study, index = todo[key][0]
         return client.submit(chunk.run_chunk, study, index, key=key, retries=RETRIES)
 
     def write(future: Future[Any]) -> None:
-        index = int(future.key.rsplit("-", 1)[1])
         rows = future.result()
-        table.write_part(directory, index, rows)
-        if progress is not None:
-            progress.advance(rows.num_rows)
+        for directory, _, index in todo[future.key]:
+            table.write_part(directory, index, rows)
+            if progress is not None:
+                progress.advance(rows.num_rows)
 
-    _stream(client, todo, submit, write, lambda future: f"chunk {future.key.rsplit('-', 1)[1]}")
+    _stream(client, list(todo), submit, write, lambda future: f"chunk {future.key.rsplit('-', 1)[1]}")
     if progress is not None:
         progress.finish()
-    return Summary(study.size, study.chunks, len(done), len(todo), time.monotonic() - started)
+    return Summary(size, chunks, reused, chunks - reused, time.monotonic() - started)
 
 
 def _chunk_size(study: Study, index: int) -> int:
@@ -303,18 +320,18 @@ def where_of(args: argparse.Namespace) -> Where:
 def run_studies(
     studies: dict[str, Study], directory: Path, where: Where, resume: bool, label: str
 ) -> dict[str, pa.Table]:
-    """Run each study into directory/name on one cluster, with a progress line on stderr, and read their
+    """Run the studies into directory/name on one cluster, with one progress line on stderr, and read their
     tables."""
-    tables = {}
     with connect(where) as client:
-        for name, study in studies.items():
-            progress = Progress(f"{label} {name}".strip(), "trajectories")
-            summary = run_study(study, directory / name, client, resume, progress)
-            if summary.reused:
-                print(
-                    f"{progress.label}: {summary.reused} of {summary.chunks} chunks were on disk, "
-                    f"{summary.computed} computed",
-                    file=sys.stderr,
-                )
-            tables[name] = table.read(directory / name)
-    return tables
+        summary = run_many(
+            {directory / name: study for name, study in studies.items()},
+            client,
+            resume,
+            Progress(label, "trajectories"),
+        )
+    if summary.reused:
+        print(
+            f"{label}: {summary.reused} of {summary.chunks} chunks were on disk, {summary.computed} computed",
+            file=sys.stderr,
+        )
+    return {name: table.read(directory / name) for name in studies}
