@@ -7,6 +7,7 @@ below derive damaged or reduced copies of a recording for the error tests.
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -16,6 +17,8 @@ import pytest
 from mcap.reader import make_reader
 
 from tdslip_ros.bag import RosbagMcapWriter
+from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.terrain import Blocks, Step
 from tdslip_ros.nodes.runner import RunOptions, RunReport, run
 
 RUNS: dict[str, dict[str, Any]] = {
@@ -29,6 +32,22 @@ RUNS: dict[str, dict[str, Any]] = {
     "energy_exact": {"strides": 6, "policy": "energy_exact"},
     # Deadbeat to a target speed other than the controller's default (5 m/s).
     "deadbeat": {"strides": 4, "policy": "deadbeat", "target_speed": 4.0},
+    # Every perturbation at once: random blocks, sensing noise, placement errors, a hip saturating at
+    # 280 N m (energy regulation asks 273 N m on flat ground), a chosen and random pushes, a controller
+    # that plans with 5 % more mass and 10 % less damping.
+    "rough": {
+        "strides": 12,
+        "perturbations": Perturbations(
+            terrain=Blocks(0.02, 0.5, seed=3),
+            sensing=SensingNoise(0.005, 0.05, seed=1),
+            placement=PlacementNoise(math.radians(0.5), seed=2),
+            tau_max=280.0,
+            pushes=Pushes(((5, -0.4),), size=0.2, rate=0.2, seed=4),
+            mismatch=Mismatch(mass=1.05, damping=0.9),
+        ),
+    },
+    # A 30 cm wall 8 m ahead: the toe cannot clear it.
+    "wall": {"strides": 8, "perturbations": Perturbations(terrain=Step(0.3, 8.0))},
 }
 _recorded: dict[str, RunReport] = {}
 

@@ -1,5 +1,6 @@
 """One input per named failure of a stride, shared by the exact map's, the stepper's and the batched
-engine's tests (each must report the same failure for the same input)."""
+engine's tests (each must report the same failure for the same input); PERTURBED_FAILURE_CASES are the
+failures that perturbations cause (test_perturbed_engines.py)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ from typing import NamedTuple
 
 from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes
+from tdslip_ros.model.terrain import Step
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 LOSSLESS = HopperParams.from_dimensionless(36.0, 0.0)
@@ -108,5 +111,75 @@ FAILURE_CASES = (
         StanceCommand(0.9, -8000.0, 0.05),
         FailureKind.STATE_LIMIT,
         "apex speed",
+    ),
+)
+
+
+class PerturbedFailureCase(NamedTuple):
+    """A failure that a perturbation causes (stride 0 of trajectory 0 of ``perturbations``)."""
+
+    name: str
+    params: HopperParams
+    apex: ApexState
+    command: StanceCommand
+    perturbations: Perturbations
+    kind: FailureKind
+    phrase: str  # what the exact map's reason must contain
+
+
+PERTURBED_FAILURE_CASES = (
+    PerturbedFailureCase(
+        "toe_stubbing: the leg placed at the apex puts its toe inside a 12 cm step up",
+        PARAMS,
+        ApexState(1.0, 4.0),
+        StanceCommand(math.radians(20.0), -300.0, 0.15),
+        Perturbations(terrain=Step(0.12, 0.2)),
+        FailureKind.TOE_STUBBING,
+        "below the ground",
+    ),
+    PerturbedFailureCase(
+        "toe_stubbing: a placement error of -6.8 deg puts the toe below flat ground",
+        PARAMS,
+        ApexState(0.95, 4.0),
+        StanceCommand(math.radians(20.0), -300.0, 0.15),
+        Perturbations(placement=PlacementNoise(math.radians(5.0), seed=2)),
+        FailureKind.TOE_STUBBING,
+        "below the touchdown height",
+    ),
+    PerturbedFailureCase(
+        "reversal in stance: a 1 m step down at a steep 30 deg swings the body back",
+        PARAMS,
+        ApexState(1.0, 3.0),
+        StanceCommand(math.radians(30.0), -273.0, 0.13),
+        Perturbations(terrain=Step(-1.0, 0.3)),
+        FailureKind.REVERSAL,
+        "into stance",
+    ),
+    PerturbedFailureCase(
+        "reversal at touchdown: a push of -6 m/s at the apex sends the body backwards",
+        PARAMS,
+        ApexState(1.0, 5.0),
+        StanceCommand(math.radians(20.0), -273.0, 0.13),
+        Perturbations(pushes=Pushes(((0, -6.0),))),
+        FailureKind.REVERSAL,
+        "at touchdown",
+    ),
+    PerturbedFailureCase(
+        "state_limit: a push of 30 m/s at the apex takes the speed beyond max_apex_speed",
+        PARAMS,
+        ApexState(1.0, 5.0),
+        StanceCommand(math.radians(20.0), -273.0, 0.13),
+        Perturbations(pushes=Pushes(((0, 30.0),))),
+        FailureKind.STATE_LIMIT,
+        "a push of 30 m/s",
+    ),
+    PerturbedFailureCase(
+        "fall: a soft leg under a saturated hip lifts off sinking after a 30 cm step down",
+        HopperParams.from_dimensionless(1.2, 0.3),
+        ApexState(math.cos(0.5) + 0.05, 3.0),
+        StanceCommand(0.5, -200.0, 0.3),
+        Perturbations(terrain=Step(-0.3, 0.3), tau_max=50.0),
+        FailureKind.FALL,
+        "no apex",
     ),
 )

@@ -193,6 +193,8 @@ def test_an_integer_for_a_float_parameter_is_taken_as_that_float() -> None:
         (["-p", "damping:=1e7"], "zeta0"),  # within the parameter's range, but an overdamped leg
         (["-p", "initial_height:=99.0"], "apex height"),  # within the range, beyond the plausibility limits
         (["-p", "initial_tau0:=-900000.0"], "actuator limit"),
+        (["-p", "terrain:=hills"], "terrain 'hills' is not one of"),
+        (["-p", "pushes:=3:fast"], "neither STRIDE:DV"),
     ],
 )
 def test_implausible_or_missing_inputs_stop_the_plant_with_one_line(

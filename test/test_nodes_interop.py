@@ -165,7 +165,12 @@ def test_a_subscriber_frozen_for_5_s_neither_stops_nor_holds_the_plant(
     plant = ros.add(
         PlantNode(
             context=ros.context,
-            parameter_overrides=overrides(max_strides=strides, clock_mode=mode, wait_for_recorder=True),
+            # Realtime: a late answer (the controller shares this process's GIL; a loaded machine) keeps
+            # the command in force; the run must not end for it (max_stale_strides 0): what is
+            # tested is that the frozen subscriber does not hold the plant.
+            parameter_overrides=overrides(
+                max_strides=strides, clock_mode=mode, wait_for_recorder=True, max_stale_strides=0
+            ),
         )
     )
     controller = ros.add(ControllerNode(context=ros.context))

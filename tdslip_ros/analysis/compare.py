@@ -4,7 +4,12 @@
   the analytic map (:func:`tdslip_ros.model.analytic.approximate_map`, 0 and 1 correction
   iterations) predicts the next apex; the exact map (batched DOP853,
   :func:`tdslip_ros.model.batch.batch_apex_return_map`) predicts it too, which separates the analytic
-  map's approximation error from the 1 kHz plant's own integration error.
+  map's approximation error from the 1 kHz plant's own integration error. On a perturbed run both
+  predict what the plant did: the exact map with the run's terrain, torque limit, push and placement
+  error (reproduced from the stored seeds), so its error stays at the flat-ground level; the analytic
+  map (flat ground by construction) from the apex's height above the recorded ground of the stance, with
+  the push, the placed angle and the ramp's tau0 cut to tau_max (the saturated ramp's peak: an
+  approximation of the saturated ramp). Predicted and recorded apexes are compared in the world frame.
 * **Convergence** at the paper's tolerance: the run has converged at stride n when every apex-to-apex
   change from apex n on is below 1e-4 in the dimensionless apex coordinates (ybar, xdotbar).
 * **Fixed point and dominant eigenvalue from the recording.** The apex changes D_k = s_{k+1} - s_k
@@ -18,6 +23,10 @@
   remember the previous apex speed (the PD baseline's derivative term), so the stride map acts on
   (y, xdot, xdot_prev) and the Jacobian is 3x3; it is taken by central differences because the
   deadbeat policy's inner minimisation is not complex-step safe (``analytic.map_jacobian``).
+
+The policy is replayed on the apexes the controller was given (measured, above the ground of the last
+stance) with the hopper it planned with (the controller's stored parameters: model mismatch), and the
+closed-loop analytic map pairs that planner with the plant's map.
 
 Policy settings (:func:`policy_for_run`) come from the caller, else from the controller parameters
 ``tdslip run`` stores in the bag's custom_data, else from the recorded commands (policy name, fixed
@@ -38,7 +47,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
-from tdslip_ros.analysis.reader import Run
+from tdslip_ros.analysis.reader import Run, StrideRecord
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
@@ -97,7 +106,8 @@ def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
         raise PolicyError(f"unknown policy {name!r}; one of {', '.join(POLICIES)}")
     defaults = controller_defaults()
     values: dict[str, Any] = {key: defaults[key] for key in PolicySpec.settings()}
-    values["target_energy"] = run.strides[0].energy
+    first = run.strides[0]
+    values["target_energy"] = first.energy - run.params.m * run.params.g * first.ground  # above its ground
     first_command = next((s.command for s in run.strides if s.command is not None), None)
     if name in FIXED_ANGLE_POLICIES and first_command is not None:
         values["touchdown_angle"] = first_command.touchdown_angle
@@ -190,7 +200,7 @@ def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
     guess = (
         (recorded.y, recorded.xdot) if recorded is not None else (float(apexes[-1, 0]), float(apexes[-1, 1]))
     )
-    analytic = analytic_fixed_point(params, policy, guess)
+    analytic = analytic_fixed_point(params, policy, guess, run.planner)
     return Comparison(
         run=run,
         policy=policy,
@@ -206,7 +216,9 @@ def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
 
 
 def predict(run: Run) -> Predictions:
-    """Analytic (0 and 1 corrections) and exact next apexes from each recorded apex and applied command."""
+    """Analytic (0 and 1 corrections) and exact next apexes from each recorded apex and applied command
+    (module docstring), in the world frame."""
+    params, perturbations = run.params, run.perturbations
     by_stride = {s.stride: s for s in run.strides}
     rows = [
         s
@@ -214,7 +226,10 @@ def predict(run: Run) -> Predictions:
         if s.command is not None and (s.stride + 1 in by_stride or s.failure is not None)
     ]
     stride = np.array([s.stride for s in rows], dtype=np.int64)
-    start = np.array([(s.y, s.xdot) for s in rows], dtype=float).reshape(-1, 2)
+
+    def column(name: str) -> FloatArray:
+        return np.array([getattr(s, name) for s in rows], dtype=float)
+
     after = [by_stride.get(k + 1) for k in stride]
     recorded = np.array([(math.nan, math.nan) if a is None else (a.y, a.xdot) for a in after]).reshape(-1, 2)
     command = CommandArrays(
@@ -223,18 +238,39 @@ def predict(run: Run) -> Predictions:
             for name in ("touchdown_angle", "tau0", "t_f")
         )
     )
+    # The analytic map stands on the recorded ground of the stance (the apex's, where it has none).
+    stance_ground = np.where(np.isnan(column("stance_ground")), column("ground"), column("stance_ground"))
+    tau_max = float(perturbations.tau_max)
+    applied = CommandArrays(
+        np.array([s.placed_angle for s in rows], dtype=float),
+        np.clip(command.tau0, -tau_max, tau_max) if perturbations.saturates else command.tau0,
+        command.t_f,
+    )
+    start_y = column("y") - stance_ground
+    start_xdot = column("xdot") + column("push")
     analytic, failures, energy = {}, {}, {}
     for corrections in CORRECTIONS:
-        result = approximate_map(run.params, start[:, 0], start[:, 1], command, corrections)
-        analytic[corrections] = np.stack([result.y, result.xdot], axis=-1).reshape(-1, 2)
+        result = approximate_map(params, start_y, start_xdot, applied, corrections)
+        analytic[corrections] = np.stack([stance_ground + result.y, result.xdot], axis=-1).reshape(-1, 2)
         codes = np.atleast_1d(result.failure)
         failures[corrections] = [None if (f := failure_from_code(int(c))) is None else str(f) for c in codes]
         energy[corrections] = np.stack(
             [result.stance.hip_energy, result.stance.damping_loss, result.stance.spring_energy], axis=-1
         ).reshape(-1, 3)
     if len(rows):
-        exact = batch_apex_return_map(run.params, start[:, 0], start[:, 1], *command)
-        exact_next = np.stack([exact.y, exact.xdot], axis=-1)
+        exact = batch_apex_return_map(
+            params,
+            column("y") - column("ground"),
+            column("xdot"),
+            *command,
+            x=column("x"),
+            ground=column("ground"),
+            terrain=perturbations.terrain,
+            tau_max=tau_max,
+            push=column("push"),
+            angle_error=column("angle_error"),
+        )
+        exact_next = np.stack([exact.ground + exact.y, exact.xdot], axis=-1)
     else:
         exact_next = np.empty((0, 2))
     return Predictions(
@@ -328,10 +364,16 @@ def recorded_fixed_point(params: HopperParams, apexes: FloatArray) -> FixedPoint
 
 
 def closed_loop_step(
-    params: HopperParams, policy: PolicySpec, y: npt.ArrayLike, xdot: npt.ArrayLike, previous: npt.ArrayLike
+    params: HopperParams,
+    policy: PolicySpec,
+    y: npt.ArrayLike,
+    xdot: npt.ArrayLike,
+    previous: npt.ArrayLike,
+    planner: HopperParams | None = None,
 ) -> FloatArray:
-    """(..., 3) next (y, xdot, xdot_prev) of the analytic closed-loop stride map; NaN where it fails."""
-    command = policy.commands(params, y, xdot, previous)
+    """(..., 3) next (y, xdot, xdot_prev) of the analytic closed-loop stride map, the policy planning
+    with ``planner`` (default: the plant's ``params``); NaN where it fails."""
+    command = policy.commands(params if planner is None else planner, y, xdot, previous)
     result = approximate_map(params, y, xdot, command, policy.corrections)
     return np.stack(np.broadcast_arrays(result.y, result.xdot, np.asarray(xdot, dtype=float)), axis=-1)
 
@@ -341,24 +383,32 @@ def _state_scale(params: HopperParams) -> FloatArray:
     return np.array([units.length_scale(params), units.speed_scale(params), units.speed_scale(params)])
 
 
-def _closed_loop_bar(params: HopperParams, policy: PolicySpec, state_bar: FloatArray) -> FloatArray:
+def _closed_loop_bar(
+    params: HopperParams, policy: PolicySpec, state_bar: FloatArray, planner: HopperParams | None = None
+) -> FloatArray:
     """closed_loop_step in dimensionless coordinates, on (..., 3) states."""
     scale = _state_scale(params)
     state = state_bar * scale
-    return np.asarray(closed_loop_step(params, policy, state[..., 0], state[..., 1], state[..., 2]) / scale)
+    step = closed_loop_step(params, policy, state[..., 0], state[..., 1], state[..., 2], planner)
+    return np.asarray(step / scale)
 
 
-def closed_loop_jacobian(params: HopperParams, policy: PolicySpec, y: float, xdot: float) -> FloatArray:
+def closed_loop_jacobian(
+    params: HopperParams, policy: PolicySpec, y: float, xdot: float, planner: HopperParams | None = None
+) -> FloatArray:
     """3x3 Jacobian of the dimensionless closed-loop map at (y, xdot, xdot_prev = xdot), by central
     differences."""
     centre = np.array([y, xdot, xdot]) / _state_scale(params)
     steps = _JACOBIAN_STEP * np.eye(3)
-    mapped = _closed_loop_bar(params, policy, np.concatenate([centre + steps, centre - steps]))
+    mapped = _closed_loop_bar(params, policy, np.concatenate([centre + steps, centre - steps]), planner)
     return np.asarray((mapped[:3] - mapped[3:]).T / (2.0 * _JACOBIAN_STEP))
 
 
 def analytic_fixed_point(
-    params: HopperParams, policy: PolicySpec, guess: tuple[float, float]
+    params: HopperParams,
+    policy: PolicySpec,
+    guess: tuple[float, float],
+    planner: HopperParams | None = None,
 ) -> FixedPoint | None:
     """Fixed point of the analytic closed-loop map near ``guess`` (Newton), with the Jacobian's
     eigenvalues; None if Newton does not converge (no fixed point nearby, or the map fails there)."""
@@ -369,7 +419,7 @@ def analytic_fixed_point(
     def reduced(points: FloatArray) -> FloatArray:
         # Fixed points have xdot_prev = xdot, so Newton runs on (ybar, xdotbar) alone.
         full = np.concatenate([points, points[..., 1:2]], axis=-1)
-        return _closed_loop_bar(params, policy, full)[..., :2]
+        return _closed_loop_bar(params, policy, full, planner)[..., :2]
 
     def residual_at(point: FloatArray) -> FloatArray:
         return np.asarray(reduced(point[None, :])[0] - point)
@@ -398,20 +448,28 @@ def analytic_fixed_point(
     if not np.all(np.abs(residual) <= _FIXED_POINT_RESIDUAL) or state[0] <= 0.0:
         return None
     y, xdot = (float(v) for v in state * scale)
-    values = eigenvalues(closed_loop_jacobian(params, policy, y, xdot))
+    values = eigenvalues(closed_loop_jacobian(params, policy, y, xdot, planner))
     return FixedPoint(y, xdot, tuple(complex(v) for v in values))
 
 
 def command_deviation(run: Run, policy: PolicySpec) -> float:
-    """Largest relative deviation of the policy's commands, replayed on the recorded apexes, from the
-    applied ones (angle, tau0 and t_f each relative to its own magnitude); NaN without commands."""
+    """Largest relative deviation of the policy's commands, replayed on the recorded apexes as the
+    controller was given them (measured, above the ground of the last stance) with the hopper it planned
+    with, from the applied ones (angle, tau0 and t_f each relative to its own magnitude); NaN without
+    commands."""
     rows = [(i, s) for i, s in enumerate(run.strides) if s.command is not None]
     if not rows:
         return math.nan
-    y = np.array([s.y for _, s in rows])
-    xdot = np.array([s.xdot for _, s in rows])
-    previous = np.array([run.strides[i - 1].xdot if i > 0 else s.xdot for i, s in rows])
-    replayed = policy.commands(run.params, y, xdot, previous)
+
+    def seen(stride: StrideRecord) -> tuple[float, float]:
+        if math.isnan(stride.measured_y):  # recorded before the sensor was modelled: the true apex
+            return stride.y - stride.ground, stride.xdot
+        return stride.measured_y - stride.ground, stride.measured_xdot
+
+    y = np.array([seen(s)[0] for _, s in rows])
+    xdot = np.array([seen(s)[1] for _, s in rows])
+    previous = np.array([seen(run.strides[i - 1])[1] if i > 0 else seen(s)[1] for i, s in rows])
+    replayed = policy.commands(run.planner, y, xdot, previous)
     worst = 0.0
     for name, values in zip(("touchdown_angle", "tau0", "t_f"), replayed, strict=True):
         applied = np.array([getattr(s.command, name) for _, s in rows])
@@ -421,10 +479,14 @@ def command_deviation(run: Run, policy: PolicySpec) -> float:
 
 
 def energy_balance_residual(run: Run) -> float:
-    """Largest relative residual of E_{k+1} - E_k = W_hip - E_c - E_k over the recorded strides."""
+    """Largest relative residual of E_{k+1} - E_k = W_hip - E_c - E_k + W_push over the recorded strides,
+    E the world-frame apex energy (the ground's height drops out) and W_push = m ((v + dv)^2 - v^2) / 2
+    the work of the push after apex k."""
     worst = 0.0
+    m = run.params.m
     for before, after in zip(run.strides, run.strides[1:], strict=False):
-        flows = before.hip_work - before.damping_loss - before.spring_loss
+        push_work = 0.5 * m * ((before.xdot + before.push) ** 2 - before.xdot**2)
+        flows = before.hip_work - before.damping_loss - before.spring_loss + push_work
         worst = max(worst, abs(after.energy - before.energy - flows) / abs(before.energy))
     return worst
 

@@ -169,6 +169,102 @@ def com_trajectory(run: Run, path: Path, stride: int | None = None) -> Figure:
     return _save(figure, path)
 
 
+TERRAIN_POINTS = 4000
+"""Points at which the terrain is drawn under a COM path."""
+SATURATED = "tab:red"
+
+
+def terrain_path(run: Run, path: Path) -> Figure:
+    """Above, the centre of mass over the whole run and the ground; below, the ground magnified: the run's
+    terrain, the ground height under the body the plant recorded (which must lie on it), the toe's landing
+    points. Stances in which the hip saturated are drawn red, and a failure is marked where it happened."""
+    samples = run.samples
+    if len(samples) == 0:
+        raise ValueError("no 1 kHz samples recorded: no path to draw")
+    figure = Figure(figsize=(10, 6))
+    body, ground = figure.subplots(2, 1, sharex=True, height_ratios=(2, 1))
+    low, high = float(samples.x.min()), float(samples.x.max())
+    margin = 0.02 * max(high - low, run.params.r0)
+    x = np.linspace(low - margin, high + margin, TERRAIN_POINTS)
+    terrain = run.perturbations.terrain.height(x)
+    for ax in (body, ground):
+        ax.fill_between(x, terrain, np.min(terrain) - 0.05 * run.params.r0, color="tan", alpha=0.6, lw=0)
+        ax.plot(x, terrain, color="saddlebrown", lw=0.8, label=f"ground ({run.perturbations.terrain.kind})")
+        ax.grid(alpha=0.3)
+    body.plot(samples.x, samples.y, color="black", lw=1.2, label="centre of mass")
+    saturated = {s.stride for s in run.strides if s.saturated}
+    if saturated:
+        inside = (samples.phase == 1) & np.isin(samples.stride, sorted(saturated))
+        body.plot(
+            np.where(inside, samples.x, np.nan),
+            np.where(inside, samples.y, np.nan),
+            color=SATURATED,
+            lw=2.5,
+            label=f"stance with the hip saturated ({len(saturated)})",
+        )
+    if run.outcome is not None and run.outcome.kind != "run_complete":
+        body.plot(
+            samples.x[-1], samples.y[-1], "X", color=SATURATED, ms=10, label=f"failure: {run.outcome.kind}"
+        )
+    ground.plot(
+        samples.x, samples.ground_height, ".", color="tab:green", ms=1, label="recorded under the body"
+    )
+    touchdowns = [c for c in run.contacts if c.kind == "touchdown"]
+    ground.plot(
+        [c.state.toe_x for c in touchdowns],
+        [c.state.toe_y for c in touchdowns],
+        "^",
+        color="tab:blue",
+        ms=5,
+        label="toe at touchdown",
+    )
+    span = max(float(np.ptp(terrain)), 1e-3 * run.params.r0)
+    ground.set_ylim(float(np.min(terrain)) - 0.2 * span, float(np.max(terrain)) + 0.2 * span)
+    body.set_ylabel("y [m]")
+    ground.set_ylabel("ground [m]")
+    ground.set_xlabel("x [m]")
+    body.set_title(f"{run.path.name}: centre of mass over the ground ({len(run.strides)} apexes)")
+    body.legend(fontsize=7, loc="lower right")
+    ground.legend(fontsize=7, loc="lower right")
+    return _save(figure, path)
+
+
+def measured_apex(comparison: Comparison, path: Path) -> Figure:
+    """Per stride: the true apex (height above the ground of the last stance, speed) against the apex the
+    controller's sensor reported, and the strides in which the hip saturated (shaded)."""
+    run = comparison.run
+    params = run.params
+    strides = np.array([s.stride for s in run.strides])
+    true = dimensionless(params, run.apex_array())
+    measured = dimensionless(
+        params, np.array([(s.measured_y - s.ground, s.measured_xdot) for s in run.strides]).reshape(-1, 2)
+    )
+    figure = Figure(figsize=(8, 6))
+    axes = figure.subplots(2, 1, sharex=True)
+    labels = ("apex height above ground ybar", "apex speed xdotbar")
+    saturated = [s.stride for s in run.strides if s.saturated]
+    for column, ax in enumerate(axes):
+        ax.plot(strides, true[:, column], "o-", color=RECORDED, ms=3, label="true")
+        ax.plot(
+            strides, measured[:, column], "x", color="tab:orange", ms=5, label="measured (the controller's)"
+        )
+        for index, stride in enumerate(saturated):
+            ax.axvspan(
+                stride - 0.5,
+                stride + 0.5,
+                color=SATURATED,
+                alpha=0.15,
+                lw=0,
+                label="hip saturated" if index == 0 else None,
+            )
+        ax.set_ylabel(labels[column])
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    axes[1].set_xlabel("stride")
+    axes[0].set_title(f"{run.path.name}: true and measured apexes")
+    return _save(figure, path)
+
+
 def energy_flows(comparison: Comparison, path: Path) -> Figure:
     """Recorded hip work (input) against damping and leftover-spring losses per stride (filled steps,
     one artist per series whatever the number of strides), the net apex energy change, and the

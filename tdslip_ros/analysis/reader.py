@@ -8,9 +8,18 @@ numpy columns.
 What comes out (:class:`Run`) is tidy: one :class:`StrideRecord` per recorded apex (its state, the
 command applied in the stance that follows, that stance's energy flows, the failure that ended the
 run in it), the contact events, every command and status message, and the 1 kHz samples as
-arrays. The hopper parameters are the given ones, else those ``tdslip run`` stored in the bag's
-custom_data, else :func:`infer_params` recovers them from the physics of the recorded events
-(exact to rounding); either way they are checked against the recorded events, the damping included.
+arrays. Heights are in the world frame, as recorded; each record carries its ground height.
+
+The perturbations of the run (:class:`~tdslip_ros.model.perturbations.Perturbations`: terrain, sensing
+noise, placement error, torque limit, pushes) come from the plant parameters ``tdslip run`` stores in
+custom_data, and the model the controller planned with from its stored hopper parameters (the plant's
+when none are stored: no mismatch). The per-stride draws (placement error, push) are reproduced from the
+stored seeds and checked against the recorded touchdowns: each stride's applied command is the one whose
+placed angle and saturated torque are the touchdown's.
+
+The hopper parameters are the given ones, else those ``tdslip run`` stored in the bag's custom_data, else
+:func:`infer_params` recovers them from the physics of the recorded events (exact to rounding); either
+way they are checked against the recorded events, the damping included.
 
 Only the apex topic is required: a suite topic that was never written (a recorder stopped before
 the first status, a recording salvaged by ``tdslip recover`` or another tool that drops empty
@@ -25,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -49,7 +58,9 @@ from tdslip_ros.interfaces import (
     resolve,
     stored_parameters,
 )
+from tdslip_ros.model import dynamics
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.perturbations import PLANT_SETTINGS, Perturbations, placed_angle
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -87,6 +98,7 @@ _STATE_FIELDS = (
     "leg_angle_rate",
     "hip_torque",
     "energy",
+    "ground_height",
 )
 _STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
 _GRF_FIELDS = ("wrench.force.x", "wrench.force.y")
@@ -170,7 +182,8 @@ def open_recording(path: Path, namespace: str | None = None) -> Recording:
 
 @dataclass(frozen=True)
 class ApexRecord:
-    """An ApexEvent: apex ``stride`` at sim time t [s]; energy flows of the stance before it [J]."""
+    """An ApexEvent: apex ``stride`` at sim time t [s]; energy flows of the stance before it [J]; ground
+    height of that stance [m] and the apex the controller's sensor reported (world frame)."""
 
     stride: int
     t: float
@@ -181,6 +194,9 @@ class ApexRecord:
     hip_work: float
     damping_loss: float
     spring_loss: float
+    ground: float = 0.0
+    measured_y: float = math.nan
+    measured_xdot: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -202,16 +218,18 @@ class StateRecord:
     thetadot: float
     hip_torque: float
     energy: float
+    ground_height: float = 0.0
 
 
 @dataclass(frozen=True)
 class ContactRecord:
-    """A touchdown, bottom or liftoff of the stance after apex ``stride``."""
+    """A touchdown, bottom or liftoff of the stance after apex ``stride``, on ground [m] (the toe's)."""
 
     kind: str
     stride: int
     t: float
     state: StateRecord
+    ground: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -243,6 +261,13 @@ class StrideRecord:
     was not reached, or if no recorded command matches the touchdown, see :func:`applied_commands`).
     Energy flows [J] are those of the stance after apex k (NaN if apex k + 1 was not recorded).
     ``failure`` is the status kind that ended the run during this stride, with its reason.
+
+    Perturbations: y is the apex height in the world frame, ``ground`` that of the stance before the apex
+    (y - ground the height the maps and policies use), ``stance_ground`` that of this stride's stance (NaN
+    without a touchdown); measured_y, measured_xdot: the apex as the controller's sensor reported it;
+    angle_error [rad]: the placement error drawn for the stride; placed_angle [rad]: where the leg landed
+    (the command's angle plus the placement error, NaN without a command); push [m/s]:
+    applied right after the apex; saturated: |tau0| exceeded tau_max.
     """
 
     stride: int
@@ -260,6 +285,19 @@ class StrideRecord:
     spring_loss: float
     failure: str | None
     failure_reason: str
+    ground: float = 0.0
+    stance_ground: float = math.nan
+    measured_y: float = math.nan
+    measured_xdot: float = math.nan
+    angle_error: float = 0.0
+    placed_angle: float = math.nan
+    push: float = 0.0
+    saturated: bool = False
+
+    @property
+    def height(self) -> float:
+        """The apex height above the ground of the last stance [m]."""
+        return self.y - self.ground
 
 
 @dataclass(frozen=True)
@@ -281,6 +319,7 @@ class Samples:
     thetadot: FloatArray
     hip_torque: FloatArray
     energy: FloatArray
+    ground_height: FloatArray
     grf_t: FloatArray
     grf_x: FloatArray
     grf_y: FloatArray
@@ -307,6 +346,18 @@ class Run:
     outcome: StatusRecord | None
     message_counts: dict[str, int]
     custom_data: dict[str, str]
+    perturbations: Perturbations = field(default_factory=Perturbations)
+    controller_params: HopperParams | None = None
+    """The hopper the controller planned with (None: the plant's, ``params``)."""
+
+    @property
+    def planner(self) -> HopperParams:
+        """The hopper the controller planned with: controller_params, else the plant's."""
+        return self.params if self.controller_params is None else self.controller_params
+
+    @property
+    def saturated_strides(self) -> int:
+        return sum(s.saturated for s in self.strides)
 
     @property
     def policies(self) -> tuple[str, ...]:
@@ -314,8 +365,9 @@ class Run:
         return tuple(dict.fromkeys(s.policy for s in self.strides if s.command is not None))
 
     def apex_array(self) -> FloatArray:
-        """(n, 2) apex heights [m] and speeds [m/s] of the recorded strides."""
-        return np.array([(s.y, s.xdot) for s in self.strides], dtype=float).reshape(-1, 2)
+        """(n, 2) apex heights above the ground of the last stance [m] and speeds [m/s] of the recorded
+        strides (on flat ground the recorded heights)."""
+        return np.array([(s.height, s.xdot) for s in self.strides], dtype=float).reshape(-1, 2)
 
 
 def read_run(path: Path, params: HopperParams | None = None, namespace: str | None = None) -> Run:
@@ -381,11 +433,12 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
         params, source = infer_params(apexes, contacts, bag.mcap_path), "inferred from the recording"
     _check_params(params, apexes, contacts, f"{bag.mcap_path}: the hopper parameters {source}")
     outcome = next((s for s in statuses if s.fatal), None)
+    perturbations = _stored_perturbations(recording)
     return Run(
         path=Path(path),
         params=params,
         params_source=source,
-        strides=_strides(apexes, contacts, commands, outcome),
+        strides=_strides(apexes, contacts, commands, outcome, perturbations),
         apexes=tuple(apexes),
         contacts=tuple(contacts),
         commands=tuple(commands),
@@ -394,6 +447,8 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
         outcome=outcome,
         message_counts={topic: info.message_count for topic, info in bag.topics.items()},
         custom_data=bag.custom_data,
+        perturbations=perturbations,
+        controller_params=_stored_controller_params(recording),
     )
 
 
@@ -408,6 +463,28 @@ def _stored_params(recording: Recording) -> HopperParams | None:
         raise RunReadError(
             f"{recording.bag.mcap_path}: stored hopper parameters are invalid ({error})"
         ) from None
+
+
+def _stored_controller_params(recording: Recording) -> HopperParams | None:
+    """The hopper the controller planned with, from the custom_data ``tdslip run`` writes (None if absent)."""
+    values = stored_parameters(recording.bag.custom_data, "controller")
+    if not all(name in values for name in HOPPER_PARAMETERS.values()):
+        return None
+    try:
+        return hopper_from_parameters(values)
+    except (ValueError, ParameterError) as error:
+        raise RunReadError(
+            f"{recording.bag.mcap_path}: stored controller hopper parameters are invalid ({error})"
+        ) from None
+
+
+def _stored_perturbations(recording: Recording) -> Perturbations:
+    """The plant's perturbations from the custom_data ``tdslip run`` writes (none where absent)."""
+    values = stored_parameters(recording.bag.custom_data, "plant")
+    try:
+        return Perturbations.from_plant_settings({k: v for k, v in values.items() if k in PLANT_SETTINGS})
+    except ParameterError as error:
+        raise RunReadError(f"{recording.bag.mcap_path}: stored perturbations are invalid ({error})") from None
 
 
 def _checked(topic: str, decode: Callable[[], Any]) -> Any:
@@ -462,6 +539,7 @@ def _samples(columns: dict[str, list[dict[str, np.ndarray]]]) -> Samples:
         thetadot=state["leg_angle_rate"],
         hip_torque=state["hip_torque"],
         energy=state["energy"],
+        ground_height=state["ground_height"],
         grf_t=grf_t[grf_order],
         grf_x=joined(GRF, "wrench.force.x")[grf_order],
         grf_y=joined(GRF, "wrench.force.y")[grf_order],
@@ -479,6 +557,9 @@ def _apex(msg: Any) -> ApexRecord:
         float(msg.hip_work),
         float(msg.damping_loss),
         float(msg.spring_loss),
+        float(msg.ground_height),
+        float(msg.measured_height),
+        float(msg.measured_forward_speed),
     )
 
 
@@ -499,6 +580,7 @@ def _state(msg: Any) -> StateRecord:
         thetadot=float(msg.leg_angle_rate),
         hip_torque=float(msg.hip_torque),
         energy=float(msg.energy),
+        ground_height=float(msg.ground_height),
     )
 
 
@@ -506,7 +588,9 @@ def _contact(msg: Any) -> ContactRecord:
     kind = CONTACT_KINDS.get(int(msg.kind))
     if kind is None:
         raise RunReadError(f"topic {CONTACT}: unknown contact kind {msg.kind}")
-    return ContactRecord(kind, int(msg.stride), float(msg.sim_time), _state(msg.state))
+    return ContactRecord(
+        kind, int(msg.stride), float(msg.sim_time), _state(msg.state), float(msg.ground_height)
+    )
 
 
 def _command(msg: Any, log_time_ns: int) -> CommandRecord:
@@ -528,36 +612,53 @@ def _status(msg: Any) -> StatusRecord:
 
 
 def applied_commands(
-    contacts: Sequence[ContactRecord], commands: Sequence[CommandRecord]
+    contacts: Sequence[ContactRecord],
+    commands: Sequence[CommandRecord],
+    perturbations: Perturbations | None = None,
 ) -> dict[int, CommandRecord]:
     """The command applied at each recorded touchdown, by stride.
 
     The plant applies the latest valid command answering the stride, or keeps the one in force. At
-    touchdown the leg is at the commanded angle and the hip torque equals tau0, both copied exactly
-    into the touchdown state, so the applied command is the last command answering the stride that
-    matches them bit for bit, else the command applied before it if that one matches. A touchdown
-    that no recorded command matches (the plant's initial command) gets none.
+    touchdown the leg is at the commanded angle (plus the stride's placement error, reproduced from the
+    ``perturbations``) and the hip torque equals tau0 (saturated at tau_max), both copied exactly into
+    the touchdown state, so the applied command is the last command answering the stride that matches
+    them bit for bit, else the command applied before it if that one matches. A touchdown that no
+    recorded command matches (the plant's initial command) gets none.
     """
+    perturbations = perturbations or Perturbations()
     by_stride: dict[int, list[CommandRecord]] = {}
     for command in sorted(commands, key=lambda c: c.log_time_ns):
         by_stride.setdefault(command.stride, []).append(command)
     applied: dict[int, CommandRecord] = {}
     in_force: CommandRecord | None = None
-    for touchdown in (c for c in contacts if c.kind == "touchdown"):
-        candidates = [c for c in by_stride.get(touchdown.stride, []) if _applied_at(c, touchdown)]
-        chosen = candidates[-1] if candidates else in_force if _applied_at(in_force, touchdown) else None
+    touchdowns = [c for c in contacts if c.kind == "touchdown"]
+    errors = _angle_errors(perturbations, max((c.stride for c in touchdowns), default=-1) + 1)
+    for touchdown in touchdowns:
+
+        def matches(command: CommandRecord | None, touchdown: ContactRecord = touchdown) -> bool:
+            return command is not None and _applied_at(command, touchdown, perturbations, errors)
+
+        candidates = [c for c in by_stride.get(touchdown.stride, []) if matches(c)]
+        chosen = candidates[-1] if candidates else in_force if matches(in_force) else None
         if chosen is not None:
             applied[touchdown.stride] = chosen
         in_force = chosen
     return applied
 
 
-def _applied_at(command: CommandRecord | None, touchdown: ContactRecord) -> bool:
-    return (
-        command is not None
-        and command.touchdown_angle == touchdown.state.theta
-        and command.tau0 == touchdown.state.hip_torque
-    )
+def _angle_errors(perturbations: Perturbations, strides: int) -> FloatArray:
+    """The placement errors of the first ``strides`` strides of the run (trajectory 0: epoch 0)."""
+    return perturbations.draws([0], 0, strides).angle_error[:, 0]
+
+
+def _applied_at(
+    command: CommandRecord, touchdown: ContactRecord, perturbations: Perturbations, errors: FloatArray
+) -> bool:
+    placed = placed_angle(command.touchdown_angle, float(errors[touchdown.stride]))
+    torque = command.tau0
+    if perturbations.saturates:
+        torque = float(dynamics.hip_torque(command.tau0, command.t_f, 0.0, float(perturbations.tau_max)))
+    return bool(placed == touchdown.state.theta and torque == touchdown.state.hip_torque)
 
 
 def _strides(
@@ -565,16 +666,21 @@ def _strides(
     contacts: Sequence[ContactRecord],
     commands: Sequence[CommandRecord],
     outcome: StatusRecord | None,
+    perturbations: Perturbations,
 ) -> tuple[StrideRecord, ...]:
-    applied = applied_commands(contacts, commands)
+    applied = applied_commands(contacts, commands, perturbations)
     event_times = {(c.kind, c.stride): c.t for c in contacts}
+    stance_grounds = {c.stride: c.ground for c in contacts if c.kind == "touchdown"}
     next_apex = {a.stride - 1: a for a in apexes}
+    draws = perturbations.draws([0], 0, max((a.stride for a in apexes), default=-1) + 1)
+    tau_max = float(perturbations.tau_max) if perturbations.saturates else math.inf
     records = []
     for apex in apexes:
         record = applied.get(apex.stride)
         command = None if record is None else StanceCommand(record.touchdown_angle, record.tau0, record.t_f)
         after = next_apex.get(apex.stride)
         failed = outcome is not None and outcome.kind in FAILURE_KINDS and outcome.stride == apex.stride
+        error = float(draws.angle_error[apex.stride, 0])
         records.append(
             StrideRecord(
                 stride=apex.stride,
@@ -592,6 +698,14 @@ def _strides(
                 spring_loss=math.nan if after is None else after.spring_loss,
                 failure=outcome.kind if failed and outcome is not None else None,
                 failure_reason=outcome.reason if failed and outcome is not None else "",
+                ground=apex.ground,
+                stance_ground=stance_grounds.get(apex.stride, math.nan),
+                measured_y=apex.measured_y,
+                measured_xdot=apex.measured_xdot,
+                angle_error=error,
+                placed_angle=math.nan if command is None else placed_angle(command.touchdown_angle, error),
+                push=float(draws.push[apex.stride, 0]),
+                saturated=command is not None and abs(command.tau0) > tau_max,
             )
         )
     return tuple(records)

@@ -16,7 +16,7 @@ import math
 import os
 import sys
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,17 +35,20 @@ from tdslip_ros.analysis.compare import (
     dimensionless,
     policy_for_run,
 )
-from tdslip_ros.analysis.reader import Run, RunReadError, read_run
+from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError, read_run
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
 
 FIGURES = {
     "apex_sequence": "apex height and speed per stride",
     "return_map": "return-map cobweb over the analytic map",
     "com_trajectory": "COM trajectory with GRF directions and virtual footfalls (fig. 12)",
     "energy_flows": "energy input against losses per stride",
+    "terrain_path": "COM path over the ground, toe landings and saturated stances",
+    "measured_apex": "true and measured apexes per stride, saturated strides",
 }
 
 
@@ -86,6 +89,13 @@ def stride_table(comparison: Comparison) -> list[dict[str, Any]]:
             "spring_loss": stride.spring_loss,
             "failure": stride.failure,
             "failure_reason": stride.failure_reason or None,
+            "ground": stride.ground,
+            "stance_ground": stride.stance_ground,
+            "measured_y": stride.measured_y,
+            "measured_xdot": stride.measured_xdot,
+            "placed_angle": stride.placed_angle,
+            "push": stride.push,
+            "saturated": stride.saturated,
         }
         i = row_of.get(stride.stride)
         if i is not None:
@@ -111,6 +121,39 @@ def run_summary(run: Run) -> dict[str, Any]:
         "outcome": outcome,
         "message_counts": run.message_counts,
         "params": {**asdict(params), "kbar": params.kbar, "zeta0": params.zeta0, "source": run.params_source},
+        "controller_params": None if run.controller_params is None else asdict(run.controller_params),
+        "perturbations": {
+            **run.perturbations.plant_settings(),
+            "mismatch": _mismatch(run),
+            "saturated_strides": run.saturated_strides,
+        },
+        "failure_location": failure_location(run),
+    }
+
+
+def _mismatch(run: Run) -> dict[str, float] | None:
+    """The factors by which the controller's model differs from the plant's (None: it does not)."""
+    planner = run.planner
+    if planner == run.params:
+        return None
+    return {
+        name: getattr(planner, field) / getattr(run.params, field) for name, field in MISMATCH_FIELDS.items()
+    }
+
+
+def failure_location(run: Run) -> dict[str, float] | None:
+    """Where a failed run failed: the body's x and the ground under it at the last sample, and the toe
+    and ground of the failed stride's stance if it touched down (None for a run that did not fail)."""
+    if run.outcome is None or run.outcome.kind not in FAILURE_KINDS:
+        return None
+    failed = next((s for s in run.strides if s.failure is not None), run.strides[-1])
+    touchdown = next((c for c in run.contacts if c.kind == "touchdown" and c.stride == failed.stride), None)
+    samples = run.samples
+    return {
+        "x": float(samples.x[-1]) if len(samples) else failed.x,
+        "ground_under_body": float(samples.ground_height[-1]) if len(samples) else failed.ground,
+        "toe_x": math.nan if touchdown is None else touchdown.state.toe_x,
+        "stance_ground": math.nan if touchdown is None else touchdown.ground,
     }
 
 
@@ -126,10 +169,14 @@ def analyze(
         "return_map": lambda path: plots.return_map(comparison, path),
         "com_trajectory": lambda path: plots.com_trajectory(run, path, stride),
         "energy_flows": lambda path: plots.energy_flows(comparison, path),
+        "terrain_path": lambda path: plots.terrain_path(run, path),
+        "measured_apex": lambda path: plots.measured_apex(comparison, path),
     }
+    if len(run.samples) == 0:  # no state recorded: no path to draw
+        del files["terrain_path"]
     if plots.last_complete_stride(run) is None:  # failed in its first stride: nothing per stride to draw
         del files["com_trajectory"], files["energy_flows"]
-    elif len(run.samples) == 0 and stride is None:  # no state recorded: no path to draw
+    elif len(run.samples) == 0 and stride is None:
         del files["com_trajectory"]
     for name, path in files.items():
         drawers[name](path)
@@ -200,6 +247,26 @@ def _outcome_text(run: Run) -> str:
     return f"ended {run.outcome.kind} at stride {run.outcome.stride} ({run.outcome.reason})"
 
 
+def _perturbation_lines(run: Run) -> list[str]:
+    """What perturbed the run, the saturated strides, and where a run on uneven ground failed."""
+    perturbations = replace(run.perturbations, mismatch=Mismatch(**(_mismatch(run) or {})))
+    lines = [perturbations.summary()]
+    if perturbations.saturates:
+        lines.append(f"the hip saturated (|tau0| > tau_max) in {run.saturated_strides} stride(s)")
+    where = failure_location(run)
+    if where is not None and not perturbations.terrain.is_flat and run.outcome is not None:
+        stance = (
+            f"; its stance's toe at x = {where['toe_x']:.3f} m on ground {where['stance_ground']:.4f} m"
+            if math.isfinite(where["toe_x"])
+            else ""
+        )
+        lines.append(
+            f"failed on the terrain at x = {where['x']:.3f} m over ground {where['ground_under_body']:.4f} m"
+            f"{stance}: {run.outcome.kind}: {run.outcome.reason}"
+        )
+    return lines
+
+
 def _policy_text(comparison: Comparison) -> str:
     policy, params = comparison.policy, comparison.run.params
     if policy.name in FIXED_ANGLE_POLICIES:
@@ -248,6 +315,7 @@ def headline(comparison: Comparison) -> str:
         f"hopper: m = {params.m:.4g} kg, k = {params.k:.6g} N/m, r0 = {params.r0:.4g} m, "
         f"c = {params.c:.5g} N s/m, g = {params.g:.4g} m/s^2 "
         f"(kbar {params.kbar:.4g}, zeta0 {params.zeta0:.4g}; {run.params_source})",
+        *_perturbation_lines(run),
         _policy_text(comparison),
         f"next-apex prediction error, dimensionless, over {comparison.exact_errors.strides} strides:",
         f"  {'':<30} {'height max':>10} {'mean':>9} {'speed max':>10} {'mean':>9}",

@@ -30,6 +30,8 @@ from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.terrain import FLAT, Terrain, touchdown
 
 IntArray = npt.NDArray[np.int64]
 Policy = Callable[..., tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike]]
@@ -61,10 +63,11 @@ _STATE_SIZE = 6  # r, theta, rdot, thetadot, hip work, damper loss
 class BatchStrideResult:
     """One stride for every lane (arrays of the broadcast input shape).
 
-    y, xdot: next apex [m, m/s], NaN where the lane failed; failure: code per lane (-1 none);
-    hip_work, damping_loss, spring_loss [J]: the stance's energy flows, and stance_time [s] its
+    y, xdot: next apex [m, m/s], y above ``ground``, NaN where the lane failed; failure: code per lane
+    (-1 none); hip_work, damping_loss, spring_loss [J]: the stance's energy flows, and stance_time [s] its
     duration (touchdown to liftoff), NaN where the leg did not lift off; stride_time [s]: apex to
-    next apex, NaN on failure.
+    next apex, NaN on failure; ground [m]: the stance's ground height (world frame, the toe's), NaN
+    without a stance; x [m]: the next apex's position, NaN on failure.
     """
 
     y: FloatArray
@@ -75,6 +78,8 @@ class BatchStrideResult:
     spring_loss: FloatArray
     stance_time: FloatArray
     stride_time: FloatArray
+    ground: FloatArray
+    x: FloatArray
 
 
 def batch_apex_return_map(
@@ -88,6 +93,12 @@ def batch_apex_return_map(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
+    x: npt.ArrayLike = 0.0,
+    ground: npt.ArrayLike | None = None,
+    terrain: Terrain = FLAT,
+    tau_max: npt.ArrayLike = math.inf,
+    push: npt.ArrayLike = 0.0,
+    angle_error: npt.ArrayLike = 0.0,
 ) -> BatchStrideResult:
     """The exact return map of :func:`.exact_map.apex_return_map` for broadcastable arrays of apex
     states (y [m], xdot [m/s]) and commands (touchdown_angle [rad], tau0 [N m], t_f [s]).
@@ -96,17 +107,64 @@ def batch_apex_return_map(
     give apex states within ~1e-12 (dimensionless) of it. limits: the plausibility limits (default:
     the hopper's), max_stance_time among them. ParameterError names the field and the first lane of
     an invalid input, an apex beyond the limits included, or the invalid tolerance.
+
+    Perturbations as in the exact map, per lane (broadcast with the lanes): the apex at x [m], y above
+    ``ground`` [m] (default: the ground under the body), ``terrain`` (its per-lane fields in the lanes'
+    shape), tau_max [N m], push [m/s], angle_error [rad].
     """
     check_tolerances(rtol, atol)
     limits = PlausibilityLimits.of(params, limits)
-    arrays = np.broadcast_arrays(
-        *(np.asarray(v, dtype=np.float64) for v in (y, xdot, touchdown_angle, tau0, t_f))
-    )
+    inputs = (y, xdot, touchdown_angle, tau0, t_f, x, tau_max, push, angle_error)
+    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
     shape = arrays[0].shape
-    y_a, xdot_a, angle, tau0_a, t_f_a = (np.array(a, dtype=np.float64).ravel() for a in arrays)
+    y_a, xdot_a, angle, tau0_a, t_f_a, x_a, tau_max_a, push_a, error_a = (
+        np.array(a, dtype=np.float64).ravel() for a in arrays
+    )
+    if ground is None:
+        ground_a = (
+            np.zeros(y_a.size) if terrain.is_flat else np.broadcast_to(terrain.height(x_a), y_a.shape).copy()
+        )
+    else:
+        ground_a = np.array(
+            np.broadcast_to(np.asarray(ground, dtype=np.float64), shape), dtype=np.float64
+        ).ravel()
     _validate(limits, y_a, xdot_a, angle, tau0_a, t_f_a)
-    result = _stride(limits, y_a, xdot_a, angle, tau0_a, t_f_a, rtol, atol)
+    _validate_perturbations(x_a, ground_a, tau_max_a, push_a, error_a)
+    result = _stride(
+        limits,
+        y_a,
+        xdot_a,
+        placed_angle(angle, error_a),
+        tau0_a,
+        t_f_a,
+        rtol,
+        atol,
+        _Perturbed.of(terrain, x_a, ground_a, tau_max_a, push_a),
+    )
     return BatchStrideResult(**{f.name: getattr(result, f.name).reshape(shape) for f in fields(result)})
+
+
+@dataclass(frozen=True)
+class _Perturbed:
+    """The perturbations of one stride of 1-D lanes, None where a kind is off (the flat-ground path)."""
+
+    x: FloatArray
+    ground: FloatArray
+    terrain: Terrain | None
+    tau_max: FloatArray | None
+    push: FloatArray | None
+
+    @classmethod
+    def of(
+        cls, terrain: Terrain, x: FloatArray, ground: FloatArray, tau_max: FloatArray, push: FloatArray
+    ) -> _Perturbed:
+        return cls(
+            x,
+            ground,
+            None if terrain.is_flat else terrain,
+            None if np.all(np.isinf(tau_max)) else tau_max,
+            None if np.all(push == 0.0) else push,
+        )
 
 
 @dataclass(frozen=True)
@@ -114,9 +172,16 @@ class BatchRun:
     """Apex histories of simulate_strides, lanes in the shape of y0.
 
     y, xdot: (n_strides + 1, *shape) apex states, row k the apex of stride k (row 0 the initial
-    one), NaN from a lane's failure on; failure: code per lane (-1 none); failure_stride: the
-    stride k whose apex-to-apex flow failed (-1 none); hip_work, damping_loss, spring_loss:
-    (n_strides, *shape) energy flows of stride k [J], NaN where not reached.
+    one), y its height above ``ground``, NaN from a lane's failure on; failure: code per lane (-1 none);
+    failure_stride: the stride k whose apex-to-apex flow failed (-1 none); hip_work, damping_loss,
+    spring_loss: (n_strides, *shape) energy flows of stride k [J], NaN where not reached.
+
+    Where the run was perturbed (:mod:`.perturbations`): x, ground: (n_strides + 1, *shape) the apex's
+    position and the ground height [m, world frame] of the stance before it (row 0: under the body; the
+    ground of a stance that failed after touchdown is kept, where the stance was);
+    measured_y, measured_xdot: (n_strides, *shape) the apex the policy was given at stride k (height
+    above ground, speed); push: (n_strides, *shape) the push at apex k [m/s]; saturated: (n_strides, *shape)
+    stride k's |tau0| exceeded tau_max. NaN (False) where not reached.
     """
 
     y: FloatArray
@@ -126,6 +191,12 @@ class BatchRun:
     hip_work: FloatArray
     damping_loss: FloatArray
     spring_loss: FloatArray
+    x: FloatArray
+    ground: FloatArray
+    measured_y: FloatArray
+    measured_xdot: FloatArray
+    push: FloatArray
+    saturated: npt.NDArray[np.bool_]
 
 
 def simulate_strides(
@@ -139,6 +210,9 @@ def simulate_strides(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
+    perturbations: Perturbations | None = None,
+    trajectories: npt.ArrayLike | None = None,
+    x0: npt.ArrayLike = 0.0,
 ) -> BatchRun:
     """Run every lane for n_strides strides under ``policy``, stopping lanes at their failure.
 
@@ -147,34 +221,97 @@ def simulate_strides(
     With pass_lanes=True it is called as policy(k, y, xdot, lanes), lanes being the alive lanes'
     flat indices into y0, for policies with per-lane memory (such as a per-lane energy goal).
     rtol, atol and limits as in :func:`batch_apex_return_map`.
+
+    ``perturbations`` (:class:`~.perturbations.Perturbations`, its per-lane fields in the lanes' flat
+    order) perturb the plant and the sensor: the policy is given the *measured* apex (height above the
+    ground of the last stance, speed) and, for a mismatched model, must plan with
+    ``perturbations.mismatch.controller_params(params)`` itself. The random draws of lane i are those of
+    trajectory ``trajectories[i]`` (default: i), so a study that splits its trajectories into several calls
+    gets the same results. y0 is the initial apex height above the ground under the body at x0 [m].
     """
     check_tolerances(rtol, atol)
     limits = PlausibilityLimits.of(params, limits)
     if n_strides < 0:
         raise ParameterError(f"n_strides must be non-negative, got {n_strides!r}")
-    y_init, xdot_init = np.broadcast_arrays(
-        np.asarray(y0, dtype=np.float64), np.asarray(xdot0, dtype=np.float64)
+    y_init, xdot_init, x_init = np.broadcast_arrays(
+        np.asarray(y0, dtype=np.float64),
+        np.asarray(xdot0, dtype=np.float64),
+        np.asarray(x0, dtype=np.float64),
     )
     shape = y_init.shape
     lanes_total = y_init.size
+    perturbed = perturbations if perturbations is not None and perturbations.active else None
+    trajectory = (
+        np.arange(lanes_total) if trajectories is None else np.asarray(trajectories, dtype=np.int64).ravel()
+    )
+    if trajectory.shape != (lanes_total,):
+        raise ParameterError(
+            f"trajectories must hold one index per lane ({lanes_total}), got {trajectory.shape}"
+        )
+    drawn = perturbed is not None and (perturbed.random or perturbed.pushes.active)
+    draws = perturbed.draws(trajectory, 0, n_strides) if perturbed is not None and drawn else None
     y_hist = np.full((n_strides + 1, lanes_total), np.nan)
     xdot_hist = np.full((n_strides + 1, lanes_total), np.nan)
+    x_hist = np.full((n_strides + 1, lanes_total), np.nan)
+    ground_hist = np.full((n_strides + 1, lanes_total), np.nan)
+    measured = np.full((2, n_strides, lanes_total), np.nan)
+    push_hist = np.full((n_strides, lanes_total), np.nan)
+    saturated = np.zeros((n_strides, lanes_total), dtype=bool)
     energies = np.full((3, n_strides, lanes_total), np.nan)
     failure = np.full(lanes_total, NO_FAILURE_CODE, dtype=np.int64)
     failure_stride = np.full(lanes_total, -1, dtype=np.int64)
-    y_hist[0], xdot_hist[0] = y_init.ravel(), xdot_init.ravel()
+    y_hist[0], xdot_hist[0], x_hist[0] = y_init.ravel(), xdot_init.ravel(), x_init.ravel()
+    if not np.all(np.isfinite(x_hist[0])):
+        raise ParameterError("x0 must be finite")
+    terrain = FLAT if perturbed is None else perturbed.terrain
+    ground_hist[0] = 0.0 if terrain.is_flat else terrain.height(x_hist[0])
     alive = np.arange(lanes_total)
     for stride in range(n_strides):
         if alive.size == 0:
             break
         y_k, xdot_k = y_hist[stride, alive], xdot_hist[stride, alive]
-        command = policy(stride, y_k, xdot_k, alive) if pass_lanes else policy(stride, y_k, xdot_k)
+        seen_y, seen_xdot = y_k, xdot_k
+        if draws is not None:
+            seen_y, seen_xdot = (
+                y_k + draws.height_error[stride, alive],
+                xdot_k + draws.speed_error[stride, alive],
+            )
+        measured[:, stride, alive] = seen_y, seen_xdot
+        command = (
+            policy(stride, seen_y, seen_xdot, alive) if pass_lanes else policy(stride, seen_y, seen_xdot)
+        )
         angle, tau0, t_f = (
             np.array(np.broadcast_to(np.asarray(c, dtype=np.float64), alive.shape)) for c in command
         )
         _validate(limits, y_k, xdot_k, angle, tau0, t_f)
-        step = _stride(limits, y_k, xdot_k, angle, tau0, t_f, rtol, atol)
+        lanes = perturbed.take(alive) if perturbed is not None else None
+        push = np.zeros(alive.size) if draws is None else draws.push[stride, alive]
+        tau_max = (
+            np.full(alive.size, math.inf) if lanes is None else np.broadcast_to(lanes.tau_max, alive.shape)
+        )
+        if draws is not None:
+            angle = placed_angle(angle, draws.angle_error[stride, alive])
+        step = _stride(
+            limits,
+            y_k,
+            xdot_k,
+            angle,
+            tau0,
+            t_f,
+            rtol,
+            atol,
+            _Perturbed.of(
+                terrain if lanes is None else lanes.terrain,
+                x_hist[stride, alive],
+                ground_hist[stride, alive],
+                tau_max,
+                push,
+            ),
+        )
+        push_hist[stride, alive] = push
+        saturated[stride, alive] = np.abs(tau0) > tau_max
         y_hist[stride + 1, alive], xdot_hist[stride + 1, alive] = step.y, step.xdot
+        x_hist[stride + 1, alive], ground_hist[stride + 1, alive] = step.x, step.ground
         energies[:, stride, alive] = step.hip_work, step.damping_loss, step.spring_loss
         failed = step.failure != NO_FAILURE_CODE
         failure[alive[failed]] = step.failure[failed]
@@ -188,6 +325,12 @@ def simulate_strides(
         hip_work=energies[0].reshape(n_strides, *shape),
         damping_loss=energies[1].reshape(n_strides, *shape),
         spring_loss=energies[2].reshape(n_strides, *shape),
+        x=x_hist.reshape(n_strides + 1, *shape),
+        ground=ground_hist.reshape(n_strides + 1, *shape),
+        measured_y=measured[0].reshape(n_strides, *shape),
+        measured_xdot=measured[1].reshape(n_strides, *shape),
+        push=push_hist.reshape(n_strides, *shape),
+        saturated=saturated.reshape(n_strides, *shape),
     )
 
 
@@ -218,6 +361,23 @@ def _validate(
         raise ParameterError(f"{limits.apex_violation(float(y[lane]), float(xdot[lane]))} in lane {lane}")
 
 
+def _validate_perturbations(
+    x: FloatArray, ground: FloatArray, tau_max: FloatArray, push: FloatArray, angle_error: FloatArray
+) -> None:
+    """The perturbation inputs per lane, as :func:`_validate` checks the states and commands."""
+    checks = (
+        ("x", x, np.isfinite(x), "finite"),
+        ("ground", ground, np.isfinite(ground), "finite"),
+        ("tau_max", tau_max, tau_max > 0.0, "> 0 N m (inf: no saturation)"),
+        ("push", push, np.isfinite(push), "finite"),
+        ("angle_error", angle_error, np.isfinite(angle_error), "finite"),
+    )
+    for name, values, valid, requirement in checks:
+        if not np.all(valid):
+            lane = int(np.flatnonzero(~valid)[0])
+            raise ParameterError(f"{name} must be {requirement}, got {values[lane]!r} in lane {lane}")
+
+
 def _stride(
     limits: PlausibilityLimits,
     y: FloatArray,
@@ -227,22 +387,38 @@ def _stride(
     t_f: FloatArray,
     rtol: float,
     atol: float,
+    perturbed: _Perturbed,
 ) -> BatchStrideResult:
-    """One stride of 1-D lanes (the arrays are validated)."""
+    """One stride of 1-D lanes (the arrays are validated; angle is where the leg lands)."""
     params = limits.params
     lanes = y.size
     failure = np.full(lanes, NO_FAILURE_CODE, dtype=np.int64)
     out = {
         name: np.full(lanes, np.nan)
-        for name in ("y", "xdot", "hip_work", "damping_loss", "spring_loss", "stance", "t")
+        for name in ("y", "xdot", "hip_work", "damping_loss", "spring_loss", "stance", "t", "ground", "x")
     }
+    if perturbed.push is not None:  # as limits.push_failure
+        pushed_out = (perturbed.push != 0.0) & limits.apex_exceeded(y, xdot + perturbed.push)
+        failure[pushed_out] = failure_code(FailureKind.STATE_LIMIT)
+        xdot = xdot + perturbed.push
     sin_td, cos_td = np.sin(angle), np.cos(angle)
     y_td = dynamics.touchdown_height(params, cos_td)
-    failure[y < y_td] = failure_code(FailureKind.TOE_STUBBING)
+    if perturbed.terrain is None:
+        failure[(failure == NO_FAILURE_CODE) & (y < y_td)] = failure_code(FailureKind.TOE_STUBBING)
+        t_td = dynamics.fall_time(y, np.zeros(lanes), np.minimum(y_td, y), params.g)
+        toe_x = perturbed.x + xdot * t_td + params.r0 * sin_td
+        toe_y = np.zeros(lanes)
+    else:
+        landing = touchdown(
+            perturbed.terrain, perturbed.x, perturbed.ground + y, xdot, sin_td, cos_td, params.r0, params.g
+        )
+        failure[(failure == NO_FAILURE_CODE) & landing.stubbed] = failure_code(FailureKind.TOE_STUBBING)
+        t_td, toe_x, toe_y = landing.t, landing.toe_x, landing.toe_y
     # The same rules, in the same order, as the exact map: the torque limit, then reversal at touchdown.
     beyond_torque = (failure == NO_FAILURE_CODE) & limits.torque_exceeded(tau0)
     failure[beyond_torque] = failure_code(FailureKind.STATE_LIMIT)
-    t_td = dynamics.fall_time(y, np.zeros(lanes), np.minimum(y_td, y), params.g)
+    touched = failure == NO_FAILURE_CODE
+    out["ground"][touched] = toe_y[touched]
     ydot_td = -params.g * t_td
     rdot_td, thetadot_td = dynamics.polar_velocity(np.full(lanes, params.r0), sin_td, cos_td, xdot, ydot_td)
     failure[(failure == NO_FAILURE_CODE) & (thetadot_td >= 0.0)] = failure_code(FailureKind.REVERSAL)
@@ -250,8 +426,9 @@ def _stride(
     in_stance = np.flatnonzero(failure == NO_FAILURE_CODE)
     y0 = np.zeros((_STATE_SIZE, in_stance.size))
     y0[0], y0[1], y0[2], y0[3] = params.r0, angle[in_stance], rdot_td[in_stance], thetadot_td[in_stance]
+    tau_max = None if perturbed.tau_max is None else perturbed.tau_max[in_stance]
     outcome, s_end, y_end = _integrate_stance(
-        params, y0, tau0[in_stance], t_f[in_stance], limits.max_stance_time, rtol, atol
+        params, y0, tau0[in_stance], t_f[in_stance], tau_max, limits.max_stance_time, rtol, atol
     )
     stance_failures = {
         _REVERSAL: FailureKind.REVERSAL,
@@ -278,16 +455,16 @@ def _stride(
     failure[lanes_lo[reversals]] = failure_code(FailureKind.REVERSAL)
     rising = ~falls & ~reversals
     t_rise = ydot_lo[rising] / params.g
-    y_lo = r[rising] * cos_lo[rising]
-    _, y_apex, _, _ = dynamics.ballistic(
-        np.zeros_like(y_lo), y_lo, xdot_lo[rising], ydot_lo[rising], t_rise, params.g
-    )
+    y_lo = r[rising] * cos_lo[rising]  # above the stance's ground
+    x_lo = toe_x[lanes_lo[rising]] - r[rising] * sin_lo[rising]
+    x_apex, y_apex, _, _ = dynamics.ballistic(x_lo, y_lo, xdot_lo[rising], ydot_lo[rising], t_rise, params.g)
     beyond = limits.apex_exceeded(y_apex, xdot_lo[rising])  # as limits.apex_failure
     failure[lanes_lo[rising][beyond]] = failure_code(FailureKind.STATE_LIMIT)
     ok = ~beyond
     lanes_ok = lanes_lo[rising][ok]
     out["y"][lanes_ok] = y_apex[ok]
     out["xdot"][lanes_ok] = xdot_lo[rising][ok]
+    out["x"][lanes_ok] = x_apex[ok]
     out["t"][lanes_ok] = t_td[lanes_ok] + s_end[lifted][rising][ok] + t_rise[ok]
     return BatchStrideResult(
         y=out["y"],
@@ -298,21 +475,35 @@ def _stride(
         spring_loss=out["spring_loss"],
         stance_time=out["stance"],
         stride_time=out["t"],
+        ground=out["ground"],
+        x=out["x"],
     )
 
 
 class _StanceField:
-    """The stance right-hand side for a set of lanes (their torque ramps), in place into ``out``."""
+    """The stance right-hand side for a set of lanes (their torque ramps, saturated at tau_max unless
+    None), in place into ``out``."""
 
-    def __init__(self, params: HopperParams, tau0: FloatArray, t_f: FloatArray) -> None:
-        self.params, self.tau0, self.t_f = params, tau0, t_f
+    def __init__(
+        self, params: HopperParams, tau0: FloatArray, t_f: FloatArray, tau_max: FloatArray | None
+    ) -> None:
+        self.params, self.tau0, self.t_f, self.tau_max = params, tau0, t_f, tau_max
+        self.saturation_end = None if tau_max is None else dynamics.saturation_end(tau0, t_f, tau_max)
 
     def select(self, keep: npt.NDArray[np.bool_]) -> None:
         self.tau0, self.t_f = self.tau0[keep], self.t_f[keep]
+        if self.tau_max is not None and self.saturation_end is not None:
+            self.tau_max, self.saturation_end = self.tau_max[keep], self.saturation_end[keep]
+
+    def kink(self, s: FloatArray) -> FloatArray:
+        """The next kink of the torque after s (the end of the saturation, else the ramp's end t_f)."""
+        if self.saturation_end is None:
+            return self.t_f
+        return np.where(s < self.saturation_end, self.saturation_end, self.t_f)
 
     def __call__(self, s: FloatArray, y: FloatArray, out: FloatArray) -> None:
         r, theta, rdot, thetadot = y[0], y[1], y[2], y[3]
-        tau = dynamics.ramp_torque(self.tau0, self.t_f, s)
+        tau = dynamics.hip_torque(self.tau0, self.t_f, s, self.tau_max)
         out[2], out[3] = dynamics.stance_accelerations(
             self.params, r, np.sin(theta), np.cos(theta), rdot, thetadot, tau
         )
@@ -325,8 +516,23 @@ def _dop853_step(
 ) -> FloatArray:
     """One DOP853 step of lengths h; k[0] must hold the field at (s, y); fills k[1:12]."""
     for stage in range(1, _STAGES):
-        field(s + _C[stage] * h, y + h * np.tensordot(_A[stage, :stage], k[:stage], axes=1), k[stage])
-    return y + h * np.tensordot(_B, k[:_STAGES], axes=1)
+        field(s + _C[stage] * h, y + h * _combine(_A[stage, :stage], k), k[stage])
+    return y + h * _combine(_B, k)
+
+
+def _combine(weights: FloatArray, k: FloatArray) -> FloatArray:
+    """sum_j weights[j] k[j], term by term in the order of j, skipping the tableau's zero weights.
+
+    Elementwise, so every lane's value is a function of that lane alone: a BLAS product (np.tensordot)
+    sums in an order that depends on how many lanes the call holds, which would make a lane's last bits
+    depend on the other lanes of its call (and a study's results on how it is split into calls)."""
+    terms = [(weight, k[j]) for j, weight in enumerate(weights) if weight != 0.0]
+    total: FloatArray = terms[0][0] * terms[0][1]
+    term = np.empty_like(total)
+    for weight, stage in terms[1:]:
+        np.multiply(stage, weight, out=term)
+        total += term
+    return total
 
 
 def _terminal_values(params: HopperParams, y: FloatArray) -> FloatArray:
@@ -340,6 +546,7 @@ def _integrate_stance(
     y0: FloatArray,
     tau0: FloatArray,
     t_f: FloatArray,
+    tau_max: FloatArray | None,
     t_limit: float,
     rtol: float,
     atol: float,
@@ -357,7 +564,7 @@ def _integrate_stance(
     bracket_lane: list[IntArray] = []
     bracket_parts: list[tuple[npt.NDArray[Any], ...]] = []
 
-    field = _StanceField(params, tau0, t_f)
+    field = _StanceField(params, tau0, t_f, tau_max)
     lane = np.arange(lanes)
     s = np.zeros(lanes)
     y = y0.copy()
@@ -367,16 +574,17 @@ def _integrate_stance(
     h = np.full(lanes, _INITIAL_STEP_PERIODS * 2.0 * math.pi / params.omega0)
     rejected = np.zeros(lanes, dtype=bool)
     while lane.size:
-        in_ramp = s < field.t_f
-        h = np.where(in_ramp, np.minimum(h, field.t_f - s), h)
+        kink = field.kink(s)
+        in_ramp = s < kink
+        h = np.where(in_ramp, np.minimum(h, kink - s), h)
         h = np.minimum(h, t_limit - s)
         # A trial step may overflow (a stiff leg, a too long first step); it then fails its error test.
         with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
             y_new = _dop853_step(field, s, y, h, k)
             field(s + h, y_new, k[_STAGES])
             scale = atol + np.maximum(np.abs(y), np.abs(y_new)) * rtol
-            err5 = np.sum((np.tensordot(_E5, k, axes=1) / scale) ** 2, axis=0)
-            err3 = np.sum((np.tensordot(_E3, k, axes=1) / scale) ** 2, axis=0)
+            err5 = np.sum((_combine(_E5, k) / scale) ** 2, axis=0)
+            err3 = np.sum((_combine(_E3, k) / scale) ** 2, axis=0)
             denominator = err5 + 0.01 * err3
             error = np.where(denominator > 0.0, h * err5 / np.sqrt(denominator * _STATE_SIZE), 0.0)
             # A step that left the floats (overflow, NaN) fails its error test and shrinks by _MIN_FACTOR.
@@ -406,8 +614,8 @@ def _integrate_stance(
                 )
             )
         advance = accepted & ~stops
-        # Land exactly on the ramp end, so the torque-free segment starts at s = t_f.
-        s_next = np.where(in_ramp & (h == field.t_f - s), field.t_f, s + h)
+        # Land exactly on the kink, so that the next segment (torque-free after t_f) starts there.
+        s_next = np.where(in_ramp & (h == kink - s), kink, s + h)
         s = np.where(advance, s_next, s)
         y = np.where(advance, y_new, y)
         k[0] = np.where(advance, k[_STAGES], k[0])
@@ -435,7 +643,8 @@ def _integrate_stance(
     if bracket_lane:
         lanes_hit = np.concatenate(bracket_lane)
         parts = [np.concatenate(p, axis=-1) for p in zip(*bracket_parts, strict=True)]
-        event, s_event, y_event = _locate(params, tau0[lanes_hit], t_f[lanes_hit], *parts)
+        saturation = None if tau_max is None else tau_max[lanes_hit]
+        event, s_event, y_event = _locate(params, tau0[lanes_hit], t_f[lanes_hit], saturation, *parts)
         outcome[lanes_hit], s_end[lanes_hit], y_end[:, lanes_hit] = event, s_event, y_event
     return outcome, s_end, y_end
 
@@ -444,6 +653,7 @@ def _locate(
     params: HopperParams,
     tau0: FloatArray,
     t_f: FloatArray,
+    tau_max: FloatArray | None,
     s0: FloatArray,
     y0: FloatArray,
     h: FloatArray,
@@ -460,7 +670,7 @@ def _locate(
     bisection. Converges in 2-3 steps from the regula falsi start (the time a step costs).
     """
     lanes = np.arange(s0.size)
-    field = _StanceField(params, tau0, t_f)
+    field = _StanceField(params, tau0, t_f, tau_max)
     k = np.empty((_STAGES + 1, _STATE_SIZE, s0.size))
     k[0] = k0
     velocity = np.empty((_STATE_SIZE, s0.size))

@@ -6,7 +6,10 @@ the ground, polar leg coordinates (r, theta) and the ramp hip torque of eq. 18:
     m rddot          = m r thetadot^2 - m g cos(theta) - k (r - r0) - c rdot
     d/dt(m r^2 thetadot) = m g r sin(theta) + tau(s),     s = time since touchdown,
 
-body = toe + (-r sin(theta), r cos(theta)) (the convention of :mod:`tdslip_ros.model.params`).
+body = toe + (-r sin(theta), r cos(theta)) (the convention of :mod:`tdslip_ros.model.params`). The
+stance equations hold in the toe's frame, whatever the ground height toe_y the toe stands on (uneven
+ground, :mod:`.terrain`); world heights add toe_y, and energies m g toe_y. An actuator limit tau_max
+saturates the torque (:func:`hip_torque`).
 The leg cannot pull: it lifts off when its force k (r0 - r) - c rdot crosses zero from above, and
 the spring energy it still holds then is lost with the massless leg.
 
@@ -18,6 +21,7 @@ stepper, where ``math`` is fastest) and numpy arrays (the batched engine).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TypeVar
 
 import numpy as np
@@ -101,6 +105,29 @@ def ramp_torque(tau0: Real, t_f: Real, s: Real) -> Real:
     Integrators split the stance at s = t_f, so no step straddles the kink.
     """
     return tau0 * (1.0 - s / t_f) * (s <= t_f)
+
+
+def hip_torque(tau0: Real, t_f: Real, s: Real, tau_max: Real | None) -> Real:
+    """The ramp torque of :func:`ramp_torque` saturated at +-tau_max [N m] (None: no saturation).
+
+    Saturation adds a kink at :func:`saturation_end`, where integrators split the stance too.
+    """
+    tau = ramp_torque(tau0, t_f, s)
+    if tau_max is None:
+        return tau
+    if isinstance(tau, float):  # the 1 kHz stepper: plain floats are ten times faster than numpy's
+        return min(max(tau, -tau_max), tau_max)
+    saturated: Real = np.minimum(np.maximum(tau, -tau_max), tau_max)
+    return saturated
+
+
+def saturation_end(tau0: npt.ArrayLike, t_f: npt.ArrayLike, tau_max: npt.ArrayLike) -> FloatArray:
+    """Time s [s] after touchdown at which a ramp from |tau0| > tau_max falls to tau_max and leaves the
+    saturation: t_f (1 - tau_max/|tau0|); t_f (no kink before the ramp's end) where |tau0| <= tau_max."""
+    tau0, t_f, tau_max = (np.asarray(value, dtype=np.float64) for value in (tau0, t_f, tau_max))
+    with np.errstate(divide="ignore"):
+        end: FloatArray = np.where(np.abs(tau0) > tau_max, t_f * (1.0 - tau_max / np.abs(tau0)), t_f)
+    return end
 
 
 def leg_force(params: HopperParams, r: Real, rdot: Real) -> Real:
@@ -189,29 +216,34 @@ def stance_hopper_state(
     rdot: float,
     thetadot: float,
     tau: float,
+    toe_y: float = 0.0,
+    ground: Callable[[float], float] | None = None,
 ) -> HopperState:
-    """Full state record in stance, toe at (toe_x, 0), hip torque tau."""
+    """Full state record in stance, toe at (toe_x, toe_y), hip torque tau; ground(x) gives the ground
+    height under the body (None: flat ground)."""
     sin_t, cos_t = math.sin(theta), math.cos(theta)
     xdot, ydot = cartesian_velocity(r, sin_t, cos_t, rdot, thetadot)
     grf_x, grf_y = ground_reaction_force(params, r, sin_t, cos_t, rdot, tau)
+    x = toe_x - r * sin_t
     return HopperState(
         t=t,
         stride=stride,
         phase=Phase.STANCE,
-        x=toe_x - r * sin_t,
-        y=r * cos_t,
+        x=x,
+        y=toe_y + r * cos_t,
         xdot=xdot,
         ydot=ydot,
         toe_x=toe_x,
-        toe_y=0.0,
+        toe_y=toe_y,
         r=r,
         theta=theta,
         rdot=rdot,
         thetadot=thetadot,
         hip_torque=tau,
-        energy=stance_energy(params, r, cos_t, rdot, thetadot),
+        energy=stance_energy(params, r, cos_t, rdot, thetadot) + params.m * params.g * toe_y,
         grf_x=grf_x,
         grf_y=grf_y,
+        ground_height=0.0 if ground is None else ground(x),
     )
 
 
@@ -224,8 +256,10 @@ def flight_hopper_state(
     xdot: float,
     ydot: float,
     leg_angle: float,
+    ground: Callable[[float], float] | None = None,
 ) -> HopperState:
-    """Full state record in flight, the leg held at rest length and at leg_angle [rad]."""
+    """Full state record in flight, the leg held at rest length and at leg_angle [rad]; ground(x) gives
+    the ground height under the body (None: flat ground)."""
     return HopperState(
         t=t,
         stride=stride,
@@ -244,6 +278,7 @@ def flight_hopper_state(
         energy=flight_energy(params, y, xdot, ydot),
         grf_x=0.0,
         grf_y=0.0,
+        ground_height=0.0 if ground is None else ground(x),
     )
 
 
@@ -258,6 +293,18 @@ def toe_stubbing(highest_y: float, y_touchdown: float) -> tuple[FailureKind, str
             f"r0 cos(theta_td) = {y_touchdown:.6g} m"
         )
     return None
+
+
+def toe_below_ground(
+    y_apex: float, y_touchdown: float, toe_x: float, ground: float
+) -> tuple[FailureKind, str]:
+    """The toe_stubbing of uneven ground: placed at the apex y_apex [m, world frame], the toe at toe_x is
+    below the ground under it (the body would have to be at ground + r0 cos(theta_td) = y_touchdown)."""
+    return FailureKind.TOE_STUBBING, (
+        f"apex height {y_apex:.6g} m is below the touchdown height {y_touchdown:.6g} m over the ground "
+        f"under the placed toe (x = {toe_x:.6g} m, ground height {ground:.6g} m): the toe is "
+        f"{y_touchdown - y_apex:.3g} m below the ground"
+    )
 
 
 def touchdown_reversal(thetadot_td: float) -> tuple[FailureKind, str] | None:

@@ -3,8 +3,9 @@
 Failures are data, never exceptions: an integrator that meets one returns it by name with a
 human-readable reason. Their meaning, shared by every integrator in this package:
 
-* ``toe_stubbing``: touchdown is infeasible, the body is below the touchdown height
-  ``r0 cos(theta_td)`` when the leg should be placed (the apex is too low for the commanded angle);
+* ``toe_stubbing``: touchdown is infeasible: when the leg is placed at the touchdown angle (at the apex),
+  the toe is already below the ground under it (on flat ground: the body is below the touchdown height
+  ``r0 cos(theta_td)``, the apex is too low for the commanded angle);
 * ``no_liftoff``: the stance lasts longer than ``max_stance_time`` of the plausibility limits (by default
   :func:`tdslip_ros.model.dynamics.max_stance_duration`) without liftoff, fall or reversal;
 * ``fall``: the body height ``r cos(theta)`` reaches 0 in stance (leg horizontal or fully
@@ -13,7 +14,8 @@ human-readable reason. Their meaning, shared by every integrator in this package
   body swings back over the toe), or the leg lifts off with ``xdot <= 0`` (apex speed <= 0);
 * ``state_limit``: the motion leaves the hopper's plausibility limits
   (:class:`tdslip_ros.model.limits.PlausibilityLimits`): the leg touches down under a ramp torque beyond
-  the actuator limit, or lifts off towards an apex beyond the height or speed bounds.
+  the actuator limit, lifts off towards an apex beyond the height or speed bounds, or a push at the apex
+  takes the speed beyond its bound.
 """
 
 from __future__ import annotations
@@ -62,10 +64,12 @@ def failure_from_code(code: int) -> FailureKind | None:
 class HopperState:
     """Full state at one instant, SI units.
 
-    stride is the index of the latest apex (the initial apex is stride 0). In flight the massless
-    leg is shown at rest length and at the commanded touchdown angle (rdot = thetadot = 0), its toe
-    in the air; in stance the toe is fixed at (toe_x, 0). energy is the total mechanical energy,
-    spring energy included; (grf_x, grf_y) is the ground reaction force acting on the body.
+    stride is the index of the latest apex (the initial apex is stride 0). Positions are in the world
+    frame (flat ground at y = 0). In flight the massless leg is shown at rest length and at the touchdown
+    angle it will land at (rdot = thetadot = 0), its toe in the air; in stance the toe is fixed at
+    (toe_x, toe_y), toe_y the stance's ground height. energy is the total mechanical energy, spring energy
+    included, with m g y from the datum y = 0; (grf_x, grf_y) is the ground reaction force acting on the
+    body; ground_height is the ground height h(x) under the body.
     """
 
     t: float
@@ -85,6 +89,7 @@ class HopperState:
     energy: float
     grf_x: float
     grf_y: float
+    ground_height: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,9 @@ Descent (P_d) and ascent (P_a) are ballistic and taken in closed form. Stance (P
 ramp torque of eq. 18) is integrated by scipy's DOP853 with event location; the stance is split at
 the ramp end s = t_f so that no step straddles the kink of the torque.
 
+Uneven ground, torque saturation, pushes and leg placement errors (:mod:`.perturbations`) enter as
+keyword arguments; without them the map is the flat-ground map, bit for bit.
+
 Inputs and states are held to the plausibility limits (:mod:`.limits`) exactly as the 1 kHz stepper and
 the batched engine hold them, so the three report the same failure for the same input. An integration
 that DOP853 cannot complete is never taken for a result: it ends as ``state_limit`` with scipy's reason.
@@ -21,16 +24,20 @@ from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+from tdslip_ros.model.perturbations import placed_angle
+from tdslip_ros.model.terrain import FLAT, Terrain, touchdown
 
 
 @dataclass(frozen=True)
 class StrideResult:
-    """Outcome of one stride from an apex at t = 0, x = 0 (stride 0).
+    """Outcome of one stride from an apex at t = 0 (stride 0).
 
-    apex is the next apex (None on failure) reached at apex_time [s]; touchdown, bottom (the
-    first maximum compression) and liftoff are the event states, each with its time ``.t``, or None
-    where the stride did not get there. failure_state is the state at the failure. energy holds the
-    stance's energy flows whenever the leg lifted off.
+    apex is the next apex (None on failure) reached at apex_time [s], its height above ``ground`` [m],
+    the stance's ground height (the toe's, world frame; None without a touchdown), at x = apex_x [m];
+    touchdown, bottom (the first maximum compression) and liftoff are the event states (world frame),
+    each with its time ``.t``, or None where the stride did not get there; edge tells a touchdown on a
+    vertical face of the terrain. failure_state is the state at the failure. energy holds the stance's
+    energy flows whenever the leg lifted off.
     """
 
     apex: ApexState | None
@@ -42,6 +49,9 @@ class StrideResult:
     apex_time: float | None
     failure_state: HopperState | None
     energy: StrideEnergy | None
+    ground: float | None = None
+    apex_x: float | None = None
+    edge: bool = False
 
 
 def apex_return_map(
@@ -52,6 +62,12 @@ def apex_return_map(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
+    x: float = 0.0,
+    ground: float | None = None,
+    terrain: Terrain = FLAT,
+    tau_max: float = math.inf,
+    push: float = 0.0,
+    angle_error: float = 0.0,
 ) -> StrideResult:
     """Next apex from ``apex`` under ``command``, or a named failure (see :mod:`.events`).
 
@@ -61,14 +77,27 @@ def apex_return_map(
     on DOP853's 7th-order dense output. limits (default: the hopper's defaults) bound the motion;
     their max_stance_time [s] is the no_liftoff bound. Raises ParameterError for tolerances outside
     :func:`.limits.check_tolerances` and for an apex beyond the limits.
+
+    Perturbations (:mod:`.perturbations`; the defaults are flat ground and none): the apex is at x [m],
+    its height ``apex.y`` above ``ground`` [m, world frame] (default: the ground under the body); the toe
+    lands on ``terrain`` (:func:`.terrain.touchdown`); the hip torque saturates at tau_max [N m]; a push
+    [m/s] changes the forward speed right after the apex; the leg lands at the commanded angle plus
+    angle_error [rad] (:func:`.perturbations.placed_angle`).
     """
     check_tolerances(rtol, atol)
     limits = PlausibilityLimits.of(params, limits)
     limits.check_apex(apex)
     t_limit = limits.max_stance_time
-    angle = command.touchdown_angle
+    flat = terrain.is_flat
+    if ground is None:
+        ground = 0.0 if flat else terrain.height_at(x)
+    height = None if flat else terrain.height_at
+    y_apex = ground + apex.y
+    xdot = apex.xdot + push
+    angle = placed_angle(command.touchdown_angle, angle_error)
     sin_td, cos_td = math.sin(angle), math.cos(angle)
     y_td = dynamics.touchdown_height(params, cos_td)
+    saturation = None if math.isinf(tau_max) else tau_max
 
     def result(
         failure: FailureKind | None,
@@ -80,38 +109,79 @@ def apex_return_map(
         energy: StrideEnergy | None = None,
         next_apex: ApexState | None = None,
         apex_time: float | None = None,
+        apex_x: float | None = None,
     ) -> StrideResult:
+        stance_ground = None if touchdown is None else touchdown.toe_y
         return StrideResult(
-            next_apex, failure, reason, touchdown, bottom, liftoff, apex_time, failure_state, energy
+            next_apex,
+            failure,
+            reason,
+            touchdown,
+            bottom,
+            liftoff,
+            apex_time,
+            failure_state,
+            energy,
+            stance_ground,
+            apex_x,
+            edge,
         )
 
-    stubbing = dynamics.toe_stubbing(apex.y, y_td)
-    if stubbing is not None:
-        state = dynamics.flight_hopper_state(params, 0.0, 0, 0.0, apex.y, apex.xdot, 0.0, angle)
-        return result(*stubbing, state)
+    def flight_state(t: float) -> HopperState:
+        x_t, y_t, _, ydot_t = dynamics.ballistic(x, y_apex, xdot, 0.0, t, params.g)
+        return dynamics.flight_hopper_state(params, t, 0, x_t, y_t, xdot, ydot_t, angle, height)
 
-    t_td = dynamics.fall_time(apex.y, 0.0, y_td, params.g)
-    x_td, y_fall, _, ydot_td = dynamics.ballistic(0.0, apex.y, apex.xdot, 0.0, t_td, params.g)
+    edge = False
+    pushed_out = None if push == 0.0 else limits.push_failure(apex.y, apex.xdot, push)
+    if pushed_out is not None:
+        return result(*pushed_out, flight_state(0.0))
+    if flat:
+        stubbing = dynamics.toe_stubbing(y_apex, y_td)
+        if stubbing is not None:
+            return result(*stubbing, flight_state(0.0))
+        t_td = dynamics.fall_time(y_apex, 0.0, y_td, params.g)
+        toe_y = 0.0
+    else:
+        x_a, y_a, xdot_a, sin_a, cos_a = (np.array([v]) for v in (x, y_apex, xdot, sin_td, cos_td))
+        landing = touchdown(terrain, x_a, y_a, xdot_a, sin_a, cos_a, params.r0, params.g)
+        if landing.stubbed[0]:
+            toe_x0 = x + params.r0 * sin_td
+            ground0 = float(landing.placement_ground[0])
+            return result(
+                *dynamics.toe_below_ground(y_apex, ground0 + y_td, toe_x0, ground0), flight_state(0.0)
+            )
+        t_td, toe_y, edge = float(landing.t[0]), float(landing.toe_y[0]), bool(landing.edge[0])
+    x_td, y_fall, _, ydot_td = dynamics.ballistic(x, y_apex, xdot, 0.0, t_td, params.g)
     beyond_limits = limits.torque_failure(command.tau0)
     if beyond_limits is not None:  # the hip cannot act: the stride ends as the leg meets the ground
-        state = dynamics.flight_hopper_state(params, t_td, 0, x_td, y_fall, apex.xdot, ydot_td, angle)
+        state = dynamics.flight_hopper_state(params, t_td, 0, x_td, y_fall, xdot, ydot_td, angle, height)
         return result(*beyond_limits, state)
-    toe_x = x_td + params.r0 * sin_td
-    rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, apex.xdot, ydot_td)
+    toe_x = x_td + params.r0 * sin_td if flat else float(landing.toe_x[0])
+    rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, xdot, ydot_td)
 
     def stance_state(s: float, y: np.ndarray) -> HopperState:
-        tau = dynamics.ramp_torque(command.tau0, command.t_f, s)
+        tau = dynamics.hip_torque(command.tau0, command.t_f, s, saturation)
         return dynamics.stance_hopper_state(
-            params, t_td + s, 0, toe_x, float(y[0]), float(y[1]), float(y[2]), float(y[3]), tau
+            params,
+            t_td + s,
+            0,
+            toe_x,
+            float(y[0]),
+            float(y[1]),
+            float(y[2]),
+            float(y[3]),
+            float(tau),
+            toe_y,
+            height,
         )
 
     y0 = np.array([params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0])
-    touchdown = stance_state(0.0, y0)
+    touchdown_state = stance_state(0.0, y0)
     reversal = dynamics.touchdown_reversal(thetadot_td)
     if reversal is not None:
-        return result(*reversal, touchdown, touchdown)
+        return result(*reversal, touchdown_state, touchdown_state)
 
-    outcome = _integrate_stance(params, command, y0, t_limit, rtol, atol)
+    outcome = _integrate_stance(params, command, y0, t_limit, rtol, atol, saturation)
     bottom = None if outcome.bottom is None else stance_state(*outcome.bottom)
     end_state = stance_state(outcome.s_end, outcome.y_end)
     if outcome.terminal == "failed":
@@ -119,13 +189,15 @@ def apex_return_map(
             FailureKind.STATE_LIMIT,
             f"the stance integration failed at {outcome.s_end:.6g} s into stance: {outcome.message}",
             end_state,
-            touchdown,
+            touchdown_state,
             bottom,
         )
     if outcome.terminal is None:
-        return result(*dynamics.no_liftoff(t_limit), end_state, touchdown, bottom)
+        return result(*dynamics.no_liftoff(t_limit), end_state, touchdown_state, bottom)
     if outcome.terminal != "liftoff":
-        return result(*dynamics.stance_failure(outcome.terminal, outcome.s_end), end_state, touchdown, bottom)
+        return result(
+            *dynamics.stance_failure(outcome.terminal, outcome.s_end), end_state, touchdown_state, bottom
+        )
 
     r_lo = float(outcome.y_end[0])
     energy = StrideEnergy(
@@ -136,14 +208,20 @@ def apex_return_map(
     liftoff = end_state
     failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
     if failure is not None:
-        return result(failure[0], failure[1], liftoff, touchdown, bottom, liftoff, energy)
+        return result(failure[0], failure[1], liftoff, touchdown_state, bottom, liftoff, energy)
     t_rise = liftoff.ydot / params.g
-    _, y_apex, _, _ = dynamics.ballistic(liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, params.g)
-    failure = limits.apex_failure(y_apex, liftoff.xdot)
+    # The next apex above the stance's ground: from the liftoff height above the toe.
+    y_liftoff = r_lo * math.cos(float(outcome.y_end[1]))
+    apex_x, y_next, _, _ = dynamics.ballistic(
+        liftoff.x, y_liftoff, liftoff.xdot, liftoff.ydot, t_rise, params.g
+    )
+    failure = limits.apex_failure(y_next, liftoff.xdot)
     if failure is not None:
-        return result(failure[0], failure[1], liftoff, touchdown, bottom, liftoff, energy)
-    next_apex = ApexState(y=y_apex, xdot=liftoff.xdot)
-    return result(None, "", None, touchdown, bottom, liftoff, energy, next_apex, liftoff.t + t_rise)
+        return result(failure[0], failure[1], liftoff, touchdown_state, bottom, liftoff, energy)
+    next_apex = ApexState(y=y_next, xdot=liftoff.xdot)
+    return result(
+        None, "", None, touchdown_state, bottom, liftoff, energy, next_apex, liftoff.t + t_rise, apex_x
+    )
 
 
 @dataclass(frozen=True)
@@ -170,13 +248,19 @@ class _StanceOutcome:
 
 
 def _integrate_stance(
-    params: HopperParams, command: StanceCommand, y0: np.ndarray, t_limit: float, rtol: float, atol: float
+    params: HopperParams,
+    command: StanceCommand,
+    y0: np.ndarray,
+    t_limit: float,
+    rtol: float,
+    atol: float,
+    tau_max: float | None,
 ) -> _StanceOutcome:
     tau0, t_f = command.tau0, command.t_f
 
     def rhs(s: float, y: np.ndarray) -> np.ndarray:
         r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
-        tau = dynamics.ramp_torque(tau0, t_f, s)
+        tau = float(dynamics.hip_torque(tau0, t_f, s, tau_max))
         rddot, thetaddot = dynamics.stance_accelerations(
             params, r, math.sin(theta), math.cos(theta), rdot, thetadot, tau
         )
@@ -188,9 +272,10 @@ def _integrate_stance(
         for index, name in enumerate(dynamics.STANCE_EVENT_NAMES)
     ]
     bottom: tuple[float, np.ndarray] | None = None
-    # The ramp and the torque-free rest of the stance are separate segments: the kink at t_f
-    # would otherwise cost DOP853 its order there.
-    boundaries = [0.0, t_f, t_limit] if t_f < t_limit else [0.0, t_limit]
+    # The ramp and the torque-free rest of the stance are separate segments, and so is a saturated start
+    # of the ramp: a kink would otherwise cost DOP853 its order there.
+    kinks = [t_f] if tau_max is None else [float(dynamics.saturation_end(tau0, t_f, tau_max)), t_f]
+    boundaries = [0.0, *sorted({kink for kink in kinks if 0.0 < kink < t_limit}), t_limit]
     y = y0
     for s_start, s_stop in zip(boundaries[:-1], boundaries[1:], strict=True):
         sol = solve_ivp(rhs, (s_start, s_stop), y, method="DOP853", rtol=rtol, atol=atol, events=events)

@@ -20,9 +20,10 @@ What happens at a limit depends on what crosses it:
   themselves refuse an initial apex beyond the limits (they cannot start from it);
 * a **state** beyond the limits, reached by the motion, ends the run as the named failure
   ``state_limit`` (:class:`~.events.FailureKind`). Every integrator (the 1 kHz stepper, the exact map,
-  the batched engine) applies the same two rules, :meth:`PlausibilityLimits.torque_failure` when the leg
-  touches down (the hip would have to produce the commanded torque) and
-  :meth:`PlausibilityLimits.apex_failure` when it lifts off (the coming apex is known in closed form);
+  the batched engine) applies the same rules, :meth:`PlausibilityLimits.torque_failure` when the leg
+  touches down (the hip would have to produce the commanded torque),
+  :meth:`PlausibilityLimits.apex_failure` when it lifts off (the coming apex is known in closed form) and
+  :meth:`PlausibilityLimits.push_failure` when a push at the apex changes its speed (:mod:`.perturbations`);
   the stance itself is bounded by ``max_stance_time`` (the failure ``no_liftoff``).
 
 These rules bound every reported number without a check inside the integration: a stance that
@@ -237,6 +238,16 @@ class PlausibilityLimits:
         """The failure of a liftoff whose coming apex (y_apex, xdot) is beyond the limits, or None."""
         reason = self.apex_violation(y_apex, xdot)
         return None if reason is None else (FailureKind.STATE_LIMIT, f"liftoff towards an {reason}")
+
+    def push_failure(self, y: float, xdot: float, push: float) -> tuple[FailureKind, str] | None:
+        """The failure of a push of ``push`` [m/s] at the apex (y, xdot before it) that takes the apex beyond
+        the limits, or None."""
+        reason = self.apex_violation(y, xdot + push)
+        return (
+            None
+            if reason is None
+            else (FailureKind.STATE_LIMIT, f"a push of {push:.6g} m/s at the apex: {reason}")
+        )
 
     def state_violation(self, state: HopperState) -> str | None:
         """Why a reported state is not finite or beyond the limits (torque, energy), or None.

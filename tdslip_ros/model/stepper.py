@@ -25,16 +25,30 @@ Toe stubbing: the command for the next touchdown may be changed until touchdown 
 e.g. by a controller that answers the apex event. The stepper therefore declares toe_stubbing
 at the start of the first tick, after the apex, that begins with the body below the touchdown
 height of the command in force (the initial apex counts as passed at t = 0).
+
+Perturbations (:mod:`.perturbations`, the same description the exact map and the batched engine take)
+are realised per stride k from the draws of trajectory ``trajectory``: at each apex the sensor's reading
+(:attr:`FixedStepStepper.measured_apex`) and the leg's placement error are drawn and the push is applied
+right after the apex; the toe lands on the terrain (:func:`.terrain.touchdown`, planned once per flight and
+command) and the hip torque saturates at tau_max (a further kink where the stance is split). On uneven
+ground toe stubbing means the toe, placed at the apex, is below the ground under it; a command is too late
+when its toe would have met the ground before it arrived.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.terrain import Terrain, touchdown
 
 DEFAULT_SUBSTEPS = 4
 MAX_RATE_STEP = 0.5
@@ -47,6 +61,17 @@ _GRID_SLACK = 1e-6  # fraction of a sub-step below which the stepper does not st
 
 _StanceVector = tuple[float, float, float, float, float, float]
 """(r, theta, rdot, thetadot, hip work, damper loss) in stance."""
+
+
+class _Landing(NamedTuple):
+    """Where the leg placed at the current apex lands on uneven ground: (stubbed, time from the apex to
+    touchdown, toe position) and the ground under the toe at placement."""
+
+    stubbed: bool
+    t: float
+    toe_x: float
+    toe_y: float
+    placement_ground: float
 
 
 class FixedStepStepper:
@@ -67,10 +92,14 @@ class FixedStepStepper:
         *,
         substeps: int = DEFAULT_SUBSTEPS,
         limits: PlausibilityLimits | None = None,
+        perturbations: Perturbations | None = None,
+        trajectory: int = 0,
     ) -> None:
-        """Start at ``apex`` (ParameterError when beyond ``limits``, default: the hopper's defaults).
+        """Start at ``apex`` (ParameterError when beyond ``limits``, default: the hopper's defaults),
+        apex.y above the ground under the body at x0.
 
-        Raises ParameterError too for a dt or a number of substeps that cannot resolve the motion.
+        Raises ParameterError too for a dt or a number of substeps that cannot resolve the motion, and for
+        perturbations with per-lane values. ``trajectory`` chooses the random draws (module docstring).
         """
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be a positive finite number, got {dt!r}")
@@ -99,7 +128,6 @@ class FixedStepStepper:
         self._pending_energy: StrideEnergy | None = None
         self._phase = Phase.FLIGHT
         # Flight: ballistic from the reference state (t, x, y, xdot, ydot), the last liftoff or apex.
-        self._flight_ref = (0.0, x0, apex.y, apex.xdot, 0.0)
         self._descending = True
         # Stance: toe position, touchdown time, time since touchdown and the stance vector.
         self._toe_x = 0.0
@@ -108,6 +136,27 @@ class FixedStepStepper:
         self._stance: _StanceVector = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self._stance_tau0 = command.tau0
         self._stance_t_f = command.t_f
+        self._stance_saturation_end = command.t_f
+        # Perturbations: None where off (the flat-ground path, bit for bit).
+        self._perturbations = perturbations if perturbations is not None and perturbations.active else None
+        if self._perturbations is not None:
+            self._perturbations.plant_settings()  # ParameterError for per-lane values
+        self._trajectory = trajectory
+        self._terrain: Terrain | None = None
+        self._tau_max: float | None = None
+        if self._perturbations is not None:
+            terrain = self._perturbations.terrain
+            self._terrain = None if terrain.is_flat else terrain
+            self._tau_max = None if not self._perturbations.saturates else float(self._perturbations.tau_max)
+        self._ground = 0.0 if self._terrain is None else self._terrain.height_at(x0)
+        self._toe_y = 0.0
+        self._landing: _Landing | None = None  # planned once per flight and touchdown angle
+        self._angle_error = 0.0
+        self._place_leg()
+        self._saturated_strides = 0
+        self._pending_failure: tuple[HopperState, FailureKind, str] | None = None
+        self._flight_ref = (0.0, x0, self._ground + apex.y, apex.xdot, 0.0)
+        self._begin_stride(0.0)
 
     @property
     def limits(self) -> PlausibilityLimits:
@@ -133,6 +182,36 @@ class FixedStepStepper:
         return self._failed
 
     @property
+    def apex_state(self) -> HopperState:
+        """The state at the latest apex, before its push (world frame)."""
+        return self._apex_state
+
+    @property
+    def measured_apex(self) -> tuple[float, float]:
+        """The latest apex as the sensor reports it: (height [m, world frame], forward speed [m/s])."""
+        return self._measured
+
+    @property
+    def ground(self) -> float:
+        """The ground height [m] of the last stance (at the initial apex: under the body)."""
+        return self._ground
+
+    @property
+    def push(self) -> float:
+        """The push [m/s] applied right after the latest apex."""
+        return self._push
+
+    @property
+    def placed_angle(self) -> float:
+        """The touchdown angle [rad] the leg lands at with the command in force (its error included)."""
+        return self._placed_angle
+
+    @property
+    def saturated_strides(self) -> int:
+        """Touchdowns whose |tau0| exceeded the torque limit tau_max (the hip saturated)."""
+        return self._saturated_strides
+
+    @property
     def last_stride_energy(self) -> StrideEnergy | None:
         """Energy flows of the stance before the latest apex (None before the first such apex)."""
         return self._last_energy
@@ -151,27 +230,41 @@ class FixedStepStepper:
 
         Raises ParameterError in stance, when the angle fails the controllers' own admissibility test
         for this flight's apex (:func:`dynamics.can_place_leg`, touchdown at least
-        PLACEMENT_LEAD_TIME after the apex), and when the body is already below the new touchdown
-        height r0 cos(theta_td) (a command that came too late).
+        PLACEMENT_LEAD_TIME after the apex, judged on the apex the controller was given: the measured one,
+        above the ground of the last stance), and when the command comes too late: the body is already
+        below the new touchdown height r0 cos(theta_td) (on uneven ground: the toe would already have met
+        the ground). A toe placed below the ground at the apex is not refused: it is toe stubbing.
         """
         if self._phase is Phase.STANCE:
             raise ParameterError("the stance command cannot change during stance")
         _, _, y_ref, _, ydot_ref = self._flight_ref
         apex = y_ref + ydot_ref**2 / (2.0 * self._params.g)  # descending, the reference is the apex
+        if self._perturbations is not None and self._descending:
+            apex = self._measured[0]
         cos_td = math.cos(command.touchdown_angle)
         y_td = dynamics.touchdown_height(self._params, cos_td)
-        if not dynamics.can_place_leg(self._params.r0, self._params.g, apex, cos_td):
+        if not dynamics.can_place_leg(self._params.r0, self._params.g, apex - self._ground, cos_td):
             raise ParameterError(
                 f"touchdown_angle {command.touchdown_angle!r} rad needs the body at {y_td:.6g} m, but it "
-                f"reaches at most {apex:.6g} m in this flight, and placement needs a fall of "
+                f"reaches at most {apex - self._ground:.6g} m in this flight, and placement needs a fall of "
                 f"{dynamics.PLACEMENT_LEAD_TIME:g} s from the apex to touchdown"
             )
-        if self._descending and self._flight_state(self.t).y < y_td:
-            raise ParameterError(
-                f"touchdown_angle {command.touchdown_angle!r} rad needs the body at {y_td:.6g} m, "
-                f"but it is already below, at {self._flight_state(self.t).y:.6g} m"
-            )
+        if self._terrain is None:
+            if self._descending and self._flight_state(self.t).y < y_td:
+                raise ParameterError(
+                    f"touchdown_angle {command.touchdown_angle!r} rad needs the body at {y_td:.6g} m, "
+                    f"but it is already below, at {self._flight_state(self.t).y:.6g} m"
+                )
+        elif self._descending:
+            landing = self._plan_landing(float(placed_angle(command.touchdown_angle, self._angle_error)))
+            if not landing.stubbed and self._flight_ref[0] + landing.t < self.t:
+                raise ParameterError(
+                    f"touchdown_angle {command.touchdown_angle!r} rad puts the toe on the ground at "
+                    f"t = {self._flight_ref[0] + landing.t:.6g} s, before the command arrived "
+                    f"({self.t:.6g} s)"
+                )
         self._command = command
+        self._place_leg()
 
     def step(self) -> list[Event]:
         """Advance one tick; return the events inside it in time order."""
@@ -179,9 +272,11 @@ class FixedStepStepper:
             raise RuntimeError(f"the stepper has failed ({self._failed.value}) and cannot step")
         t_start, t_end = self._tick * self._dt, (self._tick + 1) * self._dt
         events: list[Event] = []
+        if self._pending_failure is not None:  # a push at the initial apex beyond the limits
+            self._fail(events, *self._pending_failure)
+            return events
         if self._phase is Phase.FLIGHT and self._descending:
-            y_td = dynamics.touchdown_height(self._params, math.cos(self._command.touchdown_angle))
-            stubbing = dynamics.toe_stubbing(self._flight_ref[2], y_td)
+            stubbing = self._stubbing()
             if stubbing is not None:
                 self._fail(events, self._flight_state(t_start), *stubbing)
                 return events
@@ -200,8 +295,75 @@ class FixedStepStepper:
         t_ref, x, y, xdot, ydot = self._flight_ref
         x, y, xdot, ydot = dynamics.ballistic(x, y, xdot, ydot, t - t_ref, self._params.g)
         return dynamics.flight_hopper_state(
-            self._params, t, self._stride, x, y, xdot, ydot, self._command.touchdown_angle
+            self._params, t, self._stride, x, y, xdot, ydot, self.placed_angle, self._height
         )
+
+    @property
+    def _height(self) -> Callable[[float], float] | None:
+        return None if self._terrain is None else self._terrain.height_at
+
+    def _begin_stride(self, t_apex: float) -> None:
+        """At the apex in the flight reference (before its push): record it, draw this stride's
+        perturbations, apply the push (a push beyond the limits fails the stride)."""
+        self._apex_state = self._flight_state(t_apex)
+        self._measured = (self._apex_state.y, self._apex_state.xdot)
+        self._push = 0.0
+        if self._perturbations is None:
+            return
+        draws = self._perturbations.draws([self._trajectory], self._stride, 1)
+        height_error, speed_error = float(draws.height_error[0, 0]), float(draws.speed_error[0, 0])
+        self._measured = (self._apex_state.y + height_error, self._apex_state.xdot + speed_error)
+        self._angle_error = float(draws.angle_error[0, 0])
+        self._place_leg()
+        self._push = float(draws.push[0, 0])
+        self._apex_state = self._flight_state(t_apex)  # the leg at this stride's placement
+        if self._push != 0.0:
+            t_ref, x, y, xdot, _ = self._flight_ref
+            self._flight_ref = (t_ref, x, y, xdot + self._push, 0.0)
+            failure = self._limits.push_failure(y - self._ground, xdot, self._push)
+            if failure is not None:
+                self._pending_failure = (self._flight_state(t_apex), *failure)
+
+    def _place_leg(self) -> None:
+        """The command or the placement error changed: where the leg lands is to be found again."""
+        self._placed_angle = self._command.touchdown_angle
+        if self._angle_error != 0.0:
+            self._placed_angle = float(placed_angle(self._command.touchdown_angle, self._angle_error))
+        self._landing = None
+
+    def _plan_landing(self, angle: float) -> _Landing:
+        """Where a leg placed at ``angle`` at the apex of this flight lands (uneven ground)."""
+        assert self._terrain is not None
+        _, x, y, xdot, _ = self._flight_ref
+        x_a, y_a, xdot_a, sin_a, cos_a = (
+            np.array([v]) for v in (x, y, xdot, math.sin(angle), math.cos(angle))
+        )
+        landing = touchdown(self._terrain, x_a, y_a, xdot_a, sin_a, cos_a, self._params.r0, self._params.g)
+        return _Landing(
+            bool(landing.stubbed[0]),
+            float(landing.t[0]),
+            float(landing.toe_x[0]),
+            float(landing.toe_y[0]),
+            float(landing.placement_ground[0]),
+        )
+
+    def _current_landing(self) -> _Landing:
+        if self._landing is None:
+            self._landing = self._plan_landing(self.placed_angle)
+        return self._landing
+
+    def _stubbing(self) -> tuple[FailureKind, str] | None:
+        """Toe stubbing of the command in force at the apex of this (descending) flight, or None."""
+        y_apex = self._flight_ref[2]
+        y_td = dynamics.touchdown_height(self._params, math.cos(self.placed_angle))
+        if self._terrain is None:
+            return dynamics.toe_stubbing(y_apex, y_td)
+        landing = self._current_landing()
+        if not landing.stubbed:
+            return None
+        toe_x = self._flight_ref[1] + self._params.r0 * math.sin(self.placed_angle)
+        ground = landing.placement_ground
+        return dynamics.toe_below_ground(y_apex, ground + y_td, toe_x, ground)
 
     def _advance_flight(self, t: float, t_end: float, events: list[Event]) -> float:
         """Advance in flight from t to t_end or to touchdown; return where it stopped."""
@@ -216,15 +378,26 @@ class FixedStepStepper:
             self._descending = True
             self._stride += 1
             self._last_energy = self._pending_energy
-            events.append(Event(EventKind.APEX, t_apex, self._stride, self._flight_state(t_apex)))
+            self._begin_stride(t_apex)
+            events.append(Event(EventKind.APEX, t_apex, self._stride, self._apex_state))
+            if self._pending_failure is not None:
+                self._fail(events, *self._pending_failure)
+                return t_apex
             t = t_apex
         t_apex, x_apex, y_apex, xdot, _ = self._flight_ref
-        angle = self._command.touchdown_angle
+        angle = self.placed_angle
         sin_td, cos_td = math.sin(angle), math.cos(angle)
-        y_td = dynamics.touchdown_height(params, cos_td)
-        if y_apex < y_td:
-            return t_end  # toe stubbing, declared at the next tick unless the command changes
-        t_touchdown = max(t, t_apex + dynamics.fall_time(y_apex, 0.0, y_td, params.g))
+        if self._terrain is None:
+            y_td = dynamics.touchdown_height(params, cos_td)
+            if y_apex < y_td:
+                return t_end  # toe stubbing, declared at the next tick unless the command changes
+            fall = dynamics.fall_time(y_apex, 0.0, y_td, params.g)
+        else:
+            landing = self._current_landing()
+            if landing.stubbed:
+                return t_end
+            fall = landing.t
+        t_touchdown = max(t, t_apex + fall)
         if t_touchdown > t_end:
             return t_end
         beyond_limits = self._limits.torque_failure(self._command.tau0)
@@ -234,29 +407,52 @@ class FixedStepStepper:
         x_td, _, _, ydot_td = dynamics.ballistic(x_apex, y_apex, xdot, 0.0, t_touchdown - t_apex, params.g)
         rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, xdot, ydot_td)
         self._phase = Phase.STANCE
-        self._toe_x = x_td + params.r0 * sin_td
+        if self._terrain is None:
+            self._toe_x, self._toe_y = x_td + params.r0 * sin_td, 0.0
+        else:
+            self._toe_x, self._toe_y = self._current_landing().toe_x, self._current_landing().toe_y
         self._t_touchdown = t_touchdown
         self._s = 0.0
         self._stance = (params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0)
         self._stance_tau0, self._stance_t_f = self._command.tau0, self._command.t_f
-        touchdown = self._stance_state(0.0, self._stance)
-        events.append(Event(EventKind.TOUCHDOWN, t_touchdown, self._stride, touchdown))
+        self._stance_saturation_end = self._stance_t_f
+        if self._tau_max is not None:
+            self._stance_saturation_end = float(
+                dynamics.saturation_end(self._stance_tau0, self._stance_t_f, self._tau_max)
+            )
+            self._saturated_strides += abs(self._stance_tau0) > self._tau_max
+        touchdown_state = self._stance_state(0.0, self._stance)
+        events.append(Event(EventKind.TOUCHDOWN, t_touchdown, self._stride, touchdown_state))
         reversal = dynamics.touchdown_reversal(thetadot_td)
         if reversal is not None:
-            self._fail(events, touchdown, *reversal)
+            self._fail(events, touchdown_state, *reversal)
         return t_touchdown
 
     # --- stance -----------------------------------------------------------------------------
 
+    def _torque(self, s: float) -> float:
+        if self._tau_max is None:
+            return dynamics.ramp_torque(self._stance_tau0, self._stance_t_f, s)
+        return float(dynamics.hip_torque(self._stance_tau0, self._stance_t_f, s, self._tau_max))
+
     def _stance_state(self, s: float, y: _StanceVector) -> HopperState:
-        tau = dynamics.ramp_torque(self._stance_tau0, self._stance_t_f, s)
         return dynamics.stance_hopper_state(
-            self._params, self._t_touchdown + s, self._stride, self._toe_x, y[0], y[1], y[2], y[3], tau
+            self._params,
+            self._t_touchdown + s,
+            self._stride,
+            self._toe_x,
+            y[0],
+            y[1],
+            y[2],
+            y[3],
+            self._torque(s),
+            self._toe_y,
+            self._height,
         )
 
     def _derivative(self, s: float, r: float, theta: float, rdot: float, thetadot: float) -> _StanceVector:
         params = self._params
-        tau = dynamics.ramp_torque(self._stance_tau0, self._stance_t_f, s)
+        tau = self._torque(s)
         rddot, thetaddot = dynamics.stance_accelerations(
             params, r, math.sin(theta), math.cos(theta), rdot, thetadot, tau
         )
@@ -294,6 +490,8 @@ class FixedStepStepper:
             # start goes on to the following point), then the ramp end and the time limit.
             index = math.floor((t_touchdown + s - t_tick) / h_grid + _GRID_SLACK) + 1
             s_next = s_end_of_tick if index >= self._substeps else t_tick + index * h_grid - t_touchdown
+            if s < self._stance_saturation_end < s_next:
+                s_next = self._stance_saturation_end
             if s < self._stance_t_f < s_next:
                 s_next = self._stance_t_f
             s_next = min(s_next, self._stance_limit)
@@ -370,6 +568,7 @@ class FixedStepStepper:
         self._phase = Phase.FLIGHT
         self._flight_ref = (liftoff.t, liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot)
         self._descending = False
+        self._ground = self._toe_y
         failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
         if failure is None:
             # The coming apex, computed as _advance_flight will reach it.
@@ -377,7 +576,7 @@ class FixedStepStepper:
             _, y_apex, _, _ = dynamics.ballistic(
                 liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, self._params.g
             )
-            failure = self._limits.apex_failure(y_apex, liftoff.xdot)
+            failure = self._limits.apex_failure(y_apex - self._ground, liftoff.xdot)
         if failure is not None:
             self._fail(events, liftoff, *failure)
 

@@ -13,9 +13,14 @@ The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.m
   and energy towards the target apex.
 
 Policy, targets and gains are read at every apex, so ``ros2 param set`` changes them at runtime
-(values are checked against their ranges and choices first). The controller plans with the same
-SI hopper parameters as the plant (``mass``, ``stiffness``, ``rest_length``, ``damping``,
-``gravity``): give it the plant's values, as config/controller.yaml does for the defaults.
+(values are checked against their ranges and choices first). The controller plans with its own SI
+hopper parameters (``mass``, ``stiffness``, ``rest_length``, ``damping``, ``gravity``): the plant's, as
+config/controller.yaml has them for the defaults, or other values to study model mismatch (``tdslip run
+--mismatch`` scales the plant's by factors).
+
+The controller is blind to the terrain and sees the apex through the plant's sensor: it plans with the
+*measured* apex (ApexEvent ``measured_height``, ``measured_forward_speed``, equal to the true apex without
+sensing noise), its height taken above ``ground_height``, the ground of the stance it last stood on.
 """
 
 from __future__ import annotations

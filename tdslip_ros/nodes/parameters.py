@@ -22,6 +22,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.terrain import TERRAIN_FORMS
 
 ParameterValue = bool | int | float | str
 
@@ -78,6 +79,59 @@ HOPPER: tuple[ParameterSpec, ...] = (
     _hopper("damping", PAPER_PARAMS.c, "leg damping c [N s/m] (zeta0 = c / (2 sqrt(m k)) < 1)", 0.0, 1e7),
     _hopper("gravity", PAPER_PARAMS.g, "gravitational acceleration g [m/s^2]", 1e-3, 1e3),
 )
+
+
+SEED_RANGE = (0, 2**31 - 1)
+PERTURBATIONS: tuple[ParameterSpec, ...] = (
+    ParameterSpec(
+        "terrain",
+        "flat",
+        f"ground under the hopper [m]: {TERRAIN_FORMS}",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "apex_height_noise",
+        0.0,
+        "sensor noise: standard deviation of the measured apex height [m]",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "apex_speed_noise",
+        0.0,
+        "sensor noise: standard deviation of the measured apex speed [m/s]",
+        0.0,
+        100.0,
+        read_only=True,
+    ),
+    ParameterSpec("apex_noise_seed", 0, "seed of the sensor noise", *SEED_RANGE, read_only=True),
+    ParameterSpec(
+        "angle_noise",
+        0.0,
+        "standard deviation of the leg's touchdown angle error [rad]",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParameterSpec("angle_noise_seed", 0, "seed of the touchdown angle error", *SEED_RANGE, read_only=True),
+    ParameterSpec(
+        "tau_max",
+        0.0,
+        "the hip torque saturates at +-tau_max [N m] (0: no saturation)",
+        0.0,
+        1e9,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "pushes",
+        "",
+        "horizontal velocity changes [m/s] right after the apex, ';'-separated: STRIDE:DV (at that stride) "
+        "and random:size=DV,rate=P,seed=N (+-DV with probability P per stride); '': none",
+        read_only=True,
+    ),
+)
+"""The plant's perturbation parameters (tdslip_ros.model.perturbations.Perturbations.plant_settings)."""
 
 
 def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, ParameterValue]:

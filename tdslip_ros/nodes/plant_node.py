@@ -23,6 +23,19 @@ Clock modes (parameter ``clock_mode``):
   so runs with equal parameters give bit-identical results. No valid command within
   ``command_timeout`` seconds of wall time ends the run (Status ``command_timeout``).
 
+Perturbations (:mod:`tdslip_ros.model.perturbations`; parameters ``terrain``, ``apex_height_noise``,
+``apex_speed_noise``, ``apex_noise_seed``, ``angle_noise``, ``angle_noise_seed``, ``tau_max``, ``pushes``)
+are the stepper's: the hopper hops over the terrain (``terrain``: ``flat``, ``step:height=H,x=X``,
+``blocks:sigma=S,length=L,seed=N``, ``profile:file=PATH.csv``), its hip saturates at tau_max, its leg
+lands with a placement error and pushes hit it right after the apex. Heights are in the world frame:
+state samples carry the ground height under the body, each contact event the ground under the toe of its
+stance, each apex event the ground of the stance before it (the initial one: under the body; the initial
+apex ``initial_height`` and a reset's height are above that ground) and, beside the true apex, the
+measured one the controller's sensor reports (the true one without sensing noise). The random draws of
+a run are those of trajectory ``epoch`` (:meth:`~tdslip_ros.model.perturbations.Perturbations.draws`), so a
+run is reproduced by its parameters. A command is judged admissible on the apex the controller was given
+(measured, above the ground of the last stance); a toe placed below the ground is toe stubbing, a failure.
+
 A command answers one apex: it carries the apex's ``epoch`` (0 for the first run, one more at
 every reset) and ``stride``. It is rejected (Status ``command_rejected``, never applied) when it
 answers another apex, arrives after the touchdown it was for, repeats an already answered stride
@@ -77,6 +90,7 @@ from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
@@ -109,7 +123,12 @@ CLOCK_MODES = ("realtime", "lockstep")
 SPECS: tuple[ParameterSpec, ...] = (
     *parameters.HOPPER,
     ParameterSpec(
-        "initial_height", parameters.DEFAULT_APEX_HEIGHT, "initial apex height [m]", 1e-3, 1e2, read_only=True
+        "initial_height",
+        parameters.DEFAULT_APEX_HEIGHT,
+        "initial apex height [m] above the ground under the body",
+        1e-3,
+        1e2,
+        read_only=True,
     ),
     ParameterSpec(
         "initial_forward_speed",
@@ -147,6 +166,7 @@ SPECS: tuple[ParameterSpec, ...] = (
         1e9,
         read_only=True,
     ),
+    *parameters.PERTURBATIONS,
     ParameterSpec(
         "clock_mode",
         "lockstep",
@@ -273,6 +293,7 @@ def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
     msg.leg_angle_rate = state.thetadot
     msg.hip_torque = state.hip_torque
     msg.energy = state.energy
+    msg.ground_height = state.ground_height
 
 
 def command_key(data: bytes) -> tuple[int, int] | None:
@@ -341,6 +362,8 @@ class PlantNode(Node):
         self.limits.check_command(self._initial_command)
         initial_apex = ApexState(float(values["initial_height"]), float(values["initial_forward_speed"]))
         self.limits.check_apex(initial_apex)
+        self.perturbations = Perturbations.from_plant_settings(values)
+        self.perturbations.check_limits(self.limits)
         self.lockstep = values["clock_mode"] == "lockstep"
         self._max_strides = int(values["max_strides"])
         self._max_stale_strides = int(values["max_stale_strides"])
@@ -431,7 +454,8 @@ class PlantNode(Node):
             f"{'lockstep' if self.lockstep else 'realtime'} plant, "
             f"max_strides {self._max_strides or 'none'}; "
             f"hopper m {hopper.m:g} kg, k {hopper.k:g} N/m, r0 {hopper.r0:g} m, c {hopper.c:g} N s/m, "
-            f"g {hopper.g:g} m/s^2 (kbar {hopper.kbar:.4g}, zeta0 {hopper.zeta0:.4g}); initial apex "
+            f"g {hopper.g:g} m/s^2 (kbar {hopper.kbar:.4g}, zeta0 {hopper.zeta0:.4g}); "
+            f"{self.perturbations.summary()}; initial apex "
             f"{apex.y:g} m, {apex.xdot:g} m/s; publishing {', '.join(self.topic_names.values())}; "
             f"service {self.resolve_topic_name(topics.RESET_SERVICE)}; "
             f"starts on {' and '.join(start)} (at most {self._command_timeout:g} s)"
@@ -447,6 +471,11 @@ class PlantNode(Node):
     def stride(self) -> int:
         """The latest apex of the run (0: the initial one)."""
         return self._stepper.stride
+
+    @property
+    def saturated_strides(self) -> int:
+        """Touchdowns of this run whose |tau0| exceeded tau_max (the hip saturated)."""
+        return self._stepper.saturated_strides
 
     @property
     def epoch(self) -> int:
@@ -512,7 +541,7 @@ class PlantNode(Node):
         self.start_wall_ns = time.monotonic_ns()
         self._tick0 = self._ticks
         self._check_graph()
-        self._publish_apex(0, self._stepper.state)
+        self._publish_apex(0, self._stepper.apex_state)
         self._publish_sample(self._stepper.state)
         if self.lockstep:
             self._await_command()
@@ -548,7 +577,13 @@ class PlantNode(Node):
 
     def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
         self._stepper = FixedStepStepper(
-            self.hopper, apex, self._initial_command, dt=TICK_PERIOD, limits=self.limits
+            self.hopper,
+            apex,
+            self._initial_command,
+            dt=TICK_PERIOD,
+            limits=self.limits,
+            perturbations=self.perturbations,
+            trajectory=self._epoch,
         )
         self._offset = time_offset_ticks * TICK_PERIOD
         self._awaiting: int | None = None
@@ -573,6 +608,8 @@ class PlantNode(Node):
         if self.tick_timing is not None:
             self.tick_timing.close_window()
             self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
+        if self.perturbations.saturates:
+            self.get_logger().info(f"the hip saturated in {self._stepper.saturated_strides} stride(s)")
         if kind == Status.KIND_RUN_COMPLETE:
             self.get_logger().info(f"run complete at stride {self._stepper.stride}, t = {t:.3f} s: {reason}")
         else:
@@ -858,7 +895,8 @@ class PlantNode(Node):
             published[topics.CLOCK] += 1
 
     def _publish_markers(self, state: ModelState) -> None:
-        self._publish(topics.MARKERS, self._markers.update(state, self._state_msg.header.stamp))
+        markers = self._markers.update(state, self._state_msg.header.stamp, state.ground_height)
+        self._publish(topics.MARKERS, markers)
 
     def _publish_apex(self, stride: int, state: ModelState) -> None:
         msg = ApexEvent(
@@ -866,8 +904,9 @@ class PlantNode(Node):
         )
         msg.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, msg.sim_time)
-        msg.forward_speed = msg.measured_forward_speed = state.xdot
-        msg.measured_height = state.y
+        msg.forward_speed = state.xdot
+        msg.measured_height, msg.measured_forward_speed = self._stepper.measured_apex
+        msg.ground_height = self._stepper.ground
         msg.energy = state.energy
         flows = self._stepper.last_stride_energy if stride > 0 else None
         if flows is not None:
@@ -882,7 +921,9 @@ class PlantNode(Node):
     def _publish_contact(self, event: Event) -> None:
         t = self._offset + event.t
         kind = _CONTACT_KINDS[event.kind]
-        msg = ContactEvent(kind=kind, epoch=self._epoch, stride=event.stride, sim_time=t)
+        msg = ContactEvent(
+            kind=kind, epoch=self._epoch, stride=event.stride, sim_time=t, ground_height=event.state.toe_y
+        )
         msg.header.frame_id = msg.state.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, t)
         fill_state(msg.state, event.state, t)

@@ -52,10 +52,19 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from tdslip_msgs.msg import ApexEvent
 
-from tdslip_ros.interfaces import config_file, custom_data_key, installed_parameters, resolve
+from tdslip_ros.interfaces import (
+    HOPPER_PARAMETERS,
+    config_file,
+    custom_data_key,
+    installed_parameters,
+    resolve,
+)
 from tdslip_ros.model import units
 from tdslip_ros.model.controllers import POLICIES
+from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
 from tdslip_ros.nodes import isolation, parameters, topics
 from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
@@ -108,6 +117,9 @@ class RunOptions:
     domain_id: int | None = None
     namespace: str = "/"
     """Namespace of the three nodes (``tdslip run --namespace /h1``: topics /h1/tdslip/...)."""
+    perturbations: Perturbations = field(default_factory=Perturbations)
+    """Terrain, sensing noise, placement error, torque limit and pushes for the plant; mismatch for the
+    controller, whose hopper parameters become the plant's times its factors."""
 
 
 @dataclass
@@ -128,6 +140,8 @@ class RunReport:
     bag: Path
     controller_log: str
     """What the controller process printed: why it could not answer an apex, if it could not."""
+    saturated_strides: int = 0
+    """Touchdowns at which the commanded |tau0| exceeded tau_max (the hip saturated)."""
     problems: list[str] = field(default_factory=list)
 
     @property
@@ -230,6 +244,7 @@ def _overrides(values: dict[str, object]) -> list[str]:
 
 def plant_overrides(options: RunOptions) -> dict[str, object]:
     return {
+        **options.perturbations.plant_settings(),
         "clock_mode": options.mode,
         "max_strides": options.strides,
         "initial_height": options.height,
@@ -245,7 +260,15 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
     target_energy = options.target_energy
     if target_energy is None:
         target_energy = params.m * (params.g * options.height + 0.5 * options.speed**2)
+    model = {}
+    mismatch = options.perturbations.mismatch
+    if mismatch.active:  # the controller plans with another hopper
+        planned = mismatch.controller_params(params)
+        assert isinstance(planned, HopperParams)  # scalar factors
+        check_hopper(planned)
+        model = {name: getattr(planned, key) for key, name in HOPPER_PARAMETERS.items()}
     return {
+        **model,
         "policy": options.policy,
         "touchdown_angle": options.touchdown_angle,
         "target_energy": target_energy,
@@ -294,6 +317,10 @@ def check_options(options: RunOptions) -> None:
         raise RunError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
     if options.policy not in POLICIES:
         raise RunError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
+    try:
+        options.perturbations.plant_settings()  # per-lane values have no node parameters
+    except ParameterError as error:
+        raise RunError(str(error)) from None
     if options.strides < 0:
         raise RunError(f"strides must be 0 (no limit) or positive, not {options.strides}")
     if options.duration is not None and not (math.isfinite(options.duration) and options.duration > 0):
@@ -352,6 +379,10 @@ def run(
         except (ParameterException, ParameterError) as error:
             raise RunError(f"plant parameters: {error}") from None
         stack.callback(plant.destroy_node)
+        try:
+            controller_parameters = controller_overrides(options, plant.hopper)
+        except ParameterError as error:
+            raise RunError(f"the controller's model (--mismatch): {error}") from None
         monitor = ApexMonitor(progress, context=context, namespace=options.namespace)
         stack.callback(monitor.destroy_node)
         executor = EventsExecutor(context=context)
@@ -375,8 +406,7 @@ def run(
         stack.callback(recorder.close)
         controller = ChildNode.start(
             "tdslip_ros.nodes.controller_node",
-            ["--params-file", str(config_file("controller.yaml"))]
-            + _overrides(controller_overrides(options, plant.hopper)),
+            ["--params-file", str(config_file("controller.yaml"))] + _overrides(controller_parameters),
             environment,
             options.namespace,
         )
@@ -432,6 +462,7 @@ def run(
             tick_timing=plant.tick_timing,
             bag=bag,
             controller_log=controller.output(),
+            saturated_strides=plant.saturated_strides,
             problems=problems,
         )
     return report
@@ -468,11 +499,12 @@ def _spin_until_quiet(executor: Executor, count: Callable[[], int]) -> None:
 # --- command line --------------------------------------------------------------------------------
 
 
-def apex_table(params: HopperParams, apexes: list[ApexEvent]) -> str:
-    """The apex states, SI and dimensionless (eq. 24), one row per stride."""
+def apex_table(params: HopperParams, apexes: list[ApexEvent], ground: bool = False) -> str:
+    """The apex states, SI (world frame) and dimensionless (eq. 24), one row per stride; with ``ground``,
+    the ground height of the stance before each apex too."""
     header = (
         f"{'stride':>6} {'t [s]':>9} {'y [m]':>9} {'xdot [m/s]':>11} {'E [J]':>10}"
-        f" | {'ybar':>8} {'xdotbar':>8} {'Ebar':>8}"
+        f" | {'ybar':>8} {'xdotbar':>8} {'Ebar':>8}" + (f" | {'ground [m]':>10}" if ground else "")
     )
     rows = [header, "-" * len(header)]
     for apex in apexes:
@@ -481,6 +513,7 @@ def apex_table(params: HopperParams, apexes: list[ApexEvent]) -> str:
             f" {apex.energy:>10.3f} | {units.height_to_bar(params, apex.height):>8.5f}"
             f" {units.speed_to_bar(params, apex.forward_speed):>8.5f}"
             f" {units.energy_to_bar(params, apex.energy):>8.5f}"
+            + (f" | {apex.ground_height:>10.5f}" if ground else "")
         )
     return "\n".join(rows)
 
@@ -537,12 +570,63 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--namespace", default="/", help="ROS namespace of the nodes (default /: topics /tdslip/...)"
     )
+    perturb = parser.add_argument_group("perturbations (default: none; see README, Perturbations)")
+    perturb.add_argument("--terrain", metavar="SPEC", help=f"ground [m]: {TERRAIN_FORMS}")
+    perturb.add_argument(
+        "--apex-noise",
+        metavar="height=M,speed=M_PER_S,seed=N",
+        help="the controller's sensor noise (std. dev.)",
+    )
+    perturb.add_argument(
+        "--angle-noise", metavar="sigma=DEG,seed=N", help="touchdown angle error (std. dev., degrees)"
+    )
+    perturb.add_argument(
+        "--mismatch",
+        metavar="mass=F,stiffness=F,damping=F,rest_length=F",
+        help="the controller plans with the plant's parameters times these factors",
+    )
+    perturb.add_argument(
+        "--tau-max", type=float, metavar="N_M", help="the hip torque saturates at +-N_M [N m]"
+    )
+    perturb.add_argument(
+        "--push",
+        action="append",
+        default=[],
+        metavar="STRIDE:DV | random:size=DV,rate=P,seed=N",
+        help="a push of DV m/s right after the apex of STRIDE, or random ones (repeatable)",
+    )
     return parser
+
+
+def perturbations_of(args: argparse.Namespace) -> Perturbations:
+    """The perturbations of the command line's options; RunError naming the option of a malformed one."""
+    try:
+        terrain = None if args.terrain is None else parse_terrain(args.terrain)
+        sensing = None if args.apex_noise is None else SensingNoise.parse(args.apex_noise)
+        placement = None if args.angle_noise is None else PlacementNoise.parse_degrees(args.angle_noise)
+        mismatch = None if args.mismatch is None else Mismatch.parse(args.mismatch)
+        pushes = Pushes.parse(";".join(args.push))
+        defaults = Perturbations()
+        return Perturbations(
+            terrain=terrain or defaults.terrain,
+            sensing=sensing or defaults.sensing,
+            placement=placement or defaults.placement,
+            tau_max=math.inf if args.tau_max is None else args.tau_max,
+            pushes=pushes,
+            mismatch=mismatch or defaults.mismatch,
+        )
+    except ParameterError as error:
+        raise RunError(str(error)) from None
 
 
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     out = args.out or Path("runs") / f"{args.policy}-{args.mode}-{datetime.now():%Y%m%d-%H%M%S}"
+    try:
+        perturbations = perturbations_of(args)
+    except RunError as error:
+        print(f"tdslip run: {error}", file=sys.stderr)
+        return 1
     options = RunOptions(
         out=out,
         strides=args.strides,
@@ -560,6 +644,7 @@ def main(argv: list[str]) -> int:
         duration=args.duration,
         domain_id=args.domain_id,
         namespace=args.namespace,
+        perturbations=perturbations,
     )
     interactive = sys.stderr.isatty()
 
@@ -592,12 +677,15 @@ def main(argv: list[str]) -> int:
         return 130
     if interactive:
         print(file=sys.stderr)
-    print(apex_table(report.params, report.apexes))
+    print(apex_table(report.params, report.apexes, ground=not options.perturbations.terrain.is_flat))
     print()
     print(counts_table(report.published, report.recorded))
     print()
     outcome = report.outcome
     speed_up = outcome.sim_time / outcome.wall_time if outcome.wall_time > 0 else math.inf
+    print(options.perturbations.summary())
+    if options.perturbations.saturates:
+        print(f"the hip saturated in {report.saturated_strides} stride(s)")
     print(
         f"{options.mode} run, policy {options.policy}: {outcome.stride} strides, "
         f"{outcome.sim_time:.3f} s simulated in {outcome.wall_time:.3f} s wall ({speed_up:.2f}x)"

@@ -1,0 +1,205 @@
+"""``tdslip terrain``: energy regulation against open loop over the same rough ground (the README figure).
+
+Both policies hop the 1 kHz plant (:class:`~tdslip_ros.model.stepper.FixedStepStepper`, the plant node's
+physics) over the same random blocks (:class:`~tdslip_ros.model.terrain.Blocks`), each apex answered as the
+controller node answers it: the policy planned on the measured apex above the ground of the last stance.
+Energy regulation (section IV.A) holds the apex energy above the ground at that of ``--height`` and
+``--speed``; both start at its fixed point on flat ground, and open loop (section III) applies the fixed
+hip power C at touchdown that energy regulation applies there. On flat ground the two would therefore hop
+identically forever; blocks start at ``--start``, so what differs is the terrain's doing.
+
+The figure shows the centre-of-mass paths over the ground and the apex energy above the ground per
+stride; the run ends at ``--strides`` apexes or a failure (marked). The same runs are recorded by the
+node suite with ``tdslip run --terrain blocks:... --policy energy`` (or ``open_loop --angle``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from tdslip_ros.analysis.report import OutputError, output_directory, write_failed
+from tdslip_ros.interfaces import installed_parameters
+from tdslip_ros.model import dynamics, units
+from tdslip_ros.model.controllers import PolicySpec
+from tdslip_ros.model.events import EventKind, FailureKind
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
+from tdslip_ros.model.perturbations import Perturbations
+from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.nodes.parameters import PAPER_PARAMS
+
+DPI = 120
+COLOURS = {"energy": "tab:blue", "open_loop": "tab:orange"}
+LABELS = {"energy": "energy regulation", "open_loop": "open loop (fixed hip power)"}
+
+
+@dataclass(frozen=True)
+class Hop:
+    """A closed-loop run: the body's path (x, y [m]) at every tick, the apexes (x, y above the ground,
+    xdot) and the energy above the ground at each apex [J], and the failure that ended it (None: it ran
+    all its strides)."""
+
+    policy: str
+    x: np.ndarray
+    y: np.ndarray
+    apexes: list[tuple[float, float, float]]
+    energies: list[float]
+    failure: FailureKind | None
+    reason: str
+
+
+def hop(
+    params: HopperParams, policy: PolicySpec, apex: ApexState, perturbations: Perturbations, strides: int
+) -> Hop:
+    """Hop the plant under ``policy`` for ``strides`` apexes or to a failure (module docstring). An apex the
+    policy has no command for keeps the command in force, as the plant node does."""
+    first = policy.commands(params, apex.y, apex.xdot, apex.xdot).command()
+    stepper = FixedStepStepper(params, apex, first, perturbations=perturbations)
+    x, y = [stepper.state.x], [stepper.state.y]
+    apexes: list[tuple[float, float, float]] = []
+    energies: list[float] = []
+    previous = apex.xdot
+
+    def answer() -> None:
+        nonlocal previous
+        state = stepper.apex_state
+        height = state.y - stepper.ground
+        apexes.append((state.x, height, state.xdot))
+        energies.append(params.m * (params.g * height + 0.5 * state.xdot**2))
+        measured_y, measured_xdot = stepper.measured_apex
+        plan = policy.commands(params, measured_y - stepper.ground, measured_xdot, previous)
+        previous = measured_xdot
+        try:
+            stepper.set_command(plan.command())
+        except ParameterError:
+            pass  # no command: the one in force stays
+
+    answer()
+    reason = ""
+    while stepper.failed is None and stepper.stride < strides:
+        for event in stepper.step():
+            if event.kind is EventKind.APEX and stepper.failed is None:
+                answer()
+            elif event.kind is EventKind.FAILURE:
+                reason = event.reason
+        x.append(stepper.state.x)
+        y.append(stepper.state.y)
+    return Hop(policy.name, np.array(x), np.array(y), apexes, energies, stepper.failed, reason)
+
+
+FIXED_POINT_STRIDES = 30
+"""Flat-ground strides of energy regulation from the given apex to its fixed point (|lambda| ~ 0.1 at the
+defaults: converged to rounding)."""
+
+
+def policies(params: HopperParams, apex: ApexState, angle: float) -> tuple[ApexState, dict[str, PolicySpec]]:
+    """The start and the two policies: energy regulation at ``angle`` holding the energy of ``apex``, and its
+    fixed point on flat ground, where both start; open loop at the same angle with the hip power that energy
+    regulation applies there, so that on flat ground both would hop on at that fixed point forever (the
+    installed controller defaults otherwise)."""
+    values = {name: installed_parameters("controller.yaml")[name] for name in PolicySpec.settings()}
+    values |= {"touchdown_angle": angle, "target_energy": apex.energy(params)}
+    energy = PolicySpec.of("energy", values)
+    flat = hop(params, energy, apex, Perturbations(), FIXED_POINT_STRIDES)
+    if flat.failure is not None:
+        raise ParameterError(
+            f"energy regulation at {math.degrees(angle):g} deg fails from {apex}: {flat.reason}"
+        )
+    _, height, speed = flat.apexes[-1]
+    start = ApexState(height, speed)
+    tau0 = float(energy.commands(params, start.y, start.xdot, start.xdot).command().tau0)
+    fall = dynamics.fall_time(start.y, 0.0, dynamics.touchdown_height(params, math.cos(angle)), params.g)
+    _, thetadot = dynamics.polar_velocity(
+        params.r0, math.sin(angle), math.cos(angle), start.xdot, -params.g * fall
+    )
+    open_loop = PolicySpec.of("open_loop", values | {"touchdown_power": tau0 * thetadot})
+    return start, {"open_loop": open_loop, "energy": energy}
+
+
+def draw(params: HopperParams, blocks: Blocks, hops: list[Hop], path: Path) -> Figure:
+    """The COM paths over the ground and the apex energies per stride (module docstring)."""
+    figure = Figure(figsize=(10, 6.5))
+    paths, energy = figure.subplots(2, 1, height_ratios=(3, 2))
+    x_end = max(float(np.max(h.x)) for h in hops)
+    x = np.linspace(-0.5, x_end + 0.5, 6000)
+    ground = blocks.height(x)
+    paths.fill_between(x, ground, np.min(ground) - 0.1 * params.r0, color="tan", alpha=0.6, lw=0)
+    paths.plot(x, ground, color="saddlebrown", lw=0.8, label=f"ground: {blocks.spec()}")
+    scale = units.energy_scale(params)
+    for h in hops:
+        colour = COLOURS[h.policy]
+        ended = "" if h.failure is None else f", {h.failure.value} at stride {len(h.apexes) - 1}"
+        paths.plot(
+            h.x, h.y, color=colour, lw=1.1, label=f"{LABELS[h.policy]}: {len(h.apexes) - 1} strides{ended}"
+        )
+        if h.failure is not None:
+            paths.plot(h.x[-1], h.y[-1], "X", color=colour, ms=10)
+        energy.plot(np.arange(len(h.energies)), np.array(h.energies) / scale, "o-", color=colour, ms=3)
+    energy.axhline(hops[0].energies[0] / scale, color="grey", ls=":", lw=1, label="initial apex energy")
+    paths.set_xlabel("x [m]")
+    paths.set_ylabel("y [m]")
+    paths.set_title("TD-SLIP over random blocks: centre-of-mass paths")
+    paths.legend(fontsize=7, loc="center left", ncol=1)
+    paths.grid(alpha=0.3)
+    energy.set_xlabel("stride")
+    energy.set_ylabel("apex energy above the ground, Ebar")
+    energy.legend(fontsize=7)
+    energy.grid(alpha=0.3)
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    return figure
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="tdslip terrain", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("docs/rough_terrain.png"), help="the PNG to write")
+    parser.add_argument("--sigma", type=float, default=0.03, help="block heights' standard deviation [m]")
+    parser.add_argument("--length", type=float, default=0.5, help="block length [m]")
+    parser.add_argument("--seed", type=int, default=1, help="terrain seed")
+    parser.add_argument("--start", type=float, default=2.0, help="where the blocks begin [m]")
+    parser.add_argument("--strides", type=int, default=40, help="apexes to hop (default 40)")
+    parser.add_argument(
+        "--angle",
+        type=float,
+        default=22.0,
+        help="touchdown angle [deg] (default 22: about 10 cm of toe clearance)",
+    )
+    parser.add_argument("--height", type=float, default=1.0, help="initial apex [m]")
+    parser.add_argument("--speed", type=float, default=5.0, help="initial apex [m/s]")
+    args = parser.parse_args(argv)
+    try:
+        if args.strides < 1:
+            raise ParameterError(f"--strides must be at least 1, got {args.strides}")
+        if not 0.0 < args.angle < 90.0:
+            raise ParameterError(f"--angle must be in (0, 90) deg, got {args.angle}")
+        blocks = Blocks(args.sigma, args.length, args.seed, args.start)
+        apex = ApexState(args.height, args.speed)
+        params = PAPER_PARAMS
+        start, specs = policies(params, apex, math.radians(args.angle))
+        output_directory(args.out.parent)
+        ground = Perturbations(terrain=blocks)
+        hops = [hop(params, spec, start, ground, args.strides) for spec in specs.values()]
+        draw(params, blocks, hops, args.out)
+    except (ParameterError, OutputError) as error:
+        print(f"tdslip terrain: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        print(f"tdslip terrain: {write_failed(error)}", file=sys.stderr)
+        return 1
+    for h in hops:
+        ended = "all strides" if h.failure is None else f"{h.failure.value} after {len(h.apexes) - 1} strides"
+        spread = np.ptp(np.array(h.energies)) / units.energy_scale(params)
+        print(f"{LABELS[h.policy]:<30} {ended}; apex energy above ground spans {spread:.4f} (Ebar)")
+    print(f"figure: {args.out}")
+    return 0

@@ -1,0 +1,198 @@
+"""Perturbed runs of the node suite, recorded and analysed: random blocks, sensing noise, placement errors,
+a saturating hip, pushes and a mismatched controller at once, in lockstep, then ``tdslip analyze``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from analysis_runs import RUNS, recorded_run
+
+from tdslip_ros.analysis import rough_terrain
+from tdslip_ros.analysis.compare import compare_run, dimensionless
+from tdslip_ros.analysis.reader import Run, read_run
+from tdslip_ros.analysis.report import main as analyze
+from tdslip_ros.interfaces import stored_parameters
+from tdslip_ros.model.perturbations import PLANT_SETTINGS, Perturbations
+from tdslip_ros.nodes import runner
+from tdslip_ros.nodes.parameters import PAPER_PARAMS, PERTURBATIONS
+from tdslip_ros.nodes.runner import RunReport
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def rough(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    return recorded_run("rough", tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def rough_run(rough: RunReport) -> Run:
+    return read_run(rough.bag)
+
+
+@pytest.fixture(scope="module")
+def wall(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    # Recorded outside the tests: rclpy's EventsExecutor enables faulthandler, which needs a real stderr
+    # (capsys replaces it).
+    return recorded_run("wall", tmp_path_factory)
+
+
+def test_the_recording_says_how_to_reproduce_the_run(rough: RunReport, rough_run: Run) -> None:
+    """The plant's perturbation parameters and the controller's (mismatched) hopper are in custom_data."""
+    given = RUNS["rough"]["perturbations"]
+    assert isinstance(given, Perturbations)
+    stored = stored_parameters(rough_run.custom_data, "plant")
+    assert {name: stored[name] for name in PLANT_SETTINGS} == {
+        name: runner._ros_value(value) for name, value in given.plant_settings().items()
+    }
+    assert rough_run.perturbations.plant_settings() == given.plant_settings()
+    planner = given.mismatch.controller_params(PAPER_PARAMS)
+    assert rough_run.controller_params == planner and rough_run.params == PAPER_PARAMS
+    assert tuple(spec.name for spec in PERTURBATIONS) == PLANT_SETTINGS
+
+
+def test_recorded_ground_heights_are_the_terrain(rough_run: Run) -> None:
+    terrain = rough_run.perturbations.terrain
+    samples = rough_run.samples
+    assert np.array_equal(samples.ground_height, terrain.height(samples.x))
+    touchdowns = [c for c in rough_run.contacts if c.kind == "touchdown"]
+    assert len(touchdowns) == len(rough_run.strides) - 1
+    for touchdown in touchdowns:
+        assert touchdown.ground == touchdown.state.toe_y  # the stance stands where its toe is
+        levels = terrain.height(touchdown.state.toe_x + np.array([-1e-9, 0.0]))
+        if touchdown.ground != levels[1]:  # landed on a face: between the levels on either side
+            assert min(levels) < touchdown.ground < max(levels)
+        for contact in (c for c in rough_run.contacts if c.stride == touchdown.stride):
+            assert contact.ground == touchdown.ground
+    grounds = [s.ground for s in rough_run.strides]
+    assert grounds[0] == terrain.height_at(0.0)
+    assert grounds[1:] == [t.ground for t in touchdowns]
+    assert len(set(grounds)) == len(grounds)  # every stance on another block
+
+
+def test_every_stride_is_predicted_at_the_flat_ground_level(rough_run: Run) -> None:
+    """From each recorded apex and applied command, with the run's terrain, torque limit, push and placement
+    error, the exact map predicts the plant's next apex to the 1 kHz plant's own accuracy (~1e-11)."""
+    comparison = compare_run(rough_run)
+    predictions = comparison.predictions
+    assert len(predictions.stride) == len(rough_run.strides) - 1
+    error = np.abs(dimensionless(rough_run.params, predictions.exact - predictions.recorded))
+    assert np.all(error < 1e-10), error.max()
+    assert comparison.energy_balance_residual < 1e-10  # with the pushes' work
+    # The controller is replayed on the measured apexes with its own (mismatched) model.
+    assert comparison.policy_reproduced, comparison.command_deviation
+
+
+def test_sensor_placement_pushes_and_saturation_are_as_drawn(rough_run: Run) -> None:
+    perturbations = rough_run.perturbations
+    draws = perturbations.draws([0], 0, len(rough_run.strides))
+    strides = rough_run.strides
+    assert [s.measured_y for s in strides] == [
+        s.y + e for s, e in zip(strides, draws.height_error[:, 0], strict=True)
+    ]
+    assert [s.measured_xdot for s in strides] == [
+        s.xdot + e for s, e in zip(strides, draws.speed_error[:, 0], strict=True)
+    ]
+    assert [s.push for s in strides] == draws.push[:, 0].tolist() and strides[5].push != 0.0
+    applied = [s for s in strides if s.command is not None]
+    assert len(applied) == len(strides) - 1  # every touchdown matched its command
+    tau_max = float(perturbations.tau_max)
+    touchdowns = {c.stride: c for c in rough_run.contacts if c.kind == "touchdown"}
+    for stride in applied:
+        state = touchdowns[stride.stride].state
+        assert state.theta == stride.placed_angle != stride.command.touchdown_angle  # type: ignore[union-attr]
+        assert stride.saturated == (abs(state.hip_torque) == tau_max)
+    assert 0 < rough_run.saturated_strides < len(applied)
+    # A push shows in the flight after its apex: the touchdown's speed.
+    pushed = strides[5]
+    assert touchdowns[5].state.xdot == pytest.approx(pushed.xdot + pushed.push, abs=1e-12)
+
+
+def test_analyze_reports_the_perturbations(
+    rough: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert analyze([str(rough.bag), "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "perturbations: terrain blocks:sigma=0.02" in printed and "mismatch mass=1.05" in printed
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    saturated = summary["run"]["perturbations"]["saturated_strides"]
+    assert f"the hip saturated (|tau0| > tau_max) in {saturated} stride(s)" in printed
+    assert summary["run"]["perturbations"]["mismatch"] == pytest.approx(
+        {"mass": 1.05, "stiffness": 1.0, "damping": 0.9, "rest_length": 1.0}
+    )
+    assert {"terrain_path", "measured_apex"} <= set(summary["figures"])
+    for name in ("terrain_path.png", "measured_apex.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+    rows = summary["strides"]
+    assert [row["ground"] for row in rows] == [s.ground for s in read_run(rough.bag).strides]
+    assert sum(row["saturated"] for row in rows) == saturated
+
+
+def test_a_run_that_fails_on_the_terrain_says_where_and_why(
+    wall: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A 30 cm wall at 8 m: the toe cannot clear it."""
+    report = wall
+    assert not report.outcome.ok and report.recording_complete
+    assert analyze([str(report.bag), "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    line = next(line for line in printed.splitlines() if line.startswith("failed on the terrain"))
+    assert report.outcome.kind in line and report.outcome.reason in line
+    x = float(line.split("x = ")[1].split(" m")[0])
+    assert 6.0 < x < 8.5  # at the wall
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["run"]["failure_location"]["x"] == pytest.approx(x, abs=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("arguments", "phrase"),
+    [
+        (["--terrain", "hills"], "terrain 'hills' is not one of: flat"),
+        (["--terrain", "blocks:sigma=0.02,length=0.5"], "missing seed=..."),
+        (["--apex-noise", "height=-0.1"], "height noise must be finite and >= 0"),
+        (["--angle-noise", "sigma=one"], "sigma='one' is not a valid float"),
+        (["--mismatch", "mass=0"], "mass mismatch factor must be finite and > 0"),
+        (["--tau-max", "-5"], "tau_max must be > 0 N m"),
+        (["--push", "3:fast"], "neither STRIDE:DV"),
+        (["--push", "random:size=40,rate=0.5"], "exceeds max_apex_speed"),
+        (["--mismatch", "damping=20"], "underdamped leg"),
+    ],
+)
+def test_malformed_perturbations_stop_tdslip_run_with_one_line(
+    arguments: list[str], phrase: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert runner.main(["--out", str(tmp_path / "bag"), *arguments]) == 1
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("tdslip run: ") and phrase in error and "\n" not in error
+    assert not (tmp_path / "bag").exists()
+
+
+def _energy_spans(printed: str) -> dict[str, float]:
+    """The span of the apex energy above ground, per policy, from ``tdslip terrain``'s summary lines."""
+    return {
+        line.split()[0]: float(line.split("spans ")[1].split()[0])
+        for line in printed.splitlines()
+        if "spans" in line
+    }
+
+
+def test_the_readme_figure_starts_both_policies_at_one_fixed_point(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``tdslip terrain`` on flat ground: from energy regulation's fixed point, open loop with the hip power
+    applied there hops on identically, at one apex energy: any difference over blocks is the terrain's."""
+    assert rough_terrain.main(["--out", str(tmp_path / "flat.png"), "--sigma", "0", "--strides", "5"]) == 0
+    assert _energy_spans(capsys.readouterr().out) == {"energy": 0.0, "open": 0.0}
+
+
+def test_the_readme_figure(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The README's figure: over 3 cm blocks energy regulation holds the apex energy above the ground
+    closer than open loop, whose energy wanders."""
+    out = tmp_path / "rough.png"
+    assert rough_terrain.main(["--out", str(out), "--strides", "25"]) == 0
+    assert out.stat().st_size > 20_000
+    spans = _energy_spans(capsys.readouterr().out)
+    assert 0.0 < spans["energy"] < 0.75 * spans["open"]
