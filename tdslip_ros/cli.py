@@ -41,6 +41,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "tdslip_ros.studies.sweep",
         "basins (figs 7, 10) and parameter dependence (fig 11) at any resolution, on Dask (Parquet + PNG)",
     ),
+    "robustness": (
+        "tdslip_ros.studies.robustness",
+        "survival against terrain, sensor noise, model mismatch and step-downs, per policy, on Dask",
+    ),
     "terrain": (
         "tdslip_ros.analysis.rough_terrain",
         "energy regulation against open loop over rough ground: COM paths and apex energies (PNG)",

@@ -15,7 +15,10 @@ import pytest
 
 from tdslip_ros.analysis import figures
 from tdslip_ros.model import basins, stability, units
-from tdslip_ros.studies import chunk, table
+from tdslip_ros.model.controllers import PolicySpec
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.params import ApexState
+from tdslip_ros.studies import chunk, perturbed, table
 from tdslip_ros.studies.design import DESIGN_STREAM, Study, StudyError, Uniform
 
 PARAMS = figures.PARAMS
@@ -177,3 +180,119 @@ def test_the_directory_takes_one_study_and_resumes_only_that_one(tmp_path) -> No
     with pytest.raises(table.StudyDirectoryError, match="nothing to resume"):
         (tmp_path / "empty" / table.PARTS).mkdir(parents=True)
         table.prepare(tmp_path / "empty", study, resume=True)
+
+
+# --- perturbed studies ------------------------------------------------------------------------------------
+
+
+def test_perturbations_need_the_closed_loop_that_holds_commands_and_one_terrain() -> None:
+    start = {"y0": 1.0, "energy0": 3000.0}
+    with pytest.raises(StudyError, match="need hold_commands"):
+        Study.of(grid={"terrain_sigma": [0.0, 0.02]}, fixed=start)
+    with pytest.raises(StudyError, match="random blocks \\(terrain_sigma\\) or a step, not both"):
+        Study.of(
+            grid={"terrain_sigma": [0.02]},
+            draws={"step_height": Uniform(-0.1, 0.0)},
+            fixed=start,
+            hold_commands=True,
+        )
+    with pytest.raises(StudyError, match="mismatch_mass is a grid axis or fixed, not drawn"):
+        Study.of(draws={"mismatch_mass": Uniform(0.9, 1.1)}, fixed=start, hold_commands=True)
+    with pytest.raises(StudyError, match="terrain_sigma must be non-negative, got -0.01"):
+        Study.of(draws={"terrain_sigma": Uniform(-0.01, 0.02)}, fixed=start, hold_commands=True)
+    with pytest.raises(StudyError, match="push_rate must be in \\[0, 1\\], got 1.5"):
+        Study.of(fixed=start | {"push_rate": 1.5}, hold_commands=True)
+    with pytest.raises(
+        StudyError, match="the values of the linked axis noise_height,noise_speed must be 2-tuples"
+    ):
+        Study.of(grid={"noise_height,noise_speed": [0.01, 0.02]}, fixed=start, hold_commands=True)
+
+
+def test_a_linked_axis_takes_its_parameters_together() -> None:
+    study = Study.of(
+        grid={
+            "policy": ["energy", "pd"],
+            "noise_height,noise_speed": [(0.0, 0.0), (0.01, 0.03), (0.02, 0.06)],
+        },
+        fixed={"y0": 1.0, "energy0": 3000.0},
+        hold_commands=True,
+    )
+    lanes = study.lanes(0, study.size)
+    np.testing.assert_array_equal(lanes["noise_height"], [0.0, 0.01, 0.02] * 2)
+    np.testing.assert_array_equal(lanes["noise_speed"], [0.0, 0.03, 0.06] * 2)
+    assert study.values_of("noise_speed") == (0.0, 0.03, 0.06)
+
+
+OPERATING = {"touchdown_angle": math.radians(26.0), "target_energy": units.energy_from_bar(PARAMS, 3.5)}
+
+
+def test_on_flat_ground_the_held_closed_loop_is_the_basin_loop_to_the_bit() -> None:
+    """Where the policy always has a command, holding commands changes nothing: the perturbed runner with no
+    perturbation gives basins.run_strides' rows (another engine call path, the same numbers)."""
+    grid = {"y0": [0.95, 1.1, 1.4], "energy0": units.energy_from_bar(PARAMS, np.array([3.0, 3.5]))}
+    basin = chunk.run_chunk(Study.of(grid=grid, fixed=OPERATING | {"target_energy": math.nan}, strides=20), 0)
+    held = chunk.run_chunk(
+        Study.of(grid=grid, fixed=OPERATING | {"target_energy": math.nan}, strides=20, hold_commands=True), 0
+    )
+    assert set(_column(basin, "outcome")) == {"converged"}
+    for name in ("outcome", "strides_survived", "convergence_stride", "y_end", "xdot_end", "y_std"):
+        np.testing.assert_array_equal(_column(held, name), _column(basin, name))
+    assert list(_column(held, "strides_held")) == [0] * 6 and np.all(_column(held, "x_end") > 0.0)
+
+
+def test_a_perturbed_trajectory_is_the_exact_map_s_stride_by_stride() -> None:
+    """Random blocks and sensor noise, energy regulation holding its command: each lane of a chunk against
+    the single-trajectory exact map (solve_ivp with events) in a closed loop written out here, with the
+    draws of the trajectory's index."""
+    study = Study.of(
+        grid={"terrain_sigma": [0.03, 0.06]},
+        samples=2,
+        fixed=OPERATING
+        | {"policy": "energy", "y0": 1.0126, "xdot0": 6.994, "noise_height": 0.01, "noise_speed": 0.03},
+        start="speed",
+        strides=12,
+        seed=5,
+        hold_commands=True,
+    )
+    rows = chunk.run_chunk(study, 0)
+    lanes = study.lanes(0, study.size)
+    spec = PolicySpec(
+        name="energy",
+        corrections=1,
+        **{k: float(lanes[k][0]) for k in PolicySpec.settings() if k != "corrections"},
+    )
+    for lane in range(study.size):
+        one = {name: values[lane : lane + 1] for name, values in lanes.items()}
+        perturbations = perturbed.perturbations_of(one, study.seed, "blocks").take(0)
+        draws = perturbations.draws(one["trajectory"], 0, study.strides)
+        apex, x, ground = ApexState(1.0126, 6.994), 0.0, 0.0
+        in_force = spec.commands(PARAMS, apex.y, apex.xdot, apex.xdot).command()
+        survived = study.strides
+        for stride in range(study.strides):
+            seen_y, seen_xdot = (
+                apex.y + draws.height_error[stride, 0],
+                apex.xdot + draws.speed_error[stride, 0],
+            )
+            plan = spec.commands(PARAMS, seen_y, seen_xdot, seen_xdot)
+            if plan.reason() is None:
+                in_force = plan.command()
+            result = apex_return_map(
+                PARAMS,
+                apex,
+                in_force,
+                rtol=1e-10,
+                atol=1e-10,
+                x=x,
+                ground=ground,
+                terrain=perturbations.terrain,
+            )
+            if result.apex is None:
+                survived = stride
+                assert _column(rows, "outcome")[lane] == result.failure.value
+                break
+            apex, x, ground = result.apex, result.apex_x, result.ground
+        assert _column(rows, "strides_survived")[lane] == survived
+        if survived == study.strides:
+            assert _column(rows, "y_end")[lane] == pytest.approx(apex.y, abs=1e-7)
+            assert _column(rows, "x_end")[lane] == pytest.approx(x, abs=1e-7)
+    assert set(_column(rows, "outcome")) >= {"toe_stubbing"} and max(_column(rows, "strides_survived")) == 12

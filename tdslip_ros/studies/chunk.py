@@ -18,8 +18,6 @@ converged); and the spread of the apexes over the strides survived.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pyarrow as pa
 
@@ -28,8 +26,9 @@ from tdslip_ros.model.analytic import Array, CommandArrays
 from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.studies import table
-from tdslip_ros.studies.design import POLICY_PARAMETERS, Lanes, Study
+from tdslip_ros.studies import perturbed, table
+from tdslip_ros.studies.design import GROUP_PARAMETERS, POLICY_PARAMETERS, Lanes, Study
+from tdslip_ros.studies.outcomes import reduce_history
 
 
 def run_chunk(study: Study, index: int) -> pa.Table:
@@ -40,21 +39,39 @@ def run_chunk(study: Study, index: int) -> pa.Table:
 
 
 def run_lanes(study: Study, lanes: Lanes) -> dict[str, Array]:
-    """Hop every lane for study.strides strides; the outcome columns of :data:`.table.OUTCOME_COLUMNS`."""
+    """Hop every lane for study.strides strides; the outcome columns of :data:`.table.OUTCOME_COLUMNS`.
+
+    Lanes of one policy, hopper, controller model and terrain kind hop together: one call of the batched
+    engine (basins.run_strides, or perturbed.run_held for a study that holds commands)."""
     count = lanes["trajectory"].size
     result = table.empty_outcomes(count)
-    groups: dict[tuple[str, float, float], list[int]] = {}
-    for lane, key in enumerate(zip(lanes["policy"], lanes["kbar"], lanes["zeta0"], strict=True)):
-        groups.setdefault((str(key[0]), float(key[1]), float(key[2])), []).append(lane)
-    for (policy, kbar, zeta0), members in groups.items():
+    groups: dict[tuple[object, ...], list[int]] = {}
+    keys = zip(*(lanes[name] for name in GROUP_PARAMETERS), lanes["terrain"], strict=True)
+    for lane, key in enumerate(keys):
+        groups.setdefault(tuple(key), []).append(lane)
+    for key, members in groups.items():
         group = np.asarray(members)
-        params = study.params(kbar, zeta0)
+        params = study.params(float(key[1]), float(key[2]))
         settings = {name: lanes[name][group] for name in POLICY_PARAMETERS}
         y0, xdot0 = _startable(params, lanes["y0"][group], lanes["xdot0"][group])
-        history = basins.run_strides(
-            params, y0, xdot0, lane_policy(policy, params, settings, study.corrections, xdot0), study.strides
-        )
-        for name, values in reduce_history(params, history).items():
+        if study.hold_commands:
+            columns = {name: values[group] for name, values in lanes.items()}
+            perturbations = perturbed.perturbations_of(columns, study.seed, str(key[-1]))
+            outcomes = perturbed.run_held(
+                params,
+                str(key[0]),
+                settings,
+                study.corrections,
+                y0,
+                xdot0,
+                perturbations,
+                columns["trajectory"],
+                study.strides,
+            )
+        else:
+            policy = lane_policy(str(key[0]), params, settings, study.corrections, xdot0)
+            outcomes = reduce_history(params, basins.run_strides(params, y0, xdot0, policy, study.strides))
+        for name, values in outcomes.items():
             result[name][group] = values
     return result
 
@@ -84,33 +101,3 @@ def lane_policy(
         return command
 
     return policy
-
-
-def reduce_history(params: HopperParams, history: basins.StrideHistory) -> dict[str, Array]:
-    """The outcome columns of a run of lanes from their apex histories."""
-    strides = history.y.shape[0] - 1
-    converged, convergence_stride = basins.settle(params, history)
-    failed = (history.outcome != basins.SUSTAINED) & (history.outcome != basins.IMPOSSIBLE)
-    survived = np.where(failed, history.failure_stride, strides)
-    survived = np.where(history.outcome == basins.IMPOSSIBLE, 0, survived)
-    lanes = np.arange(history.y.shape[1])
-    y_end, xdot_end = history.y[survived, lanes], history.xdot[survived, lanes]
-    # The spread over the apexes after the start (rows 1..survived); NaN where no stride was survived.
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: impossible starts
-        y_std = np.nanstd(history.y[1:], axis=0)
-        xdot_std = np.nanstd(history.xdot[1:], axis=0)
-    energy_end = params.m * (params.g * y_end + 0.5 * xdot_end**2)
-    return {
-        "outcome": np.where(converged, basins.CONVERGED, history.outcome),
-        "failure_stride": history.failure_stride,
-        "strides_survived": survived,
-        "convergence_stride": convergence_stride,
-        "y_end": y_end,
-        "xdot_end": xdot_end,
-        "y_fixed": np.where(converged, y_end, np.nan),
-        "xdot_fixed": np.where(converged, xdot_end, np.nan),
-        "energy_fixed": np.where(converged, energy_end, np.nan),
-        "y_std": y_std,
-        "xdot_std": xdot_std,
-    }

@@ -40,6 +40,7 @@ from tdslip_ros.model import stability, units
 from tdslip_ros.model.analytic import speed_from_energy
 from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
+from tdslip_ros.studies import perturbed
 
 HOPPER_PARAMETERS = ("kbar", "zeta0")
 POLICY_PARAMETERS = (
@@ -52,8 +53,12 @@ POLICY_PARAMETERS = (
     "pd_kd",
 )
 START_PARAMETERS = ("y0", "xdot0", "energy0")
-NUMERIC_PARAMETERS = HOPPER_PARAMETERS + POLICY_PARAMETERS + START_PARAMETERS
+NUMERIC_PARAMETERS = (
+    HOPPER_PARAMETERS + POLICY_PARAMETERS + START_PARAMETERS + perturbed.PERTURBATION_PARAMETERS
+)
 PARAMETERS = ("policy", *NUMERIC_PARAMETERS)
+GROUP_PARAMETERS = ("policy", *HOPPER_PARAMETERS, *perturbed.MISMATCH_PARAMETERS)
+"""Parameters with one value per call of the batched engine: grid axes or fixed, never drawn."""
 UNITS = {
     "kbar": "",
     "zeta0": "",
@@ -67,6 +72,7 @@ UNITS = {
     "y0": "m",
     "xdot0": "m/s",
     "energy0": "J",
+    **perturbed.UNITS,
 }
 DEFAULTS: dict[str, str | float] = {
     "policy": "energy",
@@ -79,6 +85,7 @@ DEFAULTS: dict[str, str | float] = {
     "target_speed": 5.0,
     "pd_kp": 0.06,
     "pd_kd": 0.03,
+    **perturbed.DEFAULTS,
 }
 """The paper's hopper (figs. 8-13), beta = 26 deg (figs. 7, 10), the goal regulator, fig. 13's PD gains."""
 StartRule = Literal["speed", "energy", "open_loop_fixed_point"]
@@ -104,6 +111,14 @@ class Uniform:
     high: float
 
 
+def _grid_value(value: Any) -> Any:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, tuple | list | np.ndarray):
+        return tuple(float(v) for v in value)
+    return float(value)
+
+
 Lanes = dict[str, np.ndarray]
 """Columns of a run of trajectories: ``trajectory`` (index), ``policy`` (str) and NUMERIC_PARAMETERS."""
 
@@ -114,7 +129,7 @@ class Study:
     cell, fixed values, the start rule, strides per trajectory, chunk size, seed, the policies' map
     corrections and the hopper's m [kg], r0 [m], g [m/s^2]. Build it with :meth:`of`."""
 
-    grid: tuple[tuple[str, tuple[str | float, ...]], ...] = ()
+    grid: tuple[tuple[str, tuple[Any, ...]], ...] = ()
     draws: tuple[tuple[str, Uniform], ...] = ()
     samples: int = 1
     fixed: tuple[tuple[str, str | float], ...] = ()
@@ -123,6 +138,7 @@ class Study:
     chunk_size: int = 1000
     seed: int = 0
     corrections: int = 1
+    hold_commands: bool = False
     mass: float = 80.0
     rest_length: float = 1.0
     gravity: float = STANDARD_GRAVITY
@@ -130,16 +146,16 @@ class Study:
     @classmethod
     def of(
         cls,
-        grid: Mapping[str, Sequence[str | float] | np.ndarray] | None = None,
+        grid: Mapping[str, Sequence[Any] | np.ndarray] | None = None,
         draws: Mapping[str, Uniform] | None = None,
         fixed: Mapping[str, str | float] | None = None,
         **settings: Any,
     ) -> Study:
-        """A study from mappings (the grid's order is the axes' order, the first outermost)."""
+        """A study from mappings (the grid's order is the axes' order, the first outermost). An axis
+        "a,b" links parameters: its values are (a, b) pairs, taken together."""
         return cls(
             grid=tuple(
-                (name, tuple(v if isinstance(v, str) else float(v) for v in values))
-                for name, values in (grid or {}).items()
+                (name, tuple(_grid_value(v) for v in values)) for name, values in (grid or {}).items()
             ),
             draws=tuple((draws or {}).items()),
             fixed=tuple((name, v if isinstance(v, str) else float(v)) for name, v in (fixed or {}).items()),
@@ -148,7 +164,9 @@ class Study:
 
     def __post_init__(self) -> None:
         named = (
-            [name for name, _ in self.grid] + [name for name, _ in self.draws] + [n for n, _ in self.fixed]
+            [name for axis, _ in self.grid for name in axis.split(",")]
+            + [name for name, _ in self.draws]
+            + [name for name, _ in self.fixed]
         )
         for name in named:
             if name not in PARAMETERS:
@@ -157,9 +175,9 @@ class Study:
         if repeated:
             raise StudyError(f"parameter {repeated[0]!r} is given more than once (grid, draws, fixed)")
         for name, _ in self.draws:
-            if name == "policy" or name in HOPPER_PARAMETERS:
+            if name in GROUP_PARAMETERS:
                 raise StudyError(
-                    f"{name} is a grid axis or fixed, not drawn (one hopper and policy per call)"
+                    f"{name} is a grid axis or fixed, not drawn (one hopper, policy and model per call)"
                 )
         for name, distribution in self.draws:
             if not (math.isfinite(distribution.low) and math.isfinite(distribution.high)):
@@ -168,9 +186,14 @@ class Study:
                 raise StudyError(
                     f"the range of {name} is empty: low {distribution.low} > high {distribution.high}"
                 )
+            for end in (distribution.low, distribution.high):
+                self._check_value(name, end)
         for name, values in self.grid:
             if not values:
                 raise StudyError(f"grid axis {name} has no values")
+            width = len(name.split(","))
+            if width > 1 and any(not isinstance(v, tuple) or len(v) != width for v in values):
+                raise StudyError(f"the values of the linked axis {name} must be {width}-tuples")
         for name, value in self._values():
             self._check_value(name, value)
         if self.start not in START_RULES:
@@ -185,13 +208,26 @@ class Study:
         for name, least in (("strides", 1), ("chunk_size", 1), ("samples", 1), ("corrections", 0)):
             if getattr(self, name) < least:
                 raise StudyError(f"{name} must be at least {least}, got {getattr(self, name)!r}")
-        if self.seed < 0:
-            raise StudyError(f"seed must be non-negative, got {self.seed!r}")
+        if not 0 <= self.seed < 2**31:
+            raise StudyError(f"seed must be in [0, 2**31), got {self.seed!r}")
+        self._check_perturbations(set(named))
         for kbar, zeta0 in self.hoppers():
             self.params(kbar, zeta0)
 
     def _values(self) -> list[tuple[str, str | float]]:
-        return [(name, value) for name, values in self.grid for value in values] + list(self.fixed)
+        return [pair for name in self._grid_names() for pair in self._grid_values(name)] + list(self.fixed)
+
+    def _grid_names(self) -> list[str]:
+        return [name for axis, _ in self.grid for name in axis.split(",")]
+
+    def _grid_values(self, name: str) -> list[tuple[str, str | float]]:
+        """(name, value) for every value of a parameter on a grid axis (alone, or linked with others)."""
+        for axis, values in self.grid:
+            names = axis.split(",")
+            if name in names:
+                position = names.index(name)
+                return [(name, value[position] if len(names) > 1 else value) for value in values]
+        return []
 
     def _check_value(self, name: str, value: str | float) -> None:
         if name == "policy":
@@ -200,16 +236,42 @@ class Study:
             return
         if isinstance(value, str):
             raise StudyError(f"{name} must be a number, got {value!r}")
-        if not math.isfinite(value) and name != "target_energy":
+        if name in perturbed.PERTURBATION_PARAMETERS:
+            requirement = perturbed.check_value(name, value)
+            if requirement is not None:
+                raise StudyError(f"{name} must be {requirement}, got {value!r}")
+        elif not math.isfinite(value) and name != "target_energy":
             raise StudyError(f"{name} must be a finite number, got {value!r}")
 
-    def _setting(self, name: str) -> tuple[str | float, ...]:
+    def _check_perturbations(self, named: set[str]) -> None:
+        """Perturbations need the closed loop that holds commands; one terrain per trajectory."""
+        given = named & set(perturbed.PERTURBATION_PARAMETERS)
+        if given and not self.hold_commands:
+            raise StudyError(
+                f"perturbations ({', '.join(sorted(given))}) need hold_commands: the perturbed closed loop "
+                "keeps the command in force where the policy has none, as the plant does"
+            )
+        if self._may_be_nonzero("terrain_sigma") and self._may_be_nonzero("step_height"):
+            raise StudyError(
+                "a trajectory has one terrain: random blocks (terrain_sigma) or a step, not both"
+            )
+
+    def _may_be_nonzero(self, name: str) -> bool:
+        drawn = dict(self.draws).get(name)
+        if drawn is not None:
+            return drawn.low != 0.0 or drawn.high != 0.0
+        return any(value != 0.0 for value in self.values_of(name))
+
+    def values_of(self, name: str) -> tuple[str | float, ...]:
         """The values a grid axis or fixed parameter takes (the default when neither names it)."""
-        return dict(self.grid).get(name, (dict(self.fixed).get(name, DEFAULTS.get(name, math.nan)),))
+        on_grid = self._grid_values(name)
+        if on_grid:
+            return tuple(value for _, value in on_grid)
+        return (dict(self.fixed).get(name, DEFAULTS.get(name, math.nan)),)
 
     def hoppers(self) -> list[tuple[float, float]]:
         """Every (kbar, zeta0) of the study."""
-        return [(float(k), float(z)) for k in self._setting("kbar") for z in self._setting("zeta0")]
+        return [(float(k), float(z)) for k in self.values_of("kbar") for z in self.values_of("zeta0")]
 
     def params(self, kbar: float, zeta0: float) -> HopperParams:
         """The hopper of (kbar, zeta0) with the study's m, r0 and g."""
@@ -261,17 +323,21 @@ class Study:
         columns: Lanes = {"trajectory": index}
         shape = tuple(len(values) for _, values in self.grid)
         positions = np.unravel_index(cell, shape) if shape else ()
-        for (name, values), position in zip(self.grid, positions, strict=True):
-            columns[name] = np.asarray(values, dtype=object if name == "policy" else float)[position]
+        for (axis, _), position in zip(self.grid, positions, strict=True):
+            for name in axis.split(","):
+                values = [value for _, value in self._grid_values(name)]
+                columns[name] = np.asarray(values, dtype=object if name == "policy" else float)[position]
         if self.draws:
             drawn = np.array([self._draw(int(i)) for i in index]).reshape(index.size, len(self.draws))
             for column, (name, _) in enumerate(self.draws):
                 columns[name] = drawn[:, column]
         for name in PARAMETERS:
             if name not in columns:
-                value = self._setting(name)[0]
+                value = self.values_of(name)[0]
                 columns[name] = np.full(index.size, value, dtype=object if name == "policy" else float)
         columns["policy"] = columns["policy"].astype(str)
+        kinds = zip(columns["terrain_sigma"], columns["step_height"], strict=True)
+        columns["terrain"] = np.array([perturbed.terrain_kind(sigma, step) for sigma, step in kinds])
         self._derive_start(columns)
         energy = columns["energy0"]
         columns["target_energy"] = np.where(

@@ -46,6 +46,9 @@ OUTCOME_COLUMNS: dict[str, tuple[pa.DataType, str]] = {
     "energy_fixed": (pa.float64(), "J"),
     "y_std": (pa.float64(), "m"),
     "xdot_std": (pa.float64(), "m/s"),
+    "x_end": (pa.float64(), "m"),
+    "strides_held": (pa.int32(), ""),
+    "strides_saturated": (pa.int32(), ""),
 }
 SCHEMA = pa.schema(
     [
