@@ -37,6 +37,14 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "make a truncated or unfinalised recording readable again (the original is kept as *.orig)",
     ),
     "figures": ("tdslip_ros.analysis.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
+    "sweep": (
+        "tdslip_ros.studies.sweep",
+        "basins (figs 7, 10) and parameter dependence (fig 11) at any resolution, on Dask (Parquet + PNG)",
+    ),
+    "robustness": (
+        "tdslip_ros.studies.robustness",
+        "survival against terrain, sensor noise, model mismatch and step-downs, per policy, on Dask",
+    ),
     "terrain": (
         "tdslip_ros.analysis.rough_terrain",
         "energy regulation against open loop over rough ground: COM paths and apex energies (PNG)",

@@ -11,7 +11,8 @@ import pytest
 
 from tdslip_ros import cli
 from tdslip_ros.analysis import figures, paper_comparison
-from tdslip_ros.model import stability, units
+from tdslip_ros.model import basins, exact_stability, stability, units
+from tdslip_ros.studies import engine
 
 TINY = figures.Resolution(
     heights=24,
@@ -124,3 +125,22 @@ def test_the_comparison_table_reads_our_numbers_from_the_figure_documents() -> N
     assert table["fig. 11: the range grows with beta"].analytic == "not computed in this run"
     markdown = paper_comparison.markdown(list(table.values()))
     assert markdown.count("\n") == len(table) + 2 and "docs/paper.md#stable-ranges" in markdown
+
+
+def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_results(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    figures.precompute(["fig10"], TINY, engine.Where(workers=2))
+
+    def computed_here(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a figure computed a sweep itself instead of taking the engine's result")
+
+    for module, name in (
+        (basins, "basin"),
+        (exact_stability, "fixed_points"),
+        (stability, "energy_fixed_point"),
+    ):
+        monkeypatch.setattr(module, name, computed_here)
+    _, fig10 = figures.fig10(TINY, _quiet())
+    assert sum(fig10["outcome_counts"].values()) == TINY.basin_energies * TINY.basin_heights
+    assert [name for name, _ in figures.shared_work(["fig13", "ranges"], TINY)][:4] == ["stable_range"] * 4

@@ -1,6 +1,7 @@
 """``tdslip figures``: the paper's figures 4-11 and 13 from the model core, as PNG plus the numbers as JSON.
 
     tdslip figures --out DIR [--only fig04 fig10 ranges ...] [--fine]
+                   [--scheduler tcp://HOST:PORT | --workers N]
 
 Each figure is named after the paper's (fig04.png with fig04.json, ...); the JSON holds the numbers drawn
 (dimensionless, eq. 24; NaN as null) and the settings. Parameters: kbar = 36, zeta0 = 0.08, m = 80 kg,
@@ -41,8 +42,12 @@ DIR/comparison.md; docs/paper.md explains the differences.
   (1 m, 5 m/s) towards (1 m, xdot*): final speed and height errors in percent; crosses where a controller
   loses stability (fails, or does not converge to 1e-4). The JSON adds deadbeat towards y* = 0.95 m.
 
-Defaults take some ten minutes on two cores (the exact-plant checks and ranges most of it); ``--fine``
-uses the paper's resolutions. Long sweeps report their progress on stderr.
+The sweeps that take the time (the exact plant's stable ranges, fixed points and basins: the @shared
+computations of :func:`shared_work`) run first, as tasks on the study engine
+(:mod:`tdslip_ros.studies.engine`: a local cluster of one worker process per core, or ``--scheduler``), the
+longest first; the figures then draw from their results. Each task is the very call the figure would make,
+so the numbers do not depend on where it ran. Defaults take some ten minutes of CPU (the exact-plant checks
+and ranges most of it); ``--fine`` uses the paper's resolutions. Progress goes to stderr.
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ import functools
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -72,6 +77,7 @@ from tdslip_ros.model import basins, exact_stability, stability, units
 from tdslip_ros.model.analytic import Array, CommandArrays, speed_from_energy
 from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.studies import engine
 
 DPI = 120
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
@@ -98,6 +104,33 @@ class Resolution:
 
 DEFAULT = Resolution(80, 41, 7, 17, 20, 57, 21, 0.25, 40, 22, 5)
 FINE = Resolution(160, 101, 13, 41, 60, 141, 81, 0.1, 80, 54, 8)
+
+
+SharedKey = tuple[str, tuple[Any, ...]]
+_COMPUTED: dict[SharedKey, Any] = {}
+"""Results of the @shared computations by (name, arguments), filled here or by the engine's tasks."""
+
+
+def shared(function: Callable[..., Any]) -> Callable[..., Any]:
+    """A pure computation that several figures use: computed once per process and arguments (as
+    functools.cache), and one that :func:`precompute` can run as a task on the study engine."""
+
+    @functools.wraps(function)
+    def cached(*args: Any) -> Any:
+        key = (function.__name__, args)
+        if key not in _COMPUTED:
+            _COMPUTED[key] = function(*args)
+        return _COMPUTED[key]
+
+    return cached
+
+
+def computed_by(name: str, args: tuple[Any, ...]) -> dict[SharedKey, Any]:
+    """Run the @shared computation ``name`` (in a worker) and return every shared result it made, itself
+    and the shared parts it used (fig04's exact check brings its analytic trace along)."""
+    before = set(_COMPUTED)
+    globals()[name](*args)
+    return {key: value for key, value in _COMPUTED.items() if key not in before or key == (name, args)}
 
 
 class Reporter:
@@ -275,7 +308,7 @@ def fig04(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     return figure, data
 
 
-@functools.lru_cache(maxsize=4)
+@shared
 def _open_loop_exact(beta_deg: float, resolution: Resolution) -> ExactCheck:
     """The open-loop analytic fixed points of _open_loop_trace checked on the exact plant (paper's t_f)."""
     return _exact_check(
@@ -283,7 +316,7 @@ def _open_loop_exact(beta_deg: float, resolution: Resolution) -> ExactCheck:
     )
 
 
-@functools.lru_cache(maxsize=4)
+@shared
 def _open_loop_trace(beta_deg: float, resolution: Resolution) -> tuple[Array, stability.FixedPoints, Array]:
     beta = math.radians(beta_deg)
     alphas = np.linspace(0.5, 2.5, resolution.alphas)
@@ -294,7 +327,7 @@ def _open_loop_trace(beta_deg: float, resolution: Resolution) -> tuple[Array, st
 
 def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
     betas = np.linspace(20.0, 32.0, resolution.betas)
-    alphas = np.linspace(0.5, 2.5, max(resolution.alphas // 2, 11))
+    alphas = _fig05_alphas(resolution)
     radius = np.full((betas.size, alphas.size), np.nan)
     height, energy, count, exact_count = (
         np.full_like(radius, np.nan),
@@ -305,17 +338,13 @@ def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     exists = np.zeros(radius.shape, dtype=bool)
     for row, beta_deg in enumerate(betas):
         reporter.stage(f"beta = {beta_deg:.1f} deg ({row + 1}/{betas.size}), analytic and exact plant")
-        beta = math.radians(beta_deg)
-        points = stability.open_loop_fixed_points(
-            PARAMS, beta, alphas, stability.height_grid(PARAMS, beta, points=resolution.heights)
-        )
+        points, check = _open_loop_row(float(beta_deg), resolution)
         spectral = np.where(np.isfinite(points.spectral_radius), points.spectral_radius, np.inf)
         best = np.argmin(spectral, axis=1)[:, None]
         radius[row] = np.take_along_axis(points.spectral_radius, best, 1)[:, 0]
         height[row] = np.take_along_axis(_bar_height(points.y), best, 1)[:, 0]
         energy[row] = np.take_along_axis(_bar_energy(points.energy), best, 1)[:, 0]
         count[row] = points.count
-        check = _exact_check(beta, "open_loop", points, resolution)
         exists[row] = np.take_along_axis(check.exists, best, 1)[:, 0]
         exact_count[row] = check.exact.count
     figure = Figure(figsize=(15, 4.5))
@@ -355,6 +384,23 @@ def fig05(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     return figure, data
 
 
+def _fig05_alphas(resolution: Resolution) -> Array:
+    return np.linspace(0.5, 2.5, max(resolution.alphas // 2, 11))
+
+
+@shared
+def _open_loop_row(beta_deg: float, resolution: Resolution) -> tuple[stability.FixedPoints, ExactCheck]:
+    """fig05's row at beta: the open-loop fixed points over its alphas, checked on the exact plant."""
+    beta = math.radians(beta_deg)
+    points = stability.open_loop_fixed_points(
+        PARAMS,
+        beta,
+        _fig05_alphas(resolution),
+        stability.height_grid(PARAMS, beta, points=resolution.heights),
+    )
+    return points, _exact_check(beta, "open_loop", points, resolution)
+
+
 def fig06(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
     figure = Figure(figsize=(7, 6))
     data: dict[str, Any] = {}
@@ -380,14 +426,14 @@ def fig06(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     return figure, data
 
 
-def _basin_colours(basin: basins.Basin, strides: int) -> Array:
-    """Colour index per lane: convergence stride (0..strides) where converged, strides + 1 sustained,
-    NaN for failures and impossible starts (drawn white)."""
-    colour = np.where(basin.outcome == basins.CONVERGED, basin.convergence_stride, np.nan)
-    return np.where(basin.outcome == basins.SUSTAINED, strides + 1, colour)
+def basin_colours(outcome: Array, convergence_stride: Array, strides: int) -> Array:
+    """Colour index per lane (basins.OUTCOMES indices): convergence stride (0..strides) where converged,
+    strides + 1 sustained, NaN for failures and impossible starts (drawn white)."""
+    colour = np.where(outcome == basins.CONVERGED, convergence_stride, np.nan)
+    return np.where(outcome == basins.SUSTAINED, strides + 1, colour)
 
 
-def _basin_map(strides: int) -> ListedColormap:
+def basin_colour_map(strides: int) -> ListedColormap:
     shades = matplotlib.colormaps["Blues_r"](np.linspace(0.15, 0.85, strides + 1))
     return ListedColormap(np.vstack([shades, [[0.85, 0.9, 0.95, 1.0]]]))
 
@@ -396,7 +442,7 @@ def _settled_text(stride: int) -> str:
     return "not settled" if stride < 0 else f"settled from stride {stride}"
 
 
-def _row_median(values: Array) -> Array:
+def row_median(values: Array) -> Array:
     """Median of the finite values of each row; NaN for rows without any."""
     sorted_rows = np.sort(values, axis=1)  # NaN last
     count = np.sum(np.isfinite(values), axis=1)
@@ -409,36 +455,69 @@ def _outcome_counts(basin: basins.Basin) -> dict[str, int]:
     return {name: int(np.sum(basin.outcome == index)) for index, name in enumerate(basins.OUTCOMES)}
 
 
-def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+FIG07_CROSSES = {1.0: 2.0, 1.5: 1.05}
+"""(alpha, ybar0) of fig07's panels (b) and (c)."""
+FIG07_REGULATORS: tuple[exact_stability.Regulator, ...] = ("open_loop", "open_loop_stance_tf")
+
+
+def _fig07_grid(resolution: Resolution) -> tuple[Array, Array]:
+    """fig07's alphas and initial heights [m]."""
     beta = math.radians(26.0)
     alphas = np.linspace(0.5, 2.5, resolution.basin_alphas)
-    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.005, 2.4, resolution.basin_heights)
-    reporter.stage("initial energies on E*(y0) (eq. 27)")
-    alpha_grid, height_grid = np.meshgrid(alphas, heights, indexing="ij")
+    return alphas, np.linspace(
+        stability.infeasible_height(PARAMS, beta) + 0.005, 2.4, resolution.basin_heights
+    )
+
+
+@shared
+def _fig07_basin(resolution: Resolution) -> basins.Basin:
+    """The open-loop exact plant from E*(y0) over fig07's grid, then from its two crosses, as lanes of one
+    basin."""
+    beta = math.radians(26.0)
+    alphas, heights = _fig07_grid(resolution)
+    alpha_grid, height_grid = (a.ravel() for a in np.meshgrid(alphas, heights, indexing="ij"))
     start_energy = stability.energy_fixed_point(PARAMS, beta, alpha_grid, height_grid)
-    crosses = {1.0: 2.0, 1.5: 1.05}  # (alpha, ybar0) of panels (b) and (c)
-    cross_alpha, cross_height = np.array(list(crosses)), np.array(list(crosses.values()))
+    cross_alpha, cross_height = np.array(list(FIG07_CROSSES)), np.array(list(FIG07_CROSSES.values()))
     cross_energy = stability.energy_fixed_point(PARAMS, beta, cross_alpha, cross_height)
-    everything = basins.open_loop_basin(
+    return basins.open_loop_basin(
         PARAMS,
         beta,
-        np.concatenate([alpha_grid.ravel(), cross_alpha]),
-        np.concatenate([height_grid.ravel(), cross_height]),
-        np.concatenate([start_energy.ravel(), cross_energy]),
-        progress=reporter.strides(f"{alpha_grid.size + cross_alpha.size} lanes"),
+        np.concatenate([alpha_grid, cross_alpha]),
+        np.concatenate([height_grid, cross_height]),
+        np.concatenate([start_energy, cross_energy]),
     )
+
+
+@shared
+def _fig07_by_eigenvalue(
+    regulator: exact_stability.Regulator, resolution: Resolution
+) -> stability.FixedPoints:
+    """The open-loop exact plant's fixed points and eigenvalues at fig07's alphas."""
+    beta = math.radians(26.0)
+    return exact_stability.fixed_points(
+        exact_stability.ExactLoop.of(PARAMS, beta, regulator, _fig07_grid(resolution)[0]),
+        stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
+    )
+
+
+def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    alphas, heights = _fig07_grid(resolution)
+    alpha_grid, height_grid = np.meshgrid(alphas, heights, indexing="ij")
+    cross_alpha, cross_height = np.array(list(FIG07_CROSSES)), np.array(list(FIG07_CROSSES.values()))
+    reporter.stage(f"{alpha_grid.size + cross_alpha.size} lanes, {basins.OPEN_LOOP_STRIDES} strides")
+    everything = _fig07_basin(resolution)
     grid = slice(0, alpha_grid.size)
+    start_energy = everything.energy0[grid].reshape(alpha_grid.shape)
     outcome = everything.outcome[grid].reshape(alpha_grid.shape)
-    colour = _basin_colours(everything, basins.OPEN_LOOP_STRIDES)[grid].reshape(alpha_grid.shape)
+    colour = basin_colours(everything.outcome, everything.convergence_stride, basins.OPEN_LOOP_STRIDES)[
+        grid
+    ].reshape(alpha_grid.shape)
     reporter.stage("analytic fixed points")
     analytic_alphas, traced, _ = _open_loop_trace(26.0, resolution)
     by_eigenvalue = {}
-    for regulator in ("open_loop", "open_loop_stance_tf"):
+    for regulator in FIG07_REGULATORS:
         reporter.stage(f"the exact plant's fixed points and eigenvalues, {regulator}")
-        by_eigenvalue[regulator] = exact_stability.fixed_points(
-            exact_stability.ExactLoop.of(PARAMS, beta, regulator, alphas),
-            stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
-        )
+        by_eigenvalue[regulator] = _fig07_by_eigenvalue(regulator, resolution)
 
     figure = Figure(figsize=(12, 7.5))
     top = figure.add_subplot(2, 1, 1)
@@ -446,7 +525,7 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
         alphas,
         _bar_height(heights),
         colour.T,
-        cmap=_basin_map(basins.OPEN_LOOP_STRIDES),
+        cmap=basin_colour_map(basins.OPEN_LOOP_STRIDES),
         vmin=0,
         vmax=basins.OPEN_LOOP_STRIDES + 1,
         shading="nearest",
@@ -517,7 +596,7 @@ def fig07(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
 # --- Energy regulation (section IV) ----------------------------------------------------------------------
 
 
-@functools.lru_cache(maxsize=4)
+@shared
 def _regulated(beta_deg: float, resolution: Resolution) -> tuple[Array, stability.FixedPoints, ExactCheck]:
     """Regulated fixed points over Ebar in [1, 8] (figs 8, 9), checked on the exact plant held at each
     energy exactly (energy_exact, the exact counterpart of the map's energy conservation)."""
@@ -599,30 +678,47 @@ def fig09(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     return figure, data
 
 
-def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+def _fig10_grid(resolution: Resolution) -> tuple[Array, Array]:
+    """fig10's initial (= goal) energies Ebar and initial heights [m]."""
     beta = math.radians(26.0)
     energies_bar = np.linspace(2.0, 6.0, resolution.basin_energies)
-    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.002, 2.4, resolution.basin_heights)
-    lanes = energies_bar.size * heights.size
-    exact = basins.exact_regulated_fixed_points(
-        PARAMS,
-        beta,
-        units.energy_from_bar(PARAMS, energies_bar),
-        heights,
-        progress=reporter.strides(f"{lanes} lanes"),
+    return energies_bar, np.linspace(
+        stability.infeasible_height(PARAMS, beta) + 0.002, 2.4, resolution.basin_heights
     )
+
+
+@shared
+def _fig10_basin(resolution: Resolution) -> basins.Basin:
+    """The goal regulator's exact plant over fig10's grid."""
+    energies_bar, heights = _fig10_grid(resolution)
+    return basins.exact_regulated_fixed_points(
+        PARAMS, math.radians(26.0), units.energy_from_bar(PARAMS, energies_bar), heights
+    )
+
+
+@shared
+def _fig10_by_eigenvalue(resolution: Resolution) -> stability.FixedPoints:
+    """The goal regulator's exact fixed points and eigenvalues at fig10's energies."""
+    beta = math.radians(26.0)
+    energies = units.energy_from_bar(PARAMS, _fig10_grid(resolution)[0])
+    return exact_stability.fixed_points(
+        exact_stability.ExactLoop.of(PARAMS, beta, "energy", energies),
+        stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
+    )
+
+
+def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
+    beta = math.radians(26.0)
+    energies_bar, heights = _fig10_grid(resolution)
+    reporter.stage(f"{energies_bar.size * heights.size} lanes, {basins.REGULATED_STRIDES} strides")
+    exact = _fig10_basin(resolution)
     fine_energies = np.linspace(2.0, 6.0, 4 * resolution.energies)
     analytic = stability.regulated_fixed_points(PARAMS, beta, units.energy_from_bar(PARAMS, fine_energies))
     reporter.stage("the exact plant's fixed points and eigenvalues")
-    by_eigenvalue = exact_stability.fixed_points(
-        exact_stability.ExactLoop.of(PARAMS, beta, "energy", units.energy_from_bar(PARAMS, energies_bar)),
-        stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
-    )
-    exact_y, exact_xdot, exact_energy = (
-        _row_median(values) for values in (exact.y, exact.xdot, exact.energy)
-    )
-    colour = _basin_colours(exact, basins.REGULATED_STRIDES)
-    colour_map = _basin_map(basins.REGULATED_STRIDES)
+    by_eigenvalue = _fig10_by_eigenvalue(resolution)
+    exact_y, exact_xdot, exact_energy = (row_median(values) for values in (exact.y, exact.xdot, exact.energy))
+    colour = basin_colours(exact.outcome, exact.convergence_stride, basins.REGULATED_STRIDES)
+    colour_map = basin_colour_map(basins.REGULATED_STRIDES)
     figure = Figure(figsize=(12, 4.8))
     left, right = figure.subplots(1, 2)
     left.pcolormesh(
@@ -688,6 +784,8 @@ def fig10(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
 
 RANGE_EBAR = (0.8, 22.0)
 """Goal energies Ebar scanned for the stable ranges (at beta = 30 deg the exact plant's reaches ~17)."""
+RANGE_BETAS = (20.0, 22.0, 26.0, 30.0)
+"""Touchdown angles [deg] of the ranges figure."""
 PAPER_RANGES = {20.0: (1.1, 3.4), 30.0: (3.45, 11.9)}
 """The paper's stable Ebar ranges (section IV.C)."""
 RANGE_SOURCES = ("analytic", "energy", "energy_exact")
@@ -695,7 +793,7 @@ RANGE_SOURCES = ("analytic", "energy", "energy_exact")
 map (the paper's goal regulator) or on the exact map (the ideal regulator)."""
 
 
-@functools.lru_cache(maxsize=64)
+@shared
 def stable_range(
     kbar: float, zeta0: float, beta_deg: float, source: str, resolution: Resolution
 ) -> tuple[float, float]:
@@ -720,7 +818,7 @@ def stable_range(
 def ranges(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
     """Stable Ebar ranges at beta = 20, 22, 26, 30 deg: the paper's, the analytic map's, and the exact
     plant's under the paper's goal regulator (energy) and the ideal one (energy_exact)."""
-    betas = (20.0, 22.0, 26.0, 30.0)
+    betas = RANGE_BETAS
     figure = Figure(figsize=(8, 4.5))
     axes = figure.subplots()
     styles = {"paper": "0.6", "analytic": STABLE, "energy": "tab:orange", "energy_exact": EXACT}
@@ -744,27 +842,55 @@ def ranges(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str
     return figure, data
 
 
+FIG11_STUDIES = {
+    "beta_deg": (20.0, 22.0, 24.0, 26.0, 28.0, 30.0),
+    "kbar": (20.0, 28.0, 36.0, 44.0, 52.0),
+    "zeta0": (0.04, 0.08, 0.12, 0.16),
+}
+"""fig11's parameter values (the others at kbar = 36, zeta0 = 0.08, beta = 26 deg)."""
+
+
+def fig11_hoppers() -> list[tuple[str, float, float, float, float]]:
+    """(varied parameter, its value, kbar, zeta0, beta [deg]) of every curve of fig11."""
+    return [
+        (
+            name,
+            value,
+            value if name == "kbar" else 36.0,
+            value if name == "zeta0" else 0.08,
+            value if name == "beta_deg" else 26.0,
+        )
+        for name, values in FIG11_STUDIES.items()
+        for value in values
+    ]
+
+
+def _fig11_energies_bar(resolution: Resolution) -> Array:
+    return np.linspace(0.8, 14.0, 2 * resolution.energies)
+
+
+@shared
+def _regulated_points(
+    kbar: float, zeta0: float, beta_deg: float, resolution: Resolution
+) -> stability.FixedPoints:
+    """The analytic regulated map's fixed points over fig11's energies for the hopper (kbar, zeta0)."""
+    params = HopperParams.from_dimensionless(kbar, zeta0)
+    return stability.regulated_fixed_points(
+        params, math.radians(beta_deg), units.energy_from_bar(params, _fig11_energies_bar(resolution))
+    )
+
+
 def fig11(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str, Any]]:
-    energies_bar = np.linspace(0.8, 14.0, 2 * resolution.energies)
-    studies = {
-        "beta_deg": [20.0, 22.0, 24.0, 26.0, 28.0, 30.0],
-        "kbar": [20.0, 28.0, 36.0, 44.0, 52.0],
-        "zeta0": [0.04, 0.08, 0.12, 0.16],
-    }
+    energies_bar = _fig11_energies_bar(resolution)
     figure = Figure(figsize=(14, 4.5))
     data: dict[str, Any] = {}
-    for axes, (name, values) in zip(figure.subplots(1, 3), studies.items(), strict=True):
+    for axes, name in zip(figure.subplots(1, 3), FIG11_STUDIES, strict=True):
         ends = []
         data[name] = []
-        for value in values:
+        for _, value, kbar, zeta0, beta_deg in (hopper for hopper in fig11_hoppers() if hopper[0] == name):
             reporter.stage(f"varying {name}: {value:g}, analytic and exact plant (energy_exact)")
-            kbar = value if name == "kbar" else 36.0
-            zeta0 = value if name == "zeta0" else 0.08
-            beta_deg = value if name == "beta_deg" else 26.0
             params = HopperParams.from_dimensionless(kbar, zeta0)
-            points = stability.regulated_fixed_points(
-                params, math.radians(beta_deg), units.energy_from_bar(params, energies_bar)
-            )
+            points = _regulated_points(kbar, zeta0, beta_deg, resolution)
             stable = points.stable
             keep = stable.any(axis=1)
             pick = np.argmax(stable, axis=1)[:, None]
@@ -917,6 +1043,52 @@ FIGURES: dict[str, Callable[[Resolution, Reporter], tuple[Figure, dict[str, Any]
 }
 
 
+def shared_work(names: Sequence[str], resolution: Resolution) -> list[tuple[str, tuple[Any, ...]]]:
+    """The @shared computations (name, arguments) that the figures ``names`` make: the sweeps that take
+    their time. The exact plant's stable ranges come first, as they take longest."""
+    work: list[tuple[str, tuple[Any, ...]]] = []
+    if "ranges" in names:
+        work += [
+            ("stable_range", (36.0, 0.08, beta, s, resolution)) for beta in RANGE_BETAS for s in RANGE_SOURCES
+        ]
+    if "fig11" in names:
+        for _, _, kbar, zeta0, beta_deg in fig11_hoppers():
+            work += [
+                ("stable_range", (kbar, zeta0, beta_deg, s, resolution)) for s in ("energy_exact", "analytic")
+            ]
+            work.append(("_regulated_points", (kbar, zeta0, beta_deg, resolution)))
+    if "fig05" in names:
+        work += [
+            ("_open_loop_row", (float(beta), resolution))
+            for beta in np.linspace(20.0, 32.0, resolution.betas)
+        ]
+    for beta_deg in [26.0] * ("fig04" in names or "fig06" in names) + [32.0] * ("fig06" in names):
+        work.append(("_open_loop_exact", (beta_deg, resolution)))  # brings _open_loop_trace along
+    if "fig07" in names:
+        work += [("_fig07_basin", (resolution,))]
+        work += [("_fig07_by_eigenvalue", (regulator, resolution)) for regulator in FIG07_REGULATORS]
+        if ("_open_loop_exact", (26.0, resolution)) not in work:
+            work.append(("_open_loop_trace", (26.0, resolution)))
+    if "fig08" in names or "fig09" in names:
+        work += [("_regulated", (beta_deg, resolution)) for beta_deg in (22.0, 30.0)]
+    if "fig10" in names:
+        work += [("_fig10_basin", (resolution,)), ("_fig10_by_eigenvalue", (resolution,))]
+    exact_ranges = [item for item in work if item[0] == "stable_range" and item[1][3] != "analytic"]
+    return exact_ranges + [item for item in work if item not in exact_ranges]
+
+
+def precompute(names: Sequence[str], resolution: Resolution, where: engine.Where) -> None:
+    """Run the figures' sweeps (:func:`shared_work`) as tasks on the study engine, in parallel; the
+    figures then draw from their results. Each task brings back every shared result it made."""
+    work = shared_work(names, resolution)
+    if not work:
+        return
+    calls: list[engine.Call] = [(name, computed_by, (name, args)) for name, args in work]
+    with engine.connect(where) as client:
+        for entries in engine.compute(client, calls, engine.Progress("figures", "sweeps")):
+            _COMPUTED.update(entries)
+
+
 def write_figure(name: str, out: Path, resolution: Resolution) -> dict[str, Any]:
     """Compute, draw and save one figure as OUT/<name>.png and OUT/<name>.json; returns its data."""
     reporter = Reporter(name)
@@ -942,14 +1114,17 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--out", type=Path, required=True, help="directory for the PNG and JSON files")
     parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures")
     parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
+    engine.add_arguments(parser, resume=False)
     args = parser.parse_args(argv)
     try:
         output_directory(args.out)
         resolution = FINE if args.fine else DEFAULT
-        documents = {name: write_figure(name, args.out, resolution) for name in args.only or list(FIGURES)}
+        names = args.only or list(FIGURES)
+        precompute(names, resolution, engine.where_of(args))
+        documents = {name: write_figure(name, args.out, resolution) for name in names}
         table = paper_comparison.rows(documents, PARAMS)
         (args.out / "comparison.md").write_text(paper_comparison.markdown(table))
-    except OutputError as error:
+    except (OutputError, engine.EngineError) as error:
         print(f"tdslip figures: {error}", file=sys.stderr)
         return 1
     except OSError as error:

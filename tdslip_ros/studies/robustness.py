@@ -1,0 +1,422 @@
+"""``tdslip robustness``: how large a perturbation each policy survives, on the study engine.
+
+    tdslip robustness --out DIR [--samples 30] [--strides 50] [--policies open_loop energy ...]
+                      [--kinds terrain noise mismatch step] [--touchdown-angle 26] [--energy 3.5]
+                      [--mismatch-field stiffness] [--seed 0] [--resume]
+                      [--scheduler tcp://HOST:PORT | --workers N]
+
+Every policy starts at the same operating point and would hop there on flat ground: the exact plant's fixed
+point under energy regulation at the touchdown angle beta (``--touchdown-angle``, deg) with the goal energy
+Ebar (``--energy``, E/(m g r0)). energy and energy_exact aim at that energy (planned on the analytic map,
+energy's fixed point is within 1 % of it; energy_exact, which holds it exactly, settles from there within a
+few strides), open_loop applies the hip power at touchdown that energy regulation applies there, deadbeat
+and pd aim at the fixed point's apex (pd with its default gains). Each kind of perturbation is one study
+(DIR/terrain, ...): a grid of policy x size with ``--samples`` trajectories per cell, each with its own
+random draws (seeds from the trajectory index); the closed loop keeps the command in force where a policy
+has none, as the plant node does (:mod:`tdslip_ros.studies.perturbed`):
+
+* terrain: random blocks 0.5 m long from x = 1 m, heights with standard deviation sigma (the size, cm);
+* noise: the apex the controller sees, with standard deviations s r0 in height and s sqrt(g r0) in speed
+  (the size s);
+* mismatch: the controller plans with the hopper's stiffness (``--mismatch-field``) times a factor (the
+  size);
+* step: a single step down of the size (m) at a position drawn in [1, 4] m (one stride at the operating
+  point).
+
+A trajectory survives when it hops ``--strides`` strides. Written to DIR: ``robustness.png`` (the fraction
+surviving, per kind and policy, against the size), ``strides.png`` (the median strides survived),
+``spread.png`` (the spread of the apex heights of the survivors: the median over them of each one's
+standard deviation), ``failures.png`` (the failure kinds), ``summary.csv`` (one row per kind, size and
+policy), ``robustness.md`` (per kind and policy the sizes all and half the trajectories survive, from the
+unperturbed size on, and the failure kinds) and ``summary.json``; every trajectory's row is in
+DIR/<kind>/table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+import pyarrow as pa
+from matplotlib.figure import Figure
+
+from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
+from tdslip_ros.model import dynamics, units
+from tdslip_ros.model.controllers import POLICIES, PolicySpec
+from tdslip_ros.model.events import FAILURE_KINDS
+from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.studies import chunk, engine, table
+from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform
+from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
+
+DPI = 120
+SETTLING_STRIDES = 30
+"""Flat-ground strides of energy regulation to its fixed point, the operating point (|lambda| << 1)."""
+STEP_POSITIONS = Uniform(1.0, 4.0)
+"""Where the step down is, m: over about one stride at the operating point."""
+COLOURS = {
+    "open_loop": "tab:orange",
+    "energy": "tab:blue",
+    "energy_exact": "tab:purple",
+    "deadbeat": "tab:red",
+    "pd": "tab:green",
+}
+FAILURES = tuple(kind.value for kind in FAILURE_KINDS) + ("no_command",)
+FAILURE_COLOURS = dict(zip(FAILURES, matplotlib.colormaps["tab10"].colors, strict=False))
+
+
+@dataclass(frozen=True)
+class Kind:
+    """A kind of perturbation: its sizes, the axis label, and the design parameters of a size."""
+
+    label: str
+    sizes: tuple[float, ...]
+    scale: str  # "linear" or "log" axis
+    neutral: float = 0.0  # the size without perturbation (the sizes lie on one side of it, or on both)
+
+    def axis(self, name: str, params: HopperParams, mismatch_field: str) -> tuple[str, list[Any]]:
+        """The grid axis (parameter names, values) of this kind's sizes."""
+        if name == "terrain":
+            return "terrain_sigma", [size / 100.0 for size in self.sizes]
+        if name == "noise":
+            speed = math.sqrt(params.g * params.r0)
+            return "noise_height,noise_speed", [(size * params.r0, size * speed) for size in self.sizes]
+        if name == "mismatch":
+            return f"mismatch_{mismatch_field}", list(self.sizes)
+        return "step_height", [-size for size in self.sizes]
+
+
+KINDS = {
+    "terrain": Kind("block height sigma [cm]", (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0), "linear"),
+    "noise": Kind(
+        "sensor noise s (height s r0, speed s sqrt(g r0))", (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3), "linear"
+    ),
+    "mismatch": Kind(
+        "controller's model: factor on the plant's value", (0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0), "log", 1.0
+    ),
+    "step": Kind("step down [m]", (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0), "linear"),
+}
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """The apex (y [m], xdot [m/s]) every policy starts at and holds on flat ground, and the policies'
+    settings there (by design parameter)."""
+
+    y: float
+    xdot: float
+    settings: dict[str, float]
+
+
+def operating_point(params: HopperParams, beta: float, energy: float) -> OperatingPoint:
+    """Energy regulation's flat-ground fixed point at touchdown angle beta [rad] and apex energy [J] (the
+    module docstring), reached in SETTLING_STRIDES strides from the apex of that energy at r0 + 10 %."""
+    start = Study.of(
+        fixed={
+            "policy": "energy",
+            "touchdown_angle": beta,
+            "target_energy": energy,
+            "y0": 1.1 * params.r0,
+            "energy0": energy,
+        },
+        strides=SETTLING_STRIDES,
+    )
+    rows = chunk.run_chunk(start, 0)
+    if rows["outcome"][0].as_py() != "converged":
+        raise StudyError(
+            f"energy regulation at {math.degrees(beta):g} deg does not settle at Ebar = "
+            f"{units.energy_to_bar(params, energy):g} ({rows['outcome'][0].as_py()}): "
+            "choose another operating point"
+        )
+    y, xdot = rows["y_fixed"][0].as_py(), rows["xdot_fixed"][0].as_py()
+    values = {name: DEFAULTS[name] for name in PolicySpec.settings() if name in DEFAULTS}
+    spec = PolicySpec(
+        name="energy", corrections=1, **values | {"touchdown_angle": beta, "target_energy": energy}
+    )
+    tau0 = float(spec.commands(params, y, xdot, xdot).tau0)
+    fall = dynamics.fall_time(y, 0.0, dynamics.touchdown_height(params, math.cos(beta)), params.g)
+    _, thetadot = dynamics.polar_velocity(params.r0, math.sin(beta), math.cos(beta), xdot, -params.g * fall)
+    settings = {
+        "touchdown_angle": beta,
+        "target_energy": energy,
+        "touchdown_power": tau0 * thetadot,  # the hip power at touchdown energy regulation applies there
+        "target_height": y,
+        "target_speed": xdot,
+    }
+    return OperatingPoint(y, xdot, settings)
+
+
+def studies(
+    kinds: list[str],
+    policies: list[str],
+    point: OperatingPoint,
+    params: HopperParams,
+    samples: int,
+    strides: int,
+    seed: int,
+    mismatch_field: str,
+) -> dict[str, Study]:
+    """One study per kind (module docstring)."""
+    made = {}
+    for name in kinds:
+        axis, values = KINDS[name].axis(name, params, mismatch_field)
+        made[name] = Study.of(
+            grid={"policy": policies, axis: values},
+            draws={"step_x": STEP_POSITIONS} if name == "step" else None,
+            samples=samples,
+            fixed=point.settings | {"y0": point.y, "xdot0": point.xdot},
+            start="speed",
+            strides=strides,
+            seed=seed,
+            hold_commands=True,
+            chunk_size=min(1000, max(50, math.ceil(len(policies) * len(values) * samples / 16))),
+        )
+    return made
+
+
+def summarise(name: str, study: Study, rows: pa.Table) -> list[dict[str, Any]]:
+    """One row per size and policy: trajectories, the fraction surviving all strides, the median strides
+    survived, the failure kinds, the median apex spread of the survivors, strides without a command."""
+    policies = list(study.values_of("policy"))
+    sizes = KINDS[name].sizes
+    per_cell = study.samples
+    survived = _column(rows, "strides_survived").reshape(len(policies), len(sizes), per_cell)
+    outcome = _column(rows, "outcome").reshape(survived.shape)
+    y_std = _column(rows, "y_std").reshape(survived.shape)
+    xdot_std = _column(rows, "xdot_std").reshape(survived.shape)
+    held = _column(rows, "strides_held").reshape(survived.shape)
+    summary = []
+    for p, policy in enumerate(policies):
+        for s, size in enumerate(sizes):
+            alive = survived[p, s] == study.strides
+            summary.append(
+                {
+                    "kind": name,
+                    "size": size,
+                    "policy": policy,
+                    "trajectories": per_cell,
+                    "surviving": float(np.mean(alive)),
+                    "median_strides": float(np.median(survived[p, s])),
+                    "apex_height_spread": float(np.median(y_std[p, s][alive])) if alive.any() else math.nan,
+                    "apex_speed_spread": float(np.median(xdot_std[p, s][alive])) if alive.any() else math.nan,
+                    "strides_held": float(np.mean(held[p, s])),
+                    **{failure: int(np.sum(outcome[p, s] == failure)) for failure in FAILURES},
+                }
+            )
+    return summary
+
+
+def _column(rows: pa.Table, name: str) -> np.ndarray:
+    return np.asarray(rows[name].to_numpy(zero_copy_only=False))
+
+
+def survived_range(summary: list[dict[str, Any]], kind: str, policy: str, share: float) -> list[float] | None:
+    """The sizes [low, high] around the kind's neutral size (every size between them included) at which at
+    least ``share`` of the trajectories survive; None where even the neutral size is not."""
+    rows = [r for r in summary if r["kind"] == kind and r["policy"] == policy]
+    sizes = [r["size"] for r in rows]
+    neutral = sizes.index(KINDS[kind].neutral)
+    if rows[neutral]["surviving"] < share:
+        return None
+    low = high = neutral
+    while low > 0 and rows[low - 1]["surviving"] >= share:
+        low -= 1
+    while high < len(rows) - 1 and rows[high + 1]["surviving"] >= share:
+        high += 1
+    return [sizes[low], sizes[high]]
+
+
+def draw(
+    summary: list[dict[str, Any]], kinds: list[str], policies: list[str], value: str, ylabel: str, title: str
+) -> Figure:
+    """One panel per kind: ``value`` against the size, a line per policy."""
+    columns = min(2, len(kinds))
+    rows = math.ceil(len(kinds) / columns)
+    figure = Figure(figsize=(6.5 * columns, 4.2 * rows))
+    axes_all = np.atleast_1d(figure.subplots(rows, columns)).ravel()
+    for axes, kind in zip(axes_all, kinds, strict=False):
+        for policy in policies:
+            points = [r for r in summary if r["kind"] == kind and r["policy"] == policy]
+            axes.plot(
+                [r["size"] for r in points],
+                [r[value] for r in points],
+                "o-",
+                color=COLOURS.get(policy),
+                label=policy,
+                ms=3,
+            )
+        axes.set(xlabel=KINDS[kind].label, ylabel=ylabel, title=kind, xscale=KINDS[kind].scale)
+        if KINDS[kind].scale == "log":  # the sizes themselves as ticks, not powers of ten
+            axes.set_xticks(KINDS[kind].sizes, [f"{size:g}" for size in KINDS[kind].sizes])
+            axes.minorticks_off()
+        axes.legend(fontsize=7)
+    for axes in axes_all[len(kinds) :]:
+        axes.set_visible(False)
+    figure.suptitle(title)
+    return figure
+
+
+def draw_failures(summary: list[dict[str, Any]], kinds: list[str], policies: list[str]) -> Figure:
+    """Per kind, the failure kinds of each policy's trajectories over all sizes (stacked bars)."""
+    columns = min(2, len(kinds))
+    rows = math.ceil(len(kinds) / columns)
+    figure = Figure(figsize=(6.5 * columns, 4.2 * rows))
+    axes_all = np.atleast_1d(figure.subplots(rows, columns)).ravel()
+    for axes, kind in zip(axes_all, kinds, strict=False):
+        bottom = np.zeros(len(policies))
+        for failure in FAILURES:
+            counts = np.array(
+                [sum(r[failure] for r in summary if r["kind"] == kind and r["policy"] == p) for p in policies]
+            )
+            if counts.any():
+                axes.bar(policies, counts, bottom=bottom, label=failure, color=FAILURE_COLOURS[failure])
+                bottom += counts
+        axes.set(ylabel="trajectories failed (all sizes)", title=kind)
+        axes.tick_params(axis="x", labelsize=7)
+        axes.legend(fontsize=7)
+    for axes in axes_all[len(kinds) :]:
+        axes.set_visible(False)
+    figure.suptitle("how the trajectories failed")
+    return figure
+
+
+def markdown(summary: list[dict[str, Any]], kinds: list[str], policies: list[str], strides: int) -> str:
+    lines = [
+        f"# Robustness: the largest perturbation survived for {strides} strides",
+        "",
+        "| kind | policy | sizes all survive | sizes half survive | failures (all sizes) |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for kind in kinds:
+        for policy in policies:
+            every, half = (survived_range(summary, kind, policy, share) for share in (1.0, 0.5))
+            failures = {
+                failure: sum(r[failure] for r in summary if r["kind"] == kind and r["policy"] == policy)
+                for failure in FAILURES
+            }
+            text = ", ".join(f"{name} {count}" for name, count in failures.items() if count) or "none"
+            lines.append(f"| {kind} | {policy} | {_size_text(every)} | {_size_text(half)} | {text} |")
+    lines += ["", "Sizes: " + "; ".join(f"{kind}: {KINDS[kind].label}" for kind in kinds), ""]
+    return "\n".join(lines)
+
+
+def _size_text(sizes: list[float] | None) -> str:
+    """The sizes survived: "0 to 4", "0.5 to 2", or "none"."""
+    return "none" if sizes is None else f"{sizes[0]:g} to {sizes[1]:g}"
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="tdslip robustness", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--out", type=Path, required=True, help="directory for the tables, figures and summary"
+    )
+    parser.add_argument(
+        "--samples", type=engine.positive_int, default=30, help="trajectories per size and policy"
+    )
+    parser.add_argument(
+        "--strides", type=engine.positive_int, default=50, help="strides that count as surviving"
+    )
+    parser.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES))
+    parser.add_argument("--kinds", nargs="+", choices=list(KINDS), default=list(KINDS))
+    parser.add_argument(
+        "--touchdown-angle", type=float, default=26.0, help="beta of the operating point [deg]"
+    )
+    parser.add_argument("--energy", type=float, default=3.5, help="apex energy Ebar of the operating point")
+    parser.add_argument(
+        "--mismatch-field",
+        choices=[name.removeprefix("mismatch_") for name in MISMATCH_PARAMETERS],
+        default="stiffness",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=0, help="of every random draw (with the trajectory index)"
+    )
+    engine.add_arguments(parser)
+    args = parser.parse_args(argv)
+    kinds, policies = list(dict.fromkeys(args.kinds)), list(dict.fromkeys(args.policies))
+    try:
+        params = HopperParams.from_dimensionless(36.0, 0.08)
+        if not 0.0 < args.touchdown_angle < 90.0:
+            raise StudyError(f"--touchdown-angle must be in (0, 90) deg, got {args.touchdown_angle:g}")
+        point = operating_point(
+            params, math.radians(args.touchdown_angle), units.energy_from_bar(params, args.energy)
+        )
+        made = studies(
+            kinds, policies, point, params, args.samples, args.strides, args.seed, args.mismatch_field
+        )
+        output_directory(args.out)
+        tables = engine.run_studies(made, args.out, engine.where_of(args), args.resume, "robustness")
+        summary = [row for name in kinds for row in summarise(name, made[name], tables[name])]
+        figures = {
+            "robustness": draw(
+                summary,
+                kinds,
+                policies,
+                "surviving",
+                f"fraction surviving {args.strides} strides",
+                "survival",
+            ),
+            "strides": draw(
+                summary, kinds, policies, "median_strides", "median strides survived", "strides survived"
+            ),
+            "spread": draw(
+                summary,
+                kinds,
+                policies,
+                "apex_height_spread",
+                "apex height spread [m] (survivors' median std)",
+                "spread of the apex heights",
+            ),
+            "failures": draw_failures(summary, kinds, policies),
+        }
+        for name, figure in figures.items():
+            figure.tight_layout()
+            figure.savefig(args.out / f"{name}.png", dpi=DPI)
+        with (args.out / "summary.csv").open("w", newline="") as stream:
+            writer = csv.DictWriter(stream, fieldnames=list(summary[0]))
+            writer.writeheader()
+            writer.writerows(summary)
+        (args.out / "robustness.md").write_text(markdown(summary, kinds, policies, args.strides))
+        document = {
+            "operating_point": {"y": point.y, "xdot": point.xdot, **point.settings},
+            "samples": args.samples,
+            "strides": args.strides,
+            "sizes": {kind: {"label": KINDS[kind].label, "sizes": list(KINDS[kind].sizes)} for kind in kinds},
+            "sizes_survived": {
+                kind: {
+                    policy: {
+                        "all": survived_range(summary, kind, policy, 1.0),
+                        "half": survived_range(summary, kind, policy, 0.5),
+                    }
+                    for policy in policies
+                }
+                for kind in kinds
+            },
+            "rows": summary,
+        }
+        (args.out / "summary.json").write_text(to_json(document))
+    except (StudyError, ParameterError, OutputError, table.StudyDirectoryError, engine.EngineError) as error:
+        print(f"tdslip robustness: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:
+        print(f"tdslip robustness: {write_failed(error)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(
+            f"\ntdslip robustness: interrupted; the chunks written stay in {args.out}: --resume completes it",
+            file=sys.stderr,
+        )
+        return 130
+    print((args.out / "robustness.md").read_text(), end="")
+    return 0

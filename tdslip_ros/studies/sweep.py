@@ -1,0 +1,348 @@
+"""``tdslip sweep``: the exact plant's basins (figs. 7 and 10) and parameter dependence (fig. 11) at any
+resolution, on the study engine (a local Dask cluster, or ``--scheduler``).
+
+    tdslip sweep fig07|fig10|fig11 --out DIR [--grid AxB] [--strides N] [--chunk-size N]
+                 [--scheduler tcp://HOST:PORT | --workers N] [--resume]
+
+* fig07: open loop at beta = 26 deg, a grid of touchdown powers alpha in [0.5, 2.5] x initial heights ybar0
+  from r0 cos(beta) + 5 mm to 2.4, each starting on the energy fixed point E*(y0) of eq. 27 (fig. 7(a));
+  150 strides. ``--grid`` is alphas x heights (default 17x20, ``tdslip figures``' resolution).
+* fig10: the goal regulator (each trajectory's initial energy is its goal) at beta = 26 deg, initial
+  energies Ebar0 in [2, 6] x heights ybar0 from r0 cos(beta) + 2 mm to 2.4; 50 strides. ``--grid`` is
+  energies x heights (default 21x20; 1000x1000 is a million trajectories).
+* fig11: the fixed points the goal regulator's exact plant reaches as beta (20..30 deg), kbar (20..52) and
+  zeta0 (0.04..0.16) vary, fig. 11's values: one study per parameter (DIR/beta_deg, DIR/kbar, DIR/zeta0),
+  each a grid of goal energies Ebar in [0.8, 14] x initial heights ybar0 in [1, 2] per value; 50 strides.
+  ``--grid`` is energies x heights (default 57x3).
+
+Each study directory holds the table (``table/``, Parquet, one row per trajectory: see
+:mod:`tdslip_ros.studies.table`) and ``study.json``; DIR gets the figure (``fig07.png``, ...) and
+``summary.json`` (outcome counts, and the fixed points reached: per grid row, the median over the converged
+trajectories, dimensionless). ``--resume`` completes an interrupted sweep, computing only missing chunks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from matplotlib.figure import Figure
+
+from tdslip_ros.analysis.figures import (
+    DPI,
+    EXACT,
+    FIG11_STUDIES,
+    PARAMS,
+    STABLE,
+    basin_colour_map,
+    basin_colours,
+    row_median,
+)
+from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
+from tdslip_ros.model import basins, stability, units
+from tdslip_ros.studies import engine, table
+from tdslip_ros.studies.design import Study, StudyError
+
+BETA_DEG = 26.0
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One of the sweeps: its default grid, strides, and how to build its studies and draw them."""
+
+    grid: tuple[int, int]
+    strides: int
+    studies: Callable[[tuple[int, int], int, int | None], dict[str, Study]]
+    draw: Callable[[dict[str, Study], dict[str, pa.Table]], tuple[Figure, dict[str, Any]]]
+
+
+def chunk_size_for(size: int) -> int:
+    """Trajectories per chunk: about 1/16 of the study within [100, 1000] (a batched call of fewer lanes
+    runs slower per lane, one of more no faster). A function of the study alone, never of the cluster."""
+    return min(1000, max(100, math.ceil(size / 16)))
+
+
+def _chunked(chunk_size: int | None, size: int) -> int:
+    return chunk_size or chunk_size_for(size)
+
+
+# --- fig. 7: the open loop --------------------------------------------------------------------------
+
+
+def _fig07_axes(grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    beta = math.radians(BETA_DEG)
+    alphas = np.linspace(0.5, 2.5, grid[0])
+    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.005, 2.4, grid[1])
+    return alphas, heights
+
+
+def fig07_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
+    alphas, heights = _fig07_axes(grid)
+    study = Study.of(
+        grid={"touchdown_power": units.power_from_alpha(PARAMS, alphas), "y0": heights},
+        fixed={"policy": "open_loop", "touchdown_angle": math.radians(BETA_DEG)},
+        start="open_loop_fixed_point",
+        strides=strides,
+        chunk_size=_chunked(chunk_size, alphas.size * heights.size),
+    )
+    return {"": study}
+
+
+def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[Figure, dict[str, Any]]:
+    study, rows = studies[""], tables[""]
+    alphas = units.power_to_alpha(PARAMS, np.asarray(dict(study.grid)["touchdown_power"]))
+    heights = np.asarray(dict(study.grid)["y0"])
+    shape = (alphas.size, heights.size)
+    outcome, stride = _outcomes(rows, shape)
+    figure = Figure(figsize=(10, 5))
+    axes = figure.subplots()
+    axes.pcolormesh(
+        alphas,
+        units.height_to_bar(PARAMS, heights),
+        basin_colours(outcome, stride, study.strides).T,
+        cmap=basin_colour_map(study.strides),
+        vmin=0,
+        vmax=study.strides + 1,
+        shading="nearest",
+    )
+    y_fixed = _column(rows, "y_fixed").reshape(shape)
+    fixed = units.height_to_bar(PARAMS, row_median(y_fixed))
+    axes.plot(alphas, fixed, ".", color=EXACT, label="fixed point reached (median)")
+    axes.set(
+        xlabel="alpha",
+        ylabel="ybar0 (E0 = E*(y0))",
+        title=f"exact plant, open loop, beta = {BETA_DEG:g} deg, {study.strides} strides "
+        "(blue: converged, lighter later; pale: sustained; white: failed)",
+    )
+    axes.legend(fontsize=7)
+    data = {
+        "alpha": alphas.tolist(),
+        "ybar0": units.height_to_bar(PARAMS, heights).tolist(),
+        "fixed_ybar_median": fixed.tolist(),
+    }
+    return figure, data
+
+
+# --- fig. 10: the goal regulator ---------------------------------------------------------------------
+
+
+def fig10_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
+    beta = math.radians(BETA_DEG)
+    energies = units.energy_from_bar(PARAMS, np.linspace(2.0, 6.0, grid[0]))
+    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.002, 2.4, grid[1])
+    study = Study.of(
+        grid={"energy0": energies, "y0": heights},
+        fixed={"policy": "energy", "touchdown_angle": beta},
+        strides=strides,
+        chunk_size=_chunked(chunk_size, energies.size * heights.size),
+    )
+    return {"": study}
+
+
+def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[Figure, dict[str, Any]]:
+    study, rows = studies[""], tables[""]
+    energies = np.asarray(dict(study.grid)["energy0"])
+    heights = np.asarray(dict(study.grid)["y0"])
+    shape = (energies.size, heights.size)
+    outcome, stride = _outcomes(rows, shape)
+    energies_bar = units.energy_to_bar(PARAMS, energies)
+    figure = Figure(figsize=(10, 5))
+    axes = figure.subplots()
+    axes.pcolormesh(
+        energies_bar,
+        units.height_to_bar(PARAMS, heights),
+        basin_colours(outcome, stride, study.strides).T,
+        cmap=basin_colour_map(study.strides),
+        vmin=0,
+        vmax=study.strides + 1,
+        shading="nearest",
+    )
+    fixed = units.height_to_bar(PARAMS, row_median(_column(rows, "y_fixed").reshape(shape)))
+    axes.plot(energies_bar, fixed, "-", color=EXACT, lw=2, label="exact plant, fixed point reached (median)")
+    fine = np.linspace(energies_bar[0], energies_bar[-1], 4 * energies_bar.size)
+    analytic = stability.regulated_fixed_points(
+        PARAMS, math.radians(BETA_DEG), units.energy_from_bar(PARAMS, fine)
+    )
+    x, y, stable = np.broadcast_arrays(
+        fine[:, None], units.height_to_bar(PARAMS, analytic.y), analytic.stable
+    )
+    axes.plot(x[stable], y[stable], "o", color=STABLE, markersize=2, label="analytic, stable")
+    axes.set(
+        xlabel="Ebar (initial energy = goal)",
+        ylabel="ybar (basin: initial ybar0)",
+        title=f"goal regulator on the exact plant, beta = {BETA_DEG:g} deg, {study.strides} strides "
+        "(blue: converged, lighter later; pale: sustained; white: failed or no such apex)",
+    )
+    axes.legend(fontsize=7)
+    return figure, {
+        "Ebar": energies_bar.tolist(),
+        "ybar0": units.height_to_bar(PARAMS, heights).tolist(),
+        "fixed_ybar_median": fixed.tolist(),
+    }
+
+
+# --- fig. 11: parameter dependence --------------------------------------------------------------------
+
+
+def fig11_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
+    energies_bar = np.linspace(0.8, 14.0, grid[0])
+    heights = np.linspace(1.0, 2.0, grid[1]) * PARAMS.r0
+    studies = {}
+    for name, values in FIG11_STUDIES.items():
+        axis: dict[str, Any] = {
+            "beta_deg": {"touchdown_angle": np.radians(values)},
+            "kbar": {"kbar": values},
+            "zeta0": {"zeta0": values},
+        }[name]
+        size = len(values) * energies_bar.size * heights.size
+        studies[name] = Study.of(
+            grid={**axis, "energy0": units.energy_from_bar(PARAMS, energies_bar), "y0": heights},
+            fixed={"policy": "energy"},
+            strides=strides,
+            chunk_size=_chunked(chunk_size, size),
+        )
+    return studies
+
+
+def fig11_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[Figure, dict[str, Any]]:
+    figure = Figure(figsize=(14, 4.5))
+    data: dict[str, Any] = {}
+    for axes, (name, values) in zip(figure.subplots(1, 3), FIG11_STUDIES.items(), strict=True):
+        study, rows = studies[name], tables[name]
+        energies = np.asarray(dict(study.grid)["energy0"])
+        shape = (len(values), energies.size, -1)
+        data[name] = []
+        for position, value in enumerate(values):
+            kbar = value if name == "kbar" else 36.0
+            zeta0 = value if name == "zeta0" else 0.08
+            params = study.params(kbar, zeta0)
+            y = units.height_to_bar(params, row_median(_column(rows, "y_fixed").reshape(shape)[position]))
+            xdot = units.speed_to_bar(
+                params, row_median(_column(rows, "xdot_fixed").reshape(shape)[position])
+            )
+            (line,) = axes.plot(xdot, y, lw=1.2, label=f"{name} = {value:g}")
+            finite = np.flatnonzero(np.isfinite(y))
+            reached = units.energy_to_bar(params, energies[finite])
+            if finite.size:
+                axes.plot(xdot[finite[[0, -1]]], y[finite[[0, -1]]], "o", color=line.get_color(), mfc="none")
+            data[name].append(
+                {
+                    "value": value,
+                    "Ebar": units.energy_to_bar(params, energies).tolist(),
+                    "ybar": y.tolist(),
+                    "xdotbar": xdot.tolist(),
+                    "reached_Ebar_range": [float(reached.min()), float(reached.max())]
+                    if finite.size
+                    else None,
+                }
+            )
+        axes.set(xlabel="xdotbar*", ylabel="ybar*", title=f"fixed points reached, varying {name}")
+        axes.legend(fontsize=7)
+    figure.suptitle(
+        "the goal regulator's exact plant: fixed points reached (median over the initial heights)"
+    )
+    return figure, data
+
+
+SWEEPS = {
+    "fig07": Sweep((17, 20), basins.OPEN_LOOP_STRIDES, fig07_studies, fig07_draw),
+    "fig10": Sweep((21, 20), basins.REGULATED_STRIDES, fig10_studies, fig10_draw),
+    "fig11": Sweep((57, 3), basins.REGULATED_STRIDES, fig11_studies, fig11_draw),
+}
+
+
+def _column(rows: pa.Table, name: str) -> np.ndarray:
+    return np.asarray(rows[name].to_numpy(zero_copy_only=False))
+
+
+def _outcomes(rows: pa.Table, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Outcome indices (basins.OUTCOMES) and convergence strides in the grid's shape."""
+    outcome = pc.index_in(rows["outcome"], value_set=pa.array(basins.OUTCOMES)).to_numpy()
+    return outcome.reshape(shape), _column(rows, "convergence_stride").reshape(shape)
+
+
+def outcome_counts(rows: pa.Table) -> dict[str, int]:
+    counts = dict.fromkeys(basins.OUTCOMES, 0)
+    for entry in rows.group_by("outcome").aggregate([("outcome", "count")]).to_pylist():
+        counts[entry["outcome"]] = entry["outcome_count"]
+    return counts
+
+
+def grid_size(text: str) -> tuple[int, int]:
+    """``AxB`` as two positive ints (argparse type)."""
+    parts = text.lower().split("x")
+    try:
+        sizes = tuple(int(part) for part in parts)
+    except ValueError:
+        sizes = ()
+    if len(sizes) != 2 or min(sizes) < 1:
+        raise argparse.ArgumentTypeError(f"expected two positive counts like 1000x1000, got {text!r}")
+    return sizes[0], sizes[1]
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="tdslip sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("sweep", choices=list(SWEEPS), help="which figure's sweep")
+    parser.add_argument("--out", type=Path, required=True, help="directory for the table, figure and summary")
+    parser.add_argument("--grid", type=grid_size, help="resolution AxB (see above)")
+    parser.add_argument("--strides", type=engine.positive_int, help="strides per trajectory")
+    parser.add_argument(
+        "--chunk-size", type=engine.positive_int, help="trajectories per chunk (default: from the size)"
+    )
+    engine.add_arguments(parser)
+    args = parser.parse_args(argv)
+    sweep = SWEEPS[args.sweep]
+    try:
+        studies = sweep.studies(args.grid or sweep.grid, args.strides or sweep.strides, args.chunk_size)
+        output_directory(args.out)
+        tables = engine.run_studies(
+            studies, args.out, engine.where_of(args), args.resume, f"sweep {args.sweep}"
+        )
+        figure, data = sweep.draw(studies, tables)
+        figure.tight_layout()
+        figure.savefig(args.out / f"{args.sweep}.png", dpi=DPI)
+        summary = {
+            "sweep": args.sweep,
+            "grid": list(args.grid or sweep.grid),
+            "studies": {
+                name or args.sweep: {
+                    "directory": str(args.out / name),
+                    "trajectories": study.size,
+                    "strides": study.strides,
+                    "outcome_counts": outcome_counts(tables[name]),
+                }
+                for name, study in studies.items()
+            },
+            **data,
+        }
+        (args.out / "summary.json").write_text(to_json(summary))
+    except (StudyError, OutputError, table.StudyDirectoryError, engine.EngineError) as error:
+        print(f"tdslip sweep: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:
+        print(f"tdslip sweep: {write_failed(error)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(
+            f"\ntdslip sweep: interrupted; the chunks written stay in {args.out}: --resume completes it",
+            file=sys.stderr,
+        )
+        return 130
+    print(
+        f"tdslip sweep: {args.out / (args.sweep + '.png')}, {args.out / 'summary.json'}, tables in {args.out}"
+    )
+    return 0

@@ -1,0 +1,114 @@
+"""``tdslip robustness``: the operating point, the studies it builds, and the command end to end.
+
+Truth used: the exact map (the operating point is a fixed point of energy regulation on the exact plant,
+and open loop applies the very same command there), the tables the command wrote, counted by hand.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from tdslip_ros import cli
+from tdslip_ros.model import units
+from tdslip_ros.model.controllers import PolicySpec
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.studies import robustness
+from tdslip_ros.studies.design import DEFAULTS
+
+PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+BETA = math.radians(26.0)
+
+
+@pytest.fixture(scope="module")
+def point() -> robustness.OperatingPoint:
+    return robustness.operating_point(PARAMS, BETA, units.energy_from_bar(PARAMS, 3.5))
+
+
+def _spec(name: str, point: robustness.OperatingPoint) -> PolicySpec:
+    values = {key: DEFAULTS[key] for key in PolicySpec.settings() if key in DEFAULTS}
+    return PolicySpec(name=name, corrections=1, **values | point.settings)
+
+
+def test_every_policy_holds_the_operating_point_on_flat_ground(point: robustness.OperatingPoint) -> None:
+    apex = ApexState(point.y, point.xdot)
+    # Planned on the analytic map, energy regulation holds the exact plant within 1 % of its goal.
+    assert apex.energy(PARAMS) == pytest.approx(units.energy_from_bar(PARAMS, 3.5), rel=1e-2)
+    energy = _spec("energy", point).commands(PARAMS, apex.y, apex.xdot, apex.xdot)
+    after = apex_return_map(PARAMS, apex, energy.command(), rtol=1e-12, atol=1e-12).apex
+    assert after is not None
+    assert units.height_to_bar(PARAMS, abs(after.y - apex.y)) < 1e-4  # the basins' convergence tolerance
+    assert units.speed_to_bar(PARAMS, abs(after.xdot - apex.xdot)) < 1e-4
+    # Open loop applies energy regulation's hip power at touchdown: the same command there.
+    open_loop = _spec("open_loop", point).commands(PARAMS, apex.y, apex.xdot, apex.xdot)
+    np.testing.assert_allclose(list(open_loop), list(energy), rtol=1e-9)
+    # deadbeat and pd aim at the operating point itself.
+    assert (point.settings["target_height"], point.settings["target_speed"]) == (point.y, point.xdot)
+
+
+def test_each_kind_is_a_grid_of_policy_and_size_with_its_own_draws(point: robustness.OperatingPoint) -> None:
+    made = robustness.studies(["noise", "step"], ["energy", "pd"], point, PARAMS, 3, 20, 4, "stiffness")
+    noise, step = made["noise"], made["step"]
+    sizes = robustness.KINDS["noise"].sizes
+    assert noise.size == 2 * len(sizes) * 3 and noise.hold_commands and noise.seed == 4
+    lanes = noise.lanes(0, noise.size)
+    np.testing.assert_allclose(lanes["noise_height"][::3][: len(sizes)], np.array(sizes) * PARAMS.r0)
+    speed = lanes["noise_speed"][::3][: len(sizes)]
+    np.testing.assert_allclose(speed, np.array(sizes) * math.sqrt(PARAMS.g * PARAMS.r0))
+    lanes = step.lanes(0, step.size)
+    np.testing.assert_array_equal(
+        lanes["step_height"][::3][: len(robustness.KINDS["step"].sizes)],
+        -np.array(robustness.KINDS["step"].sizes),
+    )
+    assert len(set(lanes["step_x"])) == step.size and np.all(
+        (lanes["step_x"] >= 1.0) & (lanes["step_x"] <= 4.0)
+    )
+    assert set(lanes["y0"]) == {point.y} and set(lanes["xdot0"]) == {point.xdot}
+
+
+def test_the_command_writes_survival_figures_and_tables(tmp_path: Path) -> None:
+    out = tmp_path / "robustness"
+    command = ["robustness", "--out", str(out), "--samples", "2", "--strides", "10", "--workers", "2"]
+    assert cli.main([*command, "--kinds", "terrain", "mismatch", "--policies", "energy", "pd"]) == 0
+    for name in ("robustness", "strides", "spread", "failures"):
+        assert (out / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with (out / "summary.csv").open() as stream:
+        summary = list(csv.DictReader(stream))
+    sizes = {kind: robustness.KINDS[kind].sizes for kind in ("terrain", "mismatch")}
+    assert len(summary) == 2 * (len(sizes["terrain"]) + len(sizes["mismatch"]))
+    # Every summary row from the trajectories' table, counted here.
+    for kind, axis, scale in (("terrain", "terrain_sigma", 100.0), ("mismatch", "mismatch_stiffness", 1.0)):
+        rows = pq.read_table(out / kind / "table").to_pylist()
+        assert len(rows) == 2 * len(sizes[kind]) * 2
+        for entry in (r for r in summary if r["kind"] == kind):
+            cell = [
+                r
+                for r in rows
+                if r["policy"] == entry["policy"] and r[axis] * scale == pytest.approx(float(entry["size"]))
+            ]
+            assert len(cell) == 2
+            assert float(entry["surviving"]) == np.mean([r["strides_survived"] == 10 for r in cell])
+            failures = [r["outcome"] for r in cell if r["strides_survived"] < 10]
+            counted = {name: int(entry[name]) for name in robustness.FAILURES if int(entry[name])}
+            assert counted == {name: failures.count(name) for name in set(failures)}
+    document = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)
+    assert document["sizes_survived"]["terrain"]["pd"]["all"][0] == 0.0
+    assert document["operating_point"]["touchdown_angle"] == pytest.approx(BETA)
+    table = (out / "robustness.md").read_text()
+    assert table.count("\n| terrain |") == 2 and "| mismatch | energy |" in table
+
+
+def test_a_bad_operating_point_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["robustness", "--out", str(tmp_path / "a"), "--touchdown-angle", "95"]) == 1
+    assert capsys.readouterr().err == "tdslip robustness: --touchdown-angle must be in (0, 90) deg, got 95\n"
+    assert cli.main(["robustness", "--out", str(tmp_path / "b"), "--energy", "0.5"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip robustness: energy regulation at 26 deg does not settle at Ebar = 0.5")
+    assert len(error.splitlines()) == 1

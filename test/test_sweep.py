@@ -1,0 +1,92 @@
+"""``tdslip sweep``: the studies it builds, and the command end to end on a small grid.
+
+Truth used: the figures' own grids and fixed points (fig. 7's E*(y0) start, fig. 10's goal regulator),
+the table the command wrote, and the resume rules of the study directory.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from tdslip_ros import cli
+from tdslip_ros.analysis import figures
+from tdslip_ros.model import basins, stability, units
+from tdslip_ros.studies import engine, sweep
+
+PARAMS = figures.PARAMS
+
+
+def test_the_sweeps_are_the_figures_grids_at_any_resolution() -> None:
+    fig10 = sweep.fig10_studies((1000, 1000), 50, None)[""]
+    assert (fig10.size, fig10.chunk_size, fig10.chunks) == (1_000_000, 1000, 1000)
+    lanes = fig10.lanes(999_999, 1_000_000)
+    assert lanes["energy0"][0] == pytest.approx(units.energy_from_bar(PARAMS, 6.0))
+    assert lanes["y0"][0] == pytest.approx(2.4) and lanes["target_energy"][0] == lanes["energy0"][0]
+    fig07 = sweep.fig07_studies((3, 2), 150, None)[""]
+    lanes = fig07.lanes(0, fig07.size)
+    assert list(lanes["policy"]) == ["open_loop"] * 6
+    alpha = units.power_to_alpha(PARAMS, lanes["touchdown_power"])
+    np.testing.assert_allclose(alpha, [0.5, 0.5, 1.5, 1.5, 2.5, 2.5])
+    energy = stability.energy_fixed_point(PARAMS, math.radians(26.0), alpha, lanes["y0"])
+    np.testing.assert_array_equal(lanes["energy0"], energy)
+    fig11 = sweep.fig11_studies((4, 2), 50, None)
+    assert sorted(fig11) == ["beta_deg", "kbar", "zeta0"]
+    assert fig11["kbar"].hoppers() == [(k, 0.08) for k in figures.FIG11_STUDIES["kbar"]]
+    assert fig11["beta_deg"].size == 6 * 4 * 2
+
+
+def test_the_command_writes_the_table_figure_and_summary_and_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "fig10"
+    command = ["sweep", "fig10", "--out", str(out), "--grid", "4x5", "--strides", "20", "--workers", "2"]
+    assert cli.main(command) == 0
+    rows = pq.read_table(out / "table").sort_by("trajectory")
+    assert rows.num_rows == 20 and rows["trajectory"].to_pylist() == list(range(20))
+    summary = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)
+    counts = summary["studies"]["fig10"]["outcome_counts"]
+    assert counts == {name: rows["outcome"].to_pylist().count(name) for name in basins.OUTCOMES}
+    assert counts["converged"] > 0
+    assert (out / "fig10.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    parts = {path: path.stat().st_mtime_ns for path in (out / "table").iterdir()}
+    assert cli.main(command) == 1  # the directory holds this study: --resume, or another --out
+    assert cli.main([*command, "--resume"]) == 0  # nothing left to compute: the parts stay as they were
+    assert {path: path.stat().st_mtime_ns for path in (out / "table").iterdir()} == parts
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["fig10", "--grid", "10"], "expected two positive counts like 1000x1000, got '10'"),
+        (["fig10", "--grid", "0x3"], "expected two positive counts"),
+        (["fig12"], "invalid choice: 'fig12'"),
+        (["fig10", "--scheduler", "tcp://127.0.0.1:9", "--workers", "2"], "not allowed with argument"),
+        (["fig10", "--workers", "0"], "expected a positive integer, got '0'"),
+    ],
+)
+def test_bad_options_are_usage_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], arguments: list[str], message: str
+) -> None:
+    with pytest.raises(SystemExit) as raised:
+        cli.main(["sweep", *arguments, "--out", str(tmp_path / "out")])
+    assert raised.value.code == 2
+    assert message in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_errors_of_the_run_end_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(engine, "CONNECT_TIMEOUT", 2.0)
+    command = ["sweep", "fig10", "--grid", "2x2"]
+    assert cli.main([*command, "--out", str(tmp_path / "a"), "--scheduler", "tcp://127.0.0.1:9"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip sweep: cannot reach the Dask scheduler at tcp://127.0.0.1:9")
+    assert len(error.splitlines()) == 1
+    (tmp_path / "b").write_text("a file where the directory should go")
+    assert cli.main([*command, "--out", str(tmp_path / "b")]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip sweep: --out ") and error.endswith("exists and is not a directory\n")
