@@ -669,8 +669,8 @@ def _pd_lanes(
     previous_xdot: Array,
     target_y: Array,
     target_xdot: Array,
-    kp: float,
-    kd: float,
+    kp: Array,
+    kd: Array,
     corrections: int,
     liftoff: int,
     out: Array,
@@ -678,7 +678,7 @@ def _pd_lanes(
     for i in range(y.size):
         m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
         angle = neutral_angle_of(m, k, r0, xdot[i])
-        angle = angle + kp * (xdot[i] - target_xdot[i]) + kd * (xdot[i] - previous_xdot[i])
+        angle = angle + kp[i] * (xdot[i] - target_xdot[i]) + kd[i] * (xdot[i] - previous_xdot[i])
         lower, upper = lane_admissible_angles(r0, g, y[i])
         angle = clip(angle, lower, upper) if lower < upper else np.nan  # NaN: no angle places the leg
         apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle, liftoff)
@@ -997,8 +997,8 @@ def pd_speed_energy_height(
     previous_xdot: ArrayLike,
     target_y: ArrayLike,
     target_xdot: ArrayLike,
-    kp: float = 0.06,
-    kd: float = 0.03,
+    kp: ArrayLike = 0.06,
+    kd: ArrayLike = 0.03,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
 ) -> CommandArrays:
@@ -1008,7 +1008,8 @@ def pd_speed_energy_height(
 
           theta_td = theta_n(xdot) + kp (xdot - xdot*) + kd (xdot - xdot_prev)
 
-      with theta_n from :func:`neutral_angle`, gains in rad/(m/s), clipped into :func:`admissible_angles`.
+      with theta_n from :func:`neutral_angle`, gains in rad/(m/s) (scalars, or one per lane), clipped into
+      :func:`admissible_angles`.
       Running too fast places the foot further ahead, which brakes. ``previous_xdot`` is the speed at the
       previous apex (pass ``xdot`` on the first stride).
     * Height, through the energy: tau0 from the analytic map so that the next apex has the energy of the
@@ -1019,9 +1020,9 @@ def pd_speed_energy_height(
     check_corrections(corrections)
     code = liftoff_code(liftoff)
     params = ParamArrays.of(params)
-    lanes = Lanes.of(params, y, xdot, previous_xdot, target_y, target_xdot)
+    lanes = Lanes.of(params, y, xdot, previous_xdot, target_y, target_xdot, kp, kd)
     block = lanes.rows(COMMAND_ROWS)
-    lanes.run(_pd_lanes, kp, kd, corrections, code, block)
+    lanes.run(_pd_lanes, corrections, code, block)
     return _commands(lanes, block)
 
 
