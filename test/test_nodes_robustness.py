@@ -84,6 +84,52 @@ def test_a_controller_that_falls_silent_in_realtime_ends_the_run(ros: RosGraph) 
     assert plant.outcome.stride - silent_from in (limit - 1, limit)
 
 
+def test_answers_that_arrive_after_their_touchdown_are_counted_late_and_never_applied(ros: RosGraph) -> None:
+    """A controller too slow for its window: each answer arrives at the touchdown it was for. The plant
+    holds the command in force, refuses the answer with its reason, and counts it late."""
+    plant = ros.add(
+        PlantNode(
+            context=ros.context,
+            parameter_overrides=overrides(max_strides=0, clock_mode="realtime", max_stale_strides=0),
+        )
+    )
+    slow = ros.node("slow_controller")
+    publisher = slow.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
+    latest: list[ApexEvent] = []
+    sent: list[int] = []
+
+    def answer_at_touchdown(contact: ContactEvent) -> None:
+        apex = latest[-1] if latest else None
+        if contact.kind != ContactEvent.TOUCHDOWN or apex is None or apex.stride != contact.stride:
+            return
+        command = energy_policy(apex.height, apex.forward_speed)
+        publisher.publish(
+            StanceCommand(
+                epoch=apex.epoch,
+                stride=apex.stride,
+                touchdown_angle=command.touchdown_angle,
+                tau0=command.tau0,
+                t_f=command.t_f,
+                policy="slow",
+            )
+        )
+        sent.append(apex.stride)
+
+    slow.create_subscription(ApexEvent, topics.APEX, latest.append, topics.STREAM_QOS)
+    slow.create_subscription(ContactEvent, topics.CONTACT, answer_at_touchdown, topics.STREAM_QOS)
+    statuses = ros.collect(Status, topics.STATUS)
+
+    def refusals() -> list[str]:
+        return [s.reason for s in statuses if s.kind == Status.KIND_COMMAND_REJECTED]
+
+    ros.spin_until(lambda: len(refusals()) >= 3, "three refused answers")
+    assert all("arrived after the touchdown" in reason for reason in refusals())
+    assert plant.late_commands >= len(refusals())
+    assert plant.late_commands in (len(sent), len(sent) - 1)  # the latest may still be on its way
+    assert plant.command_latencies_ns == []  # none was applied
+    assert plant.outcome is None  # the command in force held: the hopper runs on
+
+
 @pytest.mark.parametrize(
     ("height", "speed", "named"),
     [

@@ -375,6 +375,8 @@ class PlantNode(Node):
         self.rejections = RejectionLog()
         self.command_latencies_ns: list[int] = []
         """Wall time from each apex's publication to the valid command answering it."""
+        self.late_commands = 0
+        """Realtime: answers that arrived after the touchdown of their stride (never applied)."""
         self.tick_timing = None if self.lockstep else TickTiming(round(TICK_PERIOD * _NS_PER_S))
         self.recorders = RecorderProgress()
         self.outcome: RunOutcome | None = None
@@ -588,6 +590,7 @@ class PlantNode(Node):
         self._offset = time_offset_ticks * TICK_PERIOD
         self._awaiting: int | None = None
         self._answered = -1  # the latest stride whose command was applied
+        self._touched_down = -1  # the latest stride whose stance began (its command is then too late)
         self._stale_strides = 0  # realtime: strides in a row that no valid command answered
         self._apex_wall_ns = time.monotonic_ns()
 
@@ -714,6 +717,8 @@ class PlantNode(Node):
                 self._finish(event.failure.value, event.reason, self._offset + event.t)
                 return True
             else:
+                if event.kind is EventKind.TOUCHDOWN:
+                    self._touched_down = event.stride
                 self._publish_contact(event)
         state = self._stepper.state
         self._publish_sample(state)
@@ -778,6 +783,8 @@ class PlantNode(Node):
                 )
             else:
                 self.rejections.total += 1  # a late answer: counted, not reported
+                if key[0] == self._epoch and key[1] > self._answered:
+                    self.late_commands += 1  # its stride never had a command: it missed the touchdown
             return
         msg = deserialize_message(data, StanceCommand)
         with self._lock:
@@ -829,7 +836,8 @@ class PlantNode(Node):
             raise ParameterError(f"it answers stride {msg.stride}, but the latest apex is stride {stride}")
         if self.lockstep and self._awaiting != stride:
             raise ParameterError(f"stride {stride} already has its command (lockstep)")
-        if self._stepper.state.phase is Phase.STANCE:
+        if self._touched_down == stride:  # in its stance, or in the flight after it
+            self.late_commands += 1
             raise ParameterError(f"it arrived after the touchdown of stride {stride}")
         command = ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f)
         self.limits.check_command(command)

@@ -142,6 +142,8 @@ class RunReport:
     """What the controller process printed: why it could not answer an apex, if it could not."""
     saturated_strides: int = 0
     """Touchdowns at which the commanded |tau0| exceeded tau_max (the hip saturated)."""
+    late_commands: int = 0
+    """Realtime: commands that arrived after the touchdown of their stride (the previous command held)."""
     problems: list[str] = field(default_factory=list)
 
     @property
@@ -463,6 +465,7 @@ def run(
             bag=bag,
             controller_log=controller.output(),
             saturated_strides=plant.saturated_strides,
+            late_commands=plant.late_commands,
             problems=problems,
         )
     return report
@@ -686,6 +689,8 @@ def main(argv: list[str]) -> int:
     print(options.perturbations.summary())
     if options.perturbations.saturates:
         print(f"the hip saturated in {report.saturated_strides} stride(s)")
+    if report.late_commands:
+        print(f"{report.late_commands} command(s) arrived after their touchdown; the previous command held")
     print(
         f"{options.mode} run, policy {options.policy}: {outcome.stride} strides, "
         f"{outcome.sim_time:.3f} s simulated in {outcome.wall_time:.3f} s wall ({speed_up:.2f}x)"
