@@ -611,6 +611,11 @@ class PlantNode(Node):
         if self.tick_timing is not None:
             self.tick_timing.close_window()
             self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
+            if self.late_commands:
+                self.get_logger().warning(
+                    f"realtime: {self.late_commands} command(s) arrived after their touchdown (the command in "
+                    "force held)"
+                )
         if self.perturbations.saturates:
             self.get_logger().info(f"the hip saturated in {self._stepper.saturated_strides} stride(s)")
         if kind == Status.KIND_RUN_COMPLETE:
