@@ -613,8 +613,8 @@ class PlantNode(Node):
             self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
             if self.late_commands:
                 self.get_logger().warning(
-                    f"realtime: {self.late_commands} command(s) arrived after their touchdown (the command in "
-                    "force held)"
+                    f"realtime: {self.late_commands} command(s) arrived after their touchdown (the command "
+                    "in force held)"
                 )
         if self.perturbations.saturates:
             self.get_logger().info(f"the hip saturated in {self._stepper.saturated_strides} stride(s)")
