@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,12 +49,13 @@ import numpy as np
 import pyarrow as pa
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
+from tdslip_ros.analysis.report import output_directory, to_json
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.controllers import POLICIES, PolicySpec
 from tdslip_ros.model.events import FAILURE_KINDS
-from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.studies import chunk, engine, table
+from tdslip_ros.model.params import HopperParams
+from tdslip_ros.studies import chunk, engine
+from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
 
@@ -345,7 +345,8 @@ def main(argv: list[str]) -> int:
     engine.add_arguments(parser)
     args = parser.parse_args(argv)
     kinds, policies = list(dict.fromkeys(args.kinds)), list(dict.fromkeys(args.policies))
-    try:
+
+    def produce() -> None:
         params = HopperParams.from_dimensionless(36.0, 0.08)
         if not 0.0 < args.touchdown_angle < 90.0:
             raise StudyError(f"--touchdown-angle must be in (0, 90) deg, got {args.touchdown_angle:g}")
@@ -406,17 +407,9 @@ def main(argv: list[str]) -> int:
             "rows": summary,
         }
         (args.out / "summary.json").write_text(to_json(document))
-    except (StudyError, ParameterError, OutputError, table.StudyDirectoryError, engine.EngineError) as error:
-        print(f"tdslip robustness: {error}", file=sys.stderr)
-        return 1
-    except OSError as error:
-        print(f"tdslip robustness: {write_failed(error)}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(
-            f"\ntdslip robustness: interrupted; the chunks written stay in {args.out}: --resume completes it",
-            file=sys.stderr,
-        )
-        return 130
+
+    status = run_study_command("robustness", args.out, produce)
+    if status:
+        return status
     print((args.out / "robustness.md").read_text(), end="")
     return 0

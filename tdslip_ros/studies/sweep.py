@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,10 +49,11 @@ from tdslip_ros.analysis.figures import (
     basin_colours,
     row_median,
 )
-from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
+from tdslip_ros.analysis.report import output_directory, to_json
 from tdslip_ros.model import basins, stability, units
-from tdslip_ros.studies import engine, table
-from tdslip_ros.studies.design import Study, StudyError
+from tdslip_ros.studies import engine
+from tdslip_ros.studies.command import run_study_command
+from tdslip_ros.studies.design import Study
 
 BETA_DEG = 26.0
 
@@ -106,17 +106,7 @@ def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     heights = np.asarray(dict(study.grid)["y0"])
     shape = (alphas.size, heights.size)
     outcome, stride = _outcomes(rows, shape)
-    figure = Figure(figsize=(10, 5))
-    axes = figure.subplots()
-    axes.pcolormesh(
-        alphas,
-        units.height_to_bar(PARAMS, heights),
-        basin_colours(outcome, stride, study.strides).T,
-        cmap=basin_colour_map(study.strides),
-        vmin=0,
-        vmax=study.strides + 1,
-        shading="nearest",
-    )
+    figure, axes = _basin_figure(alphas, heights, outcome, stride, study.strides)
     y_fixed = _column(rows, "y_fixed").reshape(shape)
     fixed = units.height_to_bar(PARAMS, row_median(y_fixed))
     axes.plot(alphas, fixed, ".", color=EXACT, label="fixed point reached (median)")
@@ -158,17 +148,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     shape = (energies.size, heights.size)
     outcome, stride = _outcomes(rows, shape)
     energies_bar = units.energy_to_bar(PARAMS, energies)
-    figure = Figure(figsize=(10, 5))
-    axes = figure.subplots()
-    axes.pcolormesh(
-        energies_bar,
-        units.height_to_bar(PARAMS, heights),
-        basin_colours(outcome, stride, study.strides).T,
-        cmap=basin_colour_map(study.strides),
-        vmin=0,
-        vmax=study.strides + 1,
-        shading="nearest",
-    )
+    figure, axes = _basin_figure(energies_bar, heights, outcome, stride, study.strides)
     fixed = units.height_to_bar(PARAMS, row_median(_column(rows, "y_fixed").reshape(shape)))
     axes.plot(energies_bar, fixed, "-", color=EXACT, lw=2, label="exact plant, fixed point reached (median)")
     fine = np.linspace(energies_bar[0], energies_bar[-1], 4 * energies_bar.size)
@@ -263,6 +243,24 @@ SWEEPS = {
 }
 
 
+def _basin_figure(
+    x: np.ndarray, heights: np.ndarray, outcome: np.ndarray, stride: np.ndarray, strides: int
+) -> tuple[Figure, Any]:
+    """A figure whose axes show a basin over (x, dimensionless height), coloured by outcome and stride."""
+    figure = Figure(figsize=(10, 5))
+    axes = figure.subplots()
+    axes.pcolormesh(
+        x,
+        units.height_to_bar(PARAMS, heights),
+        basin_colours(outcome, stride, strides).T,
+        cmap=basin_colour_map(strides),
+        vmin=0,
+        vmax=strides + 1,
+        shading="nearest",
+    )
+    return figure, axes
+
+
 def _column(rows: pa.Table, name: str) -> np.ndarray:
     return np.asarray(rows[name].to_numpy(zero_copy_only=False))
 
@@ -306,7 +304,8 @@ def main(argv: list[str]) -> int:
     engine.add_arguments(parser)
     args = parser.parse_args(argv)
     sweep = SWEEPS[args.sweep]
-    try:
+
+    def produce() -> None:
         studies = sweep.studies(args.grid or sweep.grid, args.strides or sweep.strides, args.chunk_size)
         output_directory(args.out)
         tables = engine.run_studies(
@@ -330,18 +329,10 @@ def main(argv: list[str]) -> int:
             **data,
         }
         (args.out / "summary.json").write_text(to_json(summary))
-    except (StudyError, OutputError, table.StudyDirectoryError, engine.EngineError) as error:
-        print(f"tdslip sweep: {error}", file=sys.stderr)
-        return 1
-    except OSError as error:
-        print(f"tdslip sweep: {write_failed(error)}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(
-            f"\ntdslip sweep: interrupted; the chunks written stay in {args.out}: --resume completes it",
-            file=sys.stderr,
-        )
-        return 130
+
+    status = run_study_command("sweep", args.out, produce)
+    if status:
+        return status
     print(
         f"tdslip sweep: {args.out / (args.sweep + '.png')}, {args.out / 'summary.json'}, tables in {args.out}"
     )
