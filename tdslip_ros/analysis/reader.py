@@ -448,33 +448,21 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
         message_counts={topic: info.message_count for topic, info in bag.topics.items()},
         custom_data=bag.custom_data,
         perturbations=perturbations,
-        controller_params=_stored_controller_params(recording),
+        controller_params=_stored_params(recording, "controller"),
     )
 
 
-def _stored_params(recording: Recording) -> HopperParams | None:
-    """The plant's hopper parameters from the custom_data ``tdslip run`` writes (None if absent)."""
-    values = stored_parameters(recording.bag.custom_data, "plant")
+def _stored_params(recording: Recording, node: str = "plant") -> HopperParams | None:
+    """The hopper parameters of ``node`` (the plant's, or the controller's: what it planned with) from the
+    custom_data ``tdslip run`` writes (None if absent)."""
+    values = stored_parameters(recording.bag.custom_data, node)
     if not all(name in values for name in HOPPER_PARAMETERS.values()):
         return None
     try:
         return hopper_from_parameters(values)
     except (ValueError, ParameterError) as error:
         raise RunReadError(
-            f"{recording.bag.mcap_path}: stored hopper parameters are invalid ({error})"
-        ) from None
-
-
-def _stored_controller_params(recording: Recording) -> HopperParams | None:
-    """The hopper the controller planned with, from the custom_data ``tdslip run`` writes (None if absent)."""
-    values = stored_parameters(recording.bag.custom_data, "controller")
-    if not all(name in values for name in HOPPER_PARAMETERS.values()):
-        return None
-    try:
-        return hopper_from_parameters(values)
-    except (ValueError, ParameterError) as error:
-        raise RunReadError(
-            f"{recording.bag.mcap_path}: stored controller hopper parameters are invalid ({error})"
+            f"{recording.bag.mcap_path}: stored {node} hopper parameters are invalid ({error})"
         ) from None
 
 
