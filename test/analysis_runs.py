@@ -2,7 +2,8 @@
 
 Each named run is recorded once per test process (``tdslip run``'s :func:`~tdslip_ros.nodes.runner.run`,
 a few seconds) under pytest's session temporary directory and shared by every test module. The helpers
-below derive damaged or reduced copies of a recording for the error tests.
+below derive damaged or reduced copies of a recording for the error tests, and copies as a
+controller of the user's own would leave them.
 """
 
 from __future__ import annotations
@@ -15,10 +16,15 @@ from typing import Any
 
 import pytest
 from mcap.reader import make_reader
+from rclpy.serialization import deserialize_message, serialize_message
+from tdslip_msgs.msg import StanceCommand
 
 from tdslip_ros.bag import RosbagMcapWriter
+from tdslip_ros.bag.reader import mcap_file, open_bag
+from tdslip_ros.interfaces import custom_data_key, resolve
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
 from tdslip_ros.model.terrain import Blocks, Step
+from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunOptions, RunReport, run
 
 RUNS: dict[str, dict[str, Any]] = {
@@ -102,3 +108,20 @@ def rewrite(
             counts[topic] = index + 1
             writer.write(topic, change(topic, index, data), log_time, publish_time)
     return target
+
+
+def as_if_from_ones_own_controller(report: RunReport, target: Path) -> Path:
+    """A copy of a recording as a controller of the user's own leaves it: the commands carry a policy
+    name the package does not know, and no controller parameters are stored."""
+
+    def rename(topic: str, index: int, data: bytes) -> bytes:
+        if topic != resolve(topics.COMMAND):
+            return data
+        command = deserialize_message(data, StanceCommand)
+        command.policy = "my_controller"
+        return bytes(serialize_message(command))
+
+    stored = open_bag(report.bag).custom_data
+    controller = custom_data_key("controller", "")
+    kept = {key: value for key, value in stored.items() if not key.startswith(controller)}
+    return rewrite(mcap_file(report.bag), target, change=rename, custom_data=kept)

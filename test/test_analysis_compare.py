@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import math
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import recorded_run
+from analysis_runs import as_if_from_ones_own_controller, recorded_run
 
 from tdslip_ros.analysis.compare import (
+    PolicyError,
     PolicySpec,
     analytic_fixed_point,
     compare_run,
@@ -153,6 +155,38 @@ def test_energy_exact_holds_the_1khz_plant_at_its_target_energy(
     assert len(energies) == 7
     np.testing.assert_allclose(energies, policy.target_energy, rtol=1e-10)
     assert compare_run(run, policy).policy_reproduced
+
+
+def test_a_run_of_an_unknown_policy_is_analysed_without_replaying_it(
+    energy: RunReport, run: Run, tmp_path: Path
+) -> None:
+    own = read_run(as_if_from_ones_own_controller(energy, tmp_path / "own.mcap"), energy.params)
+    assert own.policies == ("my_controller",) and own.custom_data
+    assert policy_for_run(own) is None
+    comparison, known = compare_run(own), compare_run(run)
+    # What needs the policy is skipped ...
+    assert comparison.policy is None and comparison.policy_name == "my_controller"
+    assert comparison.command_deviation is None and not comparison.policy_reproduced
+    assert comparison.analytic_fixed_point is None
+    # ... the rest needs only the recorded apexes and applied commands: the same as the known policy's
+    # analysis of the same strides (checked against the model above), to the plant's accuracy.
+    predictions = comparison.predictions
+    np.testing.assert_array_equal(predictions.stride, known.predictions.stride)
+    np.testing.assert_array_equal(predictions.recorded, known.predictions.recorded)
+    np.testing.assert_array_equal(predictions.exact, known.predictions.exact)
+    for corrections in (0, 1):
+        np.testing.assert_array_equal(
+            predictions.analytic[corrections], known.predictions.analytic[corrections]
+        )
+        assert comparison.errors[corrections] == known.errors[corrections]
+    assert comparison.exact_errors.max_height < 1e-9 and comparison.exact_errors.max_speed < 1e-9
+    assert comparison.converged_at == known.converged_at is not None
+    assert comparison.recorded_fixed_point == known.recorded_fixed_point
+    # Naming a known policy compares with it as before, its settings from the recording and the defaults.
+    named = compare_run(own, policy_for_run(own, name="energy"))
+    assert named.policy_reproduced and named.analytic_fixed_point == known.analytic_fixed_point
+    with pytest.raises(PolicyError, match="unknown policy 'my_controller'"):
+        policy_for_run(own, name="my_controller")
 
 
 def test_a_converged_run_has_its_fixed_point_near_the_analytic_one(run: Run) -> None:

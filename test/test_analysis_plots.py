@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -83,6 +84,23 @@ def test_return_map_cobweb(comparison: Comparison, tmp_path: Path) -> None:
     assert fixed is not None
     ybar = fixed.y / comparison.run.params.r0
     assert np.interp(ybar, curve_x, curve_y) == pytest.approx(ybar, abs=1e-6)
+
+
+def test_without_a_policy_the_figures_draw_what_the_recording_shows(
+    comparison: Comparison, tmp_path: Path
+) -> None:
+    """A run of a controller of the user's own: no closed-loop curve, fixed point or target to draw."""
+    unknown = dataclasses.replace(comparison, policy=None, command_deviation=None, analytic_fixed_point=None)
+    sequence = plots.apex_sequence(unknown, tmp_path / "apex.png")
+    _saved(tmp_path / "apex.png")
+    labels = {line.get_label() for line in sequence.axes[0].get_lines()}
+    assert "recorded" in labels and "analytic map, 1 correction" in labels
+    assert not labels & {"analytic fixed point", "target"}
+    assert sequence.axes[0].get_title().endswith(f"({', '.join(comparison.run.policies)})")
+    cobweb = plots.return_map(unknown, tmp_path / "map.png")
+    _saved(tmp_path / "map.png")
+    labels = {line.get_label() for line in cobweb.axes[0].get_lines()}
+    assert "recorded (cobweb)" in labels and not any(label.startswith("analytic map") for label in labels)
 
 
 def test_com_trajectory_draws_one_stride_with_its_virtual_footfalls(run: Run, tmp_path: Path) -> None:

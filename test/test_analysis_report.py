@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from analysis_runs import recorded_run, rewrite
+from analysis_runs import as_if_from_ones_own_controller, recorded_run, rewrite
 
 from tdslip_ros import cli
 from tdslip_ros.analysis.reader import RunReadError
@@ -106,6 +106,26 @@ def test_analyze_fails_cleanly(
         assert code == 0 and "does NOT reproduce the recorded commands" in captured.out
     else:
         assert code == 1 and captured.err.startswith("tdslip analyze: ") and expected in captured.err
+
+
+def test_analyze_a_run_of_ones_own_controller_and_name_a_policy_to_compare_with(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = as_if_from_ones_own_controller(energy, tmp_path / "own.mcap")
+    assert main([str(path), "--out", str(tmp_path / "own")]) == 0
+    printed = capsys.readouterr().out
+    assert "policy not replayed: the recording shows policy my_controller" in printed
+    summary = _strict_json(tmp_path / "own" / "summary.json")
+    assert isinstance(summary, dict)
+    comparison = summary["comparison"]
+    assert comparison["policy"] is None and comparison["policy_reproduced"] is None
+    assert comparison["command_deviation"] is None and comparison["analytic_fixed_point"] is None
+    assert comparison["prediction_errors"]["exact_map"]["strides"] == len(energy.apexes) - 1
+    assert set(summary["figures"]) == set(FIGURES)
+    # The policy it was, named, is replayed as for the original recording (settings from the recording).
+    assert main([str(path), "--out", str(tmp_path / "named"), "--policy", "energy"]) == 0
+    printed = capsys.readouterr().out
+    assert "policy energy (" in printed and "replaying it reproduces the recorded commands" in printed
 
 
 def test_analyze_reports_a_failed_run(

@@ -9,6 +9,7 @@ deterministic, so a hopper must produce exactly the apexes of the model looped w
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -17,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from ament_index_python.packages import get_package_prefix
 from mcap.reader import make_reader
@@ -28,8 +30,12 @@ from rosgraph_msgs.msg import Clock
 from tdslip_msgs.msg import ApexEvent, HopperState, Status
 from test_nodes_lockstep import energy_policy, model_loop
 
+from tdslip_ros.analysis.compare import dimensionless
 from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.interfaces import resolve
+from tdslip_ros.model.analytic import approximate_return_map
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.params import ApexState, StanceCommand
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode
@@ -134,6 +140,42 @@ def test_a_controller_of_ones_own_with_default_qos_drives_the_plant_and_is_recor
             command.tau0,
         )
     assert read_run(bag).policies == ("my_controller",)
+    _analysed_without_its_policy(bag, tmp_path / "report", strides)
+
+
+def _analysed_without_its_policy(bag: Path, out: Path, strides: int) -> None:
+    """``tdslip analyze`` of a run whose policy it does not know: it says it skips the policy's replay,
+    and predicts each stride from the recorded apex and applied command as the model does."""
+    analyze = [executable("tdslip"), "analyze", str(bag), "--out", str(out)]
+    analysed = subprocess.run(analyze, capture_output=True, text=True, timeout=300)
+    assert analysed.returncode == 0, analysed.stderr
+    skipped = "policy not replayed: the recording shows policy my_controller, not one policy tdslip_ros knows"
+    assert skipped in analysed.stdout and skipped in (out / "report.md").read_text()
+    assert "--policy {" in analysed.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["comparison"]["policy"] is None and summary["comparison"]["analytic_fixed_point"] is None
+    params = read_run(bag).params
+    rows = summary["strides"]
+    assert [row["stride"] for row in rows] == list(range(strides + 1))
+    worst_exact = 0.0
+    for row, after in zip(rows[:-1], rows[1:], strict=True):
+        apex, command = ApexState(row["y"], row["xdot"]), StanceCommand(**row["command"])
+        predicted = row["next_apex_predicted"]
+        for corrections in (0, 1):
+            model, failure = approximate_return_map(params, apex, command, corrections)
+            assert failure is None and model is not None
+            np.testing.assert_allclose(
+                predicted[f"analytic_{corrections}_corrections"], (model.y, model.xdot), rtol=1e-9
+            )
+        exact = apex_return_map(params, apex, command).apex
+        assert exact is not None
+        np.testing.assert_allclose(predicted["exact_map"], (exact.y, exact.xdot), rtol=1e-10)
+        error = dimensionless(params, np.subtract(predicted["exact_map"], (after["y"], after["xdot"])))
+        worst_exact = max(worst_exact, float(np.max(np.abs(error))))
+    # The issue-2 accuracy target of the 1 kHz plant against the high-accuracy exact map.
+    assert worst_exact < 1e-9
+    errors = summary["comparison"]["prediction_errors"]
+    assert errors["exact_map"]["max_height"] < 1e-9 and errors["exact_map"]["strides"] == strides
 
 
 def frozen_subscriber(ros: RosGraph, log: Path) -> subprocess.Popen[bytes]:

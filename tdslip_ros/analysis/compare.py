@@ -35,6 +35,11 @@ regulation's target, for ``energy`` and ``energy_exact``, defaults to the initia
 ``tdslip run`` sets it).
 :func:`compare_run` then replays the policy on the recorded apexes and reports how closely it
 reproduces the recorded commands, so wrong settings are visible.
+
+A run driven by a controller of the user's own (a policy name this package does not know, or several)
+has no policy unless the caller names one: the per-stride predictions, the convergence and the recorded
+fixed point need only the recorded apexes and applied commands and are computed all the same; the replay
+and the analytic fixed point, which need the policy, are skipped (``Comparison.policy`` is None).
 """
 
 from __future__ import annotations
@@ -88,22 +93,25 @@ def controller_defaults() -> dict[str, Any]:
         raise PolicyError(f"the installed controller defaults are unreadable: {error!r}") from None
 
 
-def policy_for_run(run: Run, **overrides: Any) -> PolicySpec:
+def policy_for_run(run: Run, **overrides: Any) -> PolicySpec | None:
     """The policy settings of ``run``, each from the first of: ``overrides`` (None values ignored); the
     controller parameters ``tdslip run`` stored in the bag's custom_data; what the recording shows (the
     applied policy, the fixed touchdown angle of open_loop and energy, the initial apex energy as
-    energy regulation's target); the installed controller defaults."""
+    energy regulation's target); the installed controller defaults. None if no policy is named and the
+    recording shows none this package knows (a controller of the user's own; module docstring); a name
+    given that it does not know is a PolicyError."""
     given = {name: value for name, value in overrides.items() if value is not None}
     controller = stored_parameters(run.custom_data, "controller")
-    stored_name = controller.get("policy")
     stored = {key: value for key, value in controller.items() if key in PolicySpec.settings()}
-    policies = run.policies
-    if "name" not in given and stored_name is None and len(policies) != 1:
-        found = ", ".join(policies) if policies else "no applied command"
-        raise PolicyError(f"the run shows {found}; name the policy to compare with")
-    name = str(given.get("name", stored_name or policies[0]))
-    if name not in POLICIES:
-        raise PolicyError(f"unknown policy {name!r}; one of {', '.join(POLICIES)}")
+    if "name" in given:
+        name = str(given["name"])
+        if name not in POLICIES:
+            raise PolicyError(f"unknown policy {name!r}; one of {', '.join(POLICIES)}")
+    else:
+        policies = run.policies
+        name = str(controller.get("policy", policies[0] if len(policies) == 1 else ""))
+        if name not in POLICIES:
+            return None
     defaults = controller_defaults()
     values: dict[str, Any] = {key: defaults[key] for key in PolicySpec.settings()}
     first = run.strides[0]
@@ -171,25 +179,36 @@ class FixedPoint:
 @dataclass(frozen=True)
 class Comparison:
     run: Run
-    policy: PolicySpec
+    policy: PolicySpec | None
+    """The policy replayed and closed-loop analysed (None: the run's is unknown here, both skipped)."""
     predictions: Predictions
     errors: dict[int, ErrorStats]
     exact_errors: ErrorStats
-    command_deviation: float
-    """Largest relative deviation of the replayed policy's commands from the applied ones."""
+    command_deviation: float | None
+    """Largest relative deviation of the replayed policy's commands from the applied ones (None without a
+    policy, NaN without an applied command)."""
     converged_at: int | None
     recorded_fixed_point: FixedPoint | None
     analytic_fixed_point: FixedPoint | None
+    """None without a policy, or where Newton finds no fixed point of the closed-loop analytic map."""
     energy_balance_residual: float
     """Largest |E_{k+1} - E_k - (W_hip - E_c - E_k)| over strides, relative to E_k."""
 
     @property
+    def policy_name(self) -> str:
+        """The policy compared with, else the ones the recording shows (a controller of the user's own)."""
+        if self.policy is not None:
+            return self.policy.name
+        return ", ".join(self.run.policies) or "no applied command"
+
+    @property
     def policy_reproduced(self) -> bool:
-        return self.command_deviation <= REPRODUCTION_TOLERANCE
+        return self.command_deviation is not None and self.command_deviation <= REPRODUCTION_TOLERANCE
 
 
 def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
-    """Compare ``run`` with the analytic map (see the module docstring)."""
+    """Compare ``run`` with the analytic map (see the module docstring). ``policy`` defaults to the run's
+    own (:func:`policy_for_run`); where that is None, what needs a policy is skipped."""
     policy = policy_for_run(run) if policy is None else policy
     params = run.params
     predictions = predict(run)
@@ -200,14 +219,14 @@ def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
     guess = (
         (recorded.y, recorded.xdot) if recorded is not None else (float(apexes[-1, 0]), float(apexes[-1, 1]))
     )
-    analytic = analytic_fixed_point(params, policy, guess, run.planner)
+    analytic = None if policy is None else analytic_fixed_point(params, policy, guess, run.planner)
     return Comparison(
         run=run,
         policy=policy,
         predictions=predictions,
         errors={c: error_stats(params, predictions.analytic[c], predictions.recorded) for c in CORRECTIONS},
         exact_errors=error_stats(params, predictions.exact, predictions.recorded),
-        command_deviation=command_deviation(run, policy),
+        command_deviation=None if policy is None else command_deviation(run, policy),
         converged_at=converged_at,
         recorded_fixed_point=recorded,
         analytic_fixed_point=analytic,
@@ -508,10 +527,9 @@ def comparison_summary(comparison: Comparison) -> dict[str, Any]:
             "dominant_modulus": abs(fixed.dominant),
         }
 
-    policy = asdict(comparison.policy)
     return {
-        "policy": policy,
-        "policy_reproduced": comparison.policy_reproduced,
+        "policy": None if comparison.policy is None else asdict(comparison.policy),
+        "policy_reproduced": None if comparison.policy is None else comparison.policy_reproduced,
         "command_deviation": comparison.command_deviation,
         "prediction_errors": {
             **{f"analytic_{c}_corrections": asdict(stats) for c, stats in comparison.errors.items()},

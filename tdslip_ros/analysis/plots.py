@@ -67,7 +67,7 @@ def apex_sequence(comparison: Comparison, path: Path) -> Figure:
         if fixed is not None:
             value = dimensionless(params, (fixed.y, fixed.xdot))[column]
             ax.axhline(value, color="black", ls="--", lw=1, label="analytic fixed point")
-        target = comparison.policy.target
+        target = None if comparison.policy is None else comparison.policy.target
         if target is not None:
             ax.axhline(dimensionless(params, target)[column], color="grey", ls=":", lw=1, label="target")
         if comparison.converged_at is not None:
@@ -78,35 +78,39 @@ def apex_sequence(comparison: Comparison, path: Path) -> Figure:
             ax.set_xscale("symlog", linthresh=10.0)  # the transient and the long tail both visible
     axes[0].legend(fontsize=7, loc="best")
     axes[1].set_xlabel("stride")
-    axes[0].set_title(f"{run.path.name}: apex states per stride ({comparison.policy.name})")
+    axes[0].set_title(f"{run.path.name}: apex states per stride ({comparison.policy_name})")
     return _save(figure, path)
 
 
 def return_map(comparison: Comparison, path: Path) -> Figure:
     """Cobweb of the recorded apex heights over the analytic closed-loop height map, the latter
-    drawn on the energy level of the fixed point (the paper's 1-D energy-regulated map)."""
+    drawn on the energy level of the fixed point (the paper's 1-D energy-regulated map) if the
+    comparison has a policy to close the loop with."""
     run = comparison.run
     params = run.params
     heights = run.apex_array()[:, 0]
-    fixed = comparison.analytic_fixed_point or comparison.recorded_fixed_point
-    level = (
-        params.m * (params.g * fixed.y + 0.5 * fixed.xdot**2) if fixed is not None else run.strides[-1].energy
-    )
     low, high = float(heights.min()), float(heights.max())
     margin = max(0.1 * (high - low), 0.02 * params.r0)
     y = np.linspace(low - margin, high + margin, MAP_CURVE_POINTS)
-    xdot = speed_from_energy(params, y, level)
-    with np.errstate(invalid="ignore"):
-        mapped = closed_loop_step(params, comparison.policy, y, xdot, xdot)[:, 0]
     scale = units.length_scale(params)
     figure = Figure(figsize=(6, 6))
     ax = figure.subplots()
-    ax.plot(
-        y / scale,
-        mapped / scale,
-        color=ANALYTIC[1],
-        label=f"analytic map at Ebar = {units.energy_to_bar(params, level):.4f}",
-    )
+    if comparison.policy is not None:
+        fixed = comparison.analytic_fixed_point or comparison.recorded_fixed_point
+        level = (
+            params.m * (params.g * fixed.y + 0.5 * fixed.xdot**2)
+            if fixed is not None
+            else run.strides[-1].energy
+        )
+        xdot = speed_from_energy(params, y, level)
+        with np.errstate(invalid="ignore"):
+            mapped = closed_loop_step(params, comparison.policy, y, xdot, xdot)[:, 0]
+        ax.plot(
+            y / scale,
+            mapped / scale,
+            color=ANALYTIC[1],
+            label=f"analytic map at Ebar = {units.energy_to_bar(params, level):.4f}",
+        )
     ax.plot(y / scale, y / scale, color="grey", lw=1, label="y' = y")
     steps_x, steps_y = [heights[0]], [heights[0]]
     for before, after in zip(heights[:-1], heights[1:], strict=True):
@@ -118,7 +122,7 @@ def return_map(comparison: Comparison, path: Path) -> Figure:
     ax.plot(heights[:-1] / scale, heights[1:] / scale, "o", color=RECORDED, ms=3)
     ax.set_xlabel("apex height ybar_k")
     ax.set_ylabel("apex height ybar_k+1")
-    ax.set_title(f"{run.path.name}: return map ({comparison.policy.name})")
+    ax.set_title(f"{run.path.name}: return map ({comparison.policy_name})")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     return _save(figure, path)

@@ -5,7 +5,8 @@ convergence, fixed points, eigenvalues), four PNG figures and ``DIR/report.md``,
 headline numbers. Policy settings that the recording does not show can be given on the command line
 (see :func:`tdslip_ros.analysis.compare.policy_for_run`); so can the hopper parameters (``--params``,
 a ROS parameter file such as config/plant.yaml), which otherwise come from the bag's custom_data
-(``tdslip run`` stores them) or are inferred from the recording.
+(``tdslip run`` stores them) or are inferred from the recording. A run of a controller of the user's
+own is analysed without a policy unless ``--policy`` names one; the report says what that skips.
 """
 
 from __future__ import annotations
@@ -268,7 +269,16 @@ def _perturbation_lines(run: Run) -> list[str]:
 
 
 def _policy_text(comparison: Comparison) -> str:
-    policy, params = comparison.policy, comparison.run.params
+    policy, params, deviation = comparison.policy, comparison.run.params, comparison.command_deviation
+    if policy is None or deviation is None:  # None together: no policy to replay
+        shown = comparison.run.policies
+        what = f"polic{'y' if len(shown) == 1 else 'ies'} {', '.join(shown)}" if shown else "no command"
+        return (
+            f"policy not replayed: the recording shows {what}, not one policy tdslip_ros knows; checking "
+            "that it reproduces the recorded commands and the analytic fixed point are skipped, the "
+            "predictions use the applied commands. To compare with a known policy: "
+            f"--policy {{{','.join(POLICIES)}}} and its settings (see --help)"
+        )
     if policy.name in FIXED_ANGLE_POLICIES:
         detail = f"beta = {math.degrees(policy.touchdown_angle):.2f} deg, "
         if policy.name != "open_loop":  # energy, energy_exact
@@ -281,7 +291,6 @@ def _policy_text(comparison: Comparison) -> str:
         detail = f"target y* = {policy.target_height:.4g} m, xdot* = {policy.target_speed:.4g} m/s"
         if policy.name == "pd":
             detail += f", kp = {policy.pd_kp:g}, kd = {policy.pd_kd:g}"
-    deviation = comparison.command_deviation
     if math.isnan(deviation):
         replay = "no command was applied, so there is nothing to check it against"
     elif comparison.policy_reproduced:
@@ -384,7 +393,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
     policy = parser.add_argument_group(
-        "policy settings (default: as stored in the bag, else the recording and config/controller.yaml)"
+        "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
+        "a recorded policy the package does not know is not replayed)"
     )
     policy.add_argument("--policy", dest="name", choices=POLICIES)
     policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy, energy_exact)")
