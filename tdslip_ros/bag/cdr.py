@@ -11,6 +11,7 @@ makes 1 kHz topics cheap to read (``test_analysis_reader.py`` checks it against
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -141,3 +142,49 @@ def _attribute(message: object, path: str) -> Any:
     for name in path.split("."):
         message = getattr(message, name)
     return message
+
+
+class FixedLayoutEncoder:
+    """Serialises messages of one fixed CDR layout straight from the values of chosen fields, without
+    building a message object: the publisher's cost at 1 kHz. ``sample`` is one message serialised the
+    usual way (rclpy's ``serialize_message``); every field not in ``fields`` keeps its value there (the
+    frame_id, constants). ``fields`` are dotted paths in the order of the message (their byte order);
+    runs of them that only CDR padding separates are packed by one ``struct`` call."""
+
+    def __init__(self, schema: Schema, sample: bytes, fields: Sequence[str]) -> None:
+        layout = _fixed_layout(schema, sample)
+        if layout is None:
+            raise ValueError(f"{schema.name} has no fixed CDR layout")
+        missing = [path for path in fields if path not in layout]
+        if missing:
+            raise ValueError(f"{schema.name} has no primitive field {', '.join(missing)}")
+        offsets = [layout[path][0] for path in fields]
+        if offsets != sorted(offsets):
+            raise ValueError("fields must be given in the message's order")
+        self._template = bytes(sample)
+        self._runs: list[tuple[struct.Struct, int, int, int]] = []  # (packer, byte offset, first, end)
+        first = 0
+        for index, path in enumerate(fields):
+            offset, kind = layout[path]
+            end = offset + np.dtype(kind).itemsize
+            last = index + 1 == len(fields)
+            if not last:
+                gap = sample[4 + end : 4 + layout[fields[index + 1]][0]]
+            if last or any(gap):  # a constant between this field and the next: the run ends here
+                run = fields[first : index + 1]
+                start = layout[run[0]][0]
+                format_ = "<"
+                position = start
+                for name in run:
+                    field_offset, field_kind = layout[name]
+                    format_ += "x" * (field_offset - position) + np.dtype(field_kind).char
+                    position = field_offset + np.dtype(field_kind).itemsize
+                self._runs.append((struct.Struct(format_), 4 + start, first, index + 1))
+                first = index + 1
+
+    def encode(self, values: Sequence[Any]) -> bytes:
+        """The serialised message with ``values`` in the fields, in the order they were given."""
+        buffer = bytearray(self._template)
+        for packer, offset, first, end in self._runs:
+            packer.pack_into(buffer, offset, *values[first:end])
+        return bytes(buffer)

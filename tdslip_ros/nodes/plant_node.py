@@ -72,18 +72,21 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
+from mcap.records import Schema
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.executors import Executor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
+from tdslip_ros.bag.cdr import FixedLayoutEncoder
+from tdslip_ros.bag.schema import message_definition
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model.events import Event, EventKind, Phase
 from tdslip_ros.model.events import HopperState as ModelState
@@ -276,24 +279,69 @@ def set_stamp(stamp: Time, t: float) -> None:
     stamp.sec, stamp.nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
 
 
+STATE_FIELDS = (
+    "header.stamp.sec",
+    "header.stamp.nanosec",
+    "stride",
+    "phase",
+    "x",
+    "y",
+    "xdot",
+    "ydot",
+    "toe_x",
+    "toe_y",
+    "leg_length",
+    "leg_angle",
+    "leg_length_rate",
+    "leg_angle_rate",
+    "hip_torque",
+    "energy",
+    "ground_height",
+)
+"""The fields of a HopperState message that :func:`state_values` gives, in the message's order."""
+
+
+def state_values(state: ModelState, t: float) -> tuple[int | float, ...]:
+    """The values of :data:`STATE_FIELDS` for a model state stamped t [s]."""
+    sec, nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
+    phase = HopperState.PHASE_STANCE if state.phase is Phase.STANCE else HopperState.PHASE_FLIGHT
+    return (
+        sec,
+        nanosec,
+        state.stride,
+        phase,
+        state.x,
+        state.y,
+        state.xdot,
+        state.ydot,
+        state.toe_x,
+        state.toe_y,
+        state.r,
+        state.theta,
+        state.rdot,
+        state.thetadot,
+        state.hip_torque,
+        state.energy,
+        state.ground_height,
+    )
+
+
 def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
     """Copy a model state into a HopperState message stamped t [s]."""
-    set_stamp(msg.header.stamp, t)
-    msg.stride = state.stride
-    msg.phase = HopperState.PHASE_STANCE if state.phase is Phase.STANCE else HopperState.PHASE_FLIGHT
-    msg.x = state.x
-    msg.y = state.y
-    msg.xdot = state.xdot
-    msg.ydot = state.ydot
-    msg.toe_x = state.toe_x
-    msg.toe_y = state.toe_y
-    msg.leg_length = state.r
-    msg.leg_angle = state.theta
-    msg.leg_length_rate = state.rdot
-    msg.leg_angle_rate = state.thetadot
-    msg.hip_torque = state.hip_torque
-    msg.energy = state.energy
-    msg.ground_height = state.ground_height
+    values = state_values(state, t)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = values[:2]
+    for name, value in zip(STATE_FIELDS[2:], values[2:], strict=True):
+        setattr(msg, name, value)
+
+
+def fixed_layout_encoder(message_class: type, fields: tuple[str, ...]) -> FixedLayoutEncoder:
+    """An encoder of ``message_class`` (frame_id ``world`` where it has a header) from ``fields``' values."""
+    template = message_class()
+    if hasattr(template, "header"):
+        template.header.frame_id = topics.FRAME_ID
+    type_name = f"{message_class.__module__.split('.')[0]}/msg/{message_class.__name__}"
+    schema = Schema(id=0, name=type_name, encoding="ros2msg", data=message_definition(type_name).encode())
+    return FixedLayoutEncoder(schema, serialize_message(template), fields)
 
 
 def command_key(data: bytes) -> tuple[int, int] | None:
@@ -399,13 +447,12 @@ class PlantNode(Node):
         self._marker_period_ticks = max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0
         self._markers_out = False  # markers are drawn while someone subscribes to them
         self._markers = HopperMarkers(topics.FRAME_ID)
-        self._state_msg = HopperState()
-        self._state_msg.header.frame_id = topics.FRAME_ID
-        self._grf_msg = WrenchStamped()
-        self._grf_msg.header.frame_id = topics.FRAME_ID
-        self._clock_msg = ClockMsg()
-        # One stamp object shared by the per-tick messages: set once per tick.
-        self._grf_msg.header.stamp = self._clock_msg.clock = self._state_msg.header.stamp
+        # The 1 kHz messages are serialised straight from their values: building message objects
+        # cost the tick more than the bytes do.
+        self._state_encoder = fixed_layout_encoder(HopperState, STATE_FIELDS)
+        stamp = ("header.stamp.sec", "header.stamp.nanosec")
+        self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*stamp, "wrench.force.x", "wrench.force.y"))
+        self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
         # Raw: an answer to an earlier apex is recognised from its bytes (command_key), unparsed.
         self._command_subscription = self.create_subscription(
             StanceCommand, topics.COMMAND, self._on_command, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
@@ -893,22 +940,22 @@ class PlantNode(Node):
         self.published[topic] += 1
 
     def _publish_sample(self, state: ModelState) -> None:
-        fill_state(self._state_msg, state, self._offset + state.t)
+        values = state_values(state, self._offset + state.t)
         published = self.published
         # Each count right after its publish: a failing publish leaves the counts exact.
-        self._state_pub.publish(self._state_msg)
+        self._state_pub.publish(self._state_encoder.encode(values))
         published[topics.STATE] += 1
-        force = self._grf_msg.wrench.force
-        force.x = state.grf_x
-        force.y = state.grf_y
-        self._grf_pub.publish(self._grf_msg)
+        sec, nanosec = values[:2]
+        self._grf_pub.publish(self._grf_encoder.encode((sec, nanosec, state.grf_x, state.grf_y)))
         published[topics.GRF] += 1
         if self._clock_out is not None:
-            self._clock_out.publish(self._clock_msg)
+            self._clock_out.publish(self._clock_encoder.encode((sec, nanosec)))
             published[topics.CLOCK] += 1
 
     def _publish_markers(self, state: ModelState) -> None:
-        markers = self._markers.update(state, self._state_msg.header.stamp, state.ground_height)
+        stamp = Time()
+        set_stamp(stamp, self._offset + state.t)
+        markers = self._markers.update(state, stamp, state.ground_height)
         self._publish(topics.MARKERS, markers)
 
     def _publish_apex(self, stride: int, state: ModelState) -> None:
