@@ -92,7 +92,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model.compiled import atan2, is_complex, kernel, real
+from tdslip_ros.model.compiled import atan2, inlined_kernel, is_complex, kernel, real
 from tdslip_ros.model.events import (
     FAILURE_KINDS,
     NO_FAILURE_CODE,
@@ -633,7 +633,7 @@ class StanceStart(NamedTuple):
     gravity_correction: complex  # dp_g of the first correction
 
 
-@kernel
+@inlined_kernel
 def lane_stance_start(
     m: float,
     k: float,
@@ -676,7 +676,7 @@ LANE_STANCE_VALUES = 11
 """The fields of LaneStance that Stance holds as arrays (the others stay in the kernels)."""
 
 
-@kernel
+@inlined_kernel
 def lane_stance(
     start: StanceStart, tau0: complex, t_f: complex, corrections: int, liftoff: int
 ) -> LaneStance:
@@ -736,7 +736,7 @@ def apex_energy(m: float, g: float, y: complex, xdot: complex) -> complex:
     return m * (g * y + 0.5 * xdot**2)
 
 
-@kernel
+@inlined_kernel
 def lane_stride(
     m: float,
     k: float,
@@ -758,7 +758,7 @@ def lane_stride(
     return lane_ascent(m, g, y, xdot, touchdown, stance)
 
 
-@kernel
+@inlined_kernel
 def lane_ascent(
     m: float, g: float, y: complex, xdot: complex, touchdown: Touchdown, stance: LaneStance
 ) -> LaneStride:
