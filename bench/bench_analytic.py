@@ -1,6 +1,6 @@
 """Benchmark of the analytic apex return map, and its accuracy against the exact plant.
 
-    python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy] [--baseline DIR]
+    python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy] [--baseline DIR] [--breakdown]
 
 Times are CPU seconds of this single-threaded process (time.process_time), best of several runs.
 Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1) for several
@@ -11,6 +11,12 @@ child process,
 side by side in this run, as a ratio, and (3) the accuracy table: mean and max relative errors of the next
 apex height and speed, analytic vs exact, for corrections 0 and 1, on a broad grid and on the operating
 region of the paper's energy-regulated gaits (kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m).
+
+--breakdown adds where a lane's time goes: the compiled lane loop alone against the whole call (the rest
+is packaging: broadcasting, the result block, the Stride's arrays), and the C library's functions the
+kernels call, each timed alone in a compiled loop over independent arguments (its best case: the kernels
+also wait on the chain of divisions and square roots between the calls), and what the calls of one stride
+(LIBRARY_CALLS) cost at those rates: the floor of a scalar kernel, whatever its arithmetic.
 """
 
 from __future__ import annotations
@@ -25,7 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from tdslip_ros.model.analytic import CommandArrays, ParamArrays, approximate_map
+from tdslip_ros.model.analytic import (
+    STRIDE_ROWS,
+    CommandArrays,
+    Lanes,
+    ParamArrays,
+    _stride_lanes,
+    approximate_map,
+)
 from tdslip_ros.model.analytic_accuracy import BROAD_GRID, OPERATING_GRID, accuracy, exact_strides
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams
@@ -129,6 +142,78 @@ def speed_ratio(strides: int) -> None:
         )
 
 
+LIBRARY_CALLS = {
+    0: {"sincos": 4.0, "exp": 3.0, "atan2": 2.0, "acos": 1.0, "sqrt (chained)": 6.0},
+    1: {"sincos": 5.5, "exp": 5.0, "atan2": 4.0, "acos": 2.0, "sqrt (chained)": 10.0},
+}
+"""C library calls of one stride (paper liftoff) per lane by corrections, counted on the bench's strides
+(a sine and a cosine of one angle make one sincos; a lone sine counts half)."""
+
+
+def _library_loops() -> dict[str, object]:
+    """Compiled loops calling one C library function per element (compiled here, on first use)."""
+    import math
+
+    import numba
+
+    @numba.njit
+    def sincos(x: np.ndarray, out: np.ndarray) -> None:
+        for i in range(x.size):
+            out[i] = math.sin(x[i]) + math.cos(x[i])
+
+    @numba.njit
+    def exp(x: np.ndarray, out: np.ndarray) -> None:
+        for i in range(x.size):
+            out[i] = math.exp(-x[i])
+
+    @numba.njit
+    def atan2(x: np.ndarray, out: np.ndarray) -> None:
+        for i in range(x.size):
+            out[i] = math.atan2(x[i], 1.0 - x[i])
+
+    @numba.njit
+    def acos(x: np.ndarray, out: np.ndarray) -> None:
+        for i in range(x.size):
+            out[i] = math.acos(x[i] - 0.5)
+
+    @numba.njit
+    def chained_sqrt(x: np.ndarray, out: np.ndarray) -> None:
+        previous = 0.0
+        for i in range(x.size):  # each root waits for the one before, as in the stance's closed forms
+            previous = math.sqrt(x[i] + 1e-300 * previous)
+            out[i] = previous
+
+    return {"sincos": sincos, "exp": exp, "atan2": atan2, "acos": acos, "sqrt (chained)": chained_sqrt}
+
+
+def breakdown(lanes: int, repeat: int) -> None:
+    params = ParamArrays.of(PARAMS)
+    y, xdot, command = _random_strides(lanes)
+    packed = Lanes.of(params, y, xdot, *command)
+    block = packed.rows(STRIDE_ROWS)
+    print(f"where a lane's time goes, {lanes} lanes in one call, best of {repeat} (ns per lane):")
+    for corrections in (0, 1):
+        packed.run(_stride_lanes, corrections, 0, block)
+        loop = _best_time(lambda c=corrections: packed.run(_stride_lanes, c, 0, block), repeat)
+        whole = _best_time(lambda c=corrections: approximate_map(params, y, xdot, command, c), repeat)
+        print(
+            f"  corrections {corrections}: whole call {whole / lanes * 1e9:6.1f}, compiled lane loop "
+            f"{loop / lanes * 1e9:6.1f}, packaging {(whole - loop) / lanes * 1e9:6.1f}"
+            f"   (1e7 per second: 100 ns)"
+        )
+    argument = np.random.default_rng(2).uniform(0.1, 0.9, lanes)
+    out = np.empty(lanes)
+    unit = {}
+    for name, function in _library_loops().items():
+        assert callable(function)
+        function(argument, out)
+        unit[name] = _best_time(lambda f=function: f(argument, out), repeat) / lanes * 1e9
+    print("  C library, each alone: " + ", ".join(f"{name} {ns:.1f}" for name, ns in unit.items()))
+    for corrections, calls in LIBRARY_CALLS.items():
+        floor = sum(count * unit[name] for name, count in calls.items())
+        print(f"  corrections {corrections}: the stride's library calls alone {floor:6.1f}")
+
+
 def accuracy_table() -> None:
     print("accuracy of the analytic map vs the exact plant, |analytic/exact - 1| of the next apex")
     print("(ramp t_f = the analytic liftoff time with 1 correction; 'eq7 speed' = liftoff speed of eq. 7)")
@@ -159,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=5, help="repetitions (best time counts)")
     parser.add_argument("--strides", type=int, default=300, help="strides of the exact-vs-analytic timing")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy table")
+    parser.add_argument("--breakdown", action="store_true", help="where a lane's time goes")
     parser.add_argument("--baseline", type=Path, help="checkout whose tdslip_ros to measure beside")
     parser.add_argument(
         "--throughput-json", action="store_true", help=argparse.SUPPRESS
@@ -168,6 +254,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(throughput(args.lanes, args.blocks, args.repeat)))
         return 0
     print_throughput(args.lanes, args.blocks, args.repeat, args.baseline)
+    if args.breakdown:
+        breakdown(args.lanes, args.repeat)
     speed_ratio(args.strides)
     if not args.no_accuracy:
         accuracy_table()

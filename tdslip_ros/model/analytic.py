@@ -92,7 +92,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model.compiled import atan2, is_complex, kernel, real
+from tdslip_ros.model.compiled import atan2, inlined_kernel, is_complex, kernel, real
 from tdslip_ros.model.events import (
     FAILURE_KINDS,
     NO_FAILURE_CODE,
@@ -158,6 +158,16 @@ class ParamArrays:
                 "zeta0 = c/(2 sqrt(m k)) must be < 1 (underdamped leg) for the analytic map, "
                 f"got max {zeta0.max()!r}"
             )
+
+    @cached_property
+    def column(self) -> Array | None:
+        """m, k, r0, c, g as one (5, 1) column where they are scalars (one parameter set), else None: the
+        compiled lane loops' parameter block for one lane, kept (a controller plans every apex with the same
+        parameters). The loops only read it."""
+        fields = (self.m, self.k, self.r0, self.c, self.g)
+        if any(np.ndim(field) != 0 for field in fields):
+            return None
+        return np.array(fields, dtype=float).reshape(5, 1)
 
     @classmethod
     def of(cls, params: HopperParams | ParamArrays | Sequence[HopperParams]) -> ParamArrays:
@@ -633,7 +643,7 @@ class StanceStart(NamedTuple):
     gravity_correction: complex  # dp_g of the first correction
 
 
-@kernel
+@inlined_kernel
 def lane_stance_start(
     m: float,
     k: float,
@@ -676,7 +686,7 @@ LANE_STANCE_VALUES = 11
 """The fields of LaneStance that Stance holds as arrays (the others stay in the kernels)."""
 
 
-@kernel
+@inlined_kernel
 def lane_stance(
     start: StanceStart, tau0: complex, t_f: complex, corrections: int, liftoff: int
 ) -> LaneStance:
@@ -736,7 +746,7 @@ def apex_energy(m: float, g: float, y: complex, xdot: complex) -> complex:
     return m * (g * y + 0.5 * xdot**2)
 
 
-@kernel
+@inlined_kernel
 def lane_stride(
     m: float,
     k: float,
@@ -758,7 +768,7 @@ def lane_stride(
     return lane_ascent(m, g, y, xdot, touchdown, stance)
 
 
-@kernel
+@inlined_kernel
 def lane_ascent(
     m: float, g: float, y: complex, xdot: complex, touchdown: Touchdown, stance: LaneStance
 ) -> LaneStride:
@@ -815,13 +825,16 @@ class Lanes:
 
     @classmethod
     def of(cls, params: ParamArrays, *values: ArrayLike) -> Lanes:
+        if params.column is not None and all(map(_is_scalar, values)):
+            # One lane, the controller's call: nothing to broadcast, and the values in one array (at one
+            # apex a time, this packaging costs about as much as the policies' kernels).
+            together = np.array(values)
+            kind: type = complex if together.dtype.kind == "c" else float
+            together = together.astype(kind)
+            return cls((), params.column, tuple(together[i : i + 1] for i in range(len(values))), kind)
         fields = (params.m, params.k, params.r0, params.c, params.g)
         arrays = [np.asarray(value) for value in values]
         dtype: type = complex if any(a.dtype.kind == "c" for a in arrays) else float
-        if all(np.ndim(field) == 0 for field in fields) and all(a.ndim == 0 for a in arrays):
-            # One lane, the controller's call: nothing to broadcast.
-            block = np.array(fields, dtype=float).reshape(5, 1)
-            return cls((), block, tuple(a.astype(dtype).reshape(1) for a in arrays), dtype)
         shape = np.broadcast_shapes(*(np.shape(field) for field in fields), *(a.shape for a in arrays))
 
         def flat(value: Array, kind: type) -> Array:
@@ -844,6 +857,12 @@ class Lanes:
     def codes(self, row: Array) -> Array:
         """A row of integer codes (failure, no-command reason), held as numbers in the block."""
         return np.asarray(np.real(row).astype(int).reshape(self.shape))
+
+
+def _is_scalar(value: ArrayLike) -> bool:
+    return isinstance(value, (int, float, complex, np.number)) or (
+        isinstance(value, np.ndarray) and value.ndim == 0
+    )
 
 
 def elementwise(function: Callable[..., Any], kinds: Sequence[type], *args: ArrayLike) -> tuple[Array, ...]:
