@@ -1,6 +1,6 @@
 """The study engine on Dask against the batched engine called directly, side by side in one run.
 
-    python bench/bench_studies.py [--grid 100x80] [--memory-grid 1000x1000]
+    python bench/bench_studies.py [--grid 100x80] [--repeats 3] [--memory-grid 1000x1000]
 
 The study is ``tdslip sweep fig10``'s: the goal regulator at beta = 26 deg on the exact plant, 50 strides
 from a grid of initial energies x heights (default 100 x 80 = 8,000 trajectories, chunks of
@@ -10,7 +10,9 @@ sweep.chunk_size_for(8,000) = 500). Measured, in this order:
    no table (the batched engine with per-stride policy calls, as a user would call it);
 2. the engine on a LocalCluster of 1 worker process, then of 2 (each started before its clock runs):
    trajectories per second, the scaling efficiency t1 / (2 t2), and the engine's overhead t1 / t_direct - 1
-   (design, rows, Parquet, scheduling and transfers; 1 worker process against this one process);
+   (design, rows, Parquet, scheduling and transfers; 1 worker process against this one process).
+   Steps 1 and 2 are repeated ``--repeats`` times in turn and the ratios taken round by round, their
+   median reported: on a shared machine one run's time moves by 10-20 %;
 3. with ``--memory-grid``: that study (1000x1000 is a million trajectories) on 2 workers, and every worker
    process's peak resident memory (getrusage's ru_maxrss, read in the worker at the end).
 
@@ -25,6 +27,7 @@ import argparse
 import os
 import resource
 import shutil
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -77,6 +80,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--grid", type=grid, default=(100, 80), help="energies x heights (default 100x80)")
+    parser.add_argument("--repeats", type=int, default=3, help="rounds of direct, 1 worker, 2 workers")
     parser.add_argument("--memory-grid", type=grid, help="also run this study on 2 workers for peak memory")
     args = parser.parse_args()
     study = sweep.fig10_studies(args.grid, basins.REGULATED_STRIDES, None)[""]
@@ -86,26 +90,47 @@ def main() -> None:
     )
     scratch = Path(tempfile.mkdtemp(prefix="bench_studies_"))
     try:
-        print(f"direct ({load()}) ...", flush=True)
-        t_direct, cpu_direct = direct(study)
-        print(f"1 worker ({load()}) ...", flush=True)
-        t1, cpu1, _ = on_engine(study, 1, scratch / "one")
-        print(f"2 workers ({load()}) ...", flush=True)
-        t2, cpu2, _ = on_engine(study, 2, scratch / "two")
+        rounds = []
+        for round_ in range(1, args.repeats + 1):
+            print(f"round {round_}: direct ({load()}) ...", flush=True)
+            t_direct, cpu_direct = direct(study)
+            print(f"round {round_}: 1 worker ({load()}) ...", flush=True)
+            t1, cpu1, _ = on_engine(study, 1, scratch / "one")
+            print(f"round {round_}: 2 workers ({load()}) ...", flush=True)
+            t2, cpu2, _ = on_engine(study, 2, scratch / "two")
+            rounds.append((t_direct, cpu_direct, t1, cpu1, t2, cpu2))
         print()
-        print(f"{'run':<32}{'wall s':>9}{'trajectories/s':>16}{'CPU s':>9}{'per CPU s':>11}")
-        for name, seconds, cpu in (
-            ("batched engine, this process", t_direct, cpu_direct),
-            ("study engine, 1 worker", t1, cpu1),
-            ("study engine, 2 workers", t2, cpu2),
+        print(
+            f"{'run (median of the rounds)':<32}{'wall s':>9}{'trajectories/s':>16}{'CPU s':>9}"
+            f"{'per CPU s':>11}"
+        )
+        columns = [statistics.median(values) for values in zip(*rounds, strict=True)]
+        for index, name in enumerate(
+            ("batched engine, this process", "study engine, 1 worker", "study engine, 2 workers")
         ):
+            seconds, cpu = columns[2 * index], columns[2 * index + 1]
             print(
                 f"{name:<32}{seconds:>9.1f}{study.size / seconds:>16.1f}{cpu:>9.1f}{study.size / cpu:>11.1f}"
             )
-        print(f"scaling efficiency 1 -> 2 workers (wall): {100 * t1 / (2 * t2):.0f} % (goal >= 85 %)")
-        overhead_wall, overhead_cpu = 100 * (t1 / t_direct - 1), 100 * (cpu1 / cpu_direct - 1)
-        print(f"engine overhead, 1 worker against this process: wall {overhead_wall:+.1f} %, ", end="")
-        print(f"CPU {overhead_cpu:+.1f} % (goal <= 10 %)")
+        efficiency = [100 * t1 / (2 * t2) for _, _, t1, _, t2, _ in rounds]
+        overhead_wall = [100 * (t1 / t_direct - 1) for t_direct, _, t1, _, _, _ in rounds]
+        overhead_cpu = [100 * (cpu1 / cpu_direct - 1) for _, cpu_direct, _, cpu1, _, _ in rounds]
+        print(
+            "per round: "
+            + "; ".join(
+                f"{e:.0f} %, {w:+.1f} %, {c:+.1f} %"
+                for e, w, c in zip(efficiency, overhead_wall, overhead_cpu, strict=True)
+            )
+        )
+        print(
+            f"scaling efficiency 1 -> 2 workers (wall): {statistics.median(efficiency):.0f} % (goal >= 85 %)"
+        )
+        print(
+            "engine overhead, 1 worker against this process: "
+            f"wall {statistics.median(overhead_wall):+.1f} %, ",
+            end="",
+        )
+        print(f"CPU {statistics.median(overhead_cpu):+.1f} % (goal <= 10 %)")
         if args.memory_grid:
             big = sweep.fig10_studies(args.memory_grid, basins.REGULATED_STRIDES, None)[""]
             print(f"\nmemory: {big.size:,} trajectories x {big.strides} strides on 2 workers ({load()}) ...")
