@@ -6,6 +6,7 @@ import math
 import os
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -104,3 +105,17 @@ def test_the_proc_clocks_see_this_thread_wait_for_a_cpu_that_others_take() -> No
     steal_after, wait_after = clocks()
     assert wait_after - wait_before > 20_000_000  # ns: at least 20 ms of the 0.5 s spent queueing
     assert steal_after >= steal_before >= 0
+
+
+def test_the_proc_clocks_outlive_the_thread_they_time() -> None:
+    """A run's last window is closed after its tick thread ended: the clocks then keep that thread's last
+    wait (they used to raise ProcessLookupError, which ended a realtime run with a traceback)."""
+    clocks = ProcCpuClocks()
+    first: list[tuple[int, int]] = []
+    thread = threading.Thread(target=lambda: first.append(clocks()))
+    thread.start()
+    thread.join()
+    steal, wait = clocks()  # on this thread, the timed one gone
+    assert wait == first[0][1]
+    assert steal >= first[0][0]
+    assert clocks()[1] == wait

@@ -26,26 +26,33 @@ class ProcCpuClocks:
     """:data:`CpuClocks` from Linux's /proc: the ``steal`` column of /proc/stat (all CPUs, in clock
     ticks) and the run-queue wait of /proc/thread-self/schedstat. The files stay open and are re-read
     with pread (a few microseconds); the thread's file is opened by the first call, on the thread
-    whose waits it then reports. Where /proc lacks them, both read 0 (no explanation is given)."""
+    whose waits it then reports. Where /proc lacks them, both read 0 (no explanation is given). Once that
+    thread has ended (a run's last window is closed after its tick thread stopped), its wait stays at
+    the last value read: an ended thread waits no more."""
 
     def __init__(self) -> None:
         self._tick_ns = 1_000_000_000 // os.sysconf("SC_CLK_TCK")
         self._stat: int | None = None
         self._schedstat: int | None = None
         self._opened = False
+        self._wait = 0
 
     def __call__(self) -> tuple[int, int]:
         if not self._opened:
             self._opened = True
             self._stat = self._open("/proc/stat")
             self._schedstat = self._open("/proc/thread-self/schedstat")
-        steal = wait = 0
+        steal = 0
         if self._stat is not None:
             first_line = os.pread(self._stat, 256, 0).split(b"\n", 1)[0].split()
             steal = int(first_line[8]) * self._tick_ns if len(first_line) > 8 else 0
         if self._schedstat is not None:
-            wait = int(os.pread(self._schedstat, 128, 0).split()[1])
-        return steal, wait
+            try:
+                self._wait = int(os.pread(self._schedstat, 128, 0).split()[1])
+            except ProcessLookupError:  # the thread has ended
+                os.close(self._schedstat)
+                self._schedstat = None
+        return steal, self._wait
 
     @staticmethod
     def _open(path: str) -> int | None:
