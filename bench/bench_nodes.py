@@ -11,7 +11,7 @@ child processes, every run recorded and its counts checked). One command each:
         simulated time over wall time with every 1 kHz sample recorded (target >= 20x), both until
         the end of the run and until the recorder had acknowledged every message.
     .venv/bin/python bench/bench_nodes.py latency [--mode realtime] [--duration 20] [--busy-core 1]
-            [--policies deadbeat --target-height 0.96 --target-speed 4]
+            [--priority 50] [--policies deadbeat --target-height 0.96 --target-speed 4]
         per policy, apex-to-command latency (apex published -> its command received by the plant),
         p50/p99 (target p99 < 2 ms, < 5 ms with --busy-core), beside the policy's own planning time,
         measured in this process on the same apexes, and the difference: what the nodes and DDS add;
@@ -88,7 +88,8 @@ def busy_loop(core: int | None) -> Iterator[None]:
 
 def conditions(arguments: argparse.Namespace) -> str:
     busy = f"a busy loop on CPU {arguments.busy_core}" if arguments.busy_core is not None else "no busy loop"
-    return f"{busy}, {load()}"
+    priority = f"tick at SCHED_FIFO {arguments.priority}, " if getattr(arguments, "priority", 0) else ""
+    return f"{priority}{busy}, {load()}"
 
 
 def run_checked(options: RunOptions) -> RunReport:
@@ -212,6 +213,7 @@ def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
             duration=arguments.duration,
             target_height=arguments.target_height,
             target_speed=arguments.target_speed,
+            realtime_priority=arguments.priority,
         )
         report = run_checked(options)
         latency = percentiles_ms([ns * 1e-9 for ns in report.command_latencies_ns])
@@ -230,7 +232,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     commands = parser.add_subparsers(dest="command", required=True)
     realtime = commands.add_parser("realtime")
     realtime.add_argument("--duration", type=float, default=60.0, help="s of wall time")
-    realtime.add_argument("--priority", type=int, default=0, help="SCHED_FIFO priority of the tick (0: none)")
     lockstep = commands.add_parser("lockstep")
     lockstep.add_argument("--strides", type=int, default=100)
     lockstep.add_argument(
@@ -244,6 +245,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     latency.add_argument("--target-speed", type=float, help="m/s (deadbeat, pd)")
     for command in (realtime, lockstep, latency):
         command.add_argument("--busy-core", type=int, help="run a busy loop pinned to this CPU meanwhile")
+    for command in (realtime, latency):
+        command.add_argument(
+            "--priority", type=int, default=0, help="SCHED_FIFO priority of the tick (0: none)"
+        )
     arguments = parser.parse_args(argv)
     benches: dict[str, Callable[[argparse.Namespace, Path], None]] = {
         "realtime": bench_realtime,
