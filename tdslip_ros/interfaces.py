@@ -38,6 +38,29 @@ TOPIC_TYPES: dict[str, str] = {
 """The suite's topics that a run's analysis needs, by relative name, with the type name rosbag2
 records for them."""
 
+STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
+"""The header stamp of the 1 kHz messages, as dotted field paths."""
+STATE_FIELDS = (
+    "stride",
+    "phase",
+    "x",
+    "y",
+    "xdot",
+    "ydot",
+    "toe_x",
+    "toe_y",
+    "leg_length",
+    "leg_angle",
+    "leg_length_rate",
+    "leg_angle_rate",
+    "hip_torque",
+    "energy",
+    "ground_height",
+)
+"""The fields of a HopperState after its header, in the message's order."""
+GRF_FIELDS = ("wrench.force.x", "wrench.force.y")
+"""The fields of the GRF's WrenchStamped that the plant sets (the rest is 0)."""
+
 
 def resolve(name: str, namespace: str = "/") -> str:
     """The fully qualified name of a suite topic or service in ``namespace`` (``/h1`` ->

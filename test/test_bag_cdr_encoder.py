@@ -19,7 +19,7 @@ from tdslip_ros.bag.cdr import FixedLayoutEncoder
 from tdslip_ros.bag.schema import message_definition
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.events import Phase
-from tdslip_ros.nodes.plant_node import STATE_FIELDS, fill_state, fixed_layout_encoder, state_values
+from tdslip_ros.nodes.plant_node import SAMPLE_FIELDS, fill_state, fixed_layout_encoder, state_values
 
 NUMBERS = (
     "x y xdot ydot toe_x toe_y r theta rdot thetadot hip_torque energy grf_x grf_y ground_height".split()
@@ -34,7 +34,7 @@ def random_state(rng: random.Random) -> ModelState:
 
 def test_hopper_states_encode_to_the_bytes_of_serialize_message() -> None:
     rng = random.Random(7)
-    encoder = fixed_layout_encoder(HopperState, STATE_FIELDS)
+    encoder = fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
     for _ in range(500):
         state = random_state(rng)
         msg = HopperState()

@@ -50,8 +50,11 @@ from tdslip_ros.interfaces import (
     COMMAND,
     CONTACT,
     GRF,
+    GRF_FIELDS,
     HOPPER_PARAMETERS,
+    STAMP_FIELDS,
     STATE,
+    STATE_FIELDS,
     STATUS,
     TOPIC_TYPES,
     hopper_from_parameters,
@@ -83,25 +86,6 @@ DAMPING_CONSISTENCY = 1e-6
 REQUIRED_TOPICS = (APEX,)
 """The suite topics a run cannot be analysed without; the others may be missing (no messages)."""
 
-_STATE_FIELDS = (
-    "stride",
-    "phase",
-    "x",
-    "y",
-    "xdot",
-    "ydot",
-    "toe_x",
-    "toe_y",
-    "leg_length",
-    "leg_angle",
-    "leg_length_rate",
-    "leg_angle_rate",
-    "hip_torque",
-    "energy",
-    "ground_height",
-)
-_STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
-_GRF_FIELDS = ("wrench.force.x", "wrench.force.y")
 _BATCH = 65536  # 1 kHz messages collected before they are converted to columns (bounds memory)
 
 
@@ -380,7 +364,7 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
     log_times: list[int] = []
     stream_batches: dict[str, list[bytes]] = {STATE: [], GRF: []}
     columns: dict[str, list[dict[str, np.ndarray]]] = {STATE: [], GRF: []}
-    fields = {STATE: (*_STAMP_FIELDS, *_STATE_FIELDS), GRF: (*_STAMP_FIELDS, *_GRF_FIELDS)}
+    fields = {STATE: (*STAMP_FIELDS, *STATE_FIELDS), GRF: (*STAMP_FIELDS, *GRF_FIELDS)}
 
     def flush(topic: str) -> None:
         batch, schema = stream_batches[topic], recording.schema(topic)
@@ -510,7 +494,7 @@ def _samples(columns: dict[str, list[dict[str, np.ndarray]]]) -> Samples:
     t = _stamp_seconds(joined(STATE, "header.stamp.sec"), joined(STATE, "header.stamp.nanosec"))
     grf_t = _stamp_seconds(joined(GRF, "header.stamp.sec"), joined(GRF, "header.stamp.nanosec"))
     order, grf_order = np.argsort(t, kind="stable"), np.argsort(grf_t, kind="stable")
-    state = {name: joined(STATE, name)[order] for name in _STATE_FIELDS}
+    state = {name: joined(STATE, name)[order] for name in STATE_FIELDS}
     return Samples(
         t=t[order],
         stride=state["stride"].astype(np.int64),

@@ -87,7 +87,7 @@ from tdslip_msgs.srv import Reset
 
 from tdslip_ros.bag.cdr import FixedLayoutEncoder
 from tdslip_ros.bag.schema import message_definition
-from tdslip_ros.interfaces import hopper_from_parameters
+from tdslip_ros.interfaces import GRF_FIELDS, STAMP_FIELDS, STATE_FIELDS, hopper_from_parameters
 from tdslip_ros.model.events import Event, EventKind, Phase
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
@@ -279,30 +279,12 @@ def set_stamp(stamp: Time, t: float) -> None:
     stamp.sec, stamp.nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
 
 
-STATE_FIELDS = (
-    "header.stamp.sec",
-    "header.stamp.nanosec",
-    "stride",
-    "phase",
-    "x",
-    "y",
-    "xdot",
-    "ydot",
-    "toe_x",
-    "toe_y",
-    "leg_length",
-    "leg_angle",
-    "leg_length_rate",
-    "leg_angle_rate",
-    "hip_torque",
-    "energy",
-    "ground_height",
-)
+SAMPLE_FIELDS = (*STAMP_FIELDS, *STATE_FIELDS)
 """The fields of a HopperState message that :func:`state_values` gives, in the message's order."""
 
 
 def state_values(state: ModelState, t: float) -> tuple[int | float, ...]:
-    """The values of :data:`STATE_FIELDS` for a model state stamped t [s]."""
+    """The values of :data:`SAMPLE_FIELDS` for a model state stamped t [s]."""
     sec, nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
     phase = HopperState.PHASE_STANCE if state.phase is Phase.STANCE else HopperState.PHASE_FLIGHT
     return (
@@ -330,7 +312,7 @@ def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
     """Copy a model state into a HopperState message stamped t [s]."""
     values = state_values(state, t)
     msg.header.stamp.sec, msg.header.stamp.nanosec = values[:2]
-    for name, value in zip(STATE_FIELDS[2:], values[2:], strict=True):
+    for name, value in zip(STATE_FIELDS, values[len(STAMP_FIELDS) :], strict=True):
         setattr(msg, name, value)
 
 
@@ -449,9 +431,8 @@ class PlantNode(Node):
         self._markers = HopperMarkers(topics.FRAME_ID)
         # The 1 kHz messages are serialised straight from their values: building message objects
         # cost the tick more than the bytes do.
-        self._state_encoder = fixed_layout_encoder(HopperState, STATE_FIELDS)
-        stamp = ("header.stamp.sec", "header.stamp.nanosec")
-        self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*stamp, "wrench.force.x", "wrench.force.y"))
+        self._state_encoder = fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
+        self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*STAMP_FIELDS, *GRF_FIELDS))
         self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
         # Raw: an answer to an earlier apex is recognised from its bytes (command_key), unparsed.
         self._command_subscription = self.create_subscription(
