@@ -13,9 +13,13 @@ from __future__ import annotations
 import gc
 import math
 import os
+import sys
 import threading
 import time
 from collections.abc import Callable
+
+SWITCH_INTERVAL = 1e-4
+"""s: how soon another thread holding the GIL is asked to hand it to a due tick (Python's default: 5 ms)."""
 
 CpuClocks = Callable[[], tuple[int, int]]
 """(CPU time the hypervisor stole from this machine [ns], time the calling thread waited for a CPU
@@ -186,12 +190,18 @@ class Ticker:
         self._on_error = on_error
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._switch_interval = sys.getswitchinterval()
 
     def start(self, start_ns: int) -> None:
         # Everything alive now (modules, the node, its messages) is moved out of the collector's
         # reach: a full collection then walks only what the run allocates, not the whole process.
         gc.collect()
         gc.freeze()
+        # A due tick waits for the GIL until the thread holding it is asked to let go, by default
+        # after 5 ms: five ticks. Asked after SWITCH_INTERVAL instead, a callback of another thread
+        # delays the tick by at most that.
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL)
         self._thread = threading.Thread(target=self._run, args=(start_ns,), name="tdslip-tick", daemon=True)
         self._thread.start()
 
@@ -204,6 +214,7 @@ class Ticker:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
+            sys.setswitchinterval(self._switch_interval)
 
     def _run(self, start_ns: int) -> None:
         if self._priority > 0:
