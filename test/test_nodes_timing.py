@@ -8,6 +8,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -112,9 +113,13 @@ def test_the_proc_clocks_outlive_the_thread_they_time() -> None:
     wait (they used to raise ProcessLookupError, which ended a realtime run with a traceback)."""
     clocks = ProcCpuClocks()
     first: list[tuple[int, int]] = []
-    thread = threading.Thread(target=lambda: first.append(clocks()))
+    ids: list[int] = []
+    thread = threading.Thread(target=lambda: (ids.append(threading.get_native_id()), first.append(clocks())))
     thread.start()
     thread.join()
+    deadline = time.monotonic() + 5.0
+    while Path(f"/proc/self/task/{ids[0]}").exists() and time.monotonic() < deadline:
+        time.sleep(0.01)  # the system thread outlives join() by a moment
     steal, wait = clocks()  # on this thread, the timed one gone
     assert wait == first[0][1]
     assert steal >= first[0][0]
