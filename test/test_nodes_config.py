@@ -15,7 +15,7 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from ros_harness import RosGraph, overrides
 
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.nodes import controller_node, isolation, parameters, plant_node, recorder_node
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.entry import BAD_PARAMETERS, with_default_params_file
@@ -158,6 +158,8 @@ def node_executable(module: str, *arguments: str) -> subprocess.CompletedProcess
         ("plant_node", "clock_mode:=1", "clock_mode"),
         ("controller_node", "corrections:=one", "corrections"),
         ("recorder_node", "record_clock:=maybe", "record_clock"),
+        ("plant_node", "max_strids:=5", "max_strids"),  # a typo: rcl would ignore it and run 50 strides
+        ("controller_node", "polcy:=pd", "polcy"),
     ],
 )
 def test_a_value_of_the_wrong_type_on_the_command_line_is_an_error_naming_the_parameter(
@@ -168,6 +170,24 @@ def test_a_value_of_the_wrong_type_on_the_command_line_is_an_error_naming_the_pa
     assert result.returncode == BAD_PARAMETERS, result.stderr
     (line,) = result.stderr.strip().splitlines()
     assert line.startswith(f"{module}: parameter {named}: ") and "Traceback" not in result.stderr
+
+
+def test_a_misspelt_name_is_named_with_the_closest_parameter_and_rclpy_s_own_pass() -> None:
+    with pytest.raises(
+        ParameterError, match="max_strids: this node has no such parameter .did you mean max_strides"
+    ):
+        parameters.check_command_line(["plant_node", "--ros-args", "-p", "max_strids:=5"], plant_node.SPECS)
+    argv = [
+        "plant_node",
+        "--ros-args",
+        "-p",
+        "use_sim_time:=true",
+        "-p",
+        "qos_overrides./clock.publisher.depth:=5",
+        "-p",
+        "controller:polcy:=pd",  # another node's
+    ]
+    assert parameters.check_command_line(argv, plant_node.SPECS) == argv
 
 
 def test_an_integer_for_a_float_parameter_is_taken_as_that_float() -> None:

@@ -11,6 +11,7 @@ Their defaults are the paper's figures 8-10: kbar = 36, zeta0 = 0.08, m = 80 kg,
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -200,11 +201,20 @@ def _ros_arguments(argv: Sequence[str]) -> list[tuple[int, str, str]]:
     return found
 
 
+RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
+"""Parameters every rclpy node declares itself (besides ``qos_overrides.*``)."""
+
+
+def _is_rclpy_parameter(name: str) -> bool:
+    return name in RCLPY_PARAMETERS or name.startswith("qos_overrides.")
+
+
 def check_command_line(argv: list[str], specs: Sequence[ParameterSpec]) -> list[str]:
     """argv checked against ``specs`` before rcl reads it, which would let a default params file
     silently win over a ``-p`` value of the wrong type: a value of another type, an unparsable one
-    or a missing params file raise ParameterError naming it. An integer given for a float
-    parameter (``-p mass:=80``) is what the user means: the returned argv spells it as a float."""
+    or a missing params file raise ParameterError naming it, and so does a name the node does not have
+    (rcl would ignore ``-p max_strids:=5`` silently). An integer given for a float parameter
+    (``-p mass:=80``) is what the user means: the returned argv spells it as a float."""
     by_name = {spec.name: spec for spec in specs}
     checked = list(argv)
     for index, flag, value in _ros_arguments(argv):
@@ -214,6 +224,14 @@ def check_command_line(argv: list[str], specs: Sequence[ParameterSpec]) -> list[
             continue
         name, assign, text = value.partition(":=")
         spec = by_name.get(name.rsplit(":", 1)[-1])
+        if assign and spec is None and ":" not in name and not _is_rclpy_parameter(name):
+            # Unprefixed: meant for this node (``-p other_node:name:=...`` is another node's business).
+            close = difflib.get_close_matches(name, by_name, n=1)
+            hint = f"did you mean {close[0]}? " if close else ""
+            raise ParameterError(
+                f"parameter {name}: this node has no such parameter ({hint}{flag} {value}; see the node's "
+                "params file for its parameters)"
+            )
         if not assign or spec is None:
             continue
         given = rcl_value_type(text)
