@@ -178,6 +178,12 @@ class FixedStepStepper:
         return self._command
 
     @property
+    def past_touchdown(self) -> bool:
+        """True from this stride's touchdown until the next apex (in stance, or rising after it): a
+        command set now is for the next stride's touchdown."""
+        return self._phase is Phase.STANCE or not self._descending
+
+    @property
     def failed(self) -> FailureKind | None:
         return self._failed
 

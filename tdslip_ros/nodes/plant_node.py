@@ -321,8 +321,8 @@ def fixed_layout_encoder(message_class: type, fields: tuple[str, ...]) -> FixedL
     template = message_class()
     if hasattr(template, "header"):
         template.header.frame_id = topics.FRAME_ID
-    type_name = f"{message_class.__module__.split('.')[0]}/msg/{message_class.__name__}"
-    schema = Schema(id=0, name=type_name, encoding="ros2msg", data=message_definition(type_name).encode())
+    name = topics.type_name(message_class)
+    schema = Schema(id=0, name=name, encoding="ros2msg", data=message_definition(name).encode())
     return FixedLayoutEncoder(schema, serialize_message(template), fields)
 
 
@@ -618,7 +618,7 @@ class PlantNode(Node):
         self._offset = time_offset_ticks * TICK_PERIOD
         self._awaiting: int | None = None
         self._answered = -1  # the latest stride whose command was applied
-        self._touched_down = -1  # the latest stride whose stance began (its command is then too late)
+        self._late_stride = -1  # the latest stride counted in late_commands
         self._stale_strides = 0  # realtime: strides in a row that no valid command answered
         self._apex_wall_ns = time.monotonic_ns()
 
@@ -750,8 +750,6 @@ class PlantNode(Node):
                 self._finish(event.failure.value, event.reason, self._offset + event.t)
                 return True
             else:
-                if event.kind is EventKind.TOUCHDOWN:
-                    self._touched_down = event.stride
                 self._publish_contact(event)
         state = self._stepper.state
         self._publish_sample(state)
@@ -817,11 +815,17 @@ class PlantNode(Node):
             else:
                 self.rejections.total += 1  # a late answer: counted, not reported
                 if key[0] == self._epoch and key[1] > self._answered:
-                    self.late_commands += 1  # its stride never had a command: it missed the touchdown
+                    self._count_late(key[1])  # its stride never had a command: it missed the touchdown
             return
         msg = deserialize_message(data, StanceCommand)
         with self._lock:
             self._take_command(msg)
+
+    def _count_late(self, stride: int) -> None:
+        """Count a stride in late_commands once, however many late answers it gets."""
+        if stride != self._late_stride:
+            self._late_stride = stride
+            self.late_commands += 1
 
     def _not_yet(self, key: tuple[int, int]) -> str:
         epoch, stride = key
@@ -869,8 +873,8 @@ class PlantNode(Node):
             raise ParameterError(f"it answers stride {msg.stride}, but the latest apex is stride {stride}")
         if self.lockstep and self._awaiting != stride:
             raise ParameterError(f"stride {stride} already has its command (lockstep)")
-        if self._touched_down == stride:  # in its stance, or in the flight after it
-            self.late_commands += 1
+        if self._stepper.past_touchdown:  # in its stance, or rising after it
+            self._count_late(stride)
             raise ParameterError(f"it arrived after the touchdown of stride {stride}")
         command = ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f)
         self.limits.check_command(command)
