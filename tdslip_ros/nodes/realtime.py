@@ -190,18 +190,12 @@ class Ticker:
         self._on_error = on_error
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._switch_interval = sys.getswitchinterval()
 
     def start(self, start_ns: int) -> None:
         # Everything alive now (modules, the node, its messages) is moved out of the collector's
         # reach: a full collection then walks only what the run allocates, not the whole process.
         gc.collect()
         gc.freeze()
-        # A due tick waits for the GIL until the thread holding it is asked to let go, by default
-        # after 5 ms: five ticks. Asked after SWITCH_INTERVAL instead, a callback of another thread
-        # delays the tick by at most that.
-        self._switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(SWITCH_INTERVAL)
         self._thread = threading.Thread(target=self._run, args=(start_ns,), name="tdslip-tick", daemon=True)
         self._thread.start()
 
@@ -214,9 +208,19 @@ class Ticker:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
-            sys.setswitchinterval(self._switch_interval)
 
     def _run(self, start_ns: int) -> None:
+        # A due tick waits for the GIL until the thread holding it is asked to let go, by default
+        # after 5 ms: five ticks. Asked after SWITCH_INTERVAL instead, a callback of another thread
+        # delays the tick by at most that. Process-wide, so only while this thread runs.
+        switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL)
+        try:
+            self._tick_until_stopped(start_ns)
+        finally:
+            sys.setswitchinterval(switch_interval)
+
+    def _tick_until_stopped(self, start_ns: int) -> None:
         if self._priority > 0:
             try:
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self._priority))  # this thread
