@@ -119,10 +119,7 @@ def policies(params: HopperParams, apex: ApexState, angle: float) -> tuple[ApexS
     _, height, speed = flat.apexes[-1]
     start = ApexState(height, speed)
     tau0 = float(energy.commands(params, start.y, start.xdot, start.xdot).command().tau0)
-    fall = dynamics.fall_time(start.y, 0.0, dynamics.touchdown_height(params, math.cos(angle)), params.g)
-    _, thetadot = dynamics.polar_velocity(
-        params.r0, math.sin(angle), math.cos(angle), start.xdot, -params.g * fall
-    )
+    thetadot = dynamics.touchdown_leg_rate(params, start.y, start.xdot, angle)
     open_loop = PolicySpec.of("open_loop", values | {"touchdown_power": tau0 * thetadot})
     return start, {"open_loop": open_loop, "energy": energy}
 

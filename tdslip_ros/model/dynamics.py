@@ -94,6 +94,15 @@ def polar_velocity(r: Real, sin_t: Real, cos_t: Real, xdot: Real, ydot: Real) ->
     return -xdot * sin_t + ydot * cos_t, (-xdot * cos_t - ydot * sin_t) / r
 
 
+def touchdown_leg_rate(params: HopperParams, y: float, xdot: float, touchdown_angle: float) -> float:
+    """thetadot [rad/s] at the touchdown after an apex (y above the ground, xdot), the leg at rest length
+    and ``touchdown_angle``: a ramp starting at tau0 puts tau0 times it into the hip at touchdown (the
+    open-loop policy's touchdown power)."""
+    cos_td = math.cos(touchdown_angle)
+    fall = fall_time(y, 0.0, touchdown_height(params, cos_td), params.g)
+    return polar_velocity(params.r0, math.sin(touchdown_angle), cos_td, xdot, -params.g * fall)[1]
+
+
 def cartesian_velocity(r: Real, sin_t: Real, cos_t: Real, rdot: Real, thetadot: Real) -> tuple[Real, Real]:
     """(xdot, ydot) of the body from its polar velocity about the toe (eq. 7 at liftoff)."""
     return -rdot * sin_t - r * thetadot * cos_t, rdot * cos_t - r * thetadot * sin_t

@@ -54,7 +54,7 @@ from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.controllers import POLICIES, PolicySpec
 from tdslip_ros.model.events import FAILURE_KINDS
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.studies import chunk, engine
+from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
@@ -144,8 +144,7 @@ def operating_point(params: HopperParams, beta: float, energy: float) -> Operati
         name="energy", corrections=1, **values | {"touchdown_angle": beta, "target_energy": energy}
     )
     tau0 = float(spec.commands(params, y, xdot, xdot).tau0)
-    fall = dynamics.fall_time(y, 0.0, dynamics.touchdown_height(params, math.cos(beta)), params.g)
-    _, thetadot = dynamics.polar_velocity(params.r0, math.sin(beta), math.cos(beta), xdot, -params.g * fall)
+    thetadot = dynamics.touchdown_leg_rate(params, y, xdot, beta)
     settings = {
         "touchdown_angle": beta,
         "target_energy": energy,
@@ -190,11 +189,11 @@ def summarise(name: str, study: Study, rows: pa.Table) -> list[dict[str, Any]]:
     policies = list(study.values_of("policy"))
     sizes = KINDS[name].sizes
     per_cell = study.samples
-    survived = _column(rows, "strides_survived").reshape(len(policies), len(sizes), per_cell)
-    outcome = _column(rows, "outcome").reshape(survived.shape)
-    y_std = _column(rows, "y_std").reshape(survived.shape)
-    xdot_std = _column(rows, "xdot_std").reshape(survived.shape)
-    held = _column(rows, "strides_held").reshape(survived.shape)
+    survived = table.column(rows, "strides_survived").reshape(len(policies), len(sizes), per_cell)
+    outcome = table.column(rows, "outcome").reshape(survived.shape)
+    y_std = table.column(rows, "y_std").reshape(survived.shape)
+    xdot_std = table.column(rows, "xdot_std").reshape(survived.shape)
+    held = table.column(rows, "strides_held").reshape(survived.shape)
     summary = []
     for p, policy in enumerate(policies):
         for s, size in enumerate(sizes):
@@ -214,10 +213,6 @@ def summarise(name: str, study: Study, rows: pa.Table) -> list[dict[str, Any]]:
                 }
             )
     return summary
-
-
-def _column(rows: pa.Table, name: str) -> np.ndarray:
-    return np.asarray(rows[name].to_numpy(zero_copy_only=False))
 
 
 def survived_range(summary: list[dict[str, Any]], kind: str, policy: str, share: float) -> list[float] | None:
