@@ -71,17 +71,17 @@ def on_engine(study: Study, workers: int, directory: Path) -> tuple[float, float
     return seconds, cpu + sum(after[worker] - before[worker] for worker in after), peaks
 
 
-def grid(text: str) -> tuple[int, int]:
-    return sweep.grid_size(text)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--grid", type=grid, default=(100, 80), help="energies x heights (default 100x80)")
+    parser.add_argument(
+        "--grid", type=sweep.grid_size, default=(100, 80), help="energies x heights (default 100x80)"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="rounds of direct, 1 worker, 2 workers")
-    parser.add_argument("--memory-grid", type=grid, help="also run this study on 2 workers for peak memory")
+    parser.add_argument(
+        "--memory-grid", type=sweep.grid_size, help="also run this study on 2 workers for peak memory"
+    )
     args = parser.parse_args()
     study = sweep.fig10_studies(args.grid, basins.REGULATED_STRIDES, None)[""]
     print(

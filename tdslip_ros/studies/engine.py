@@ -185,7 +185,6 @@ class Summary:
     chunks: int
     reused: int
     computed: int
-    seconds: float
 
 
 def run_study(
@@ -202,7 +201,6 @@ def run_many(
 ) -> Summary:
     """:func:`run_study` for several studies (directory: study) at once: their missing chunks go through one
     stream, so the cluster stays busy from the first study's chunks to the last one's."""
-    started = time.monotonic()
     todo: dict[str, list[tuple[Path, Study, int]]] = {}  # by task key (the same chunk twice: computed once)
     reused = chunks = size = on_disk = 0
     for directory, study in studies.items():
@@ -232,7 +230,7 @@ def run_many(
     _stream(client, list(todo), submit, write, lambda future: f"chunk {future.key.rsplit('-', 1)[1]}")
     if progress is not None:
         progress.finish()
-    return Summary(size, chunks, reused, chunks - reused, time.monotonic() - started)
+    return Summary(size, chunks, reused, chunks - reused)
 
 
 def _chunk_size(study: Study, index: int) -> int:

@@ -51,7 +51,7 @@ from tdslip_ros.analysis.figures import (
 )
 from tdslip_ros.analysis.report import output_directory, to_json
 from tdslip_ros.model import basins, stability, units
-from tdslip_ros.studies import engine
+from tdslip_ros.studies import engine, table
 from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import Study
 
@@ -107,7 +107,7 @@ def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     shape = (alphas.size, heights.size)
     outcome, stride = _outcomes(rows, shape)
     figure, axes = _basin_figure(alphas, heights, outcome, stride, study.strides)
-    y_fixed = _column(rows, "y_fixed").reshape(shape)
+    y_fixed = table.column(rows, "y_fixed").reshape(shape)
     fixed = units.height_to_bar(PARAMS, row_median(y_fixed))
     axes.plot(alphas, fixed, ".", color=EXACT, label="fixed point reached (median)")
     axes.set(
@@ -149,7 +149,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     outcome, stride = _outcomes(rows, shape)
     energies_bar = units.energy_to_bar(PARAMS, energies)
     figure, axes = _basin_figure(energies_bar, heights, outcome, stride, study.strides)
-    fixed = units.height_to_bar(PARAMS, row_median(_column(rows, "y_fixed").reshape(shape)))
+    fixed = units.height_to_bar(PARAMS, row_median(table.column(rows, "y_fixed").reshape(shape)))
     axes.plot(energies_bar, fixed, "-", color=EXACT, lw=2, label="exact plant, fixed point reached (median)")
     fine = np.linspace(energies_bar[0], energies_bar[-1], 4 * energies_bar.size)
     analytic = stability.regulated_fixed_points(
@@ -208,9 +208,11 @@ def fig11_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
             kbar = value if name == "kbar" else 36.0
             zeta0 = value if name == "zeta0" else 0.08
             params = study.params(kbar, zeta0)
-            y = units.height_to_bar(params, row_median(_column(rows, "y_fixed").reshape(shape)[position]))
+            y = units.height_to_bar(
+                params, row_median(table.column(rows, "y_fixed").reshape(shape)[position])
+            )
             xdot = units.speed_to_bar(
-                params, row_median(_column(rows, "xdot_fixed").reshape(shape)[position])
+                params, row_median(table.column(rows, "xdot_fixed").reshape(shape)[position])
             )
             (line,) = axes.plot(xdot, y, lw=1.2, label=f"{name} = {value:g}")
             finite = np.flatnonzero(np.isfinite(y))
@@ -261,14 +263,10 @@ def _basin_figure(
     return figure, axes
 
 
-def _column(rows: pa.Table, name: str) -> np.ndarray:
-    return np.asarray(rows[name].to_numpy(zero_copy_only=False))
-
-
 def _outcomes(rows: pa.Table, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Outcome indices (basins.OUTCOMES) and convergence strides in the grid's shape."""
     outcome = pc.index_in(rows["outcome"], value_set=pa.array(basins.OUTCOMES)).to_numpy()
-    return outcome.reshape(shape), _column(rows, "convergence_stride").reshape(shape)
+    return outcome.reshape(shape), table.column(rows, "convergence_stride").reshape(shape)
 
 
 def outcome_counts(rows: pa.Table) -> dict[str, int]:

@@ -156,6 +156,11 @@ def prepare(directory: Path, study: Study, resume: bool) -> None:
         manifest.write_text(json.dumps(document, indent=1, allow_nan=True) + "\n")
 
 
+def column(rows: pa.Table, name: str) -> np.ndarray:
+    """One column of a table as a numpy array."""
+    return np.asarray(rows[name].to_numpy(zero_copy_only=False))
+
+
 def read(directory: Path, columns: list[str] | None = None) -> pa.Table:
     """The whole table (or some columns), sorted by trajectory."""
     rows = pq.read_table(
