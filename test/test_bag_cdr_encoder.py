@@ -20,7 +20,7 @@ from tdslip_ros.bag.cdr import FixedLayoutEncoder
 from tdslip_ros.bag.schema import message_definition
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.events import Phase
-from tdslip_ros.nodes.plant_node import SAMPLE_FIELDS, fill_state, fixed_layout_encoder, state_values
+from tdslip_ros.nodes.wire import SAMPLE_FIELDS, fill_state, fixed_layout_encoder, state_values
 
 NUMBERS = (
     "x y xdot ydot toe_x toe_y r theta rdot thetadot hip_torque energy grf_x grf_y ground_height".split()

@@ -61,7 +61,7 @@ def test_record_replay_record_gives_the_same_messages_in_the_same_order(
         )
         try:
             # Original timing (rate 1): the replay can be no faster than the recording's log times.
-            result = replay(energy.bag, 1.0, wait_for_subscribers=1, context=context)
+            result = replay(energy.bag, 1.0, wait_for_subscribers=1, wait_for_recorder=True, context=context)
             recorder.stop()
         finally:
             recorder.close()

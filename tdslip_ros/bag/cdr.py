@@ -19,6 +19,7 @@ import numpy as np
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 
+from tdslip_ros.bag.padding import zero_padding
 from tdslip_ros.bag.reader import BagReadError
 from tdslip_ros.bag.schema import SEPARATOR
 
@@ -148,8 +149,9 @@ class FixedLayoutEncoder:
     """Serialises messages of one fixed CDR layout straight from the values of chosen fields, without
     building a message object: the publisher's cost at 1 kHz. ``sample`` is one message serialised the
     usual way (rclpy's ``serialize_message``); every field not in ``fields`` keeps its value there (the
-    frame_id, constants). ``fields`` are dotted paths in the order of the message (their byte order);
-    runs of them that only CDR padding separates are packed by one ``struct`` call."""
+    frame_id, constants), and every padding byte is zero whatever ``sample`` held there
+    (:mod:`tdslip_ros.bag.padding`). ``fields`` are dotted paths in the order of the message (their
+    byte order); runs of them that only CDR padding separates are packed by one ``struct`` call."""
 
     def __init__(self, schema: Schema, sample: bytes, fields: Sequence[str]) -> None:
         layout = _fixed_layout(schema, sample)
@@ -161,7 +163,8 @@ class FixedLayoutEncoder:
         offsets = [layout[path][0] for path in fields]
         if offsets != sorted(offsets):
             raise ValueError("fields must be given in the message's order")
-        self._template = bytes(sample)
+        sample = zero_padding(schema.name, schema.data.decode(), sample)
+        self._template = sample
         self._runs: list[tuple[struct.Struct, int, int, int]] = []  # (packer, byte offset, first, end)
         first = 0
         for index, path in enumerate(fields):

@@ -66,15 +66,18 @@ class HopperParams:
             raise ParameterError(f"c (damping) must be non-negative, got {c!r}")
         object.__setattr__(self, "c", c)
         m, k, r0, g = self.m, self.k, self.r0, self.g
+        # Evaluated one by one: a product that underflows to 0 must not reach the division after it.
         derived = {
-            "m g r0 (the energy and torque scale)": m * g * r0,
-            "k/m (omega0^2)": k / m,
-            "m k": m * k,
-            "m r0^2 (the leg's inertia)": m * r0 * r0,
-            "g/r0": g / r0,
-            "k r0/(m g) (kbar)": k * r0 / (m * g),
+            "m g r0 (the energy and torque scale)": lambda: m * g * r0,
+            "k/m (omega0^2)": lambda: k / m,
+            "m k": lambda: m * k,
+            "m g": lambda: m * g,
+            "m r0^2 (the leg's inertia)": lambda: m * r0 * r0,
+            "g/r0": lambda: g / r0,
+            "k r0/(m g) (kbar)": lambda: k * r0 / (m * g),
         }
-        for what, value in derived.items():
+        for what, value_of in derived.items():
+            value = value_of()
             if not sys.float_info.min <= value < math.inf:
                 raise ParameterError(
                     f"m = {m!r}, k = {k!r}, r0 = {r0!r}, g = {g!r} are out of the floating-point range: "

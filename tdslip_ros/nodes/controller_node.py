@@ -39,6 +39,7 @@ from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, wait_for_matching
 from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.wire import serialized
 
 DEFAULT_TARGET_ENERGY = parameters.PAPER_PARAMS.m * (
     parameters.PAPER_PARAMS.g * parameters.DEFAULT_APEX_HEIGHT + 0.5 * parameters.DEFAULT_APEX_SPEED**2
@@ -127,7 +128,7 @@ class ControllerNode(Node):
         # A recorder or plant the graph shows but this publisher has not matched yet would miss it.
         if not wait_for_matching(self, [self._publisher], MATCH_TIMEOUT):
             self.get_logger().warning(f"{self._publisher.topic_name}: not every subscriber matched in time")
-        self._publisher.publish(msg)
+        self._publisher.publish(serialized(msg))
         self.published += 1
 
 

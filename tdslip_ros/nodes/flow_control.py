@@ -55,6 +55,14 @@ class RecorderProgress:
                 return True
         return False
 
+    def hears(self, published_topics: Iterable[str]) -> bool:
+        """An open recorder has matched a publisher on every one of ``published_topics`` it records."""
+        topics = list(published_topics)
+        return any(
+            not report.closed and all(report.publishers.get(topic, 0) >= 1 for topic in topics)
+            for report in self._reports.values()
+        )
+
     def lag(self, topic: str, published: int) -> int:
         """Messages on ``topic`` published but not yet written by the slowest recorder (0 if none
         records it)."""

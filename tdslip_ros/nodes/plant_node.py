@@ -72,23 +72,20 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
-from mcap.records import Schema
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.executors import Executor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
-from tdslip_ros.bag.cdr import FixedLayoutEncoder
-from tdslip_ros.bag.schema import message_definition
-from tdslip_ros.interfaces import GRF_FIELDS, STAMP_FIELDS, STATE_FIELDS, hopper_from_parameters
-from tdslip_ros.model.events import Event, EventKind, Phase
+from tdslip_ros.interfaces import GRF_FIELDS, STAMP_FIELDS, hopper_from_parameters
+from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
@@ -101,6 +98,14 @@ from tdslip_ros.nodes.flow_control import RecorderProgress
 from tdslip_ros.nodes.markers import HopperMarkers
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
+from tdslip_ros.nodes.wire import (
+    SAMPLE_FIELDS,
+    fill_state,
+    fixed_layout_encoder,
+    serialized,
+    set_stamp,
+    state_values,
+)
 
 RCLError = rclpy_implementation.RCLError  # what a failed publish raises (as rclpy.subscription names it)
 
@@ -273,57 +278,6 @@ class RunOutcome:
     @property
     def ok(self) -> bool:
         return bool(self.kind == Status.KIND_RUN_COMPLETE)
-
-
-def set_stamp(stamp: Time, t: float) -> None:
-    stamp.sec, stamp.nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
-
-
-SAMPLE_FIELDS = (*STAMP_FIELDS, *STATE_FIELDS)
-"""The fields of a HopperState message that :func:`state_values` gives, in the message's order."""
-
-
-def state_values(state: ModelState, t: float) -> tuple[int | float, ...]:
-    """The values of :data:`SAMPLE_FIELDS` for a model state stamped t [s]."""
-    sec, nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
-    phase = HopperState.PHASE_STANCE if state.phase is Phase.STANCE else HopperState.PHASE_FLIGHT
-    return (
-        sec,
-        nanosec,
-        state.stride,
-        phase,
-        state.x,
-        state.y,
-        state.xdot,
-        state.ydot,
-        state.toe_x,
-        state.toe_y,
-        state.r,
-        state.theta,
-        state.rdot,
-        state.thetadot,
-        state.hip_torque,
-        state.energy,
-        state.ground_height,
-    )
-
-
-def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
-    """Copy a model state into a HopperState message stamped t [s]."""
-    values = state_values(state, t)
-    msg.header.stamp.sec, msg.header.stamp.nanosec = values[:2]
-    for name, value in zip(STATE_FIELDS, values[len(STAMP_FIELDS) :], strict=True):
-        setattr(msg, name, value)
-
-
-def fixed_layout_encoder(message_class: type, fields: tuple[str, ...]) -> FixedLayoutEncoder:
-    """An encoder of ``message_class`` (frame_id ``world`` where it has a header) from ``fields``' values."""
-    template = message_class()
-    if hasattr(template, "header"):
-        template.header.frame_id = topics.FRAME_ID
-    name = topics.type_name(message_class)
-    schema = Schema(id=0, name=name, encoding="ros2msg", data=message_definition(name).encode())
-    return FixedLayoutEncoder(schema, serialize_message(template), fields)
 
 
 def command_key(data: bytes) -> tuple[int, int] | None:
@@ -921,7 +875,7 @@ class PlantNode(Node):
     # --- publishing -----------------------------------------------------------------------------
 
     def _publish(self, topic: str, msg: object) -> None:
-        self._topic_publishers[topic].publish(msg)
+        self._topic_publishers[topic].publish(serialized(msg))
         self.published[topic] += 1
 
     def _publish_sample(self, state: ModelState) -> None:

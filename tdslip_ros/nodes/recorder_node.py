@@ -47,6 +47,7 @@ from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.wire import serialized
 
 DISCOVERY_PERIOD = 0.05  # s between two looks for new publishers (and status reports)
 TAKE_PERIOD = 0.001  # s the taker thread sleeps when it found nothing to take
@@ -248,7 +249,7 @@ class RecorderNode(Node):
                 for name in self.topic_names
             ]
             status.closed = self.bag.closed
-            self._status_publisher.publish(status)
+            self._status_publisher.publish(serialized(status))
 
     @property
     def message_count(self) -> int:

@@ -8,7 +8,12 @@ offered (``offered_qos_profiles``: history, depth, reliability, durability), so 
 stay lossless. Publishers are reliable within one process and topic, so every subscriber receives
 each topic's messages in the recorded order. Before the first message the replay can wait for
 subscribers (``--wait-for-subscribers N``: N on every topic), since volatile topics are not kept for
-late joiners; at the end it waits until reliable subscribers have acknowledged everything.
+late joiners, and for a recorder_node (``--wait-for-recorder``) that reports on
+``tdslip/recorder_status`` a matched publisher on every replayed topic. Both are needed for a
+complete recording: discovery completes on the two sides at different moments, and a reader that
+has not yet matched a volatile writer drops what that writer sends it (the first tens of
+milliseconds of a replay, about one run in twenty). At the end it waits until reliable subscribers
+have acknowledged everything.
 
 The recording is read with the checks of ``tdslip analyze`` (:mod:`tdslip_ros.bag.reader`: magic,
 footer, summary CRC, every chunk's CRC, message counts) in a full pass before ROS starts, so a
@@ -35,14 +40,19 @@ import rclpy
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 from rclpy.context import Context
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from tdslip_msgs.msg import RecorderStatus
 
 from tdslip_ros.bag.reader import Bag, BagReadError, TopicInfo, iter_messages, open_bag, verify
 from tdslip_ros.bag.schema import split_type_name
-from tdslip_ros.nodes.entry import SPIN_SLICE, stop_on_signals
+from tdslip_ros.interfaces import RECORDER_STATUS
+from tdslip_ros.nodes.entry import SPIN_SLICE, spin_until, stop_on_signals
+from tdslip_ros.nodes.flow_control import RecorderProgress
+from tdslip_ros.nodes.topics import RECORDER_STATUS_QOS
 
 ACK_TIMEOUT = 10.0  # s for reliable subscribers to acknowledge the last messages
 UNKNOWN_HISTORY_DEPTH = 1000
@@ -159,6 +169,23 @@ class ReplayNode(Node):
                 )
             time.sleep(SPIN_SLICE / 10)
 
+    def wait_for_recorder(self, timeout: float, stop: Callable[[], bool]) -> None:
+        """Until a recorder reports a matched publisher on every replayed topic; ReplayError after
+        ``timeout`` s."""
+        progress = RecorderProgress()
+        subscription = self.create_subscription(
+            RecorderStatus, RECORDER_STATUS, progress.update, RECORDER_STATUS_QOS
+        )
+        executor = SingleThreadedExecutor(context=self.context)
+        executor.add_node(self)
+        try:
+            if not spin_until(executor, lambda: stop() or progress.hears(self.topic_publishers), timeout):
+                raise ReplayError(f"no recorder reported every replayed topic matched within {timeout} s")
+        finally:
+            executor.remove_node(self)
+            executor.shutdown()
+            self.destroy_subscription(subscription)
+
     def play(self, rate: float = 1.0, stop: Callable[[], bool] = lambda: False) -> ReplayResult:
         """Publish the recording's messages (module docstring); returns the counts per topic."""
         check_rate(rate, self.bag)
@@ -190,6 +217,7 @@ def replay(
     *,
     topics: list[str] | None = None,
     wait_for_subscribers: int = 0,
+    wait_for_recorder: bool = False,
     wait_timeout: float = 30.0,
     context: Context | None = None,
     stop: Callable[[], bool] = lambda: False,
@@ -199,6 +227,8 @@ def replay(
     try:
         if wait_for_subscribers:
             node.wait_for_subscribers(wait_for_subscribers, wait_timeout, stop)
+        if wait_for_recorder:
+            node.wait_for_recorder(wait_timeout, stop)
         return node.play(rate, stop)
     finally:
         node.destroy_node()
@@ -216,7 +246,12 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=0,
         metavar="N",
-        help="first wait for N subscribers per topic",
+        help="first wait for N subscribers per topic (default 0)",
+    )
+    parser.add_argument(
+        "--wait-for-recorder",
+        action="store_true",
+        help="first wait until a recorder_node reports every replayed topic matched",
     )
     return parser
 
@@ -236,6 +271,7 @@ def main(argv: list[str]) -> int:
             args.rate,
             topics=args.topics,
             wait_for_subscribers=args.wait_for_subscribers,
+            wait_for_recorder=args.wait_for_recorder,
             stop=stop.is_set,
         )
     except (ReplayError, ValueError) as error:

@@ -1,0 +1,96 @@
+"""What the nodes put on the wire: every message they publish, serialised with no undefined byte.
+
+rclpy's ``serialize_message`` (and an RMW serialising a message object) leaves CDR alignment padding
+as it finds it in memory, so a message object published as it is can carry bytes of the process's
+heap into every subscriber and recording. The nodes therefore publish bytes: :func:`serialized` for
+the event-rate messages (padding zeroed from the message's schema, :mod:`tdslip_ros.bag.padding`),
+:func:`fixed_layout_encoder` for the 1 kHz ones (a zero-padded template whose fields are packed in
+place). The same options thus give the same bytes in every process, on every machine.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+from builtin_interfaces.msg import Time
+from mcap.records import Schema
+from rclpy.serialization import serialize_message
+from tdslip_msgs.msg import HopperState
+
+from tdslip_ros.bag.cdr import FixedLayoutEncoder
+from tdslip_ros.bag.padding import PaddingZeroer
+from tdslip_ros.bag.schema import message_definition
+from tdslip_ros.interfaces import STAMP_FIELDS, STATE_FIELDS
+from tdslip_ros.model.events import HopperState as ModelState
+from tdslip_ros.model.events import Phase
+from tdslip_ros.nodes import topics
+
+_NS_PER_S = 1_000_000_000
+
+
+@cache
+def _definition(message_class: type) -> tuple[str, str]:
+    """(``pkg/msg/Type``, schema text) of a message class."""
+    name = topics.type_name(message_class)
+    return name, message_definition(name)
+
+
+@cache
+def _zeroer(message_class: type) -> PaddingZeroer:
+    return PaddingZeroer(*_definition(message_class))
+
+
+def serialized(msg: object) -> bytes:
+    """``msg`` as CDR bytes with every padding byte zero."""
+    return _zeroer(type(msg))(serialize_message(msg))
+
+
+def set_stamp(stamp: Time, t: float) -> None:
+    stamp.sec, stamp.nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
+
+
+SAMPLE_FIELDS = (*STAMP_FIELDS, *STATE_FIELDS)
+"""The fields of a HopperState message that :func:`state_values` gives, in the message's order."""
+
+
+def state_values(state: ModelState, t: float) -> tuple[int | float, ...]:
+    """The values of :data:`SAMPLE_FIELDS` for a model state stamped t [s]."""
+    sec, nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
+    phase = HopperState.PHASE_STANCE if state.phase is Phase.STANCE else HopperState.PHASE_FLIGHT
+    return (
+        sec,
+        nanosec,
+        state.stride,
+        phase,
+        state.x,
+        state.y,
+        state.xdot,
+        state.ydot,
+        state.toe_x,
+        state.toe_y,
+        state.r,
+        state.theta,
+        state.rdot,
+        state.thetadot,
+        state.hip_torque,
+        state.energy,
+        state.ground_height,
+    )
+
+
+def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
+    """Copy a model state into a HopperState message stamped t [s]."""
+    values = state_values(state, t)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = values[:2]
+    for name, value in zip(STATE_FIELDS, values[len(STAMP_FIELDS) :], strict=True):
+        setattr(msg, name, value)
+
+
+def fixed_layout_encoder(message_class: type, fields: tuple[str, ...]) -> FixedLayoutEncoder:
+    """An encoder of ``message_class`` (frame_id ``world`` where it has a header) from ``fields``' values."""
+    template = message_class()
+    if hasattr(template, "header"):
+        template.header.frame_id = topics.FRAME_ID
+    name, text = _definition(message_class)
+    schema = Schema(id=0, name=name, encoding="ros2msg", data=text.encode())
+    return FixedLayoutEncoder(schema, serialize_message(template), fields)
