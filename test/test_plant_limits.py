@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import dynamics, exact_map, units
+from tdslip_ros.model.analytic import approximate_return_map
 from tdslip_ros.model.batch import _StanceField, batch_apex_return_map, simulate_strides
 from tdslip_ros.model.controllers import deadbeat
 from tdslip_ros.model.events import EventKind, FailureKind, HopperState, failure_from_code
@@ -117,6 +118,18 @@ def test_apexes_beyond_the_limits_are_refused_by_every_integrator(apex: ApexStat
         )
     with pytest.raises(ParameterError, match=phrase):
         simulate_strides(PARAMS, apex.y, apex.xdot, gait_policy, 1)
+    with pytest.raises(ParameterError, match=phrase):
+        approximate_return_map(PARAMS, apex, GAIT)
+
+
+def test_an_apex_no_hopper_can_hold_is_refused_where_it_is_built() -> None:
+    """Its energy would overflow (0.5 m xdot^2 raised OverflowError for xdot = 1e200)."""
+    with pytest.raises(
+        ParameterError, match=r"apex speed xdot = 1e\+200 m/s is out of the floating-point range"
+    ):
+        ApexState(1.0, 1e200)
+    with pytest.raises(ParameterError, match=r"apex height y = 1e\+160 m is out of the floating-point"):
+        ApexState(1e160, 1.0)
 
 
 def test_hopper_parameters_out_of_their_domain_are_refused_by_name() -> None:
@@ -130,6 +143,9 @@ def test_hopper_parameters_out_of_their_domain_are_refused_by_name() -> None:
         HopperParams(m=80.0, k=PARAMS.k, r0=1e-300, c=PARAMS.c)
     with pytest.raises(ParameterError, match="m = 1e-300, k = 1e-300.*m k = 0.0"):
         HopperParams(m=1e-300, k=1e-300, r0=1.0, c=0.0)
+    # Issue 17: m g = 0 reached the division of kbar (ZeroDivisionError).
+    with pytest.raises(ParameterError, match="m = 1e-300, k = 1e-300, r0 = 1e-300, g = 1e-300 .* m g r0"):
+        HopperParams(1e-300, 1e-300, 1e-300, 0, 1e-300)
     with pytest.raises(ParameterError, match="floating-point range: zeta0"):
         HopperParams(m=1e-300, k=1e-3, r0=1.0, c=1e300)
     overdamped = HopperParams(m=PARAMS.m, k=PARAMS.k, r0=PARAMS.r0, c=1e7)
@@ -335,19 +351,25 @@ def test_fuzz_commands_changed_in_flight_never_break_the_stepper() -> None:
     (out of domain, in stance, unreachable angle) or takes the command; the stepper never raises and
     never reports a non-finite or implausible state."""
     rng = np.random.default_rng(7)
-    failures = set()
+    failures: list[FailureKind] = []
+    taken = refused = 0
     with deadline(60.0):
         for _ in range(8):
             stepper = FixedStepStepper(PARAMS, START, GAIT)
             for _ in range(4000):
                 if rng.random() < 0.02:
                     _, _, angle, tau0, t_f = _fuzz_inputs(rng)
-                    with contextlib.suppress(ParameterError):
+                    try:
                         stepper.set_command(StanceCommand(angle, tau0, t_f))
+                        taken += 1
+                    except ParameterError:
+                        refused += 1
                 for event in stepper.step():
                     _assert_plausible(event.state)
                 _assert_plausible(stepper.state)
                 if stepper.failed is not None:
-                    failures.add(stepper.failed)
+                    failures.append(stepper.failed)
                     break
-    assert failures  # random commands end hopping
+    # Both paths were exercised, and the random commands ended the hopping as named failures.
+    assert taken > 0 and refused > 0, (taken, refused)
+    assert len(failures) >= 4 and all(isinstance(kind, FailureKind) for kind in failures), failures

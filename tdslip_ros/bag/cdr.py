@@ -19,7 +19,7 @@ import numpy as np
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 
-from tdslip_ros.bag.padding import zero_padding
+from tdslip_ros.bag.padding import padded_to_4, zero_padding
 from tdslip_ros.bag.reader import BagReadError
 from tdslip_ros.bag.schema import SEPARATOR
 
@@ -149,9 +149,10 @@ class FixedLayoutEncoder:
     """Serialises messages of one fixed CDR layout straight from the values of chosen fields, without
     building a message object: the publisher's cost at 1 kHz. ``sample`` is one message serialised the
     usual way (rclpy's ``serialize_message``); every field not in ``fields`` keeps its value there (the
-    frame_id, constants), and every padding byte is zero whatever ``sample`` held there
-    (:mod:`tdslip_ros.bag.padding`). ``fields`` are dotted paths in the order of the message (their
-    byte order); runs of them that only CDR padding separates are packed by one ``struct`` call."""
+    frame_id, constants), and every padding byte is zero whatever ``sample`` held there, up to a
+    length that is a multiple of 4 (:mod:`tdslip_ros.bag.padding`). ``fields`` are dotted paths in
+    the order of the message (their byte order); runs of them that only CDR padding separates are
+    packed by one ``struct`` call."""
 
     def __init__(self, schema: Schema, sample: bytes, fields: Sequence[str]) -> None:
         layout = _fixed_layout(schema, sample)
@@ -164,7 +165,7 @@ class FixedLayoutEncoder:
         if offsets != sorted(offsets):
             raise ValueError("fields must be given in the message's order")
         sample = zero_padding(schema.name, schema.data.decode(), sample)
-        self._template = sample
+        self._template = padded_to_4(sample)
         self._runs: list[tuple[struct.Struct, int, int, int]] = []  # (packer, byte offset, first, end)
         first = 0
         for index, path in enumerate(fields):

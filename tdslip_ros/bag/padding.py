@@ -3,12 +3,14 @@
 A serialised ROS 2 message (plain little- or big-endian CDR, as the ROS 2 RMWs write it) is a 4-byte
 encapsulation header (kind, then two option bytes) and a payload in which every primitive is aligned
 to its own size (8 at most), counted from the start of the payload. The bytes skipped to reach that
-alignment, the header's option bytes and anything after the last field carry no value. rclpy's
-``serialize_message`` leaves them as it finds them in its buffer, which is how heap contents can end
-up in a recording. :func:`padding_positions` finds them from the ``ros2msg`` schema text stored with
-every channel, for any message (nested types, strings, fixed arrays, bounded and unbounded
-sequences); :func:`zero_padding` returns a message with all of them zero, which is what every
-message this package writes holds.
+alignment, the header's option bytes and anything after the last field (an RMW pads a message to a
+multiple of 4 bytes, :func:`padded_to_4`) carry no value. rclpy's ``serialize_message`` leaves them
+as it finds them in its buffer, which is how heap contents can end up in a recording.
+
+:func:`padding_positions` finds them from the ``ros2msg`` schema text stored with every channel, for
+any message (nested types, strings, fixed arrays, bounded and unbounded sequences);
+:class:`PaddingZeroer` and :func:`zero_padding` return a message with all of them zero, which is
+what every message this package writes holds.
 """
 
 from __future__ import annotations
@@ -188,6 +190,13 @@ class PaddingZeroer:
     @staticmethod
     def _length_bytes(known: Layout, data: bytes) -> bytes:
         return b"".join(data[position : position + 4] for position in known.length_fields)
+
+
+def padded_to_4(data: bytes) -> bytes:
+    """``data`` with zero bytes appended up to a multiple of 4: the form in which the RMW publishes a
+    message object (RTPS aligns what it sends), and rosbags serialises one; ``serialize_message``
+    stops at the last field."""
+    return bytes(data) + bytes(-len(data) % 4)
 
 
 def zero_padding(schema_name: str, schema_text: str, data: bytes) -> bytes:

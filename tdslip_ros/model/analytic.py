@@ -100,6 +100,7 @@ from tdslip_ros.model.events import (
     failure_code,
     failure_from_code,
 )
+from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import (
     ApexState,
     HopperParams,
@@ -1257,8 +1258,15 @@ def approximate_return_map(
     command: StanceCommand,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    limits: PlausibilityLimits | None = None,
 ) -> tuple[ApexState | None, FailureKind | None]:
-    """Scalar convenience: the next apex and None, or None and the failure."""
+    """Scalar convenience: the next apex and None, or None and the failure. An apex or command beyond
+    ``limits`` (default: the hopper's, :mod:`.limits`) is refused with ParameterError, as the plant
+    and the exact map refuse it."""
+    checked = PlausibilityLimits.of(params, limits)
+    checked.check_apex(apex)
+    checked.check_command(command)
     stride = approximate_map(params, apex.y, apex.xdot, command, corrections, liftoff)
     failure = failure_from_code(int(stride.failure))
     if failure is not None:

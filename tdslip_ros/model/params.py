@@ -17,6 +17,7 @@ import math
 import sys
 from dataclasses import dataclass
 
+_SQRT_MAX_FLOAT = math.sqrt(sys.float_info.max)
 STANDARD_GRAVITY = 9.81
 """m/s^2, the value the paper's human-like examples use."""
 
@@ -130,8 +131,19 @@ class ApexState:
     xdot: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "y", _require_positive("apex height y", self.y))
-        object.__setattr__(self, "xdot", _require_finite("apex speed xdot", self.xdot))
+        y = _require_positive("apex height y", self.y)
+        xdot = _require_finite("apex speed xdot", self.xdot)
+        # Energies must stay finite for any hopper: xdot^2 and y are bounded by the square root of the
+        # largest double. What is implausible for a given hopper, the hopper's PlausibilityLimits judge
+        # where the apex meets it: every map and the stepper refuse an apex beyond them.
+        for name, value, unit in (("apex height y", y, "m"), ("apex speed xdot", xdot, "m/s")):
+            if not abs(value) < _SQRT_MAX_FLOAT:
+                raise ParameterError(
+                    f"{name} = {value!r} {unit} is out of the floating-point range (|{name.split()[-1]}| < "
+                    f"{_SQRT_MAX_FLOAT:.3g})"
+                )
+        object.__setattr__(self, "y", y)
+        object.__setattr__(self, "xdot", xdot)
 
     def energy(self, params: HopperParams) -> float:
         """Total mechanical energy m xdot^2/2 + m g y [J] (the spring is at rest in flight)."""

@@ -18,7 +18,7 @@ from rclpy.serialization import serialize_message
 from tdslip_msgs.msg import HopperState
 
 from tdslip_ros.bag.cdr import FixedLayoutEncoder
-from tdslip_ros.bag.padding import PaddingZeroer
+from tdslip_ros.bag.padding import PaddingZeroer, padded_to_4
 from tdslip_ros.bag.schema import message_definition
 from tdslip_ros.interfaces import STAMP_FIELDS, STATE_FIELDS
 from tdslip_ros.model.events import HopperState as ModelState
@@ -41,8 +41,8 @@ def _zeroer(message_class: type) -> PaddingZeroer:
 
 
 def serialized(msg: object) -> bytes:
-    """``msg`` as CDR bytes with every padding byte zero."""
-    return _zeroer(type(msg))(serialize_message(msg))
+    """``msg`` as CDR bytes with every padding byte zero, in the length the RMW would publish it."""
+    return padded_to_4(_zeroer(type(msg))(serialize_message(msg)))
 
 
 def set_stamp(stamp: Time, t: float) -> None:
