@@ -41,9 +41,10 @@ from tdslip_ros.model.analytic import (
 )
 from tdslip_ros.model.analytic_accuracy import BROAD_GRID, OPERATING_GRID, accuracy, exact_strides
 from tdslip_ros.model.exact_map import apex_return_map
-from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 
 
 def _best_time(run: object, repeat: int) -> float:

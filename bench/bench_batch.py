@@ -25,9 +25,10 @@ import numpy as np
 from tdslip_ros.model import units
 from tdslip_ros.model.batch import simulate_strides
 from tdslip_ros.model.exact_map import apex_return_map
-from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, StanceCommand
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(20.0)
 TARGET_ENERGY = ApexState(1.2, 4.0).energy(PARAMS)
 TOLERANCES = (1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12)

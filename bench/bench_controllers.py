@@ -31,9 +31,10 @@ import numpy as np
 
 from tdslip_ros.model import units
 from tdslip_ros.model.controllers import PolicySpec
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, ParameterError
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 TARGET_MS = 0.2
 """p99 planning time [ms] issue 13 asks of open_loop, energy, pd and deadbeat."""
 POLICY_ORDER = ("open_loop", "energy", "pd", "deadbeat", "energy_exact")

@@ -19,10 +19,11 @@ import time
 import numpy as np
 
 from tdslip_ros.model.events import EventKind, Phase
-from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, StanceCommand
 from tdslip_ros.model.stepper import FixedStepStepper
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(20.0)
 TARGET_ENERGY = ApexState(1.2, 4.0).energy(PARAMS)
 TARGET_US = 150.0

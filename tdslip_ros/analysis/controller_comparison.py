@@ -91,7 +91,7 @@ def record_sweep(
 ) -> list[SweepRun]:
     """Run and record every (controller, desired speed) in lockstep; returns the runs (also in MANIFEST)."""
     # Imported here so that analysing recorded sweeps needs no ROS 2 installation.
-    from tdslip_ros.nodes.parameters import PAPER_PARAMS
+    from tdslip_ros.model.paper import PAPER_PARAMS
     from tdslip_ros.nodes.runner import RunError, RunOptions, run
 
     out.mkdir(parents=True, exist_ok=True)

@@ -76,11 +76,12 @@ from tdslip_ros.analysis.report import OutputError, output_directory, to_json, w
 from tdslip_ros.model import basins, exact_stability, stability, units
 from tdslip_ros.model.analytic import Array, CommandArrays, speed_from_energy
 from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.studies import engine
 
 DPI = 120
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 STABLE, UNSTABLE, EXACT, START = "black", "0.45", "tab:red", "tab:green"
 CONTROLLER_STYLE = {"deadbeat": ("tab:blue", "-"), "pd": ("tab:green", "--")}
 

@@ -33,11 +33,11 @@ from tdslip_ros.interfaces import installed_parameters
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.events import EventKind, FailureKind
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.model.terrain import Blocks
-from tdslip_ros.nodes.parameters import PAPER_PARAMS
 
 DPI = 120
 COLOURS = {"energy": "tab:blue", "open_loop": "tab:orange"}

@@ -71,6 +71,7 @@ from tdslip_ros.model.analytic import (
 )
 from tdslip_ros.model.compiled import kernel, real
 from tdslip_ros.model.events import NO_FAILURE_CODE
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
 FIXED_POINT_TOLERANCE = 1e-13
@@ -1032,7 +1033,7 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True) -> No
     compiling those not yet in the cache (:mod:`tdslip_ros.model.compiled`; about a minute for all of
     them, once). The controller node calls it before it subscribes to the apex, so that its first answer
     is not late; ``./run.sh setup`` calls it so that the first node or test does not compile."""
-    params = HopperParams.from_dimensionless(36.0, 0.08) if params is None else params
+    params = PAPER_PARAMS if params is None else params
     y, xdot, beta = 1.1, 4.5, np.radians(26.0)
     for liftoff in ("paper", "force_root"):
         approximate_map(params, y, xdot, StanceCommand(beta, -500.0, 0.15), liftoff=liftoff)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 _SQRT_MAX_FLOAT = math.sqrt(sys.float_info.max)
@@ -43,6 +44,18 @@ def _require_positive(name: str, value: float) -> float:
     return value
 
 
+def _derived_scales(m: float, k: float, r0: float, g: float) -> Iterator[tuple[str, float]]:
+    """The products and ratios of the equations of motion and the unit conversions, one at a time, so
+    that a product found to underflow to 0 is refused before a division by it is reached."""
+    yield "m g r0 (the energy and torque scale)", m * g * r0
+    yield "k/m (omega0^2)", k / m
+    yield "m k", m * k
+    yield "m g", m * g
+    yield "m r0^2 (the leg's inertia)", m * r0 * r0
+    yield "g/r0", g / r0
+    yield "k r0/(m g) (kbar)", k * r0 / (m * g)
+
+
 @dataclass(frozen=True)
 class HopperParams:
     """Mass m [kg], leg stiffness k [N/m], rest length r0 [m], damping c [N s/m], gravity g [m/s^2].
@@ -67,18 +80,7 @@ class HopperParams:
             raise ParameterError(f"c (damping) must be non-negative, got {c!r}")
         object.__setattr__(self, "c", c)
         m, k, r0, g = self.m, self.k, self.r0, self.g
-        # Evaluated one by one: a product that underflows to 0 must not reach the division after it.
-        derived = {
-            "m g r0 (the energy and torque scale)": lambda: m * g * r0,
-            "k/m (omega0^2)": lambda: k / m,
-            "m k": lambda: m * k,
-            "m g": lambda: m * g,
-            "m r0^2 (the leg's inertia)": lambda: m * r0 * r0,
-            "g/r0": lambda: g / r0,
-            "k r0/(m g) (kbar)": lambda: k * r0 / (m * g),
-        }
-        for what, value_of in derived.items():
-            value = value_of()
+        for what, value in _derived_scales(m, k, r0, g):
             if not sys.float_info.min <= value < math.inf:
                 raise ParameterError(
                     f"m = {m!r}, k = {k!r}, r0 = {r0!r}, g = {g!r} are out of the floating-point range: "

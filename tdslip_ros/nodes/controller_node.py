@@ -34,6 +34,7 @@ from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import controllers
 from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.limits import check_hopper
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.nodes import parameters, topics
@@ -41,8 +42,8 @@ from tdslip_ros.nodes.entry import run_node, wait_for_matching
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.wire import serialized
 
-DEFAULT_TARGET_ENERGY = parameters.PAPER_PARAMS.m * (
-    parameters.PAPER_PARAMS.g * parameters.DEFAULT_APEX_HEIGHT + 0.5 * parameters.DEFAULT_APEX_SPEED**2
+DEFAULT_TARGET_ENERGY = PAPER_PARAMS.m * (
+    PAPER_PARAMS.g * parameters.DEFAULT_APEX_HEIGHT + 0.5 * parameters.DEFAULT_APEX_SPEED**2
 )
 """J, the energy of the default initial apex: energy regulation then keeps the hopper's energy."""
 MATCH_TIMEOUT = 1.0  # s an answer waits for its publisher to match a subscriber the graph already shows

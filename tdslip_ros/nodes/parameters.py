@@ -22,12 +22,12 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.terrain import TERRAIN_FORMS
 
 ParameterValue = bool | int | float | str
 
-PAPER_PARAMS = HopperParams.from_dimensionless(kbar=36.0, zeta0=0.08, m=80.0, r0=1.0)
 DEFAULT_TOUCHDOWN_ANGLE = math.radians(20.0)
 """rad; under energy regulation the default apex (1 m, 5 m/s) converges fast (exact |lambda| = 0.08)."""
 DEFAULT_APEX_HEIGHT = 1.0

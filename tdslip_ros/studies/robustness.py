@@ -53,6 +53,7 @@ from tdslip_ros.analysis.report import output_directory, to_json
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.controllers import POLICIES, PolicySpec
 from tdslip_ros.model.events import FAILURE_KINDS
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.command import run_study_command
@@ -342,7 +343,7 @@ def main(argv: list[str]) -> int:
     kinds, policies = list(dict.fromkeys(args.kinds)), list(dict.fromkeys(args.policies))
 
     def produce() -> None:
-        params = HopperParams.from_dimensionless(36.0, 0.08)
+        params = PAPER_PARAMS
         if not 0.0 < args.touchdown_angle < 90.0:
             raise StudyError(f"--touchdown-angle must be in (0, 90) deg, got {args.touchdown_angle:g}")
         point = operating_point(
