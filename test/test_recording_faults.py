@@ -18,8 +18,8 @@ from tdslip_ros.bag import open_bag
 from tdslip_ros.bag.recover import recover
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.flow_control import FLOW_WINDOW
 from tdslip_ros.nodes.parameters import PAPER_PARAMS
-from tdslip_ros.nodes.plant_node import FLOW_WINDOW
 from tdslip_ros.nodes.replay import checked_bag
 from tdslip_ros.nodes.runner import RunOptions, run_custom_data
 

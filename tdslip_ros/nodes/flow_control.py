@@ -19,6 +19,12 @@ from dataclasses import dataclass
 
 from tdslip_msgs.msg import RecorderStatus
 
+from tdslip_ros.nodes.topics import STREAM_DEPTH
+
+FLOW_WINDOW = STREAM_DEPTH // 2
+"""Messages per topic a lockstep plant (or a replay) may run ahead of the recorder it waits for: well
+inside the publishers' history, so the recorder never misses one."""
+
 
 @dataclass
 class _Report:

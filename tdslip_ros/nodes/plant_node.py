@@ -94,7 +94,7 @@ from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
-from tdslip_ros.nodes.flow_control import RecorderProgress
+from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
 from tdslip_ros.nodes.markers import HopperMarkers
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
@@ -116,9 +116,6 @@ LOCKSTEP_BATCH = 50
 """Ticks per lockstep timer callback: amortises the executor's cost while keeping it responsive."""
 GRAPH_CHECK_TICKS = 50
 """Ticks between two looks at who subscribes to /clock and the markers (a graph query costs ~20 us)."""
-FLOW_WINDOW = topics.STREAM_DEPTH // 2
-"""Messages per topic a lockstep plant may run ahead of the recorder it waits for: well inside the
-publishers' history, so the recorder never misses one."""
 DELIVERY_TIMEOUT = 10.0
 """s a finished run waits for the recorder it waits for to write everything (and, without one, at
 most :data:`ACK_TIMEOUT` for subscribers' acknowledgements)."""

@@ -51,7 +51,7 @@ from tdslip_ros.bag.reader import Bag, BagReadError, TopicInfo, iter_messages, o
 from tdslip_ros.bag.schema import split_type_name
 from tdslip_ros.interfaces import RECORDER_STATUS
 from tdslip_ros.nodes.entry import SPIN_SLICE, spin_until, stop_on_signals
-from tdslip_ros.nodes.flow_control import RecorderProgress
+from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
 from tdslip_ros.nodes.topics import RECORDER_STATUS_QOS
 
 ACK_TIMEOUT = 10.0  # s for reliable subscribers to acknowledge the last messages
@@ -155,6 +155,8 @@ class ReplayNode(Node):
             )
             for topic in chosen
         }
+        self._progress = RecorderProgress()
+        self._executor: SingleThreadedExecutor | None = None
 
     def wait_for_subscribers(self, count: int, timeout: float, stop: Callable[[], bool]) -> None:
         """Until every publisher has ``count`` matched subscriptions; ReplayError after ``timeout`` s."""
@@ -170,21 +172,32 @@ class ReplayNode(Node):
             time.sleep(SPIN_SLICE / 10)
 
     def wait_for_recorder(self, timeout: float, stop: Callable[[], bool]) -> None:
-        """Until a recorder reports a matched publisher on every replayed topic; ReplayError after
-        ``timeout`` s."""
-        progress = RecorderProgress()
-        subscription = self.create_subscription(
-            RecorderStatus, RECORDER_STATUS, progress.update, RECORDER_STATUS_QOS
-        )
-        executor = SingleThreadedExecutor(context=self.context)
-        executor.add_node(self)
-        try:
-            if not spin_until(executor, lambda: stop() or progress.hears(self.topic_publishers), timeout):
-                raise ReplayError(f"no recorder reported every replayed topic matched within {timeout} s")
-        finally:
-            executor.remove_node(self)
-            executor.shutdown()
-            self.destroy_subscription(subscription)
+        """Until a recorder reports (``tdslip/recorder_status``) a matched publisher on every replayed topic;
+        ReplayError after ``timeout`` s. From then on :meth:`play` never runs more than
+        :data:`~tdslip_ros.nodes.flow_control.FLOW_WINDOW` messages per topic ahead of what the slowest
+        recorder has written, so that a recorder starved of CPU slows the replay instead of losing messages
+        (the publishers keep twice that many)."""
+        if self._executor is None:
+            self.create_subscription(
+                RecorderStatus, RECORDER_STATUS, self._progress.update, RECORDER_STATUS_QOS
+            )
+            self._executor = SingleThreadedExecutor(context=self.context)
+            self._executor.add_node(self)
+        if not spin_until(
+            self._executor, lambda: stop() or self._progress.hears(self.topic_publishers), timeout
+        ):
+            raise ReplayError(f"no recorder reported every replayed topic matched within {timeout} s")
+
+    def _wait_for_room(self, topic: str, published: int, stop: Callable[[], bool]) -> None:
+        """While the recorder followed is a window behind on ``topic``, let it catch up."""
+        if self._executor is not None:
+            spin_until(self._executor, lambda: stop() or self._progress.lag(topic, published) < FLOW_WINDOW)
+
+    def destroy_node(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown()
+            self._executor = None
+        super().destroy_node()
 
     def play(self, rate: float = 1.0, stop: Callable[[], bool] = lambda: False) -> ReplayResult:
         """Publish the recording's messages (module docstring); returns the counts per topic."""
@@ -198,7 +211,8 @@ class ReplayNode(Node):
                 due = start + send_offset(message.log_time, first, rate)
                 while not (stopped := stop()) and (delay := due - time.monotonic()) > 0.0:
                     time.sleep(min(delay, SPIN_SLICE))
-                if stopped:
+                self._wait_for_room(channel.topic, published[channel.topic], stop)
+                if stopped or (stopped := stop()):
                     break
                 self.topic_publishers[channel.topic].publish(message.data)
                 published[channel.topic] += 1
