@@ -13,14 +13,8 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import (
-    CommandArrays,
-    NoCommand,
-    NoCommandError,
-    ParamArrays,
-    approximate_map,
-    speed_from_energy,
-)
+from tdslip_ros.model.analytic import approximate_map, speed_from_energy
+from tdslip_ros.model.arrays import CommandArrays, NoCommand, NoCommandError, ParamArrays
 from tdslip_ros.model.controllers import (
     POLICIES,
     PolicySpec,

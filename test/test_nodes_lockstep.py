@@ -18,7 +18,7 @@ from scipy.optimize import root
 from tdslip_msgs.msg import ApexEvent, ContactEvent, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
-from tdslip_ros.model import analytic, controllers
+from tdslip_ros.model import arrays, closed_loop, controllers
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState
@@ -103,17 +103,15 @@ def test_energy_regulation_converges_to_the_fixed_point_the_model_predicts(ros: 
     np.testing.assert_allclose(deviation[4:7] / deviation[3:6], dominant, rtol=5e-3)
 
     # The analytic map (0 + 1 correction) predicts the same fixed point up to its approximation error.
-    def analytic_policy(
-        params: analytic.ParamArrays, y: np.ndarray, xdot: np.ndarray
-    ) -> analytic.CommandArrays:
+    def analytic_policy(params: arrays.ParamArrays, y: np.ndarray, xdot: np.ndarray) -> arrays.CommandArrays:
         return controllers.energy_regulation(params, y, xdot, DEFAULT_TOUCHDOWN_ANGLE, DEFAULT_TARGET_ENERGY)
 
     y, xdot = START.y, START.xdot
     for _ in range(40):
-        stride = analytic.closed_loop_map(PARAMS, y, xdot, analytic_policy)
+        stride = closed_loop.closed_loop_map(PARAMS, y, xdot, analytic_policy)
         y, xdot = float(stride.y), float(stride.xdot)
     np.testing.assert_allclose(final, [y, xdot], rtol=1e-3)
-    predicted = analytic.eigenvalues(analytic.map_jacobian(PARAMS, y, xdot, analytic_policy))
+    predicted = closed_loop.eigenvalues(closed_loop.map_jacobian(PARAMS, y, xdot, analytic_policy))
     assert abs(predicted[0]) < 1.0  # stable, as the run shows
 
 

@@ -40,37 +40,40 @@ from numba.extending import register_jitable
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic import (
+    LiftoffMethod,
+    approximate_map,
+    check_corrections,
+    liftoff_code,
+    validate_angle,
+)
+from tdslip_ros.model.arrays import (
     HAS_COMMAND,
+    REASON_OF_FAILURE,
     Array,
     ArrayLike,
     CommandArrays,
     Lanes,
-    LaneStance,
-    LaneStride,
-    LiftoffMethod,
     NoCommand,
     ParamArrays,
+    elementwise,
+    no_command_code,
+    no_command_of_failure,
+)
+from tdslip_ros.model.closed_loop import fixed_command, map_jacobian
+from tdslip_ros.model.compiled import kernel, real
+from tdslip_ros.model.events import NO_FAILURE_CODE
+from tdslip_ros.model.map_kernels import (
+    LaneStance,
+    LaneStride,
     StanceStart,
     Touchdown,
     apex_energy,
-    approximate_map,
-    check_corrections,
     converged,
-    elementwise,
-    fixed_command,
     lane_ascent,
     lane_descent,
     lane_stance,
     lane_stance_start,
-    liftoff_code,
-    map_jacobian,
-    no_command_code,
-    no_command_of_failure,
-    reason_of_failure,
-    validate_angle,
 )
-from tdslip_ros.model.compiled import kernel, real
-from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
@@ -338,6 +341,12 @@ def lane_regulated_plan(
         if reason == HAS_COMMAND and not forward:
             tau0, t_f, reason = np.nan, np.nan, _NO_SOLUTION
     return Planned(Plan(tau0, t_f, reason), stance)
+
+
+@kernel
+def reason_of_failure(failure: int) -> int:
+    """The no_command code of one lane's failure code."""
+    return HAS_COMMAND if failure == NO_FAILURE_CODE else int(REASON_OF_FAILURE[failure])
 
 
 class Checked(NamedTuple):

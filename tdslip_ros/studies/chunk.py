@@ -22,7 +22,7 @@ import numpy as np
 import pyarrow as pa
 
 from tdslip_ros.model import basins
-from tdslip_ros.model.analytic import Array, CommandArrays
+from tdslip_ros.model.arrays import Array, CommandArrays
 from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams

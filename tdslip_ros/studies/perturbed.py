@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from tdslip_ros.model import basins
-from tdslip_ros.model.analytic import Array
+from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.batch import simulate_strides
 from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
