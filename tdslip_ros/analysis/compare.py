@@ -60,9 +60,9 @@ from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.closed_loop import eigenvalues
-from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES, POLICIES, PolicyError, PolicySpec
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies import FIXED_ANGLE_POLICIES, POLICIES, PolicyError, PolicySpec
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -39,9 +39,9 @@ from tdslip_ros.analysis.compare import (
 from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError, read_run
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import units
-from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
+from tdslip_ros.model.policies import FIXED_ANGLE_POLICIES
 
 FIGURES = {
     "apex_sequence": "apex height and speed per stride",

@@ -32,11 +32,11 @@ from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import controllers
-from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.policies import POLICIES, PolicySpec
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, wait_for_matching
 from tdslip_ros.nodes.parameters import ParameterSpec
@@ -94,8 +94,8 @@ class ControllerNode(Node):
     def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
         """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
         ParameterError if the policy has none (e.g. the leg cannot be placed from this apex)."""
-        settings = controllers.PolicySpec.settings()
-        spec = controllers.PolicySpec.of(
+        settings = PolicySpec.settings()
+        spec = PolicySpec.of(
             policy, {parameter.name: parameter.value for parameter in self.get_parameters(settings)}
         )
         previous = xdot if self._previous_speed is None else self._previous_speed

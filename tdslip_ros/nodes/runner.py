@@ -60,10 +60,10 @@ from tdslip_ros.interfaces import (
     resolve,
 )
 from tdslip_ros.model import units
-from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.policies import POLICIES
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
 from tdslip_ros.nodes import isolation, parameters, topics
 from tdslip_ros.nodes.entry import (

@@ -38,8 +38,8 @@ import numpy as np
 
 from tdslip_ros.model import stability, units
 from tdslip_ros.model.analytic import speed_from_energy
-from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
+from tdslip_ros.model.policies import POLICIES
 from tdslip_ros.studies import perturbed
 
 HOPPER_PARAMETERS = ("kbar", "zeta0")
