@@ -23,10 +23,15 @@ from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.policies import (
+    DEFAULT_APEX_HEIGHT,
+    DEFAULT_APEX_SPEED,
+    DEFAULT_TARGET_ENERGY,
+    DEFAULT_TOUCHDOWN_ANGLE,
+)
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import topics
-from tdslip_ros.nodes.controller_node import DEFAULT_TARGET_ENERGY, ControllerNode
-from tdslip_ros.nodes.parameters import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
+from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
 

@@ -82,6 +82,10 @@ EXACT_JACOBIAN_STEP = 1e-6
 map's integration error (~1e-12), small against the curvature."""
 EXACT_MAP_TOLERANCE = 1e-12
 """rtol = atol of the exact map energy_exact plans on (the batched engine's default)."""
+PD_KP = 0.06
+"""rad/(m/s): the PD baseline's gain on the speed error (fig. 13's)."""
+PD_KD = 0.03
+"""rad/(m/s): the PD baseline's gain on the speed change over a stride (fig. 13's)."""
 
 
 def _require_at_least(name: str, value: int, least: int) -> None:
@@ -369,8 +373,8 @@ def pd_speed_energy_height(
     previous_xdot: ArrayLike,
     target_y: ArrayLike,
     target_xdot: ArrayLike,
-    kp: ArrayLike = 0.06,
-    kd: ArrayLike = 0.03,
+    kp: ArrayLike = PD_KP,
+    kd: ArrayLike = PD_KD,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
 ) -> CommandArrays:
