@@ -67,7 +67,7 @@ def _changed(setting: PolicySetting) -> Any:
 def test_a_policy_uses_exactly_the_settings_declared_for_it(policy: str) -> None:
     """Changing a setting changes the policy's command where the declaration says the policy uses it, and
     only there."""
-    spec = PolicySpec.of(policy, DEFAULT_VALUES)
+    spec = PolicySpec.default(policy)
     before = _commands(spec)
     assert np.all(np.isfinite(before))
     for setting in POLICY_SETTINGS:
@@ -134,7 +134,7 @@ def test_the_study_design_has_a_column_per_setting_with_its_unit() -> None:
 
 @pytest.mark.parametrize("policy", POLICIES)
 def test_the_report_gives_the_settings_the_policy_uses(policy: str) -> None:
-    text = policy_settings_text(PolicySpec.of(policy, DEFAULT_VALUES), PAPER_PARAMS)
+    text = policy_settings_text(PolicySpec.default(policy), PAPER_PARAMS)
     assert re.findall(r"(\w+) = ", text) == [setting.name for setting in settings_of(policy)]
     for setting in settings_of(policy):
         unit = f" {setting.unit}" if setting.unit else ""

@@ -201,6 +201,11 @@ class PolicySpec:
         return tuple(setting.name for setting in POLICY_SETTINGS)
 
     @classmethod
+    def default(cls, name: str) -> PolicySpec:
+        """The policy ``name`` with each setting at its declared default."""
+        return cls.of(name, {setting.name: setting.default for setting in POLICY_SETTINGS})
+
+    @classmethod
     def of(cls, name: str, values: Mapping[str, str | float], source: str = "") -> PolicySpec:
         """A spec from setting values as parameters or text give them, each converted to its setting's
         type."""
