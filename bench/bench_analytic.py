@@ -31,16 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from tdslip_ros.model.analytic import (
-    STRIDE_ROWS,
-    CommandArrays,
-    Lanes,
-    ParamArrays,
-    _stride_lanes,
-    approximate_map,
-)
+from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.model.analytic_accuracy import BROAD_GRID, OPERATING_GRID, accuracy, exact_strides
+from tdslip_ros.model.arrays import CommandArrays, Lanes, ParamArrays
 from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.map_kernels import STRIDE_ROWS, stride_lanes
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
 
@@ -194,8 +189,8 @@ def breakdown(lanes: int, repeat: int) -> None:
     block = packed.rows(STRIDE_ROWS)
     print(f"where a lane's time goes, {lanes} lanes in one call, best of {repeat} (ns per lane):")
     for corrections in (0, 1):
-        packed.run(_stride_lanes, corrections, 0, block)
-        loop = _best_time(lambda c=corrections: packed.run(_stride_lanes, c, 0, block), repeat)
+        packed.run(stride_lanes, corrections, 0, block)
+        loop = _best_time(lambda c=corrections: packed.run(stride_lanes, c, 0, block), repeat)
         whole = _best_time(lambda c=corrections: approximate_map(params, y, xdot, command, c), repeat)
         print(
             f"  corrections {corrections}: whole call {whole / lanes * 1e9:6.1f}, compiled lane loop "

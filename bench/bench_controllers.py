@@ -6,11 +6,11 @@ Each policy answers the same random apexes (y in [0.95, 1.4] m, xdot in [2, 7] m
 [0.95, 1.3] m, xdot* in [1.5, 7.5] m/s; kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m) through
 PolicySpec.commands(...).command(), the controller node's call (an apex without a command costs its
 ParameterError). Settings: beta = 26 deg, alpha = 1.5 (open_loop), the apex's own energy as the target
-(energy, energy_exact), PD gains 0.06 and 0.03. Kernels are loaded first, as the node does before it
-subscribes. Printed per policy: p50, p99 and the maximum of the CPU time of this process
-(time.process_time: what one core spends, whatever else the shared machine runs) and of the wall time
-(time.perf_counter: what the apex waits, preemption included), and p99 CPU against the target. energy_exact
-plans on the exact plant (about 3 x 4 exact strides) and has no target; it runs on the first
+(energy, energy_exact), the declared PD gains and corrections (model.policies). Kernels are loaded first,
+as the node does before it subscribes. Printed per policy: p50, p99 and the maximum of the CPU time of this
+process (time.process_time: what one core spends, whatever else the shared machine runs) and of the wall
+time (time.perf_counter: what the apex waits, preemption included), and p99 CPU against the target.
+energy_exact plans on the exact plant (about 3 x 4 exact strides) and has no target; it runs on the first
 --exact-apexes apexes.
 
 --baseline DIR measures the same apexes with the tdslip_ros of another checkout (e.g. ``git worktree add
@@ -25,14 +25,15 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError
+from tdslip_ros.model.policies import PolicySpec
 
 PARAMS = PAPER_PARAMS
 TARGET_MS = 0.2
@@ -53,16 +54,13 @@ def _apexes(count: int) -> dict[str, np.ndarray]:
 
 
 def _spec(name: str, target_y: float, target_xdot: float, energy: float) -> PolicySpec:
-    return PolicySpec(
-        name=name,
+    return replace(
+        PolicySpec.default(name),
         touchdown_angle=float(np.radians(26.0)),
         touchdown_power=float(units.power_from_alpha(PARAMS, 1.5)),
         target_energy=energy,
         target_height=target_y,
         target_speed=target_xdot,
-        pd_kp=0.06,
-        pd_kd=0.03,
-        corrections=1,
     )
 
 

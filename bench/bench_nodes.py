@@ -43,8 +43,8 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 from tdslip_ros.interfaces import config_file
-from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import ParameterError
+from tdslip_ros.model.policies import POLICIES
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.runner import RunOptions, RunReport, controller_overrides, counts_table, run
 

@@ -23,14 +23,9 @@ from tdslip_ros.analysis.compare import (
 )
 from tdslip_ros.analysis.reader import Run, read_run
 from tdslip_ros.model import controllers, stability, units
-from tdslip_ros.model.analytic import (
-    CommandArrays,
-    ParamArrays,
-    approximate_return_map,
-    closed_loop_map,
-    eigenvalues,
-    map_jacobian,
-)
+from tdslip_ros.model.analytic import approximate_return_map
+from tdslip_ros.model.arrays import CommandArrays, ParamArrays
+from tdslip_ros.model.closed_loop import closed_loop_map, eigenvalues, map_jacobian
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams

@@ -11,7 +11,8 @@ import pytest
 from tdslip_ros.analysis import controller_comparison as cc
 from tdslip_ros.model import controllers, units
 from tdslip_ros.model.batch import simulate_strides
-from tdslip_ros.nodes.parameters import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, PAPER_PARAMS
+from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
+from tdslip_ros.nodes.parameters import PAPER_PARAMS
 
 SPEEDS = (0.75, 1.5)  # from the default apex, PD cannot plan for 0.75 (fig. 13's lost stability)
 STRIDES = 8

@@ -14,11 +14,11 @@ from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
 from tdslip_ros.model.analytic import (
-    ParamArrays,
     StanceApproximation,
     gravity_momentum_correction,
     torque_momentum_correction,
 )
+from tdslip_ros.model.arrays import ParamArrays
 
 
 def _touchdown_cases() -> list[tuple[float, float, float, float, float]]:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tdslip_ros.model.analytic import (
+from tdslip_ros.model.analytic import LiftoffMethod
+from tdslip_ros.model.closed_loop import (
     Coordinates,
-    LiftoffMethod,
     Policy,
     closed_loop_map,
     eigenvalues,

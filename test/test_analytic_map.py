@@ -6,10 +6,6 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model.analytic import (
-    CORRECTION_TOLERANCE,
-    NO_LIFTOFF,
-    CommandArrays,
-    ParamArrays,
     approximate_map,
     approximate_map_energy,
     approximate_return_map,
@@ -18,8 +14,10 @@ from tdslip_ros.model.analytic import (
     stance_map,
     torque_momentum_correction,
 )
+from tdslip_ros.model.arrays import CommandArrays, ParamArrays
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.map_kernels import CORRECTION_TOLERANCE, NO_LIFTOFF
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)

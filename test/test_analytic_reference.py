@@ -23,14 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdslip_ros.model.analytic import (
-    CommandArrays,
-    NoCommand,
-    ParamArrays,
-    approximate_map,
-    map_jacobian,
-    no_command_code,
-)
+from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.arrays import CommandArrays, NoCommand, ParamArrays, no_command_code
+from tdslip_ros.model.closed_loop import map_jacobian
 from tdslip_ros.model.controllers import (
     deadbeat,
     energy_regulation,

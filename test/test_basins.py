@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import basins, stability, units
-from tdslip_ros.model.analytic import CommandArrays
+from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.controllers import deadbeat, energy_regulation
 from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.exact_map import apex_return_map

@@ -13,17 +13,9 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import (
-    CommandArrays,
-    NoCommand,
-    NoCommandError,
-    ParamArrays,
-    approximate_map,
-    speed_from_energy,
-)
+from tdslip_ros.model.analytic import approximate_map, speed_from_energy
+from tdslip_ros.model.arrays import CommandArrays, NoCommand, NoCommandError, ParamArrays
 from tdslip_ros.model.controllers import (
-    POLICIES,
-    PolicySpec,
     admissible_angles,
     deadbeat,
     energy_regulation,
@@ -36,6 +28,7 @@ from tdslip_ros.model.controllers import (
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.policies import POLICIES, PolicySpec
 from tdslip_ros.model.stepper import FixedStepStepper
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)

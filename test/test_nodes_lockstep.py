@@ -18,15 +18,20 @@ from scipy.optimize import root
 from tdslip_msgs.msg import ApexEvent, ContactEvent, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
-from tdslip_ros.model import analytic, controllers
+from tdslip_ros.model import arrays, closed_loop, controllers
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.policies import (
+    DEFAULT_APEX_HEIGHT,
+    DEFAULT_APEX_SPEED,
+    DEFAULT_TARGET_ENERGY,
+    DEFAULT_TOUCHDOWN_ANGLE,
+)
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import topics
-from tdslip_ros.nodes.controller_node import DEFAULT_TARGET_ENERGY, ControllerNode
-from tdslip_ros.nodes.parameters import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
+from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
 
@@ -103,17 +108,15 @@ def test_energy_regulation_converges_to_the_fixed_point_the_model_predicts(ros: 
     np.testing.assert_allclose(deviation[4:7] / deviation[3:6], dominant, rtol=5e-3)
 
     # The analytic map (0 + 1 correction) predicts the same fixed point up to its approximation error.
-    def analytic_policy(
-        params: analytic.ParamArrays, y: np.ndarray, xdot: np.ndarray
-    ) -> analytic.CommandArrays:
+    def analytic_policy(params: arrays.ParamArrays, y: np.ndarray, xdot: np.ndarray) -> arrays.CommandArrays:
         return controllers.energy_regulation(params, y, xdot, DEFAULT_TOUCHDOWN_ANGLE, DEFAULT_TARGET_ENERGY)
 
     y, xdot = START.y, START.xdot
     for _ in range(40):
-        stride = analytic.closed_loop_map(PARAMS, y, xdot, analytic_policy)
+        stride = closed_loop.closed_loop_map(PARAMS, y, xdot, analytic_policy)
         y, xdot = float(stride.y), float(stride.xdot)
     np.testing.assert_allclose(final, [y, xdot], rtol=1e-3)
-    predicted = analytic.eigenvalues(analytic.map_jacobian(PARAMS, y, xdot, analytic_policy))
+    predicted = closed_loop.eigenvalues(closed_loop.map_jacobian(PARAMS, y, xdot, analytic_policy))
     assert abs(predicted[0]) < 1.0  # stable, as the run shows
 
 

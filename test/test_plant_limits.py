@@ -16,7 +16,8 @@ import pytest
 
 from tdslip_ros.model import dynamics, exact_map, units
 from tdslip_ros.model.analytic import approximate_return_map
-from tdslip_ros.model.batch import _StanceField, batch_apex_return_map, simulate_strides
+from tdslip_ros.model.batch import batch_apex_return_map, simulate_strides
+from tdslip_ros.model.batch_stance import StanceField
 from tdslip_ros.model.controllers import deadbeat
 from tdslip_ros.model.events import EventKind, FailureKind, HopperState, failure_from_code
 from tdslip_ros.model.exact_map import apex_return_map
@@ -241,14 +242,14 @@ def test_a_batch_lane_whose_steps_collapse_fails_alone(monkeypatch: pytest.Monke
     """A lane whose field turns NaN can take no step; it ends as state_limit at its last accepted state
     (the batch used to take NaN errors for 0 and accept the step, or stall) and its neighbours hop on."""
     poisoned_tau0 = -123.0
-    real_field = _StanceField.__call__
+    real_field = StanceField.__call__
 
-    def poisoned_field(self: _StanceField, s: Any, y: Any, out: Any) -> None:
+    def poisoned_field(self: StanceField, s: Any, y: Any, out: Any) -> None:
         real_field(self, s, y, out)
         out[:, (self.tau0 == poisoned_tau0) & (s > 0.02)] = math.nan
 
     healthy = batch_apex_return_map(PARAMS, START.y, START.xdot, *GAIT_LANES)
-    monkeypatch.setattr(_StanceField, "__call__", poisoned_field)
+    monkeypatch.setattr(StanceField, "__call__", poisoned_field)
     with deadline(20.0):
         batch = batch_apex_return_map(
             PARAMS, START.y, START.xdot, GAIT.touchdown_angle, [-273.0, poisoned_tau0], 0.13

@@ -17,9 +17,9 @@ import pytest
 
 from tdslip_ros import cli
 from tdslip_ros.model import units
-from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.studies import robustness
 from tdslip_ros.studies.design import DEFAULTS
 

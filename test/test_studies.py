@@ -15,9 +15,9 @@ import pytest
 
 from tdslip_ros.analysis import figures
 from tdslip_ros.model import basins, stability, units
-from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState
+from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.studies import chunk, perturbed, table
 from tdslip_ros.studies.design import DESIGN_STREAM, Study, StudyError, Uniform
 

@@ -56,11 +56,13 @@ from tdslip_ros.analysis.reader import Run, StrideRecord
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import CommandArrays, approximate_map, eigenvalues
+from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES, POLICIES, PolicyError, PolicySpec
+from tdslip_ros.model.closed_loop import eigenvalues
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies import FIXED_ANGLE_POLICIES, POLICIES, PolicyError, PolicySpec
 
 FloatArray = npt.NDArray[np.float64]
 

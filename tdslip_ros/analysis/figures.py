@@ -74,7 +74,8 @@ from matplotlib.figure import Figure
 from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
 from tdslip_ros.model import basins, exact_stability, stability, units
-from tdslip_ros.model.analytic import Array, CommandArrays, speed_from_energy
+from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.model.arrays import Array, CommandArrays
 from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams

@@ -39,9 +39,9 @@ from tdslip_ros.analysis.compare import (
 from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError, read_run
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import units
-from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
+from tdslip_ros.model.policies import PolicySpec, settings_of
 
 FIGURES = {
     "apex_sequence": "apex height and speed per stride",
@@ -268,6 +268,27 @@ def _perturbation_lines(run: Run) -> list[str]:
     return lines
 
 
+_IN_PAPER_TERMS: dict[str, Callable[[HopperParams, float], str]] = {
+    "touchdown_angle": lambda params, value: f"{math.degrees(value):.2f} deg",
+    "touchdown_power": lambda params, value: f"alpha {units.power_to_alpha(params, value):.4f}",
+    "target_energy": lambda params, value: f"Ebar {units.energy_to_bar(params, value):.4f}",
+}
+"""What the report adds to a setting's SI value: the paper's dimensionless value (eq. 24), or degrees."""
+
+
+def policy_settings_text(policy: PolicySpec, params: HopperParams) -> str:
+    """The values of the settings ``policy`` uses (model.policies.POLICY_SETTINGS), each as name = value
+    unit, with the paper's terms where the report has them."""
+    parts = []
+    for setting in settings_of(policy.name):
+        value = getattr(policy, setting.name)
+        unit = f" {setting.unit}" if setting.unit else ""
+        in_paper_terms = _IN_PAPER_TERMS.get(setting.name)
+        extra = f" ({in_paper_terms(params, value)})" if in_paper_terms else ""
+        parts.append(f"{setting.name} = {value:.6g}{unit}{extra}")
+    return ", ".join(parts)
+
+
 def _policy_text(comparison: Comparison) -> str:
     policy, params, deviation = comparison.policy, comparison.run.params, comparison.command_deviation
     if policy is None or deviation is None:  # None together: no policy to replay
@@ -279,18 +300,7 @@ def _policy_text(comparison: Comparison) -> str:
             "predictions use the applied commands. To compare with a known policy: "
             f"--policy {{{','.join(POLICIES)}}} and its settings (see --help)"
         )
-    if policy.name in FIXED_ANGLE_POLICIES:
-        detail = f"beta = {math.degrees(policy.touchdown_angle):.2f} deg, "
-        if policy.name != "open_loop":  # energy, energy_exact
-            ebar = units.energy_to_bar(params, policy.target_energy)
-            detail += f"E* = {policy.target_energy:.1f} J (Ebar {ebar:.4f})"
-        else:
-            alpha = units.power_to_alpha(params, policy.touchdown_power)
-            detail += f"C = {policy.touchdown_power:.1f} W (alpha {alpha:.4f})"
-    else:
-        detail = f"target y* = {policy.target_height:.4g} m, xdot* = {policy.target_speed:.4g} m/s"
-        if policy.name == "pd":
-            detail += f", kp = {policy.pd_kp:g}, kd = {policy.pd_kd:g}"
+    detail = policy_settings_text(policy, params)
     if math.isnan(deviation):
         replay = "no command was applied, so there is nothing to check it against"
     elif comparison.policy_reproduced:

@@ -31,11 +31,11 @@ from matplotlib.figure import Figure
 from tdslip_ros.analysis.report import OutputError, output_directory, write_failed
 from tdslip_ros.interfaces import installed_parameters
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.events import EventKind, FailureKind
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
+from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.model.terrain import Blocks
 

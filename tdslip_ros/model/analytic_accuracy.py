@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import Array, CommandArrays, LiftoffMethod, approximate_map
+from tdslip_ros.model.analytic import LiftoffMethod, approximate_map
+from tdslip_ros.model.arrays import Array, CommandArrays
 from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.events import failure_code
 from tdslip_ros.model.exact_map import apex_return_map

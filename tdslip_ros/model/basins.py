@@ -33,14 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import (
-    Array,
-    ArrayLike,
-    CommandArrays,
-    NoCommand,
-    no_command_code,
-    speed_from_energy,
-)
+from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays, NoCommand, no_command_code
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind

@@ -1,11 +1,12 @@
 """Compilation of the model's scalar kernels (numba), where the compiled code is cached, and the few
 primitives a kernel needs to run both in real and in complex-step arithmetic.
 
-The analytic map (:mod:`tdslip_ros.model.analytic`) and the policies' solvers
-(:mod:`tdslip_ros.model.controllers`) are written once, as scalar functions of one lane, and compiled with
-:func:`kernel`. The controller calls them for one apex; the vectorised API loops over the lanes of a batch
-in compiled code; the complex step (``analytic.map_jacobian``) runs the very same source in complex128
-(numba compiles one specialisation per argument type). The few large kernels of the map's hot path are
+The analytic map (:mod:`tdslip_ros.model.map_kernels`) and the policies' solvers
+(:mod:`tdslip_ros.model.controller_kernels`, :mod:`tdslip_ros.model.deadbeat_kernels`) are written once,
+as scalar functions of one lane, and compiled with :func:`kernel`. The controller calls them for one apex;
+the vectorised API loops over the lanes of a batch in compiled code; the complex step
+(``closed_loop.map_jacobian``) runs the very same source in complex128 (numba compiles one specialisation
+per argument type). The few large kernels of the map's hot path are
 compiled with :func:`inlined_kernel`, which copies them into their callers.
 
 Cache. Compiling every kernel takes about a minute (once for float64 and once for complex128 arguments),

@@ -1,12 +1,12 @@
 """The paper's stance policies as pure functions: apex state(s), parameters, targets -> stance command arrays.
 
-Every policy returns :class:`~tdslip_ros.model.analytic.CommandArrays` (touchdown angle [rad], ramp torque
+Every policy returns :class:`~tdslip_ros.model.arrays.CommandArrays` (touchdown angle [rad], ramp torque
 tau0 [N m], ramp duration t_f [s]) broadcast over the inputs; ``.command()`` turns one lane into a validated
 :class:`~tdslip_ros.model.params.StanceCommand`. A returned command always maps, in the map the policy
 planned with, to a valid stride: where no such command exists the lane's fields are NaN and its
-``no_command`` code names the reason (:class:`~tdslip_ros.model.analytic.NoCommand`: the leg cannot be
+``no_command`` code names the reason (:class:`~tdslip_ros.model.arrays.NoCommand`: the leg cannot be
 placed, no liftoff, a predicted fall or reversal, no forward torque solution), and ``.command()`` raises
-:class:`~tdslip_ros.model.analytic.NoCommandError` with it. Touchdown angles are planned only where
+:class:`~tdslip_ros.model.arrays.NoCommandError` with it. Touchdown angles are planned only where
 :func:`~tdslip_ros.model.dynamics.can_place_leg` holds, the test the plant applies to every command.
 
 ``t_f`` is the liftoff time that the map predicts *for the returned command itself* (a fixed point
@@ -19,76 +19,58 @@ angular rate, is close to quadratic in tau0 because the torque's own momentum co
 root the policies return is the *forward* one, where the body swings forward on average (e < 0, so forward
 thrust tau0 < 0 does positive work). The other root drives the body backward and the map rejects it.
 
-The torque-based policies are complex-step safe (for :func:`~tdslip_ros.model.analytic.map_jacobian`).
+The torque-based policies are complex-step safe (for :func:`~tdslip_ros.model.closed_loop.map_jacobian`).
 
-Implementation. Each policy is a compiled kernel of one lane (``lane_*``, :mod:`tdslip_ros.model.compiled`)
-on the analytic map's own lane kernels; the functions below broadcast their inputs and run it in a compiled
-loop over the lanes, so one apex costs a call into compiled code and a batch costs one loop. A lane's
-command does not depend on the other lanes of its batch.
+Implementation. Each analytic policy is a compiled kernel of one lane (:mod:`.controller_kernels`,
+:mod:`.deadbeat_kernels`) on the analytic map's own lane kernels; the functions here broadcast their inputs
+and run it in a compiled loop over the lanes, so one apex costs a call into compiled code and a batch costs
+one loop. A lane's command does not depend on the other lanes of its batch. The policies by name, with
+their settings, are :mod:`.policies`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass, fields
 from functools import lru_cache
-from typing import Any, NamedTuple
 
 import numpy as np
-import numpy.typing as npt
-from numba.extending import register_jitable
 
-from tdslip_ros.model import dynamics, units
+from tdslip_ros.model import units
 from tdslip_ros.model.analytic import (
+    LiftoffMethod,
+    approximate_map,
+    check_corrections,
+    liftoff_code,
+    validate_angle,
+)
+from tdslip_ros.model.arrays import (
     HAS_COMMAND,
     Array,
     ArrayLike,
     CommandArrays,
     Lanes,
-    LaneStance,
-    LaneStride,
-    LiftoffMethod,
-    NoCommand,
     ParamArrays,
-    StanceStart,
-    Touchdown,
-    apex_energy,
-    approximate_map,
-    check_corrections,
-    converged,
     elementwise,
-    fixed_command,
-    lane_ascent,
-    lane_descent,
-    lane_stance,
-    lane_stance_start,
-    liftoff_code,
-    map_jacobian,
-    no_command_code,
     no_command_of_failure,
-    reason_of_failure,
-    validate_angle,
 )
-from tdslip_ros.model.compiled import kernel, real
+from tdslip_ros.model.closed_loop import fixed_command, map_jacobian
+from tdslip_ros.model.controller_kernels import (
+    COMMAND_ROWS,
+    FIXED_POINT_ITERATIONS,
+    NO_SOLUTION_REASON,
+    POWER_RULE,
+    TORQUE_RULE,
+    lane_admissible_angles,
+    neutral_angle_of,
+    pd_lanes,
+    planned_lanes,
+    regulated_lanes,
+    solve2,
+)
+from tdslip_ros.model.deadbeat_kernels import deadbeat_lanes
 from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
-FIXED_POINT_TOLERANCE = 1e-13
-"""Relative change of t_f and tau0 below which the policies' fixed-point iterations stop."""
-FIXED_POINT_ITERATIONS = 30
-"""Bound on the Newton steps of a policy's (tau0, t_f) solve (solvable lanes need 4-8, rarely up to 16)."""
-JACOBIAN_STEP = 1e-7
-"""Forward-difference step of the Newton iterations' Jacobians, in the scaled variables (rad for angles)."""
-DEADBEAT_SCAN_ITERATIONS = 10
-"""Newton steps of the deadbeat scan's solves (from a cold start most solvable angles need 5-8)."""
-DEADBEAT_TORQUE_TRUST = 0.02
-"""Largest Newton correction of (tau0, t_f), scaled, at which a deadbeat refinement point is trusted."""
-DEADBEAT_ITERATIONS = 40
-"""Bound on the deadbeat refinement's steps (about 5 where the target is reachable, 30 when bisecting)."""
-ANGLE_MARGIN = 1e-6
-"""rad kept inside the ends of the admissible touchdown interval, so that rounding cannot take an angle
-at its end out of it (the physical margin is dynamics.PLACEMENT_LEAD_TIME)."""
 EXACT_ENERGY_TOLERANCE = 1e-11
 """Dimensionless energy E/(m g r0) to which energy_exact meets its target on the exact map."""
 EXACT_STANCE_TOLERANCE = 1e-10
@@ -100,617 +82,10 @@ EXACT_JACOBIAN_STEP = 1e-6
 map's integration error (~1e-12), small against the curvature."""
 EXACT_MAP_TOLERANCE = 1e-12
 """rtol = atol of the exact map energy_exact plans on (the batched engine's default)."""
-
-# The plant's leg-placement rule, compiled as it stands: one rule for the plant and the planners.
-register_jitable(dynamics.placement_clearance)
-register_jitable(dynamics.can_place_leg)
-
-_NO_LIFTOFF = no_command_code(NoCommand.NO_LIFTOFF)
-_NO_SOLUTION = no_command_code(NoCommand.NO_SOLUTION)
-_LEG_PLACEMENT = no_command_code(NoCommand.LEG_PLACEMENT)
-_PREDICTED_REVERSAL = no_command_code(NoCommand.PREDICTED_REVERSAL)
-
-# The rules that give tau0 from a planned stance (the policy's own equation; see _planned_stance).
-TORQUE_RULE = 0
-"""tau0 = the given value (ramp_to_liftoff)."""
-POWER_RULE = 1
-"""tau0 = C/thetadot_td, C the given touchdown power (fixed_power, eq. 26)."""
-ENERGY_RULE = 2
-"""tau0 with E_tau = E_loss + dE, dE the given energy change (energy regulation, eq. 32)."""
-
-
-# --- compiled kernels of one lane ------------------------------------------------------------------------
-
-
-class Plan(NamedTuple):
-    """A planned (tau0, t_f) and the no_command code (HAS_COMMAND where planned; NaN fields else)."""
-
-    tau0: complex
-    t_f: complex
-    reason: int
-
-
-class LaneCommand(NamedTuple):
-    """A policy's command for one lane: the fields of CommandArrays and the no_command code."""
-
-    touchdown_angle: complex
-    tau0: complex
-    t_f: complex
-    reason: int
-
-
-@kernel
-def solve2(
-    a00: complex, a01: complex, a10: complex, a11: complex, b0: complex, b1: complex
-) -> tuple[complex, complex]:
-    """The solution of [[a00, a01], [a10, a11]] x = (b0, b1) (Cramer's rule)."""
-    determinant = a00 * a11 - a01 * a10
-    return (a11 * b0 - a01 * b1) / determinant, (a00 * b1 - a10 * b0) / determinant
-
-
-@kernel
-def torque_scales(m: float, k: float, r0: float, g: float) -> tuple[float, float]:
-    """(m g r0, sqrt(m/k)): the units of (tau0, t_f) in the Newton iterations."""
-    return m * g * r0, np.sqrt(m / k)
-
-
-@kernel
-def rule_torque(rule: int, value: complex, stance: LaneStance, thetadot_td: complex, t_f: complex) -> complex:
-    """tau0 by the policy's rule (TORQUE_RULE, POWER_RULE, ENERGY_RULE) for a planned stance."""
-    if rule == POWER_RULE:
-        return value / thetadot_td
-    if rule == ENERGY_RULE:
-        return (value + (stance.damping_loss + stance.spring_energy)) / stance.energy_per_torque
-    return value
-
-
-@kernel
-def energy_change(
-    m: float, g: float, y: complex, xdot: complex, has_target: bool, target: complex
-) -> complex:
-    """E* - E_a for a target E*; zero without one (E* = E_a)."""
-    energy = apex_energy(m, g, y, xdot)
-    return target - energy if has_target else 0.0 * energy
-
-
-@kernel
-def lane_plan(
-    y: complex,
-    angle: complex,
-    touchdown: Touchdown,
-    start: StanceStart,
-    rule: int,
-    value: complex,
-    corrections: int,
-    liftoff: int,
-    max_iterations: int,
-    has_start: bool,
-    start_tau0: complex,
-    start_t_f: complex,
-) -> Plan:
-    """Solve (tau0, t_f) = (rule(stance), t_lo) for the stance they produce, from the touchdown and its
-    unforced stance.
-
-    Where the leg cannot be placed, without liftoff, or not converged in ``max_iterations`` the plan is NaN
-    with its reason. The iteration starts from the unforced stance (tau0 = 0, corrections = 0, where t_lo
-    does not depend on t_f; starting from the rule's tau0 for it instead loses about 2 % of the solvable
-    lanes), or from (start_tau0, start_t_f) if has_start. The plain iteration x <- G(x) contracts only
-    linearly (about -1/3 per step for energy regulation, where tau0 moves t_lo and the losses through
-    p_hat), so this is Newton's method on G(x) - x = 0, x = (tau0, t_f) scaled by :func:`torque_scales`.
-    G is evaluated at x and at x + JACOBIAN_STEP e_j, which gives its Jacobian by forward differences; that
-    Jacobian's error of ~JACOBIAN_STEP only slows the final convergence to a rate of about that size. Where
-    a component of the Newton step is not finite the plain step is taken. Under a complex step the
-    Jacobian is that of the real parts; the (linear) imaginary parts then converge at the same rate.
-    """
-    s = start.approximation
-    scale_tau, scale_t = torque_scales(s.m, s.k, s.r0, s.g)
-    reason = HAS_COMMAND
-    if not dynamics.can_place_leg(s.r0, s.g, real(y), np.cos(real(angle))):
-        reason = _LEG_PLACEMENT
-    elif touchdown.failure != NO_FAILURE_CODE:
-        reason = _PREDICTED_REVERSAL  # the touchdown's only other failure
-    elif not start.liftoff_exists:
-        reason = _NO_LIFTOFF
-    x0: complex = 0.0
-    x1 = start.t_lo / scale_t
-    if has_start:
-        x0, x1 = start_tau0 / scale_tau, start_t_f / scale_t
-    lifts_off, solved = True, False
-    for _ in range(max_iterations if reason == HAS_COMMAND else 0):  # a lane with its reason has no plan
-        tau0, t_f = x0 * scale_tau, x1 * scale_t
-        stance = lane_stance(start, tau0, t_f, corrections, liftoff)
-        g0, g1 = rule_torque(rule, value, stance, touchdown.thetadot, t_f) / scale_tau, stance.t_lo / scale_t
-        lifts_off = lifts_off and stance.liftoff_exists
-        solved = converged(g0, x0, FIXED_POINT_TOLERANCE) and converged(g1, x1, FIXED_POINT_TOLERANCE)
-        if solved or not lifts_off:
-            x0, x1 = g0, g1
-            break
-        # G at the two shifts of x, for its Jacobian.
-        tau0 = (x0 + JACOBIAN_STEP) * scale_tau
-        shifted = lane_stance(start, tau0, t_f, corrections, liftoff)
-        g00 = rule_torque(rule, value, shifted, touchdown.thetadot, t_f) / scale_tau
-        g01 = shifted.t_lo / scale_t
-        tau0, t_f = x0 * scale_tau, (x1 + JACOBIAN_STEP) * scale_t
-        shifted = lane_stance(start, tau0, t_f, corrections, liftoff)
-        g10 = rule_torque(rule, value, shifted, touchdown.thetadot, t_f) / scale_tau
-        g11 = shifted.t_lo / scale_t
-        residual0, residual1 = g0 - x0, g1 - x1
-        # d residual_i / d x_j = dG_i/dx_j - delta_ij
-        step0, step1 = solve2(
-            real(g00 - g0) / JACOBIAN_STEP - 1.0,
-            real(g10 - g0) / JACOBIAN_STEP,
-            real(g01 - g1) / JACOBIAN_STEP,
-            real(g11 - g1) / JACOBIAN_STEP - 1.0,
-            residual0,
-            residual1,
-        )
-        x0 = x0 + (-step0 if np.isfinite(step0) else residual0)
-        x1 = x1 + (-step1 if np.isfinite(step1) else residual1)
-    if reason == HAS_COMMAND and not lifts_off:
-        reason = _NO_LIFTOFF
-    elif reason == HAS_COMMAND and not solved:
-        reason = _NO_SOLUTION
-    if reason != HAS_COMMAND:
-        x0, x1 = np.nan, np.nan
-    return Plan(x0 * scale_tau, x1 * scale_t, reason)
-
-
-class Apex(NamedTuple):
-    """One lane's apex, parameters and what the policies plan from: its touchdown and unforced stance."""
-
-    m: float
-    k: float
-    r0: float
-    c: float
-    g: float
-    y: complex
-    xdot: complex
-    angle: complex
-    touchdown: Touchdown
-    start: StanceStart
-
-
-@kernel
-def lane_apex(
-    m: float, k: float, r0: float, c: float, g: float, y: complex, xdot: complex, angle: complex, liftoff: int
-) -> Apex:
-    touchdown = lane_descent(r0, g, y, xdot, angle)
-    start = lane_stance_start(m, k, r0, c, g, angle, touchdown.rdot, touchdown.thetadot, liftoff)
-    return Apex(m, k, r0, c, g, y, xdot, angle, touchdown, start)
-
-
-@kernel
-def planned_energy_per_torque(
-    apex: Apex, tau0: complex, t_f: complex, corrections: int, liftoff: int
-) -> float:
-    """Real part of e for the stance of (tau0, t_f) from the apex."""
-    return real(lane_stance(apex.start, tau0, t_f, corrections, liftoff).energy_per_torque)
-
-
-class Planned(NamedTuple):
-    """A plan and the stance it produces (no stance of meaning where it has no command)."""
-
-    plan: Plan
-    stance: LaneStance
-
-
-@kernel
-def lane_regulated_plan(
-    apex: Apex, change: complex, corrections: int, liftoff: int, max_iterations: int
-) -> Planned:
-    """Energy regulation's (tau0, t_f) on the forward root (e < 0, module docstring), dE = change.
-
-    Newton from the unforced stance finds the forward root wherever the unforced stance swings forward
-    under the corrections (e(0) < 0). Near the highest apex at which the leg still swings forward,
-    gravity's correction makes e(0) >= 0 and Newton finds the backward root tau_b. There e is close to
-    linear in tau0, e = e1 (tau0 - tau_e), so the two roots of tau0 e(tau0) = E_loss + dE sum to tau_e:
-    Newton starts again from tau_e - tau_b, next to the forward root. A lane without a forward root gets
-    no_solution.
-    """
-    y, angle, touchdown, start = apex.y, apex.angle, apex.touchdown, apex.start
-    plan = lane_plan(
-        y, angle, touchdown, start, ENERGY_RULE, change, corrections, liftoff, max_iterations, False, 0.0, 0.0
-    )
-    tau0, t_f, reason = plan.tau0, plan.t_f, plan.reason
-    stance = lane_stance(start, tau0, t_f, corrections, liftoff)
-    rate = real(stance.energy_per_torque)
-    if rate >= 0.0:  # the backward root
-        backward = real(tau0)
-        at_zero = planned_energy_per_torque(apex, 0.0, t_f, corrections, liftoff)
-        root_sum = backward - rate * backward / (rate - at_zero)  # tau_e
-        again = lane_plan(
-            y,
-            angle,
-            touchdown,
-            start,
-            ENERGY_RULE,
-            change,
-            corrections,
-            liftoff,
-            max_iterations,
-            True,
-            root_sum - backward,
-            t_f,
-        )
-        tau0, t_f, reason = again.tau0, again.t_f, again.reason
-        stance = lane_stance(start, tau0, t_f, corrections, liftoff)
-        forward = real(stance.energy_per_torque) < 0.0
-        if reason == HAS_COMMAND and not forward:
-            tau0, t_f, reason = np.nan, np.nan, _NO_SOLUTION
-    return Planned(Plan(tau0, t_f, reason), stance)
-
-
-class Checked(NamedTuple):
-    command: LaneCommand
-    stride: LaneStride
-
-
-@kernel
-def lane_checked(apex: Apex, planned: Planned) -> Checked:
-    """The planned command, or no command with the reason the analytic map rejects it, and the map's
-    stride with the planned command."""
-    plan = planned.plan
-    stride = lane_ascent(apex.m, apex.g, apex.y, apex.xdot, apex.touchdown, planned.stance)
-    reason = plan.reason
-    if reason == HAS_COMMAND:
-        reason = reason_of_failure(stride.failure)
-    angle, tau0, t_f = apex.angle, plan.tau0, plan.t_f
-    if reason != HAS_COMMAND:
-        angle, tau0, t_f = np.nan, np.nan, np.nan
-    return Checked(LaneCommand(angle, tau0, t_f, reason), stride)
-
-
-@kernel
-def lane_energy_regulation(
-    apex: Apex, change: complex, corrections: int, liftoff: int, max_iterations: int
-) -> Checked:
-    """Energy regulation's command (E_tau = E_loss + change) and the map's stride with it."""
-    return lane_checked(apex, lane_regulated_plan(apex, change, corrections, liftoff, max_iterations))
-
-
-@kernel
-def lane_admissible_angles(r0: float, g: float, y: complex) -> tuple[float, float]:
-    """Touchdown angles that place the leg from apex height y (see :func:`admissible_angles`)."""
-    placeable_top = real(y) - dynamics.placement_clearance(g)
-    lowest = np.arccos(clip(placeable_top / r0, -1.0, 1.0))
-    return lowest + ANGLE_MARGIN, np.pi / 2 - ANGLE_MARGIN
-
-
-@kernel
-def clip(x: float, lower: float, upper: float) -> float:
-    """x clipped into [lower, upper]; NaN stays NaN (as np.clip)."""
-    if x < lower:
-        return lower
-    if x > upper:
-        return upper
-    return x
-
-
-@kernel
-def rises_clear(g: float, stride: LaneStride) -> bool:
-    """Whether the map's stride succeeds and its next flight climbs at least dynamics.placement_clearance
-    from liftoff to apex (rises for at least PLACEMENT_LEAD_TIME): deadbeat's margin from a fall.
-
-    Deadbeat's best angle often lies where the predicted liftoff speed reaches zero, the edge of the map's
-    fall region (to come down to a low target apex); the exact plant's edge is a few mrad away, so an
-    angle on the map's edge makes the plant fall (docs/paper.md, the deadbeat edge).
-    """
-    liftoff_height = stride.stance.r_lo * np.cos(stride.stance.theta_lo)
-    climb = real(stride.y - liftoff_height)
-    return stride.failure == NO_FAILURE_CODE and climb >= dynamics.placement_clearance(g)
-
-
-class DeadbeatPoint(NamedTuple):
-    """A deadbeat refinement point and the linearisation of its equations there.
-
-    z = (theta_td, tau0/(m g r0), t_f/sqrt(m/k)); c(z) = G(x) - x is the residual of the torque's fixed point
-    (x = (z1, z2), as in :func:`lane_plan`), r(z) = xdot_next - xdot*.
-    """
-
-    angle: float  # z0
-    z1: float
-    z2: float
-    r: float  # r - r_x u: r with the torque solved at this angle (to first order)
-    slope: float  # r_theta - r_x w: dr/dtheta along the torque solution
-    u0: float  # u = c_x^-1 c: the Newton correction of x at this angle
-    u1: float
-    w0: float  # w = c_x^-1 c_theta: minus the rate at which the torque solution moves with the angle
-    w1: float
-    converged: bool  # x solves the torque's fixed point to FIXED_POINT_TOLERANCE
-    ok: bool  # the map succeeded and the linearisation is finite
-
-    @property
-    def trusted(self) -> bool:
-        """Close enough to the torque's fixed point for the linearisation to guide the angle (in kernels:
-        :func:`trusted`)."""
-        return trusted(self)
-
-
-@kernel
-def trusted(point: DeadbeatPoint) -> bool:
-    return abs(point.u0) <= DEADBEAT_TORQUE_TRUST and abs(point.u1) <= DEADBEAT_TORQUE_TRUST
-
-
-class DeadbeatGoal(NamedTuple):
-    """What deadbeat solves for at one apex: the parameters, the apex and the target apex."""
-
-    m: float
-    k: float
-    r0: float
-    c: float
-    g: float
-    y: float
-    xdot: float
-    target_xdot: float
-    change: float  # E* - E_a
-    corrections: int
-    liftoff: int
-
-
-@kernel
-def deadbeat_values(goal: DeadbeatGoal, apex: Apex, z1: float, z2: float) -> tuple[float, float, float, bool]:
-    """(c, r) at z = (apex.angle, z1, z2) (:class:`DeadbeatPoint`) and whether the stride rises clear."""
-    scale_tau, scale_t = torque_scales(goal.m, goal.k, goal.r0, goal.g)
-    tau0, t_f = z1 * scale_tau, z2 * scale_t
-    t_f = t_f if t_f > 0.0 else np.nan  # a wild step fails its point, not the lane
-    stance = lane_stance(apex.start, tau0, t_f, goal.corrections, goal.liftoff)
-    stride = lane_ascent(goal.m, goal.g, goal.y, goal.xdot, apex.touchdown, stance)
-    torque = rule_torque(ENERGY_RULE, goal.change, stride.stance, stride.touchdown.thetadot, t_f)
-    return (
-        real(torque / scale_tau - z1),
-        real(stride.stance.t_lo / scale_t - z2),
-        real(stride.xdot - goal.target_xdot),
-        rises_clear(goal.g, stride),
-    )
-
-
-@kernel
-def linearise(goal: DeadbeatGoal, angle: float, z1: float, z2: float) -> DeadbeatPoint:
-    """The point z and its linearisation, from the values at z and at its three forward shifts."""
-    m, k, r0, c, g, y, xdot = goal.m, goal.k, goal.r0, goal.c, goal.g, goal.y, goal.xdot
-    apex = lane_apex(m, k, r0, c, g, y, xdot, angle, goal.liftoff)
-    shifted = lane_apex(m, k, r0, c, g, y, xdot, angle + JACOBIAN_STEP, goal.liftoff)
-    c0, c1, r, clear = deadbeat_values(goal, apex, z1, z2)
-    a0, a1, ar, _ = deadbeat_values(goal, shifted, z1, z2)
-    b0, b1, br, _ = deadbeat_values(goal, apex, z1 + JACOBIAN_STEP, z2)
-    d0, d1, dr, _ = deadbeat_values(goal, apex, z1, z2 + JACOBIAN_STEP)
-    # d(c, r)_i / dz_j by forward differences
-    c0_angle, c0_z1, c0_z2 = (a0 - c0) / JACOBIAN_STEP, (b0 - c0) / JACOBIAN_STEP, (d0 - c0) / JACOBIAN_STEP
-    c1_angle, c1_z1, c1_z2 = (a1 - c1) / JACOBIAN_STEP, (b1 - c1) / JACOBIAN_STEP, (d1 - c1) / JACOBIAN_STEP
-    r_angle, r_z1, r_z2 = (ar - r) / JACOBIAN_STEP, (br - r) / JACOBIAN_STEP, (dr - r) / JACOBIAN_STEP
-    u = solve2(c0_z1, c0_z2, c1_z1, c1_z2, c0, c1)
-    w = solve2(c0_z1, c0_z2, c1_z1, c1_z2, c0_angle, c1_angle)
-    u0, u1, w0, w1 = real(u[0]), real(u[1]), real(w[0]), real(w[1])
-    r_solved = r - (r_z1 * u0 + r_z2 * u1)
-    slope = r_angle - (r_z1 * w0 + r_z2 * w1)
-    done = converged(c0 + z1, z1, FIXED_POINT_TOLERANCE) and converged(c1 + z2, z2, FIXED_POINT_TOLERANCE)
-    finite = np.isfinite(r_solved) and np.isfinite(slope)
-    finite = finite and np.isfinite(u0) and np.isfinite(u1) and np.isfinite(w0) and np.isfinite(w1)
-    return DeadbeatPoint(angle, z1, z2, r_solved, slope, u0, u1, w0, w1, done, clear and finite)
-
-
-@kernel
-def lane_deadbeat(goal: DeadbeatGoal, fractions: Array, angle_tolerance: float) -> LaneCommand:
-    """Deadbeat's command for one apex (:func:`deadbeat`); ``fractions`` are the scan's angles as fractions
-    of the admissible interval."""
-    m, k, r0, c, g, y, xdot = goal.m, goal.k, goal.r0, goal.c, goal.g, goal.y, goal.xdot
-    corrections, liftoff = goal.corrections, goal.liftoff
-    scale_tau, scale_t = torque_scales(m, k, r0, g)
-    lower, upper = lane_admissible_angles(r0, g, y)
-    placeable = lower < upper
-
-    # Scan: energy regulation at each candidate angle, ranked by the squared speed error.
-    grid = fractions.size
-    angles, tau0s, t_fs, costs = np.empty(grid), np.empty(grid), np.empty(grid), np.empty(grid)
-    best = 0
-    for j in range(grid):
-        angle = lower + (upper - lower) * fractions[j] if placeable else np.nan
-        apex = lane_apex(m, k, r0, c, g, y, xdot, angle, liftoff)
-        checked = lane_energy_regulation(apex, goal.change, corrections, liftoff, DEADBEAT_SCAN_ITERATIONS)
-        cost = (checked.stride.xdot - goal.target_xdot) ** 2
-        if not (rises_clear(g, checked.stride) and np.isfinite(cost)):
-            cost = np.inf
-        angles[j], tau0s[j], t_fs[j], costs[j] = angle, checked.command.tau0, checked.command.t_f, cost
-        if cost < costs[best]:
-            best = j
-    scan_found = np.isfinite(costs[best])
-    before, after = max(best - 1, 0), min(best + 1, grid - 1)
-
-    # Refinement: Newton on (theta, tau0, t_f) at once, bracketed (see deadbeat).
-    here = linearise(goal, angles[best], tau0s[best] / scale_tau, t_fs[best] / scale_t)
-    found = scan_found and here.ok
-    # f' = 2 r r' < 0: f falls to the right of the best scan angle, so its minimum lies on that side.
-    rightwards = here.r * here.slope < 0.0
-    a = here.angle if rightwards else angles[before]
-    b = angles[after] if rightwards else here.angle
-    # No r'' yet: the first step is Newton's on r.
-    previous_angle, previous_slope = here.angle, here.slope
-    done = not found
-    for _ in range(DEADBEAT_ITERATIONS):
-        if done:
-            break
-        curvature = (here.slope - previous_slope) / (here.angle - previous_angle)
-        curvature = curvature if np.isfinite(curvature) else 0.0
-        denominator = here.slope**2 + here.r * curvature
-        trial = here.angle - here.r * here.slope / denominator
-        newton = np.isfinite(trial) and denominator > 0.0 and trial > a and trial < b
-        step = (trial if newton else 0.5 * (a + b)) - here.angle
-        settled = abs(step) <= angle_tolerance
-        if settled and here.converged:
-            break
-        new = linearise(
-            goal,
-            here.angle + step,
-            here.z1 - (here.u0 + here.w0 * step),
-            here.z2 - (here.u1 + here.w1 * step),
-        )
-        if not (new.ok and trusted(new)):
-            # Far from the torque's fixed point (or where the map fails there) the joint step says little:
-            # solve the torque at that angle from scratch, as energy_regulation does, and linearise there.
-            apex = lane_apex(m, k, r0, c, g, y, xdot, new.angle, liftoff)
-            solved = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS).plan
-            new = linearise(goal, new.angle, real(solved.tau0) / scale_tau, real(solved.t_f) / scale_t)
-        good = new.ok and trusted(new)
-        if not settled:
-            upper_end = new.r * new.slope > 0.0 if good else step > 0.0
-            if upper_end:
-                b = new.angle
-            else:
-                a = new.angle
-        if good:
-            if not settled:
-                previous_angle, previous_slope = here.angle, here.slope
-            here = new
-    angle, tau0, t_f = here.angle, here.z1 * scale_tau, here.z2 * scale_t
-    reason = HAS_COMMAND if found else (_NO_SOLUTION if placeable else _LEG_PLACEMENT)
-    if not found:
-        angle, tau0, t_f = np.nan, np.nan, np.nan
-    apex = lane_apex(m, k, r0, c, g, y, xdot, angle, liftoff)
-    if found and not here.converged:
-        # Out of steps with the torque not yet solved (an optimum at the edge of the failures): solve it.
-        planned = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS)
-    else:
-        planned = Planned(Plan(tau0, t_f, reason), lane_stance(apex.start, tau0, t_f, corrections, liftoff))
-    refined = lane_checked(apex, planned)
-    if scan_found and not rises_clear(g, refined.stride):
-        # The map rejects the refined command (or it leaves no margin from a fall): the best scanned one (its
-        # cost was finite) stands.
-        return LaneCommand(angles[best], tau0s[best], t_fs[best], HAS_COMMAND)
-    return refined.command
-
-
-@kernel
-def neutral_angle_of(m: float, k: float, r0: float, xdot: complex) -> complex:
-    """Raibert's neutral touchdown angle (:func:`neutral_angle`)."""
-    stance_time = np.pi * np.sqrt(m / k)
-    angle: complex = np.arcsin(clip(xdot * stance_time / (2.0 * r0), 0.0, 1.0))
-    return angle
-
-
-# --- compiled loops over the lanes of a batch: a block of rows (angle, tau0, t_f, reason), one column a lane
-
-
-COMMAND_ROWS = 4
-
-
-@kernel
-def write_command(out: Array, lane: int, command: LaneCommand) -> None:
-    out[0, lane] = command.touchdown_angle
-    out[1, lane] = command.tau0
-    out[2, lane] = command.t_f
-    out[3, lane] = command.reason
-
-
-@kernel
-def _planned_lanes(
-    params: Array,
-    y: Array,
-    xdot: Array,
-    angle: Array,
-    value: Array,
-    rule: int,
-    check: bool,
-    corrections: int,
-    liftoff: int,
-    out: Array,
-) -> None:
-    """A rule's plan per lane, checked in the map (fixed_power) or not (ramp_to_liftoff)."""
-    for i in range(y.size):
-        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
-        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], liftoff)
-        plan = lane_plan(
-            y[i],
-            angle[i],
-            apex.touchdown,
-            apex.start,
-            rule,
-            value[i],
-            corrections,
-            liftoff,
-            FIXED_POINT_ITERATIONS,
-            False,
-            0.0,
-            0.0,
-        )
-        if check:
-            stance = lane_stance(apex.start, plan.tau0, plan.t_f, corrections, liftoff)
-            write_command(out, i, lane_checked(apex, Planned(plan, stance)).command)
-        else:
-            planned = angle[i] if plan.reason == HAS_COMMAND else np.nan
-            write_command(out, i, LaneCommand(planned, plan.tau0, plan.t_f, plan.reason))
-
-
-@kernel
-def _regulated_lanes(
-    params: Array,
-    y: Array,
-    xdot: Array,
-    angle: Array,
-    target: Array,
-    has_target: bool,
-    corrections: int,
-    liftoff: int,
-    max_iterations: int,
-    out: Array,
-) -> None:
-    for i in range(y.size):
-        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
-        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], liftoff)
-        change = energy_change(m, g, y[i], xdot[i], has_target, target[i])
-        write_command(
-            out, i, lane_energy_regulation(apex, change, corrections, liftoff, max_iterations).command
-        )
-
-
-@kernel
-def _pd_lanes(
-    params: Array,
-    y: Array,
-    xdot: Array,
-    previous_xdot: Array,
-    target_y: Array,
-    target_xdot: Array,
-    kp: Array,
-    kd: Array,
-    corrections: int,
-    liftoff: int,
-    out: Array,
-) -> None:
-    for i in range(y.size):
-        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
-        angle = neutral_angle_of(m, k, r0, xdot[i])
-        angle = angle + kp[i] * (xdot[i] - target_xdot[i]) + kd[i] * (xdot[i] - previous_xdot[i])
-        lower, upper = lane_admissible_angles(r0, g, y[i])
-        angle = clip(angle, lower, upper) if lower < upper else np.nan  # NaN: no angle places the leg
-        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle, liftoff)
-        target = apex_energy(m, g, target_y[i], target_xdot[i])
-        change = energy_change(m, g, y[i], xdot[i], True, target)
-        write_command(
-            out, i, lane_energy_regulation(apex, change, corrections, liftoff, FIXED_POINT_ITERATIONS).command
-        )
-
-
-@kernel
-def _deadbeat_lanes(
-    params: Array,
-    y: Array,
-    xdot: Array,
-    target_y: Array,
-    target_xdot: Array,
-    fractions: Array,
-    angle_tolerance: float,
-    corrections: int,
-    liftoff: int,
-    out: Array,
-) -> None:
-    for i in range(y.size):
-        m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
-        change = real(apex_energy(m, g, target_y[i], target_xdot[i]) - apex_energy(m, g, y[i], xdot[i]))
-        goal = DeadbeatGoal(m, k, r0, c, g, y[i], xdot[i], target_xdot[i], change, corrections, liftoff)
-        write_command(out, i, lane_deadbeat(goal, fractions, angle_tolerance))
-
-
-# --- the policies' API -----------------------------------------------------------------------------------
+PD_KP = 0.06
+"""rad/(m/s): the PD baseline's gain on the speed error (fig. 13's)."""
+PD_KD = 0.03
+"""rad/(m/s): the PD baseline's gain on the speed change over a stride (fig. 13's)."""
 
 
 def _require_at_least(name: str, value: int, least: int) -> None:
@@ -742,7 +117,7 @@ def _planned(
     code = liftoff_code(liftoff)
     lanes = Lanes.of(params, y, xdot, angle, value)
     block = lanes.rows(COMMAND_ROWS)
-    lanes.run(_planned_lanes, rule, check, corrections, code, block)
+    lanes.run(planned_lanes, rule, check, corrections, code, block)
     return _commands(lanes, block)
 
 
@@ -802,8 +177,8 @@ def energy_regulation(
     analytic map is E* (this is the regulator the exact-plant studies use, with the first stride's energy as
     E*, so that prediction errors do not accumulate). Without it, E* = E_a (the paper's eq. 32).
     For a given stance E_tau is linear in tau0, so each fixed-point step solves that linear equation; of
-    the two roots the forward one is returned (:func:`lane_regulated_plan`). Lanes not solved in
-    ``max_iterations`` (at least 1) Newton steps get no_solution.
+    the two roots the forward one is returned (:func:`~.controller_kernels.lane_regulated_plan`). Lanes
+    not solved in ``max_iterations`` (at least 1) Newton steps get no_solution.
     """
     _require_at_least("max_iterations", max_iterations, 1)
     validate_angle(beta)
@@ -814,7 +189,7 @@ def energy_regulation(
     lanes = Lanes.of(params, y, xdot, beta, target)
     block = lanes.rows(COMMAND_ROWS)
     has_target = target_energy is not None
-    lanes.run(_regulated_lanes, has_target, corrections, code, max_iterations, block)
+    lanes.run(regulated_lanes, has_target, corrections, code, max_iterations, block)
     return _commands(lanes, block)
 
 
@@ -831,7 +206,7 @@ def exact_energy_regulation(
     stance duration the plant itself produces with that command (the ramp ends at the exact liftoff).
 
     Newton's method on the exact map (the batched engine, DOP853 at EXACT_MAP_TOLERANCE) for
-    x = (tau0, t_f) scaled as in :func:`_planned_stance` and the residuals ((E' - E*)/(m g r0),
+    x = (tau0, t_f) scaled as in :func:`~.controller_kernels.lane_plan` and the residuals ((E' - E*)/(m g r0),
     T_stance/sqrt(m/k) - x_1); its Jacobian by forward differences, the three points being lanes of one
     batched call. It starts from :func:`energy_regulation`'s forward root (``corrections`` of its map) and
     returns a command only where the exact map, evaluated with that very command, succeeds and meets both
@@ -863,7 +238,7 @@ def exact_energy_regulation(
     probes = _probes(2, EXACT_JACOBIAN_STEP)  # (3, 2, 1)
     for _ in range(EXACT_ITERATIONS):
         wild = ~np.all(np.isfinite(x[:, active]) & (x[1, active] > 0.0), axis=0)
-        reason[active[wild]] = _NO_SOLUTION
+        reason[active[wild]] = NO_SOLUTION_REASON
         active = active[~wild]
         if active.size == 0:
             break
@@ -892,8 +267,8 @@ def exact_energy_regulation(
         moving = ~failed & ~done
         x[:, active[moving]] += step[:, moving]
         active = active[moving]
-    reason[active] = _NO_SOLUTION  # still iterating: not converged
-    reason[~solved & (reason == HAS_COMMAND)] = _NO_SOLUTION
+    reason[active] = NO_SOLUTION_REASON  # still iterating: not converged
+    reason[~solved & (reason == HAS_COMMAND)] = NO_SOLUTION_REASON
     tau0, t_f = (
         np.where(reason == HAS_COMMAND, row * scale, np.nan).reshape(shape)
         for row, scale in zip(x, scales, strict=True)
@@ -909,7 +284,7 @@ def _probes(count: int, step: float) -> Array:
 
 
 def _solve2(matrix: Array, vector: Array) -> Array:
-    """matrix^-1 vector per lane for (2, 2, n) matrices and (2, n) vectors (:func:`solve2`)."""
+    """matrix^-1 vector per lane for (2, 2, n) matrices and (2, n) vectors (controller_kernels.solve2)."""
     return np.stack(elementwise(solve2, [complex, complex], *matrix.reshape(4, -1), *vector))
 
 
@@ -959,7 +334,7 @@ def deadbeat(
       FIXED_POINT_ITERATIONS).
     * Refinement, from the best scan angle in the bracket of its neighbours, down to ``angle_tolerance``
       rad: Newton's method on (theta, tau0, t_f) at once, the map evaluated at the point and its three
-      forward-difference shifts per step (:func:`linearise`). The angle step is Newton's for
+      forward-difference shifts per step (:func:`.deadbeat_kernels.linearise`). The angle step is Newton's for
       f'/2 = r r' = 0, ``delta = -r r'/(r'^2 + r r'')`` with r' taken along the torque solution and r'' from
       a secant of r'. Where the target is reachable (r = 0) this is Newton's method on r (quadratic
       convergence); where it is not, the secant method on r' = 0 (the extremum of xdot_next). A step that
@@ -978,7 +353,7 @@ def deadbeat(
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, *(np.real(v) for v in (y, xdot, target_y, target_xdot)))
     block = lanes.rows(COMMAND_ROWS)
-    lanes.run(_deadbeat_lanes, _scan_fractions(grid), angle_tolerance, corrections, code, block)
+    lanes.run(deadbeat_lanes, _scan_fractions(grid), angle_tolerance, corrections, code, block)
     return _commands(lanes, block)
 
 
@@ -998,8 +373,8 @@ def pd_speed_energy_height(
     previous_xdot: ArrayLike,
     target_y: ArrayLike,
     target_xdot: ArrayLike,
-    kp: ArrayLike = 0.06,
-    kd: ArrayLike = 0.03,
+    kp: ArrayLike = PD_KP,
+    kd: ArrayLike = PD_KD,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
 ) -> CommandArrays:
@@ -1023,7 +398,7 @@ def pd_speed_energy_height(
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, y, xdot, previous_xdot, target_y, target_xdot, kp, kd)
     block = lanes.rows(COMMAND_ROWS)
-    lanes.run(_pd_lanes, corrections, code, block)
+    lanes.run(pd_lanes, corrections, code, block)
     return _commands(lanes, block)
 
 
@@ -1051,82 +426,3 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True) -> No
             fixed_command(StanceCommand(beta, -500.0, 0.15)),
         ):
             map_jacobian(params, np.asarray(y), np.asarray(xdot), policy)
-
-
-POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "pd")
-FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
-"""Policies that touch down at the fixed ``touchdown_angle``."""
-TARGET_APEX_POLICIES = ("deadbeat", "pd")
-"""Policies that steer towards the target apex (``target_height``, ``target_speed``)."""
-
-
-class PolicyError(ValueError):
-    """The policy settings are incomplete or unknown."""
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    """A named policy with its settings (SI; the controller node's parameters), in one place for the
-    controller node and the offline analysis. ``source`` says where the settings came from."""
-
-    name: str
-    touchdown_angle: float
-    touchdown_power: float
-    target_energy: float
-    target_height: float
-    target_speed: float
-    pd_kp: float
-    pd_kd: float
-    corrections: int
-    source: str = ""
-
-    def commands(
-        self, params: HopperParams, y: npt.ArrayLike, xdot: npt.ArrayLike, previous_xdot: npt.ArrayLike
-    ) -> CommandArrays:
-        """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by ``pd`` only."""
-        if self.name == "open_loop":
-            alpha = units.power_to_alpha(params, self.touchdown_power)
-            return fixed_power(params, y, xdot, self.touchdown_angle, alpha, self.corrections)
-        if self.name == "energy":
-            return energy_regulation(
-                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
-            )
-        if self.name == "energy_exact":
-            return exact_energy_regulation(
-                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
-            )
-        if self.name == "deadbeat":
-            return deadbeat(params, y, xdot, self.target_height, self.target_speed, self.corrections)
-        if self.name == "pd":
-            return pd_speed_energy_height(
-                params,
-                y,
-                xdot,
-                previous_xdot,
-                self.target_height,
-                self.target_speed,
-                kp=self.pd_kp,
-                kd=self.pd_kd,
-                corrections=self.corrections,
-            )
-        raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
-
-    @classmethod
-    def settings(cls) -> tuple[str, ...]:
-        """The names of the settings: the controller node's parameters of the same names."""
-        return tuple(field.name for field in fields(cls) if field.name not in ("name", "source"))
-
-    @classmethod
-    def of(cls, name: str, values: Mapping[str, str | float], source: str = "") -> PolicySpec:
-        """A spec from setting values as parameters or text give them: ``corrections`` an int, the rest
-        floats."""
-        converted: dict[str, Any] = {key: float(values[key]) for key in cls.settings()}
-        converted["corrections"] = int(values["corrections"])
-        return cls(name=name, source=source, **converted)
-
-    @property
-    def target(self) -> tuple[float, float] | None:
-        """The target apex (y, xdot) of a policy that has one."""
-        if self.name in TARGET_APEX_POLICIES:
-            return self.target_height, self.target_speed
-        return None

@@ -33,8 +33,10 @@ from typing import Literal
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import Array, ArrayLike, CommandArrays, eigenvalues, speed_from_energy
+from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays
 from tdslip_ros.model.batch import BatchStrideResult, batch_apex_return_map
+from tdslip_ros.model.closed_loop import eigenvalues
 from tdslip_ros.model.controllers import energy_regulation, exact_energy_regulation, fixed_power
 from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams

@@ -40,7 +40,7 @@ from typing import Any, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model.analytic import ParamArrays
+from tdslip_ros.model.arrays import ParamArrays
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams, ParameterError

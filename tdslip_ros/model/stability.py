@@ -27,17 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import (
-    COMPLEX_STEP,
-    Array,
-    ArrayLike,
-    LiftoffMethod,
-    Policy,
-    closed_loop_map,
-    eigenvalues,
-    map_jacobian,
-    speed_from_energy,
-)
+from tdslip_ros.model.analytic import LiftoffMethod, speed_from_energy
+from tdslip_ros.model.arrays import Array, ArrayLike
+from tdslip_ros.model.closed_loop import COMPLEX_STEP, Policy, closed_loop_map, eigenvalues, map_jacobian
 from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.params import HopperParams
 

@@ -12,11 +12,12 @@ The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.m
 * ``pd``: the PD baseline, foot placement on speed with gains ``pd_kp``, ``pd_kd`` [rad/(m/s)]
   and energy towards the target apex.
 
-Policy, targets and gains are read at every apex, so ``ros2 param set`` changes them at runtime
-(values are checked against their ranges and choices first). The controller plans with its own SI
-hopper parameters (``mass``, ``stiffness``, ``rest_length``, ``damping``, ``gravity``): the plant's, as
-config/controller.yaml has them for the defaults, or other values to study model mismatch (``tdslip run
---mismatch`` scales the plant's by factors).
+Each setting of the policies (:data:`tdslip_ros.model.policies.POLICY_SETTINGS`) is the parameter of the
+same name, with its default, range and description. Policy, targets and gains are read at every apex, so
+``ros2 param set`` changes them at runtime (values are checked against their ranges and choices first).
+The controller plans with its own SI hopper parameters (``mass``, ``stiffness``, ``rest_length``,
+``damping``, ``gravity``): the plant's, as config/controller.yaml has them for the defaults, or other
+values to study model mismatch (``tdslip run --mismatch`` scales the plant's by factors).
 
 The controller is blind to the terrain and sees the apex through the plant's sensor: it plans with the
 *measured* apex (ApexEvent ``measured_height``, ``measured_forward_speed``, equal to the true apex without
@@ -32,46 +33,26 @@ from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model import controllers
-from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.limits import check_hopper
-from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.policies import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS, PolicySetting, PolicySpec
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, wait_for_matching
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.wire import serialized
 
-DEFAULT_TARGET_ENERGY = PAPER_PARAMS.m * (
-    PAPER_PARAMS.g * parameters.DEFAULT_APEX_HEIGHT + 0.5 * parameters.DEFAULT_APEX_SPEED**2
-)
-"""J, the energy of the default initial apex: energy regulation then keeps the hopper's energy."""
 MATCH_TIMEOUT = 1.0  # s an answer waits for its publisher to match a subscriber the graph already shows
 
+
+def setting_parameter(setting: PolicySetting) -> ParameterSpec:
+    """The parameter of a policy setting: its name, default, range and one-line text."""
+    return ParameterSpec(setting.name, setting.default, setting.text, setting.lower, setting.upper)
+
+
 TUNABLE: tuple[ParameterSpec, ...] = (
-    ParameterSpec("policy", "energy", "stance policy answering each apex", choices=POLICIES),
-    ParameterSpec(
-        "touchdown_angle",
-        parameters.DEFAULT_TOUCHDOWN_ANGLE,
-        "open_loop, energy, energy_exact: touchdown angle beta [rad]",
-        1e-6,
-        1.5707953,
-    ),
-    ParameterSpec("touchdown_power", 925.0, "open_loop: hip power C at touchdown [W]", 0.0, 1e7),
-    ParameterSpec(
-        "target_energy", DEFAULT_TARGET_ENERGY, "energy, energy_exact: apex energy to hold [J]", 1e-6, 1e9
-    ),
-    ParameterSpec(
-        "target_height", parameters.DEFAULT_APEX_HEIGHT, "deadbeat, pd: target apex height [m]", 1e-3, 1e2
-    ),
-    ParameterSpec(
-        "target_speed", parameters.DEFAULT_APEX_SPEED, "deadbeat, pd: target apex speed [m/s]", 0.0, 1e2
-    ),
-    ParameterSpec("pd_kp", 0.06, "pd: proportional gain on speed error [rad/(m/s)]", 0.0, 10.0),
-    ParameterSpec("pd_kd", 0.03, "pd: derivative gain on speed change per stride [rad/(m/s)]", 0.0, 10.0),
-    ParameterSpec(
-        "corrections", 1, "correction iterations of the analytic map the policies plan with", 0, 10
-    ),
+    ParameterSpec("policy", DEFAULT_POLICY, "stance policy answering each apex", choices=POLICIES),
+    *map(setting_parameter, POLICY_SETTINGS),
 )
 SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *TUNABLE)
 
@@ -94,8 +75,8 @@ class ControllerNode(Node):
     def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
         """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
         ParameterError if the policy has none (e.g. the leg cannot be placed from this apex)."""
-        settings = controllers.PolicySpec.settings()
-        spec = controllers.PolicySpec.of(
+        settings = PolicySpec.settings()
+        spec = PolicySpec.of(
             policy, {parameter.name: parameter.value for parameter in self.get_parameters(settings)}
         )
         previous = xdot if self._previous_speed is None else self._previous_speed

@@ -12,7 +12,6 @@ Their defaults are the paper's figures 8-10: kbar = 36, zeta0 = 0.08, m = 80 kg,
 from __future__ import annotations
 
 import difflib
-import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,11 +26,6 @@ from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.terrain import TERRAIN_FORMS
 
 ParameterValue = bool | int | float | str
-
-DEFAULT_TOUCHDOWN_ANGLE = math.radians(20.0)
-"""rad; under energy regulation the default apex (1 m, 5 m/s) converges fast (exact |lambda| = 0.08)."""
-DEFAULT_APEX_HEIGHT = 1.0
-DEFAULT_APEX_SPEED = 5.0
 
 
 @dataclass(frozen=True)

@@ -91,6 +91,7 @@ from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.model.perturbations import Perturbations
+from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
@@ -129,7 +130,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     *parameters.HOPPER,
     ParameterSpec(
         "initial_height",
-        parameters.DEFAULT_APEX_HEIGHT,
+        DEFAULT_APEX_HEIGHT,
         "initial apex height [m] above the ground under the body",
         1e-3,
         1e2,
@@ -137,7 +138,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ),
     ParameterSpec(
         "initial_forward_speed",
-        parameters.DEFAULT_APEX_SPEED,
+        DEFAULT_APEX_SPEED,
         "initial apex forward speed [m/s]",
         0.0,
         1e2,
@@ -145,7 +146,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ),
     ParameterSpec(
         "initial_touchdown_angle",
-        parameters.DEFAULT_TOUCHDOWN_ANGLE,
+        DEFAULT_TOUCHDOWN_ANGLE,
         "touchdown angle [rad] of the command in force until a controller answers",
         1e-6,
         1.5707953,

@@ -60,12 +60,12 @@ from tdslip_ros.interfaces import (
     resolve,
 )
 from tdslip_ros.model import units
-from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, POLICIES
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
-from tdslip_ros.nodes import isolation, parameters, topics
+from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
     spin_until,
@@ -102,8 +102,8 @@ class RunOptions:
     """The run ends at this apex (0: never; then give a ``duration``)."""
     policy: str = "energy"
     mode: str = "lockstep"
-    height: float = parameters.DEFAULT_APEX_HEIGHT
-    speed: float = parameters.DEFAULT_APEX_SPEED
+    height: float = DEFAULT_APEX_HEIGHT
+    speed: float = DEFAULT_APEX_SPEED
     touchdown_angle: float | None = None  # rad
     target_energy: float | None = None
     target_height: float | None = None
@@ -551,12 +551,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out", type=Path, help="bag directory to create (default runs/<policy>-<mode>-<time>)"
     )
-    parser.add_argument(
-        "--height", type=float, default=parameters.DEFAULT_APEX_HEIGHT, help="initial apex [m]"
-    )
-    parser.add_argument(
-        "--speed", type=float, default=parameters.DEFAULT_APEX_SPEED, help="initial apex [m/s]"
-    )
+    parser.add_argument("--height", type=float, default=DEFAULT_APEX_HEIGHT, help="initial apex [m]")
+    parser.add_argument("--speed", type=float, default=DEFAULT_APEX_SPEED, help="initial apex [m/s]")
     parser.add_argument("--angle", type=float, help="touchdown angle [deg] (default 20)")
     parser.add_argument(
         "--target-energy", type=float, help="energy policy [J] (default: initial apex energy)"

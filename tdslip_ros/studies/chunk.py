@@ -22,10 +22,10 @@ import numpy as np
 import pyarrow as pa
 
 from tdslip_ros.model import basins
-from tdslip_ros.model.analytic import Array, CommandArrays
-from tdslip_ros.model.controllers import PolicySpec
+from tdslip_ros.model.arrays import Array, CommandArrays
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.studies import perturbed, table
 from tdslip_ros.studies.design import GROUP_PARAMETERS, POLICY_PARAMETERS, Lanes, Study
 from tdslip_ros.studies.outcomes import reduce_history

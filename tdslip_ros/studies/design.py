@@ -7,15 +7,15 @@ spawn_key=(i, DESIGN_STREAM))``, so they depend on the seed and the index only, 
 chunked or which worker runs it. Parameters named in neither the grid nor the draws take ``fixed`` values or
 the :data:`DEFAULTS`.
 
-The parameters (SI, the names of :class:`~tdslip_ros.model.controllers.PolicySpec` where they are a
+The parameters (SI, the names of :data:`~tdslip_ros.model.policies.POLICY_SETTINGS` where they are a
 policy's settings):
 
-* ``policy``: one of :data:`~tdslip_ros.model.controllers.POLICIES`;
+* ``policy``: one of :data:`~tdslip_ros.model.policies.POLICIES`;
 * the hopper, ``kbar`` and ``zeta0`` (eq. 24; m, r0 and g are the study's ``mass``, ``rest_length`` and
   ``gravity``). The batched engine runs one hopper per call, so these are grid axes or fixed, never drawn;
-* the policy's settings: ``touchdown_angle`` [rad], ``touchdown_power`` [W] (open loop), ``target_energy``
-  [J] (energy regulation; NaN: the trajectory's initial energy, the paper's goal regulator of section IV.B),
-  ``target_height`` [m] and ``target_speed`` [m/s] (deadbeat, pd), ``pd_kp`` and ``pd_kd`` [rad/(m/s)];
+* the policy's settings (:data:`POLICY_PARAMETERS`, each with its unit and default from the declaration),
+  but for ``corrections``, one per study (:attr:`Study.corrections`); ``target_energy`` NaN: the
+  trajectory's initial energy, the paper's goal regulator of section IV.B;
 * the initial apex ``y0`` [m] with, by the study's ``start`` rule, ``xdot0`` [m/s] (``speed``), ``energy0``
   [J] (``energy``), or neither (``open_loop_fixed_point``: energy0 is the open loop's energy fixed point
   E*(y0) of eq. 27 at the trajectory's touchdown angle and power, fig. 7's start).
@@ -38,20 +38,13 @@ import numpy as np
 
 from tdslip_ros.model import stability, units
 from tdslip_ros.model.analytic import speed_from_energy
-from tdslip_ros.model.controllers import POLICIES
 from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
+from tdslip_ros.model.policies import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS
 from tdslip_ros.studies import perturbed
 
 HOPPER_PARAMETERS = ("kbar", "zeta0")
-POLICY_PARAMETERS = (
-    "touchdown_angle",
-    "touchdown_power",
-    "target_energy",
-    "target_height",
-    "target_speed",
-    "pd_kp",
-    "pd_kd",
-)
+POLICY_PARAMETERS = tuple(setting.name for setting in POLICY_SETTINGS if setting.name != "corrections")
+"""The policies' settings, a value per trajectory (corrections: one per study, Study.corrections)."""
 START_PARAMETERS = ("y0", "xdot0", "energy0")
 NUMERIC_PARAMETERS = (
     HOPPER_PARAMETERS + POLICY_PARAMETERS + START_PARAMETERS + perturbed.PERTURBATION_PARAMETERS
@@ -62,32 +55,25 @@ GROUP_PARAMETERS = ("policy", *HOPPER_PARAMETERS, *perturbed.MISMATCH_PARAMETERS
 UNITS = {
     "kbar": "",
     "zeta0": "",
-    "touchdown_angle": "rad",
-    "touchdown_power": "W",
-    "target_energy": "J",
-    "target_height": "m",
-    "target_speed": "m/s",
-    "pd_kp": "rad/(m/s)",
-    "pd_kd": "rad/(m/s)",
+    **{setting.name: setting.unit for setting in POLICY_SETTINGS if setting.name in POLICY_PARAMETERS},
     "y0": "m",
     "xdot0": "m/s",
     "energy0": "J",
     **perturbed.UNITS,
 }
 DEFAULTS: dict[str, str | float] = {
-    "policy": "energy",
+    "policy": DEFAULT_POLICY,
     "kbar": 36.0,
     "zeta0": 0.08,
+    **{setting.name: setting.default for setting in POLICY_SETTINGS if setting.name in POLICY_PARAMETERS},
+    # The studies' own: the figures' angle, and the goal regulator.
     "touchdown_angle": math.radians(26.0),
     "touchdown_power": math.nan,  # set it (or the study's alpha) for the open loop
     "target_energy": math.nan,  # the initial energy
-    "target_height": 1.0,
-    "target_speed": 5.0,
-    "pd_kp": 0.06,
-    "pd_kd": 0.03,
     **perturbed.DEFAULTS,
 }
-"""The paper's hopper (figs. 8-13), beta = 26 deg (figs. 7, 10), the goal regulator, fig. 13's PD gains."""
+"""The paper's hopper (figs. 8-13), the policies' declared settings but beta = 26 deg (figs. 7, 10) and the
+goal regulator."""
 StartRule = Literal["speed", "energy", "open_loop_fixed_point"]
 START_RULES: dict[str, tuple[str, ...]] = {
     "speed": ("y0", "xdot0"),

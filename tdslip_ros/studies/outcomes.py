@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from tdslip_ros.model import basins
-from tdslip_ros.model.analytic import Array
+from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.params import HopperParams
 
 

@@ -32,12 +32,12 @@ import math
 import numpy as np
 
 from tdslip_ros.model import basins
-from tdslip_ros.model.analytic import Array
+from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.batch import simulate_strides
-from tdslip_ros.model.controllers import PolicySpec
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.model.terrain import FLAT, Blocks, Step, Terrain
 from tdslip_ros.studies.outcomes import reduce_history
 

@@ -51,10 +51,10 @@ from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.report import output_directory, to_json
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.controllers import POLICIES, PolicySpec
 from tdslip_ros.model.events import FAILURE_KINDS
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies import POLICIES, PolicySpec
 from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform

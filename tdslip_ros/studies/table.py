@@ -29,7 +29,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tdslip_ros.model import basins
-from tdslip_ros.model.analytic import Array
+from tdslip_ros.model.arrays import Array
 from tdslip_ros.studies.design import NUMERIC_PARAMETERS, UNITS, Lanes, Study
 
 MANIFEST = "study.json"

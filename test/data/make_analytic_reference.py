@@ -15,7 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tdslip_ros.model.analytic import CommandArrays, ParamArrays, approximate_map, map_jacobian
+from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.arrays import CommandArrays, ParamArrays
+from tdslip_ros.model.closed_loop import map_jacobian
 from tdslip_ros.model.controllers import (
     deadbeat,
     energy_regulation,

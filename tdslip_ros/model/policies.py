@@ -1,0 +1,222 @@
+"""The stance policies by name, and their settings declared once.
+
+:data:`POLICY_SETTINGS` declares every setting of the policies: name, type, SI unit, range, default, one
+line of description and the policies that use it. Whatever lists the settings derives from it: the
+controller node's parameters (a parameter per setting, of the same name), the study designs' policy columns
+(:mod:`tdslip_ros.studies.design`), the analysis report's account of a policy; config/controller.yaml, which
+users edit, is checked against it (test/test_policy_settings.py). A :class:`PolicySpec` names one of
+:data:`POLICIES` with a value for each setting and answers apexes with the policy's commands
+(:mod:`tdslip_ros.model.controllers`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy.typing as npt
+
+from tdslip_ros.model import units
+from tdslip_ros.model.arrays import CommandArrays
+from tdslip_ros.model.controllers import (
+    PD_KD,
+    PD_KP,
+    deadbeat,
+    energy_regulation,
+    exact_energy_regulation,
+    fixed_power,
+    pd_speed_energy_height,
+)
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import HopperParams
+
+POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "pd")
+FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
+"""Policies that touch down at the fixed ``touchdown_angle``."""
+TARGET_APEX_POLICIES = ("deadbeat", "pd")
+"""Policies that steer towards the target apex (``target_height``, ``target_speed``)."""
+DEFAULT_POLICY = "energy"
+"""The policy of the controller node and of a study where none is chosen."""
+
+DEFAULT_APEX_HEIGHT = 1.0
+"""m; with DEFAULT_APEX_SPEED [m/s], the apex the default settings are made for (the node suite's runs
+start there): energy regulation holds its energy on the paper's hopper, deadbeat and pd steer towards it."""
+DEFAULT_APEX_SPEED = 5.0
+DEFAULT_TOUCHDOWN_ANGLE = math.radians(20.0)
+"""rad; under energy regulation the default apex (1 m, 5 m/s) converges fast (exact |lambda| = 0.08)."""
+DEFAULT_TARGET_ENERGY = PAPER_PARAMS.m * (PAPER_PARAMS.g * DEFAULT_APEX_HEIGHT + 0.5 * DEFAULT_APEX_SPEED**2)
+"""J, the energy of the default apex: energy regulation then keeps the hopper's energy."""
+
+
+@dataclass(frozen=True)
+class PolicySetting:
+    """One setting of the policies: a value of type ``kind`` in [lower, upper], in ``unit`` (SI; "" where it
+    has none), used by ``policies``."""
+
+    name: str
+    kind: type[float] | type[int]
+    unit: str
+    lower: float
+    upper: float
+    default: float
+    description: str
+    policies: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        if type(self.default) is not self.kind or not self.lower <= self.default <= self.upper:
+            raise ValueError(f"{self.name}: default {self.default!r} is not a {self.kind.__name__} in range")
+        if not set(self.policies) <= set(POLICIES):
+            raise ValueError(f"{self.name}: unknown policies in {self.policies}")
+
+    @property
+    def text(self) -> str:
+        """The setting in one line: the policies that use it (unless all do), its description, its unit."""
+        users = "" if self.policies == POLICIES else f"{', '.join(self.policies)}: "
+        unit = f" [{self.unit}]" if self.unit else ""
+        return f"{users}{self.description}{unit}"
+
+
+POLICY_SETTINGS: tuple[PolicySetting, ...] = (
+    PolicySetting(
+        "touchdown_angle",
+        float,
+        "rad",
+        1e-6,
+        1.5707953,
+        DEFAULT_TOUCHDOWN_ANGLE,
+        "touchdown angle beta",
+        FIXED_ANGLE_POLICIES,
+    ),
+    PolicySetting("touchdown_power", float, "W", 0.0, 1e7, 925.0, "hip power C at touchdown", ("open_loop",)),
+    PolicySetting(
+        "target_energy",
+        float,
+        "J",
+        1e-6,
+        1e9,
+        DEFAULT_TARGET_ENERGY,
+        "apex energy to hold",
+        ("energy", "energy_exact"),
+    ),
+    PolicySetting(
+        "target_height",
+        float,
+        "m",
+        1e-3,
+        1e2,
+        DEFAULT_APEX_HEIGHT,
+        "target apex height",
+        TARGET_APEX_POLICIES,
+    ),
+    PolicySetting(
+        "target_speed", float, "m/s", 0.0, 1e2, DEFAULT_APEX_SPEED, "target apex speed", TARGET_APEX_POLICIES
+    ),
+    PolicySetting("pd_kp", float, "rad/(m/s)", 0.0, 10.0, PD_KP, "proportional gain on speed error", ("pd",)),
+    PolicySetting(
+        "pd_kd",
+        float,
+        "rad/(m/s)",
+        0.0,
+        10.0,
+        PD_KD,
+        "derivative gain on speed change per stride",
+        ("pd",),
+    ),
+    PolicySetting(
+        "corrections",
+        int,
+        "",
+        0,
+        10,
+        1,
+        "correction iterations of the analytic map the policies plan with",
+        POLICIES,
+    ),
+)
+"""Every setting of the policies, in the order the controller's parameters and a study's columns take."""
+
+
+def settings_of(policy: str) -> tuple[PolicySetting, ...]:
+    """The settings ``policy`` uses."""
+    return tuple(setting for setting in POLICY_SETTINGS if policy in setting.policies)
+
+
+class PolicyError(ValueError):
+    """The policy settings are incomplete or unknown."""
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A named policy with a value for each of :data:`POLICY_SETTINGS` (its fields, in their order), in one
+    place for the controller node, the studies and the offline analysis. ``source`` says where the values
+    came from."""
+
+    name: str
+    touchdown_angle: float
+    touchdown_power: float
+    target_energy: float
+    target_height: float
+    target_speed: float
+    pd_kp: float
+    pd_kd: float
+    corrections: int
+    source: str = ""
+
+    def commands(
+        self, params: HopperParams, y: npt.ArrayLike, xdot: npt.ArrayLike, previous_xdot: npt.ArrayLike
+    ) -> CommandArrays:
+        """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by ``pd`` only."""
+        if self.name == "open_loop":
+            alpha = units.power_to_alpha(params, self.touchdown_power)
+            return fixed_power(params, y, xdot, self.touchdown_angle, alpha, self.corrections)
+        if self.name == "energy":
+            return energy_regulation(
+                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
+            )
+        if self.name == "energy_exact":
+            return exact_energy_regulation(
+                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
+            )
+        if self.name == "deadbeat":
+            return deadbeat(params, y, xdot, self.target_height, self.target_speed, self.corrections)
+        if self.name == "pd":
+            return pd_speed_energy_height(
+                params,
+                y,
+                xdot,
+                previous_xdot,
+                self.target_height,
+                self.target_speed,
+                kp=self.pd_kp,
+                kd=self.pd_kd,
+                corrections=self.corrections,
+            )
+        raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
+
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        """The names of the settings (:data:`POLICY_SETTINGS`)."""
+        return tuple(setting.name for setting in POLICY_SETTINGS)
+
+    @classmethod
+    def default(cls, name: str) -> PolicySpec:
+        """The policy ``name`` with each setting at its declared default."""
+        return cls.of(name, {setting.name: setting.default for setting in POLICY_SETTINGS})
+
+    @classmethod
+    def of(cls, name: str, values: Mapping[str, str | float], source: str = "") -> PolicySpec:
+        """A spec from setting values as parameters or text give them, each converted to its setting's
+        type."""
+        converted: dict[str, Any] = {
+            setting.name: setting.kind(values[setting.name]) for setting in POLICY_SETTINGS
+        }
+        return cls(name=name, source=source, **converted)
+
+    @property
+    def target(self) -> tuple[float, float] | None:
+        """The target apex (y, xdot) of a policy that has one."""
+        if self.name in TARGET_APEX_POLICIES:
+            return self.target_height, self.target_speed
+        return None
