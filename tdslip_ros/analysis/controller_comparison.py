@@ -30,11 +30,11 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.compare import compare_run, policy_for_run
-from tdslip_ros.analysis.plots import DPI
 from tdslip_ros.analysis.reader import RunReadError, read_run
-from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.reporting.output import OutputError, output_directory, to_json, write_failed
+from tdslip_ros.reporting.style import CONTROLLER_STYLE, DPI
 
 CONTROLLERS = ("deadbeat", "pd")
 DEFAULT_SPEEDS = tuple(float(v) for v in np.round(np.arange(0.5, 3.001, 0.25), 3))
@@ -42,7 +42,6 @@ DEFAULT_SPEEDS = tuple(float(v) for v in np.round(np.arange(0.5, 3.001, 0.25), 3
 DEFAULT_STRIDES = 50
 COMMAND_TIMEOUT = 2.0  # s wall: a controller that finds no command ends its run quickly
 MANIFEST = "sweep.json"
-STYLE = {"deadbeat": ("tab:blue", "-"), "pd": ("tab:green", "--")}
 
 
 @dataclass(frozen=True)
@@ -178,7 +177,7 @@ def plot_tracking(results: Sequence[Tracking], path: Path) -> Figure:
             rows = sorted(
                 (r for r in results if r.controller == controller), key=lambda r: r.target_speed_bar
             )
-            colour, style = STYLE.get(controller, ("black", ":"))
+            colour, style = CONTROLLER_STYLE.get(controller, ("black", ":"))
             speeds = np.array([r.target_speed_bar for r in rows])
             errors = np.abs(np.array([getattr(r, field) for r in rows]))
             ax.plot(speeds, errors, style, marker="o", ms=4, color=colour, label=controller)

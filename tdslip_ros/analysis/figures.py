@@ -72,18 +72,26 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
 from tdslip_ros.analysis import paper_comparison
-from tdslip_ros.analysis.report import OutputError, output_directory, to_json, write_failed
 from tdslip_ros.model import basins, exact_stability, stability, units
 from tdslip_ros.model.analytic import Array, CommandArrays, speed_from_energy
 from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.reporting.output import OutputError, output_directory, to_json, write_failed
+from tdslip_ros.reporting.paper_grids import FIG11_STUDIES, fig07_grid, fig10_grid, row_median
+from tdslip_ros.reporting.style import (
+    CONTROLLER_STYLE,
+    DPI,
+    EXACT,
+    STABLE,
+    START,
+    UNSTABLE,
+    basin_colour_map,
+    basin_colours,
+)
 from tdslip_ros.studies import engine
 
-DPI = 120
 PARAMS = PAPER_PARAMS
-STABLE, UNSTABLE, EXACT, START = "black", "0.45", "tab:red", "tab:green"
-CONTROLLER_STYLE = {"deadbeat": ("tab:blue", "-"), "pd": ("tab:green", "--")}
 
 
 @dataclass(frozen=True)
@@ -427,29 +435,8 @@ def fig06(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
     return figure, data
 
 
-def basin_colours(outcome: Array, convergence_stride: Array, strides: int) -> Array:
-    """Colour index per lane (basins.OUTCOMES indices): convergence stride (0..strides) where converged,
-    strides + 1 sustained, NaN for failures and impossible starts (drawn white)."""
-    colour = np.where(outcome == basins.CONVERGED, convergence_stride, np.nan)
-    return np.where(outcome == basins.SUSTAINED, strides + 1, colour)
-
-
-def basin_colour_map(strides: int) -> ListedColormap:
-    shades = matplotlib.colormaps["Blues_r"](np.linspace(0.15, 0.85, strides + 1))
-    return ListedColormap(np.vstack([shades, [[0.85, 0.9, 0.95, 1.0]]]))
-
-
 def _settled_text(stride: int) -> str:
     return "not settled" if stride < 0 else f"settled from stride {stride}"
-
-
-def row_median(values: Array) -> Array:
-    """Median of the finite values of each row; NaN for rows without any."""
-    sorted_rows = np.sort(values, axis=1)  # NaN last
-    count = np.sum(np.isfinite(values), axis=1)
-    low = np.take_along_axis(sorted_rows, np.maximum((count - 1) // 2, 0)[:, None], 1)[:, 0]
-    high = np.take_along_axis(sorted_rows, np.maximum(count // 2, 0)[:, None], 1)[:, 0]
-    return np.where(count > 0, 0.5 * (low + high), np.nan)
 
 
 def _outcome_counts(basin: basins.Basin) -> dict[str, int]:
@@ -463,11 +450,7 @@ FIG07_REGULATORS: tuple[exact_stability.Regulator, ...] = ("open_loop", "open_lo
 
 def _fig07_grid(resolution: Resolution) -> tuple[Array, Array]:
     """fig07's alphas and initial heights [m]."""
-    beta = math.radians(26.0)
-    alphas = np.linspace(0.5, 2.5, resolution.basin_alphas)
-    return alphas, np.linspace(
-        stability.infeasible_height(PARAMS, beta) + 0.005, 2.4, resolution.basin_heights
-    )
+    return fig07_grid(resolution.basin_alphas, resolution.basin_heights)
 
 
 @shared
@@ -681,11 +664,7 @@ def fig09(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str,
 
 def _fig10_grid(resolution: Resolution) -> tuple[Array, Array]:
     """fig10's initial (= goal) energies Ebar and initial heights [m]."""
-    beta = math.radians(26.0)
-    energies_bar = np.linspace(2.0, 6.0, resolution.basin_energies)
-    return energies_bar, np.linspace(
-        stability.infeasible_height(PARAMS, beta) + 0.002, 2.4, resolution.basin_heights
-    )
+    return fig10_grid(resolution.basin_energies, resolution.basin_heights)
 
 
 @shared
@@ -841,14 +820,6 @@ def ranges(resolution: Resolution, reporter: Reporter) -> tuple[Figure, dict[str
     axes.set_yticks(betas)
     axes.legend(fontsize=8)
     return figure, data
-
-
-FIG11_STUDIES = {
-    "beta_deg": (20.0, 22.0, 24.0, 26.0, 28.0, 30.0),
-    "kbar": (20.0, 28.0, 36.0, 44.0, 52.0),
-    "zeta0": (0.04, 0.08, 0.12, 0.16),
-}
-"""fig11's parameter values (the others at kbar = 36, zeta0 = 0.08, beta = 26 deg)."""
 
 
 def fig11_hoppers() -> list[tuple[str, float, float, float, float]]:

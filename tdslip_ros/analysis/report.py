@@ -12,16 +12,13 @@ own is analysed without a policy unless ``--policy`` names one; the report says 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
 import sys
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis import plots
@@ -42,6 +39,7 @@ from tdslip_ros.model import units
 from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
+from tdslip_ros.reporting.output import OutputError, output_directory, to_json, write_failed
 
 FIGURES = {
     "apex_sequence": "apex height and speed per stride",
@@ -192,51 +190,6 @@ def analyze(
     files["report"] = out / "report.md"
     files["report"].write_text(markdown(comparison, summary))
     return Analysis(comparison, summary, files)
-
-
-def _json_ready(value: object) -> object:
-    """Plain JSON values: NaN and infinities become null (JSON has none), complex numbers [re, im]."""
-    if isinstance(value, dict):
-        return {str(key): _json_ready(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_ready(item) for item in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, complex):
-        return [_json_ready(value.real), _json_ready(value.imag)]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def to_json(value: object) -> str:
-    """``value`` as indented, strict JSON text (see _json_ready), newline-terminated."""
-    return json.dumps(_json_ready(value), indent=1, allow_nan=False) + "\n"
-
-
-class OutputError(Exception):
-    """An output directory cannot be created or written; the message says why."""
-
-
-def output_directory(path: Path) -> Path:
-    """``path`` as a writable directory, created if need be (OutputError naming the obstacle)."""
-    for existing in (path, *path.parents):
-        if existing.exists():
-            if not existing.is_dir():
-                raise OutputError(f"--out {path}: {existing} exists and is not a directory")
-            break
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise OutputError(f"--out {path}: cannot create the directory ({error.strerror})") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"--out {path}: the directory is not writable")
-    return path
-
-
-def write_failed(error: OSError) -> str:
-    """One line for an output file that could not be written."""
-    return f"cannot write {error.filename or 'an output file'}: {error.strerror or error}"
 
 
 # --- text ---------------------------------------------------------------------------------------

@@ -28,7 +28,6 @@ matplotlib.use("Agg")
 import numpy as np
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.report import OutputError, output_directory, write_failed
 from tdslip_ros.interfaces import installed_parameters
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.controllers import PolicySpec
@@ -38,9 +37,9 @@ from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
+from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
 
-DPI = 120
-COLOURS = {"energy": "tab:blue", "open_loop": "tab:orange"}
 LABELS = {"energy": "energy regulation", "open_loop": "open loop (fixed hip power)"}
 
 
@@ -135,7 +134,7 @@ def draw(params: HopperParams, blocks: Blocks, hops: list[Hop], path: Path) -> F
     paths.plot(x, ground, color="saddlebrown", lw=0.8, label=f"ground: {blocks.spec()}")
     scale = units.energy_scale(params)
     for h in hops:
-        colour = COLOURS[h.policy]
+        colour = POLICY_COLOURS[h.policy]
         ended = "" if h.failure is None else f", {h.failure.value} at stride {len(h.apexes) - 1}"
         paths.plot(
             h.x, h.y, color=colour, lw=1.1, label=f"{LABELS[h.policy]}: {len(h.apexes) - 1} strides{ended}"

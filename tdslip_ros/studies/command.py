@@ -7,8 +7,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from tdslip_ros.analysis.report import OutputError, write_failed
 from tdslip_ros.model.params import ParameterError
+from tdslip_ros.reporting.output import OutputError, write_failed
 from tdslip_ros.studies import engine, table
 from tdslip_ros.studies.design import StudyError
 

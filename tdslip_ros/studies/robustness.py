@@ -49,29 +49,22 @@ import numpy as np
 import pyarrow as pa
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.report import output_directory, to_json
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.controllers import POLICIES, PolicySpec
 from tdslip_ros.model.events import FAILURE_KINDS
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.reporting.output import output_directory, to_json
+from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
 from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
 
-DPI = 120
 SETTLING_STRIDES = 30
 """Flat-ground strides of energy regulation to its fixed point, the operating point (|lambda| << 1)."""
 STEP_POSITIONS = Uniform(1.0, 4.0)
 """Where the step down is, m: over about one stride at the operating point."""
-COLOURS = {
-    "open_loop": "tab:orange",
-    "energy": "tab:blue",
-    "energy_exact": "tab:purple",
-    "deadbeat": "tab:red",
-    "pd": "tab:green",
-}
 FAILURES = tuple(kind.value for kind in FAILURE_KINDS) + ("no_command",)
 FAILURE_COLOURS = dict(zip(FAILURES, matplotlib.colormaps["tab10"].colors, strict=False))
 
@@ -247,7 +240,7 @@ def draw(
                 [r["size"] for r in points],
                 [r[value] for r in points],
                 "o-",
-                color=COLOURS.get(policy),
+                color=POLICY_COLOURS.get(policy),
                 label=policy,
                 ms=3,
             )

@@ -39,23 +39,23 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.figures import (
-    DPI,
-    EXACT,
+from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.reporting.output import output_directory, to_json
+from tdslip_ros.reporting.paper_grids import (
+    BASIN_BETA_DEG,
     FIG11_STUDIES,
-    PARAMS,
-    STABLE,
-    basin_colour_map,
-    basin_colours,
+    fig07_grid,
+    fig10_grid,
+    fig11_energies_bar,
     row_median,
 )
-from tdslip_ros.analysis.report import output_directory, to_json
-from tdslip_ros.model import basins, stability, units
+from tdslip_ros.reporting.style import DPI, EXACT, STABLE, basin_colour_map, basin_colours
 from tdslip_ros.studies import engine, table
 from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import Study
 
-BETA_DEG = 26.0
+PARAMS = PAPER_PARAMS
 
 
 @dataclass(frozen=True)
@@ -81,18 +81,11 @@ def _chunked(chunk_size: int | None, size: int) -> int:
 # --- fig. 7: the open loop --------------------------------------------------------------------------
 
 
-def _fig07_axes(grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    beta = math.radians(BETA_DEG)
-    alphas = np.linspace(0.5, 2.5, grid[0])
-    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.005, 2.4, grid[1])
-    return alphas, heights
-
-
 def fig07_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
-    alphas, heights = _fig07_axes(grid)
+    alphas, heights = fig07_grid(*grid)
     study = Study.of(
         grid={"touchdown_power": units.power_from_alpha(PARAMS, alphas), "y0": heights},
-        fixed={"policy": "open_loop", "touchdown_angle": math.radians(BETA_DEG)},
+        fixed={"policy": "open_loop", "touchdown_angle": math.radians(BASIN_BETA_DEG)},
         start="open_loop_fixed_point",
         strides=strides,
         chunk_size=_chunked(chunk_size, alphas.size * heights.size),
@@ -113,7 +106,7 @@ def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     axes.set(
         xlabel="alpha",
         ylabel="ybar0 (E0 = E*(y0))",
-        title=f"exact plant, open loop, beta = {BETA_DEG:g} deg, {study.strides} strides "
+        title=f"exact plant, open loop, beta = {BASIN_BETA_DEG:g} deg, {study.strides} strides "
         "(blue: converged, lighter later; pale: sustained; white: failed)",
     )
     axes.legend(fontsize=7)
@@ -129,9 +122,9 @@ def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
 
 
 def fig10_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
-    beta = math.radians(BETA_DEG)
-    energies = units.energy_from_bar(PARAMS, np.linspace(2.0, 6.0, grid[0]))
-    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.002, 2.4, grid[1])
+    beta = math.radians(BASIN_BETA_DEG)
+    energies_bar, heights = fig10_grid(*grid)
+    energies = units.energy_from_bar(PARAMS, energies_bar)
     study = Study.of(
         grid={"energy0": energies, "y0": heights},
         fixed={"policy": "energy", "touchdown_angle": beta},
@@ -153,7 +146,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     axes.plot(energies_bar, fixed, "-", color=EXACT, lw=2, label="exact plant, fixed point reached (median)")
     fine = np.linspace(energies_bar[0], energies_bar[-1], 4 * energies_bar.size)
     analytic = stability.regulated_fixed_points(
-        PARAMS, math.radians(BETA_DEG), units.energy_from_bar(PARAMS, fine)
+        PARAMS, math.radians(BASIN_BETA_DEG), units.energy_from_bar(PARAMS, fine)
     )
     x, y, stable = np.broadcast_arrays(
         fine[:, None], units.height_to_bar(PARAMS, analytic.y), analytic.stable
@@ -162,7 +155,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     axes.set(
         xlabel="Ebar (initial energy = goal)",
         ylabel="ybar (basin: initial ybar0)",
-        title=f"goal regulator on the exact plant, beta = {BETA_DEG:g} deg, {study.strides} strides "
+        title=f"goal regulator on the exact plant, beta = {BASIN_BETA_DEG:g} deg, {study.strides} strides "
         "(blue: converged, lighter later; pale: sustained; white: failed or no such apex)",
     )
     axes.legend(fontsize=7)
@@ -177,7 +170,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
 
 
 def fig11_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
-    energies_bar = np.linspace(0.8, 14.0, grid[0])
+    energies_bar = fig11_energies_bar(grid[0])
     heights = np.linspace(1.0, 2.0, grid[1]) * PARAMS.r0
     studies = {}
     for name, values in FIG11_STUDIES.items():
