@@ -14,13 +14,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from tdslip_ros import cli
-from tdslip_ros.analysis import figures
+from tdslip_ros.commands import cli
 from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.reporting.paper_grids import FIG11_STUDIES
 from tdslip_ros.studies import engine, sweep
 
-PARAMS = figures.PARAMS
+PARAMS = PAPER_PARAMS
 
 
 def test_the_sweeps_are_the_figures_grids_at_any_resolution() -> None:

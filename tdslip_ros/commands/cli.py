@@ -36,7 +36,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "tdslip_ros.bag.recover",
         "make a truncated or unfinalised recording readable again (the original is kept as *.orig)",
     ),
-    "figures": ("tdslip_ros.analysis.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
+    "figures": ("tdslip_ros.commands.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
     "sweep": (
         "tdslip_ros.studies.sweep",
         "basins (figs 7, 10) and parameter dependence (fig 11) at any resolution, on Dask (Parquet + PNG)",
