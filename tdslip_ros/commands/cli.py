@@ -38,11 +38,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "figures": ("tdslip_ros.commands.figures", "the paper's figures 4-11 and 13 from the model (PNG + JSON)"),
     "sweep": (
-        "tdslip_ros.studies.sweep",
+        "tdslip_ros.commands.sweep",
         "basins (figs 7, 10) and parameter dependence (fig 11) at any resolution, on Dask (Parquet + PNG)",
     ),
     "robustness": (
-        "tdslip_ros.studies.robustness",
+        "tdslip_ros.commands.robustness",
         "survival against terrain, sensor noise, model mismatch and step-downs, per policy, on Dask",
     ),
     "terrain": (

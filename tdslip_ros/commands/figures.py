@@ -61,6 +61,7 @@ from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures.catalogue import FIGURES, compute_shared, shared_work, write_figure
 from tdslip_ros.analysis.figures.common import DEFAULT, FINE, PARAMS, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED
+from tdslip_ros.commands.study_command import add_engine_arguments, where_of
 from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
 from tdslip_ros.studies import engine
 
@@ -85,13 +86,13 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--out", type=Path, required=True, help="directory for the PNG and JSON files")
     parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures")
     parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
-    engine.add_arguments(parser, resume=False)
+    add_engine_arguments(parser, resume=False)
     args = parser.parse_args(argv)
     try:
         output_directory(args.out)
         resolution = FINE if args.fine else DEFAULT
         names = args.only or list(FIGURES)
-        precompute(names, resolution, engine.where_of(args))
+        precompute(names, resolution, where_of(args))
         documents = {name: write_figure(name, args.out, resolution) for name in names}
         table = paper_comparison.rows(documents, PARAMS)
         (args.out / "comparison.md").write_text(paper_comparison.markdown(table))
