@@ -15,8 +15,8 @@ from tdslip_ros.analysis.reader import Run, read_run
 from tdslip_ros.commands import run as run_command
 from tdslip_ros.commands import terrain as terrain_command
 from tdslip_ros.commands.analyze import main as analyze
-from tdslip_ros.interfaces import stored_parameters
-from tdslip_ros.model.perturbations import PLANT_SETTINGS, Perturbations
+from tdslip_ros.interfaces import PERTURBATION_PARAMETERS, perturbation_parameters, stored_parameters
+from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.nodes import runner
 from tdslip_ros.nodes.parameters import PAPER_PARAMS, PERTURBATIONS
 from tdslip_ros.nodes.runner import RunReport
@@ -46,13 +46,13 @@ def test_the_recording_says_how_to_reproduce_the_run(rough: RunReport, rough_run
     given = RUNS["rough"]["perturbations"]
     assert isinstance(given, Perturbations)
     stored = stored_parameters(rough_run.custom_data, "plant")
-    assert {name: stored[name] for name in PLANT_SETTINGS} == {
-        name: runner._ros_value(value) for name, value in given.plant_settings().items()
+    assert {name: stored[name] for name in PERTURBATION_PARAMETERS.values()} == {
+        name: runner._ros_value(value) for name, value in perturbation_parameters(given).items()
     }
-    assert rough_run.perturbations.plant_settings() == given.plant_settings()
+    assert perturbation_parameters(rough_run.perturbations) == perturbation_parameters(given)
     planner = given.mismatch.controller_params(PAPER_PARAMS)
     assert rough_run.controller_params == planner and rough_run.params == PAPER_PARAMS
-    assert tuple(spec.name for spec in PERTURBATIONS) == PLANT_SETTINGS
+    assert tuple(spec.name for spec in PERTURBATIONS) == tuple(PERTURBATION_PARAMETERS.values())
 
 
 def test_recorded_ground_heights_are_the_terrain(rough_run: Run) -> None:

@@ -31,7 +31,7 @@ from tdslip_ros.analysis.compare import (
     policy_for_run,
 )
 from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError
-from tdslip_ros.interfaces import hopper_from_parameters
+from tdslip_ros.interfaces import hopper_from_parameters, perturbation_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.controllers import FIXED_ANGLE_POLICIES
 from tdslip_ros.model.params import HopperParams, ParameterError
@@ -119,7 +119,7 @@ def run_summary(run: Run) -> dict[str, Any]:
         "params": {**asdict(params), "kbar": params.kbar, "zeta0": params.zeta0, "source": run.params_source},
         "controller_params": None if run.controller_params is None else asdict(run.controller_params),
         "perturbations": {
-            **run.perturbations.plant_settings(),
+            **perturbation_parameters(run.perturbations),
             "mismatch": _mismatch(run),
             "saturated_strides": run.saturated_strides,
         },

@@ -55,6 +55,7 @@ from tdslip_ros.interfaces import (
     config_file,
     custom_data_key,
     installed_parameters,
+    perturbation_parameters,
     resolve,
 )
 from tdslip_ros.model.controllers import POLICIES
@@ -241,7 +242,7 @@ def _overrides(values: dict[str, object]) -> list[str]:
 
 def plant_overrides(options: RunOptions) -> dict[str, object]:
     return {
-        **options.perturbations.plant_settings(),
+        **perturbation_parameters(options.perturbations),
         "clock_mode": options.mode,
         "max_strides": options.strides,
         "initial_height": options.height,
@@ -315,7 +316,7 @@ def check_options(options: RunOptions) -> None:
     if options.policy not in POLICIES:
         raise RunError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
     try:
-        options.perturbations.plant_settings()  # per-lane values have no node parameters
+        perturbation_parameters(options.perturbations)  # per-lane values have no node parameters
     except ParameterError as error:
         raise RunError(str(error)) from None
     if options.strides < 0:
