@@ -12,6 +12,7 @@ import pytest
 from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures import catalogue, exact_basins, open_loop, regulated, tracking
 from tdslip_ros.analysis.figures.common import Reporter, Resolution
+from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.commands import cli
 from tdslip_ros.commands import figures as figures_command
 from tdslip_ros.model import basins, exact_stability, stability, units
@@ -41,8 +42,7 @@ def _quiet() -> Reporter:
 def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    module, _ = cli.SUBCOMMANDS["figures"]
-    assert module == "tdslip_ros.commands.figures"
+    assert "figures" in cli.SUBCOMMANDS  # run by tdslip_ros.commands.figures
     monkeypatch.setattr(figures_command, "DEFAULT", TINY)  # the default resolution takes a minute per figure
     assert cli.main(["figures", "--out", str(tmp_path), "--only", "fig09"]) == 0
     assert (tmp_path / "fig09.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -148,3 +148,11 @@ def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_r
     _, fig10 = exact_basins.fig10(TINY, _quiet())
     assert sum(fig10["outcome_counts"].values()) == TINY.basin_energies * TINY.basin_heights
     assert [name for name, _ in catalogue.shared_work(["fig13", "ranges"], TINY)][:4] == ["stable_range"] * 4
+
+
+def test_every_sweep_the_figures_need_is_a_registered_shared_computation() -> None:
+    """The engine's workers run them by name (catalogue.compute_shared): a name without a computation would
+    fail only there."""
+    work = catalogue.shared_work(list(catalogue.FIGURES), TINY)
+    assert len(work) > len(catalogue.FIGURES) and all(name in SHARED for name, _ in work)
+    assert "no_such_sweep" not in SHARED

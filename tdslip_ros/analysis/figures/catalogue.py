@@ -45,7 +45,7 @@ def shared_work(names: Sequence[str], resolution: Resolution) -> list[tuple[str,
             work += [
                 ("stable_range", (kbar, zeta0, beta_deg, s, resolution)) for s in ("energy_exact", "analytic")
             ]
-            work.append(("regulated_points", (kbar, zeta0, beta_deg, resolution)))
+            work.append(("fig11_fixed_points", (kbar, zeta0, beta_deg, resolution)))
     if "fig05" in names:
         work += [
             ("open_loop_row", (float(beta), resolution)) for beta in np.linspace(20.0, 32.0, resolution.betas)
@@ -60,7 +60,7 @@ def shared_work(names: Sequence[str], resolution: Resolution) -> list[tuple[str,
         if ("open_loop_exact", (26.0, resolution)) not in work:
             work.append(("open_loop_trace", (26.0, resolution)))
     if "fig08" in names or "fig09" in names:
-        work += [("regulated", (beta_deg, resolution)) for beta_deg in (22.0, 30.0)]
+        work += [("regulated_with_exact_check", (beta_deg, resolution)) for beta_deg in (22.0, 30.0)]
     if "fig10" in names:
         work += [("fig10_basin", (resolution,)), ("fig10_by_eigenvalue", (resolution,))]
     exact_ranges = [item for item in work if item[0] == "stable_range" and item[1][3] != "analytic"]

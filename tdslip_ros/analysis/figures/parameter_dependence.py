@@ -38,7 +38,7 @@ def _fig11_energies_bar(resolution: Resolution) -> Array:
 
 
 @SHARED.register
-def regulated_points(
+def fig11_fixed_points(
     kbar: float, zeta0: float, beta_deg: float, resolution: Resolution
 ) -> stability.FixedPoints:
     """The analytic regulated map's fixed points over fig11's energies for the hopper (kbar, zeta0)."""
@@ -58,7 +58,7 @@ def fig11(resolution: Resolution, reporter: Reporter) -> FigureData:
         for _, value, kbar, zeta0, beta_deg in (hopper for hopper in fig11_hoppers() if hopper[0] == name):
             reporter.stage(f"varying {name}: {value:g}, analytic and exact plant (energy_exact)")
             params = HopperParams.from_dimensionless(kbar, zeta0)
-            points = regulated_points(kbar, zeta0, beta_deg, resolution)
+            points = fig11_fixed_points(kbar, zeta0, beta_deg, resolution)
             stable = points.stable
             keep = stable.any(axis=1)
             pick = np.argmax(stable, axis=1)[:, None]

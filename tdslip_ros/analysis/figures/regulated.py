@@ -31,7 +31,9 @@ from tdslip_ros.reporting.style import EXACT, STABLE
 
 
 @SHARED.register
-def regulated(beta_deg: float, resolution: Resolution) -> tuple[Array, stability.FixedPoints, ExactCheck]:
+def regulated_with_exact_check(
+    beta_deg: float, resolution: Resolution
+) -> tuple[Array, stability.FixedPoints, ExactCheck]:
     """Regulated fixed points over Ebar in [1, 8] (figs 8, 9), checked on the exact plant held at each
     energy exactly (energy_exact, the exact counterpart of the map's energy conservation)."""
     energies_bar = np.linspace(1.0, 8.0, resolution.energies)
@@ -73,7 +75,7 @@ def fig08(resolution: Resolution, reporter: Reporter) -> FigureData:
             ylim=(0.7, 3.0),
         )
         left.legend(fontsize=7, ncol=2)
-        energies_bar, points, check = regulated(beta_deg, resolution)
+        energies_bar, points, check = regulated_with_exact_check(beta_deg, resolution)
         analytic_y = bar_height(points.y)
         plot_fixed_points(right, energies_bar[:, None], analytic_y, points.stable, label="analytic")
         plot_exact_check(right, energies_bar[:, None], analytic_y, check, bar_height(check.exact.y))
@@ -93,7 +95,7 @@ def fig09(resolution: Resolution, reporter: Reporter) -> FigureData:
     data: dict[str, Any] = {}
     for axes, beta_deg, label in zip(figure.subplots(2, 1), (22.0, 30.0), "ab", strict=True):
         reporter.stage(f"beta = {beta_deg} deg, analytic and exact plant (energy_exact)")
-        energies_bar, points, check = regulated(beta_deg, resolution)
+        energies_bar, points, check = regulated_with_exact_check(beta_deg, resolution)
         eigenvalue = np.real(points.eigenvalues[..., 0])
         plot_fixed_points(axes, energies_bar[:, None], eigenvalue, points.stable, label="analytic")
         exact_eigenvalue = np.real(check.exact.eigenvalues[..., 0])

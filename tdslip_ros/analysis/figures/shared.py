@@ -36,6 +36,10 @@ class SharedComputations:
         self._functions[name] = cached
         return cached  # type: ignore[return-value]
 
+    def __contains__(self, name: object) -> bool:
+        """Whether a computation of this name is registered."""
+        return name in self._functions
+
     def run(self, name: str, args: tuple[Any, ...]) -> dict[SharedKey, Any]:
         """Run the computation ``name`` and return every shared result it made, itself and the shared parts
         it used (fig04's exact check brings its analytic trace along)."""
