@@ -13,7 +13,7 @@ and a Fast DDS profile with prompt acknowledgements):
 * ``recorder_node`` in a child process: a Python callback per message would otherwise share one
   interpreter with the plant; on two cores the plant and the recorder each get one.
 
-The children take the installed config/*.yaml plus the overrides of the command line. The plant
+The children take the installed config/*.yaml plus the overrides of the run's options. The plant
 starts once the recorder and the controller have matched its topics. When the run ends, the plant's
 messages are acknowledged by every subscriber, the controller is stopped (it delivers its last
 command), then the recorder (it records what reached it and finalises the bag). Last, the message
