@@ -20,7 +20,7 @@ PACKAGE = "tdslip_ros"
 HERE = Path(__file__).resolve().parent
 
 CONSOLE_SCRIPTS = {
-    "tdslip": "tdslip_ros.cli:main",
+    "tdslip": "tdslip_ros.commands.cli:main",
     "plant_node": "tdslip_ros.nodes.plant_node:main",
     "controller_node": "tdslip_ros.nodes.controller_node:main",
     "recorder_node": "tdslip_ros.nodes.recorder_node:main",

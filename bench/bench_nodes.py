@@ -42,11 +42,12 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
+from tdslip_ros.commands.run import counts_table
 from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.policies import POLICIES
 from tdslip_ros.nodes.controller_node import ControllerNode
-from tdslip_ros.nodes.runner import RunOptions, RunReport, controller_overrides, counts_table, run
+from tdslip_ros.nodes.runner import RunOptions, RunReport, controller_overrides, run
 
 REALTIME_TARGET_P99 = 0.3e-3  # s
 REALTIME_BUSY_MISSED_TARGET = 1e-3  # fraction of the ticks

@@ -32,6 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from tdslip_ros.commands.sweep import grid_size
 from tdslip_ros.model import basins
 from tdslip_ros.studies import engine, sweep
 from tdslip_ros.studies.chunk import lane_policy
@@ -76,11 +77,11 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--grid", type=sweep.grid_size, default=(100, 80), help="energies x heights (default 100x80)"
+        "--grid", type=grid_size, default=(100, 80), help="energies x heights (default 100x80)"
     )
     parser.add_argument("--repeats", type=int, default=3, help="rounds of direct, 1 worker, 2 workers")
     parser.add_argument(
-        "--memory-grid", type=sweep.grid_size, help="also run this study on 2 workers for peak memory"
+        "--memory-grid", type=grid_size, help="also run this study on 2 workers for peak memory"
     )
     args = parser.parse_args()
     study = sweep.fig10_studies(args.grid, basins.REGULATED_STRIDES, None)[""]

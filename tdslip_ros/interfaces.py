@@ -1,18 +1,22 @@
 """What the nodes and the offline analysis share, without rclpy: the names of the suite's topics
-and service, the message types they carry, the installed node parameter files, and the keys under
+and service, the message types they carry, the installed node parameter files, the node parameters that
+hold the hopper and the plant's perturbations (and how they map onto the model's), and the keys under
 which ``tdslip run`` stores the nodes' parameters in a bag's ``custom_data``.
 
 tdslip_ros.nodes.topics adds the QoS and message classes; the analysis must not need rclpy.
 """
 
-from collections.abc import Mapping
+import math
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.bag.schema import package_share_directory
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.terrain import parse_terrain
 
 # Relative names: the nodes create their topics and service with these, so a node's namespace
 # (``--ros-args -r __ns:=/hopper1``) and remapping apply as in any ROS 2 package. /clock is global.
@@ -74,6 +78,49 @@ def resolve(name: str, namespace: str = "/") -> str:
 
 HOPPER_PARAMETERS = {"m": "mass", "k": "stiffness", "r0": "rest_length", "c": "damping", "g": "gravity"}
 """HopperParams fields and the names of the plant's and controller's parameters that hold them (SI)."""
+
+
+PERTURBATION_PARAMETERS = {
+    "terrain": "terrain",
+    "sensing.height": "apex_height_noise",
+    "sensing.speed": "apex_speed_noise",
+    "sensing.seed": "apex_noise_seed",
+    "placement.sigma": "angle_noise",
+    "placement.seed": "angle_noise_seed",
+    "tau_max": "tau_max",
+    "pushes": "pushes",
+}
+"""Fields of :meth:`Perturbations.scalars` and the names of the plant's parameters that hold them (SI; the
+terrain and the pushes as text; tau_max 0: no saturation)."""
+
+
+def perturbation_parameters(perturbations: Perturbations) -> dict[str, str | float | int]:
+    """The plant's parameters of ``perturbations`` by name (ParameterError for per-lane values)."""
+    values = perturbations.scalars()
+    if values["tau_max"] == math.inf:
+        values["tau_max"] = 0.0
+    return {name: values[field] for field, name in PERTURBATION_PARAMETERS.items()}
+
+
+def perturbations_from_parameters(values: Mapping[str, Any]) -> Perturbations:
+    """The perturbations of the plant's parameters (values as parameters or text give them; a missing one is
+    off; other names are ignored); ParameterError naming a bad one."""
+    name = PERTURBATION_PARAMETERS
+
+    def number(field: str, convert: Callable[[Any], Any] = float) -> Any:
+        try:
+            return convert(values.get(name[field], 0))
+        except (TypeError, ValueError):
+            raise ParameterError(f"{name[field]} must be a number, got {values[name[field]]!r}") from None
+
+    tau_max = number("tau_max")
+    return Perturbations(
+        terrain=parse_terrain(str(values.get(name["terrain"], "flat")) or "flat"),
+        sensing=SensingNoise(number("sensing.height"), number("sensing.speed"), number("sensing.seed", int)),
+        placement=PlacementNoise(number("placement.sigma"), number("placement.seed", int)),
+        tau_max=math.inf if tau_max == 0.0 else tau_max,
+        pushes=Pushes.parse(str(values.get(name["pushes"], ""))),
+    )
 
 
 def config_file(name: str) -> Path:

@@ -11,8 +11,6 @@ import pytest
 from analysis_runs import as_if_from_ones_own_controller, recorded_run
 
 from tdslip_ros.analysis.compare import (
-    PolicyError,
-    PolicySpec,
     analytic_fixed_point,
     compare_run,
     convergence,
@@ -28,9 +26,10 @@ from tdslip_ros.model.arrays import CommandArrays, ParamArrays
 from tdslip_ros.model.closed_loop import closed_loop_map, eigenvalues, map_jacobian
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.policies import PolicyError, PolicySpec
 from tdslip_ros.model.stepper import FixedStepStepper
-from tdslip_ros.nodes.parameters import PAPER_PARAMS
 from tdslip_ros.nodes.runner import RunReport
 
 

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from tdslip_ros.analysis import controller_comparison as cc
+from tdslip_ros.commands import compare
 from tdslip_ros.model import controllers, units
 from tdslip_ros.model.batch import simulate_strides
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
-from tdslip_ros.nodes.parameters import PAPER_PARAMS
 
 SPEEDS = (0.75, 1.5)  # from the default apex, PD cannot plan for 0.75 (fig. 13's lost stability)
 STRIDES = 8
@@ -22,7 +23,7 @@ HEIGHT = 1.0
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("compare")
-    assert cc.main(["--out", str(out), "--speeds", *map(str, SPEEDS), "--strides", str(STRIDES)]) == 0
+    assert compare.main(["--out", str(out), "--speeds", *map(str, SPEEDS), "--strides", str(STRIDES)]) == 0
     return out
 
 
@@ -101,6 +102,6 @@ def test_analyse_only_redoes_the_analysis_from_the_manifest(
     sweep: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     before = (sweep / "comparison.json").read_text()
-    assert cc.main(["--out", str(sweep), "--analyse-only"]) == 0
+    assert compare.main(["--out", str(sweep), "--analyse-only"]) == 0
     assert (sweep / "comparison.json").read_text() == before
     assert "deadbeat: tracks its target xdotbar* in [0.750, 1.500]" in capsys.readouterr().out

@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 from analysis_runs import RUNS, recorded_run
 
-from tdslip_ros.analysis import rough_terrain
 from tdslip_ros.analysis.compare import compare_run, dimensionless
 from tdslip_ros.analysis.reader import Run, read_run
-from tdslip_ros.analysis.report import main as analyze
-from tdslip_ros.interfaces import stored_parameters
-from tdslip_ros.model.perturbations import PLANT_SETTINGS, Perturbations
+from tdslip_ros.commands import run as run_command
+from tdslip_ros.commands import terrain as terrain_command
+from tdslip_ros.commands.analyze import main as analyze
+from tdslip_ros.interfaces import PERTURBATION_PARAMETERS, perturbation_parameters, stored_parameters
+from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.nodes import runner
 from tdslip_ros.nodes.parameters import PAPER_PARAMS, PERTURBATIONS
 from tdslip_ros.nodes.runner import RunReport
@@ -45,13 +46,13 @@ def test_the_recording_says_how_to_reproduce_the_run(rough: RunReport, rough_run
     given = RUNS["rough"]["perturbations"]
     assert isinstance(given, Perturbations)
     stored = stored_parameters(rough_run.custom_data, "plant")
-    assert {name: stored[name] for name in PLANT_SETTINGS} == {
-        name: runner._ros_value(value) for name, value in given.plant_settings().items()
+    assert {name: stored[name] for name in PERTURBATION_PARAMETERS.values()} == {
+        name: runner._ros_value(value) for name, value in perturbation_parameters(given).items()
     }
-    assert rough_run.perturbations.plant_settings() == given.plant_settings()
+    assert perturbation_parameters(rough_run.perturbations) == perturbation_parameters(given)
     planner = given.mismatch.controller_params(PAPER_PARAMS)
     assert rough_run.controller_params == planner and rough_run.params == PAPER_PARAMS
-    assert tuple(spec.name for spec in PERTURBATIONS) == PLANT_SETTINGS
+    assert tuple(spec.name for spec in PERTURBATIONS) == tuple(PERTURBATION_PARAMETERS.values())
 
 
 def test_recorded_ground_heights_are_the_terrain(rough_run: Run) -> None:
@@ -164,7 +165,7 @@ def test_a_run_that_fails_on_the_terrain_says_where_and_why(
 def test_malformed_perturbations_stop_tdslip_run_with_one_line(
     arguments: list[str], phrase: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert runner.main(["--out", str(tmp_path / "bag"), *arguments]) == 1
+    assert run_command.main(["--out", str(tmp_path / "bag"), *arguments]) == 1
     error = capsys.readouterr().err.strip()
     assert error.startswith("tdslip run: ") and phrase in error and "\n" not in error
     assert not (tmp_path / "bag").exists()
@@ -184,7 +185,7 @@ def test_the_readme_figure_starts_both_policies_at_one_fixed_point(
 ) -> None:
     """``tdslip terrain`` on flat ground: from energy regulation's fixed point, open loop with the hip power
     applied there hops on identically, at one apex energy: any difference over blocks is the terrain's."""
-    assert rough_terrain.main(["--out", str(tmp_path / "flat.png"), "--sigma", "0", "--strides", "5"]) == 0
+    assert terrain_command.main(["--out", str(tmp_path / "flat.png"), "--sigma", "0", "--strides", "5"]) == 0
     assert _energy_spans(capsys.readouterr().out) == {"energy": 0.0, "open": 0.0}
 
 
@@ -192,7 +193,7 @@ def test_the_readme_figure(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     """The README's figure: over 3 cm blocks energy regulation holds the apex energy above the ground
     closer than open loop, whose energy wanders."""
     out = tmp_path / "rough.png"
-    assert rough_terrain.main(["--out", str(out), "--strides", "25"]) == 0
+    assert terrain_command.main(["--out", str(out), "--strides", "25"]) == 0
     assert out.stat().st_size > 20_000
     spans = _energy_spans(capsys.readouterr().out)
     assert 0.0 < spans["energy"] < 0.75 * spans["open"]

@@ -8,10 +8,11 @@ from pathlib import Path
 import pytest
 from analysis_runs import as_if_from_ones_own_controller, recorded_run, rewrite
 
-from tdslip_ros import cli
 from tdslip_ros.analysis.reader import RunReadError
-from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml, main
+from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml
 from tdslip_ros.bag.reader import mcap_file
+from tdslip_ros.commands import cli
+from tdslip_ros.commands.analyze import main
 from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport

@@ -16,12 +16,12 @@ from analysis_runs import raw_messages, recorded_run
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from tdslip_ros import cli
 from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.bag import RosbagMcapWriter, open_bag
 from tdslip_ros.bag.reader import BagReadError, iter_messages, mcap_file, verify
 from tdslip_ros.bag.recover import RecoverError, recover
 from tdslip_ros.bag.writer import reserve_path
+from tdslip_ros.commands import cli
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from analysis_runs import recorded_run
 
-from tdslip_ros import cli
+from tdslip_ros.commands import cli
 from tdslip_ros.nodes.runner import RunReport
 
 REPO = Path(__file__).resolve().parents[1]
@@ -92,7 +92,7 @@ def run_with_closed_output(arguments: list[str]) -> subprocess.CompletedProcess[
     os.close(read_end)
     try:
         return subprocess.run(
-            [sys.executable, "-m", "tdslip_ros.cli", *arguments],
+            [sys.executable, "-m", "tdslip_ros.commands.cli", *arguments],
             stdout=write_end,
             stderr=subprocess.PIPE,
             text=True,

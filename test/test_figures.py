@@ -9,12 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdslip_ros import cli
-from tdslip_ros.analysis import figures, paper_comparison
+from tdslip_ros.analysis import paper_comparison
+from tdslip_ros.analysis.figures import catalogue, exact_basins, open_loop, regulated, tracking
+from tdslip_ros.analysis.figures.common import Reporter, Resolution
+from tdslip_ros.analysis.figures.shared import SHARED
+from tdslip_ros.commands import cli
+from tdslip_ros.commands import figures as figures_command
 from tdslip_ros.model import basins, exact_stability, stability, units
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.studies import engine
 
-TINY = figures.Resolution(
+TINY = Resolution(
     heights=24,
     alphas=9,
     betas=2,
@@ -27,19 +32,18 @@ TINY = figures.Resolution(
     exact_energies=6,
     bisections=2,
 )
-PARAMS = figures.PARAMS
+PARAMS = PAPER_PARAMS
 
 
-def _quiet() -> figures.Reporter:
-    return figures.Reporter("test", interval=math.inf)
+def _quiet() -> Reporter:
+    return Reporter("test", interval=math.inf)
 
 
 def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    module, _ = cli.SUBCOMMANDS["figures"]
-    assert module == "tdslip_ros.analysis.figures"
-    monkeypatch.setattr(figures, "DEFAULT", TINY)  # the default resolution takes a minute per figure
+    assert "figures" in cli.SUBCOMMANDS  # run by tdslip_ros.commands.figures
+    monkeypatch.setattr(figures_command, "DEFAULT", TINY)  # the default resolution takes a minute per figure
     assert cli.main(["figures", "--out", str(tmp_path), "--only", "fig09"]) == 0
     assert (tmp_path / "fig09.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     document = json.loads((tmp_path / "fig09.json").read_text(), parse_constant=pytest.fail)
@@ -52,7 +56,7 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
 
 
 def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
-    _, data = figures.fig08(TINY, _quiet())
+    _, data = regulated.fig08(TINY, _quiet())
     for beta_deg in (22.0, 30.0):
         panel = data[f"beta_{beta_deg:g}"]
         beta = math.radians(beta_deg)
@@ -71,7 +75,7 @@ def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
 
 
 def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() -> None:
-    _, data = figures.fig10(TINY, _quiet())
+    _, data = exact_basins.fig10(TINY, _quiet())
     lanes = TINY.basin_energies * TINY.basin_heights
     assert sum(data["outcome_counts"].values()) == lanes
     exact = data["exact_fixed_points"]
@@ -84,7 +88,7 @@ def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() 
 
 
 def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> None:
-    _, data = figures.fig13(TINY, _quiet())
+    _, data = tracking.fig13(TINY, _quiet())
     assert data["xdotbar_target"] == [0.5, 1.75, 3.0]
     deadbeat, pd = data["deadbeat"], data["pd"]
     assert all(deadbeat["stable"])
@@ -96,7 +100,7 @@ def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> Non
 
 
 def test_fig04_traces_the_open_loop_fixed_points_and_their_saddle_nodes() -> None:
-    _, data = figures.fig04(TINY, _quiet())
+    _, data = open_loop.fig04(TINY, _quiet())
     low, high = data["c"]["saddle_node_alpha"]
     assert 1.1 < low < high < 1.45
     section = data["a"]
@@ -130,7 +134,7 @@ def test_the_comparison_table_reads_our_numbers_from_the_figure_documents() -> N
 def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_results(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    figures.precompute(["fig10"], TINY, engine.Where(workers=2))
+    figures_command.precompute(["fig10"], TINY, engine.Where(workers=2))
 
     def computed_here(*args: object, **kwargs: object) -> None:
         raise AssertionError("a figure computed a sweep itself instead of taking the engine's result")
@@ -141,6 +145,14 @@ def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_r
         (stability, "energy_fixed_point"),
     ):
         monkeypatch.setattr(module, name, computed_here)
-    _, fig10 = figures.fig10(TINY, _quiet())
+    _, fig10 = exact_basins.fig10(TINY, _quiet())
     assert sum(fig10["outcome_counts"].values()) == TINY.basin_energies * TINY.basin_heights
-    assert [name for name, _ in figures.shared_work(["fig13", "ranges"], TINY)][:4] == ["stable_range"] * 4
+    assert [name for name, _ in catalogue.shared_work(["fig13", "ranges"], TINY)][:4] == ["stable_range"] * 4
+
+
+def test_every_sweep_the_figures_need_is_a_registered_shared_computation() -> None:
+    """The engine's workers run them by name (catalogue.compute_shared): a name without a computation would
+    fail only there."""
+    work = catalogue.shared_work(list(catalogue.FIGURES), TINY)
+    assert len(work) > len(catalogue.FIGURES) and all(name in SHARED for name, _ in work)
+    assert "no_such_sweep" not in SHARED

@@ -15,15 +15,15 @@ from mcap_ros2.decoder import DecoderFactory
 
 from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.interfaces import resolve
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.nodes import topics
-from tdslip_ros.nodes.parameters import PAPER_PARAMS
 
 pytestmark = pytest.mark.slow
 
 
 def tdslip_run(*arguments: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "tdslip_ros.cli", "run", *arguments],
+        [sys.executable, "-m", "tdslip_ros.commands.cli", "run", *arguments],
         capture_output=True,
         text=True,
         timeout=180,
@@ -121,7 +121,7 @@ def test_a_2000_stride_lockstep_run_with_both_cores_busy_records_every_message(t
     try:
         bag = tmp_path / "long"
         result = subprocess.run(
-            [sys.executable, "-m", "tdslip_ros.cli", "run", "--strides", "2000", "--out", str(bag)],
+            [sys.executable, "-m", "tdslip_ros.commands.cli", "run", "--strides", "2000", "--out", str(bag)],
             capture_output=True,
             text=True,
             timeout=1200,
@@ -172,7 +172,7 @@ def hopping_run(tmp_path: Path, *arguments: str) -> tuple[subprocess.Popen[str],
         [
             sys.executable,
             "-m",
-            "tdslip_ros.cli",
+            "tdslip_ros.commands.cli",
             "run",
             "--strides",
             "0",

@@ -27,7 +27,7 @@ from tdslip_ros.nodes import isolation
 
 PACKAGE = "tdslip_ros"
 EXECUTABLES = {
-    "tdslip": "tdslip_ros.cli:main",
+    "tdslip": "tdslip_ros.commands.cli:main",
     "plant_node": "tdslip_ros.nodes.plant_node:main",
     "controller_node": "tdslip_ros.nodes.controller_node:main",
     "recorder_node": "tdslip_ros.nodes.recorder_node:main",

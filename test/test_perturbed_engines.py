@@ -11,13 +11,17 @@ import numpy.typing as npt
 import pytest
 from failure_cases import PERTURBED_FAILURE_CASES, PerturbedFailureCase
 
+from tdslip_ros.interfaces import (
+    PERTURBATION_PARAMETERS,
+    perturbation_parameters,
+    perturbations_from_parameters,
+)
 from tdslip_ros.model import controllers, units
 from tdslip_ros.model.batch import BatchRun, Policy, batch_apex_return_map, simulate_strides
 from tdslip_ros.model.events import EventKind, FailureKind, failure_code, failure_from_code
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import (
-    PLANT_SETTINGS,
     Mismatch,
     Perturbations,
     PlacementNoise,
@@ -345,12 +349,12 @@ def test_text_forms_and_node_settings_read_back() -> None:
         tau_max=400.0,
         pushes=Pushes(((5, 0.3), (2, -0.5)), size=0.2, rate=0.1, seed=4),
     )
-    settings = perturbations.plant_settings()
-    assert tuple(settings) == PLANT_SETTINGS
+    settings = perturbation_parameters(perturbations)
+    assert tuple(settings) == tuple(PERTURBATION_PARAMETERS.values())
     assert settings["pushes"] == "2:-0.5;5:0.3;random:size=0.2,rate=0.1,seed=4"
-    again = Perturbations.from_plant_settings({name: str(value) for name, value in settings.items()})
-    assert again.plant_settings() == settings
-    assert Perturbations.from_plant_settings({}).active is False
+    again = perturbations_from_parameters({name: str(value) for name, value in settings.items()})
+    assert perturbation_parameters(again) == settings
+    assert perturbations_from_parameters({}).active is False
     assert Pushes.parse(settings["pushes"]).spec() == settings["pushes"]
     assert SensingNoise.parse("height=0.005,speed=0.05,seed=1").spec() == perturbations.sensing.spec()
     mismatch = Mismatch.parse("mass=1.1,damping=0.5")

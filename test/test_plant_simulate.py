@@ -7,7 +7,7 @@ import math
 import pytest
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
-from tdslip_ros.cli import main as tdslip
+from tdslip_ros.commands.cli import main as tdslip
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 

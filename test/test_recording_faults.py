@@ -17,9 +17,9 @@ from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.bag import open_bag
 from tdslip_ros.bag.recover import recover
 from tdslip_ros.interfaces import resolve
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW
-from tdslip_ros.nodes.parameters import PAPER_PARAMS
 from tdslip_ros.nodes.replay import checked_bag
 from tdslip_ros.nodes.runner import RunOptions, run_custom_data
 

@@ -17,9 +17,10 @@ from rclpy.qos import HistoryPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from tdslip_ros.bag.reader import mcap_file, open_bag
+from tdslip_ros.commands.replay import main
 from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import isolation, topics
-from tdslip_ros.nodes.replay import ReplayError, check_rate, main, offered_qos, replay, send_offset
+from tdslip_ros.nodes.replay import ReplayError, check_rate, offered_qos, replay, send_offset
 from tdslip_ros.nodes.runner import ChildNode, RunReport
 
 

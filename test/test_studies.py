@@ -1,8 +1,8 @@
 """Study designs and chunks, in one process: what each trajectory runs, and its row.
 
 Truth used: the closed-loop runs of :mod:`tdslip_ros.model.basins` (the goal regulator of fig. 10, the
-open-loop basin of fig. 7) and the deadbeat/PD runs of fig. 13 (figures.track_targets), called directly
-on the same lanes; numpy's SeedSequence for the draws.
+open-loop basin of fig. 7) and the deadbeat/PD runs of fig. 13 (analysis.figures.tracking.track_targets),
+called directly on the same lanes; numpy's SeedSequence for the draws.
 """
 
 from __future__ import annotations
@@ -13,15 +13,16 @@ import re
 import numpy as np
 import pytest
 
-from tdslip_ros.analysis import figures
+from tdslip_ros.analysis.figures import tracking
 from tdslip_ros.model import basins, stability, units
 from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.studies import chunk, perturbed, table
 from tdslip_ros.studies.design import DESIGN_STREAM, Study, StudyError, Uniform
 
-PARAMS = figures.PARAMS
+PARAMS = PAPER_PARAMS
 BETA = math.radians(26.0)
 
 
@@ -153,7 +154,7 @@ def test_deadbeat_and_pd_lanes_run_as_fig13_runs_them() -> None:
     )
     rows = chunk.run_chunk(study, 0)
     for position, controller in enumerate(("deadbeat", "pd")):
-        run = figures.track_targets(PARAMS, controller, 1.0, speeds, (1.0, 5.0), 20)
+        run = tracking.track_targets(PARAMS, controller, 1.0, speeds, (1.0, 5.0), 20)
         lanes = slice(3 * position, 3 * position + 3)
         outcome = np.asarray(basins.OUTCOMES)[run.outcome]
         np.testing.assert_array_equal(_column(rows, "outcome")[lanes], outcome)

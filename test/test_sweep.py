@@ -14,12 +14,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from tdslip_ros import cli
-from tdslip_ros.analysis import figures
+from tdslip_ros.commands import cli
 from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.reporting.paper_grids import FIG11_STUDIES
 from tdslip_ros.studies import engine, sweep
 
-PARAMS = figures.PARAMS
+PARAMS = PAPER_PARAMS
 
 
 def test_the_sweeps_are_the_figures_grids_at_any_resolution() -> None:
@@ -37,7 +38,7 @@ def test_the_sweeps_are_the_figures_grids_at_any_resolution() -> None:
     np.testing.assert_array_equal(lanes["energy0"], energy)
     fig11 = sweep.fig11_studies((4, 2), 50, None)
     assert sorted(fig11) == ["beta_deg", "kbar", "zeta0"]
-    assert fig11["kbar"].hoppers() == [(k, 0.08) for k in figures.FIG11_STUDIES["kbar"]]
+    assert fig11["kbar"].hoppers() == [(k, 0.08) for k in FIG11_STUDIES["kbar"]]
     assert fig11["beta_deg"].size == 6 * 4 * 2
 
 

@@ -1,1 +1,3 @@
-"""Offline analysis of recorded runs against the analytic apex return map (no rclpy)."""
+"""Offline work, no rclpy: recorded runs against the analytic apex return map (reader, compare, plots,
+report, controller_comparison), and the paper's figures and claims from the model core (figures,
+paper_comparison, simulate, rough_terrain). It does not import the nodes or the studies."""

@@ -20,8 +20,8 @@ from tdslip_ros.analysis.compare import Comparison, closed_loop_step, dimensionl
 from tdslip_ros.analysis.reader import Run
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.reporting.style import DPI
 
-DPI = 120
 MAP_CURVE_POINTS = 200
 LONG_RUN = 100
 """Strides above which the per-stride axis is drawn linear up to 10, logarithmic beyond."""

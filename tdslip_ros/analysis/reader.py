@@ -58,12 +58,13 @@ from tdslip_ros.interfaces import (
     STATUS,
     TOPIC_TYPES,
     hopper_from_parameters,
+    perturbations_from_parameters,
     resolve,
     stored_parameters,
 )
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.perturbations import PLANT_SETTINGS, Perturbations, placed_angle
+from tdslip_ros.model.perturbations import Perturbations, placed_angle
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -454,7 +455,7 @@ def _stored_perturbations(recording: Recording) -> Perturbations:
     """The plant's perturbations from the custom_data ``tdslip run`` writes (none where absent)."""
     values = stored_parameters(recording.bag.custom_data, "plant")
     try:
-        return Perturbations.from_plant_settings({k: v for k, v in values.items() if k in PLANT_SETTINGS})
+        return perturbations_from_parameters(values)
     except ParameterError as error:
         raise RunReadError(f"{recording.bag.mcap_path}: stored perturbations are invalid ({error})") from None
 

@@ -1,4 +1,5 @@
-"""``tdslip analyze RUN --out DIR``: a recorded run against the analytic map, as numbers and pictures.
+"""A recorded run against the analytic map, as numbers and pictures: what ``tdslip analyze RUN --out DIR``
+writes and prints.
 
 Writes ``DIR/summary.json`` (run, hopper parameters, policy, per-stride records and predictions,
 convergence, fixed points, eigenvalues), four PNG figures and ``DIR/report.md``, and prints the
@@ -11,37 +12,31 @@ own is analysed without a policy unless ``--policy`` names one; the report says 
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import os
-import sys
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import (
     CORRECTIONS,
-    POLICIES,
     Comparison,
     FixedPoint,
-    PolicyError,
     compare_run,
     comparison_summary,
     dimensionless,
     policy_for_run,
 )
-from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError, read_run
-from tdslip_ros.interfaces import hopper_from_parameters
+from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError
+from tdslip_ros.interfaces import hopper_from_parameters, perturbation_parameters
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
-from tdslip_ros.model.policies import PolicySpec, settings_of
+from tdslip_ros.model.policies import POLICIES, PolicySpec, settings_of
+from tdslip_ros.reporting.output import to_json
 
 FIGURES = {
     "apex_sequence": "apex height and speed per stride",
@@ -124,7 +119,7 @@ def run_summary(run: Run) -> dict[str, Any]:
         "params": {**asdict(params), "kbar": params.kbar, "zeta0": params.zeta0, "source": run.params_source},
         "controller_params": None if run.controller_params is None else asdict(run.controller_params),
         "perturbations": {
-            **run.perturbations.plant_settings(),
+            **perturbation_parameters(run.perturbations),
             "mismatch": _mismatch(run),
             "saturated_strides": run.saturated_strides,
         },
@@ -192,51 +187,6 @@ def analyze(
     files["report"] = out / "report.md"
     files["report"].write_text(markdown(comparison, summary))
     return Analysis(comparison, summary, files)
-
-
-def _json_ready(value: object) -> object:
-    """Plain JSON values: NaN and infinities become null (JSON has none), complex numbers [re, im]."""
-    if isinstance(value, dict):
-        return {str(key): _json_ready(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_ready(item) for item in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, complex):
-        return [_json_ready(value.real), _json_ready(value.imag)]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def to_json(value: object) -> str:
-    """``value`` as indented, strict JSON text (see _json_ready), newline-terminated."""
-    return json.dumps(_json_ready(value), indent=1, allow_nan=False) + "\n"
-
-
-class OutputError(Exception):
-    """An output directory cannot be created or written; the message says why."""
-
-
-def output_directory(path: Path) -> Path:
-    """``path`` as a writable directory, created if need be (OutputError naming the obstacle)."""
-    for existing in (path, *path.parents):
-        if existing.exists():
-            if not existing.is_dir():
-                raise OutputError(f"--out {path}: {existing} exists and is not a directory")
-            break
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise OutputError(f"--out {path}: cannot create the directory ({error.strerror})") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"--out {path}: the directory is not writable")
-    return path
-
-
-def write_failed(error: OSError) -> str:
-    """One line for an output file that could not be written."""
-    return f"cannot write {error.filename or 'an output file'}: {error.strerror or error}"
 
 
 # --- text ---------------------------------------------------------------------------------------
@@ -385,92 +335,3 @@ def markdown(comparison: Comparison, summary: dict[str, Any]) -> str:
         "unless marked). Numbers: `summary.json`.\n\n"
         f"```\n{headline(comparison)}\n```\n\n{figures}"
     )
-
-
-# --- command line -------------------------------------------------------------------------------
-
-
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tdslip analyze", description="Compare a recorded run with the analytic map; write a report."
-    )
-    parser.add_argument("run", type=Path, help="bag directory or .mcap file of a run")
-    parser.add_argument("--out", type=Path, help="report directory (default RUN/report, or next to an .mcap)")
-    parser.add_argument(
-        "--params",
-        type=Path,
-        help="ROS parameter file with the hopper (default: stored in the bag, or inferred)",
-    )
-    parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
-    policy = parser.add_argument_group(
-        "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
-        "a recorded policy the package does not know is not replayed)"
-    )
-    policy.add_argument("--policy", dest="name", choices=POLICIES)
-    policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy, energy_exact)")
-    policy.add_argument("--touchdown-power", type=float, help="hip power at touchdown [W] (open_loop)")
-    policy.add_argument(
-        "--target-energy", type=float, help="[J] (energy, energy_exact; default: initial apex energy)"
-    )
-    policy.add_argument("--target-height", type=float, help="[m] (deadbeat, pd)")
-    policy.add_argument("--target-speed", type=float, help="[m/s] (deadbeat, pd)")
-    policy.add_argument("--pd-kp", type=float, help="[rad/(m/s)] (pd)")
-    policy.add_argument("--pd-kd", type=float, help="[rad/(m/s)] (pd)")
-    policy.add_argument(
-        "--corrections", type=int, help="analytic-map corrections the controller planned with"
-    )
-    return parser
-
-
-POLICY_OPTION_DOMAINS: dict[str, tuple[str, Callable[[float], bool]]] = {
-    "angle": ("in (0, 90) deg", lambda value: 0.0 < value < 90.0),
-    "touchdown_power": ("a finite power >= 0 W", lambda value: 0.0 <= value < math.inf),
-    "target_energy": ("a finite energy > 0 J", lambda value: 0.0 < value < math.inf),
-    "target_height": ("a finite height > 0 m", lambda value: 0.0 < value < math.inf),
-    "target_speed": ("a finite speed >= 0 m/s", lambda value: 0.0 <= value < math.inf),
-    "pd_kp": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
-    "pd_kd": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
-    "corrections": ("a count >= 0", lambda value: value >= 0),
-}
-"""What each policy option of ``tdslip analyze`` accepts: a value outside its domain has no
-meaning for the policy (NaN commands, an empty fixed point), so it is refused up front."""
-
-
-def check_policy_options(args: argparse.Namespace) -> None:
-    """PolicyError naming the first policy option given outside its domain."""
-    for name, (domain, valid) in POLICY_OPTION_DOMAINS.items():
-        value = getattr(args, name)
-        if value is not None and not valid(value):
-            raise PolicyError(f"--{name.replace('_', '-')} must be {domain}, not {value}")
-
-
-def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
-    out = args.out or (args.run / "report" if args.run.is_dir() else args.run.with_suffix("") / "report")
-    overrides = {
-        "name": args.name,
-        "touchdown_angle": None if args.angle is None else math.radians(args.angle),
-        "touchdown_power": args.touchdown_power,
-        "target_energy": args.target_energy,
-        "target_height": args.target_height,
-        "target_speed": args.target_speed,
-        "pd_kp": args.pd_kp,
-        "pd_kd": args.pd_kd,
-        "corrections": args.corrections,
-    }
-    try:
-        check_policy_options(args)
-        output_directory(out)
-        params = None if args.params is None else hopper_params_from_yaml(args.params)
-        run = read_run(args.run, params)
-        analysis = analyze(run, out, overrides, args.stride)
-    except (RunReadError, PolicyError, OutputError, ValueError) as error:
-        print(f"tdslip analyze: {error}", file=sys.stderr)
-        return 1
-    except OSError as error:
-        print(f"tdslip analyze: {write_failed(error)}", file=sys.stderr)
-        return 1
-    print(headline(analysis.comparison))
-    figures = sum(1 for path in analysis.files.values() if path.suffix == ".png")
-    print(f"report: {analysis.files['report']} (summary.json and {figures} figures beside it)")
-    return 0

@@ -1,23 +1,13 @@
-"""``tdslip terrain``: energy regulation against open loop over the same rough ground (the README figure).
-
-Both policies hop the 1 kHz plant (:class:`~tdslip_ros.model.stepper.FixedStepStepper`, the plant node's
-physics) over the same random blocks (:class:`~tdslip_ros.model.terrain.Blocks`), each apex answered as the
-controller node answers it: the policy planned on the measured apex above the ground of the last stance.
-Energy regulation (section IV.A) holds the apex energy above the ground at that of ``--height`` and
-``--speed``; both start at its fixed point on flat ground, and open loop (section III) applies the fixed
-hip power C at touchdown that energy regulation applies there. On flat ground the two would therefore hop
-identically forever; blocks start at ``--start``, so what differs is the terrain's doing.
-
-The figure shows the centre-of-mass paths over the ground and the apex energy above the ground per
-stride; the run ends at ``--strides`` apexes or a failure (marked). The same runs are recorded by the
-node suite with ``tdslip run --terrain blocks:... --policy energy`` (or ``open_loop --angle``).
+"""Energy regulation against open loop over the same rough ground (``tdslip terrain``, the README figure):
+closed-loop hops of the 1 kHz plant (:class:`~tdslip_ros.model.stepper.FixedStepStepper`, the plant node's
+physics) over random blocks, each apex answered as the controller node answers it, from energy
+regulation's fixed point on flat ground where both policies would hop identically forever; and the figure
+of their centre-of-mass paths and apex energies above the ground.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,19 +18,16 @@ matplotlib.use("Agg")
 import numpy as np
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.report import OutputError, output_directory, write_failed
 from tdslip_ros.interfaces import installed_parameters
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import EventKind, FailureKind
-from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
 
-DPI = 120
-COLOURS = {"energy": "tab:blue", "open_loop": "tab:orange"}
 LABELS = {"energy": "energy regulation", "open_loop": "open loop (fixed hip power)"}
 
 
@@ -135,7 +122,7 @@ def draw(params: HopperParams, blocks: Blocks, hops: list[Hop], path: Path) -> F
     paths.plot(x, ground, color="saddlebrown", lw=0.8, label=f"ground: {blocks.spec()}")
     scale = units.energy_scale(params)
     for h in hops:
-        colour = COLOURS[h.policy]
+        colour = POLICY_COLOURS[h.policy]
         ended = "" if h.failure is None else f", {h.failure.value} at stride {len(h.apexes) - 1}"
         paths.plot(
             h.x, h.y, color=colour, lw=1.1, label=f"{LABELS[h.policy]}: {len(h.apexes) - 1} strides{ended}"
@@ -156,47 +143,3 @@ def draw(params: HopperParams, blocks: Blocks, hops: list[Hop], path: Path) -> F
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
     return figure
-
-
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tdslip terrain", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("docs/rough_terrain.png"), help="the PNG to write")
-    parser.add_argument("--sigma", type=float, default=0.03, help="block heights' standard deviation [m]")
-    parser.add_argument("--length", type=float, default=0.5, help="block length [m]")
-    parser.add_argument("--seed", type=int, default=1, help="terrain seed")
-    parser.add_argument("--start", type=float, default=2.0, help="where the blocks begin [m]")
-    parser.add_argument("--strides", type=int, default=40, help="apexes to hop (default 40)")
-    parser.add_argument(
-        "--angle",
-        type=float,
-        default=22.0,
-        help="touchdown angle [deg] (default 22: about 10 cm of toe clearance)",
-    )
-    parser.add_argument("--height", type=float, default=1.0, help="initial apex [m]")
-    parser.add_argument("--speed", type=float, default=5.0, help="initial apex [m/s]")
-    args = parser.parse_args(argv)
-    try:
-        if args.strides < 1:
-            raise ParameterError(f"--strides must be at least 1, got {args.strides}")
-        if not 0.0 < args.angle < 90.0:
-            raise ParameterError(f"--angle must be in (0, 90) deg, got {args.angle}")
-        blocks = Blocks(args.sigma, args.length, args.seed, args.start)
-        apex = ApexState(args.height, args.speed)
-        params = PAPER_PARAMS
-        start, specs = policies(params, apex, math.radians(args.angle))
-        output_directory(args.out.parent)
-        ground = Perturbations(terrain=blocks)
-        hops = [hop(params, spec, start, ground, args.strides) for spec in specs.values()]
-        draw(params, blocks, hops, args.out)
-    except (ParameterError, OutputError) as error:
-        print(f"tdslip terrain: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:
-        print(f"tdslip terrain: {write_failed(error)}", file=sys.stderr)
-        return 1
-    for h in hops:
-        ended = "all strides" if h.failure is None else f"{h.failure.value} after {len(h.apexes) - 1} strides"
-        spread = np.ptp(np.array(h.energies)) / units.energy_scale(params)
-        print(f"{LABELS[h.policy]:<30} {ended}; apex energy above ground spans {spread:.4f} (Ebar)")
-    print(f"figure: {args.out}")
-    return 0

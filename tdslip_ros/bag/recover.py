@@ -1,5 +1,5 @@
-"""``tdslip recover RUN``: make a truncated or unfinalised recording readable again, like
-``ros2 bag reindex``.
+"""Make a truncated or unfinalised recording readable again, like ``ros2 bag reindex`` (what
+``tdslip recover RUN`` does).
 
 A recorder killed hard (SIGKILL, a crash, a full disk) leaves an MCAP file without summary and
 footer, maybe with a half-written chunk at its end, and no ``metadata.yaml``: readers refuse it.
@@ -19,22 +19,19 @@ completely (in a hidden directory beside the original) before anything is rename
 that already has a ``.orig`` is refused, so nothing is ever overwritten. A recording that is
 finalised and intact is left alone. The writer's reserve file left behind by a crash is deleted.
 
-The report says how much was lost: messages recovered per topic (and, when the original states
-how many it held, how many are missing), the bytes discarded and why, and the log time of the
-last recovered message.
+The :class:`Recovery` says how much was lost: messages recovered per topic (and, when the original
+states how many it held, how many are missing), the bytes discarded and why (:class:`Scan`), and the log
+time of the last recovered message.
 """
 
 from __future__ import annotations
 
-import argparse
 import io
 import os
 import shutil
 import struct
-import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -58,7 +55,6 @@ from tdslip_ros.bag.reader import (
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.bag.writer import (
     DEFAULT_CHUNK_SIZE,
-    BagWriteError,
     Compression,
     RosbagMcapWriter,
     reserve_path,
@@ -70,7 +66,6 @@ WORK_DIRECTORY = ".tdslip-recover"
 """Hidden directory beside the original in which the recovered file is written before it takes
 the original's place."""
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
-_NS_PER_S = 1_000_000_000
 _COMPRESSIONS: dict[str, Compression] = {"": "none", "lz4": "lz4", "zstd": "zstd"}
 _DATA_RECORDS = (Schema, Channel, Message, Metadata)
 DataRecord = Schema | Channel | Message | Metadata
@@ -370,69 +365,3 @@ def _stated_counts(source: Path, information: dict[str, Any]) -> dict[str, int]:
         if sum(counts.values()):
             return counts
     return {}
-
-
-# --- command line -------------------------------------------------------------------------------
-
-
-def _time(ns: int) -> str:
-    return datetime.fromtimestamp(ns / _NS_PER_S, UTC).isoformat(timespec="milliseconds")
-
-
-def report(recovery: Recovery) -> str:
-    """The lines ``tdslip recover`` prints."""
-    if recovery.original is None:
-        total = sum(recovery.recovered.values())
-        return f"{recovery.mcap_path} is finalised and intact ({total} messages); nothing to recover"
-    scan = recovery.scan
-    total = sum(recovery.recovered.values())
-    lines = [f"recovered {recovery.mcap_path}: {total} messages on {len(recovery.recovered)} topics"]
-    width = max((len(topic) for topic in recovery.recovered), default=5)
-    for topic, count in sorted(recovery.recovered.items()):
-        stated = recovery.expected.get(topic)
-        of = (
-            ""
-            if stated is None
-            else f" of {stated}" + (f" ({stated - count} lost)" if stated > count else "")
-        )
-        lines.append(f"  {topic:<{width}} {count:>9}{of}")
-    if scan.last_log_time is not None and scan.first_log_time is not None:
-        span = (scan.last_log_time - scan.first_log_time) / _NS_PER_S
-        lines.append(f"last message logged at {_time(scan.last_log_time)} ({span:.3f} s after the first)")
-    if not recovery.expected:
-        lines.append("the original does not state how many messages it held: the messages lost are not known")
-    lost = f"{scan.discarded_bytes} bytes discarded"
-    causes = [
-        f"{length} B damaged chunk at byte {offset} ({reason})"
-        for offset, length, reason in scan.damaged_chunks
-    ]
-    if not scan.complete and scan.end < scan.size:
-        causes.append(f"{scan.size - scan.end} B from byte {scan.end} on: {scan.stop_reason}")
-    elif not scan.complete:
-        causes.append("the file ends after a whole record but was not finalised")
-    lines.append(lost + (": " + "; ".join(causes) if causes else ""))
-    if scan.orphans:
-        lines.append(f"{scan.orphans} messages of channels whose definition was lost were not kept")
-    lines.extend(recovery.notes)
-    lines.append(f"the original is kept as {recovery.original}")
-    return "\n".join(lines)
-
-
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tdslip recover",
-        description="Make a truncated or unfinalised recording readable (the original is kept as *.orig).",
-    )
-    parser.add_argument("run", type=Path, help="bag directory or .mcap file")
-    return parser
-
-
-def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        recovery = recover(args.run)
-    except (RecoverError, BagWriteError) as error:
-        print(f"tdslip recover: {error}", file=sys.stderr)
-        return 1
-    print(report(recovery))
-    return 0

@@ -33,7 +33,7 @@ takes its flat-ground path, bit for bit.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
@@ -44,7 +44,7 @@ from tdslip_ros.model.arrays import ParamArrays
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.terrain import FLAT, IntArray, Terrain, parse_terrain, spec_fields
+from tdslip_ros.model.terrain import FLAT, IntArray, Terrain, spec_fields
 
 SENSING_STREAM, PLACEMENT_STREAM, PUSH_STREAM = 1, 2, 3
 DRAW_BLOCK = 64
@@ -433,49 +433,20 @@ class Perturbations:
                 push[stride - first_stride] += dv
         return Draws(height, speed, angle, push)
 
-    # --- the node parameters and the text forms ---------------------------------------------------
-
-    def plant_settings(self) -> dict[str, str | float | int]:
-        """The plant node's parameters of these perturbations (scalars), by name (:data:`PLANT_SETTINGS`)."""
+    def scalars(self) -> dict[str, str | float | int]:
+        """These perturbations of one trajectory as scalars by field (``sensing.height``, ...): the terrain
+        and the pushes in their text forms, tau_max inf where the hip does not saturate; the mismatch aside
+        (only the controller plans with it). ParameterError for per-lane values, which have no single form."""
         return {
             "terrain": self.terrain.spec(),
-            "apex_height_noise": _scalar(self.sensing.height),
-            "apex_speed_noise": _scalar(self.sensing.speed),
-            "apex_noise_seed": int(self.sensing.seed),
-            "angle_noise": _scalar(self.placement.sigma),
-            "angle_noise_seed": int(self.placement.seed),
-            "tau_max": 0.0 if not self.saturates else _scalar(self.tau_max),
+            "sensing.height": _scalar(self.sensing.height),
+            "sensing.speed": _scalar(self.sensing.speed),
+            "sensing.seed": int(self.sensing.seed),
+            "placement.sigma": _scalar(self.placement.sigma),
+            "placement.seed": int(self.placement.seed),
+            "tau_max": math.inf if not self.saturates else _scalar(self.tau_max),
             "pushes": self.pushes.spec(),
         }
-
-    @classmethod
-    def from_plant_settings(
-        cls, values: Mapping[str, Any], mismatch: Mismatch | None = None
-    ) -> Perturbations:
-        """The perturbations of the plant node's parameters (values as parameters or text give them; a missing
-        one is off); ParameterError naming a bad one."""
-
-        def number(name: str, convert: Callable[[Any], Any] = float) -> Any:
-            try:
-                return convert(values.get(name, 0))
-            except (TypeError, ValueError):
-                raise ParameterError(f"{name} must be a number, got {values[name]!r}") from None
-
-        tau_max = number("tau_max")
-        return cls(
-            terrain=parse_terrain(str(values.get("terrain", "flat")) or "flat"),
-            sensing=SensingNoise(
-                number("apex_height_noise"), number("apex_speed_noise"), number("apex_noise_seed", int)
-            ),
-            placement=PlacementNoise(number("angle_noise"), number("angle_noise_seed", int)),
-            tau_max=math.inf if tau_max == 0.0 else tau_max,
-            pushes=Pushes.parse(str(values.get("pushes", ""))),
-            mismatch=mismatch or Mismatch(),
-        )
-
-
-PLANT_SETTINGS = tuple(Perturbations().plant_settings())
-"""The plant node's perturbation parameters (the keys of :meth:`Perturbations.plant_settings`)."""
 
 
 def placed_angle(angle: Any, error: Any) -> Any:

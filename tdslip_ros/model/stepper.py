@@ -140,7 +140,7 @@ class FixedStepStepper:
         # Perturbations: None where off (the flat-ground path, bit for bit).
         self._perturbations = perturbations if perturbations is not None and perturbations.active else None
         if self._perturbations is not None:
-            self._perturbations.plant_settings()  # ParameterError for per-lane values
+            self._perturbations.scalars()  # ParameterError for per-lane values
         self._trajectory = trajectory
         self._terrain: Terrain | None = None
         self._tau_max: float | None = None

@@ -126,7 +126,7 @@ PERTURBATIONS: tuple[ParameterSpec, ...] = (
         read_only=True,
     ),
 )
-"""The plant's perturbation parameters (tdslip_ros.model.perturbations.Perturbations.plant_settings)."""
+"""The plant's perturbation parameters (tdslip_ros.interfaces.PERTURBATION_PARAMETERS)."""
 
 
 def declare(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, ParameterValue]:

@@ -24,7 +24,8 @@ Clock modes (parameter ``clock_mode``):
   ``command_timeout`` seconds of wall time ends the run (Status ``command_timeout``).
 
 Perturbations (:mod:`tdslip_ros.model.perturbations`; parameters ``terrain``, ``apex_height_noise``,
-``apex_speed_noise``, ``apex_noise_seed``, ``angle_noise``, ``angle_noise_seed``, ``tau_max``, ``pushes``)
+``apex_speed_noise``, ``apex_noise_seed``, ``angle_noise``, ``angle_noise_seed``, ``tau_max``, ``pushes``:
+:data:`tdslip_ros.interfaces.PERTURBATION_PARAMETERS`)
 are the stepper's: the hopper hops over the terrain (``terrain``: ``flat``, ``step:height=H,x=X``,
 ``blocks:sigma=S,length=L,seed=N``, ``profile:file=PATH.csv``), its hip saturates at tau_max, its leg
 lands with a placement error and pushes hit it right after the apex. Heights are in the world frame:
@@ -84,13 +85,17 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
-from tdslip_ros.interfaces import GRF_FIELDS, STAMP_FIELDS, hopper_from_parameters
+from tdslip_ros.interfaces import (
+    GRF_FIELDS,
+    STAMP_FIELDS,
+    hopper_from_parameters,
+    perturbations_from_parameters,
+)
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
@@ -344,7 +349,7 @@ class PlantNode(Node):
         self.limits.check_command(self._initial_command)
         initial_apex = ApexState(float(values["initial_height"]), float(values["initial_forward_speed"]))
         self.limits.check_apex(initial_apex)
-        self.perturbations = Perturbations.from_plant_settings(values)
+        self.perturbations = perturbations_from_parameters(values)
         self.perturbations.check_limits(self.limits)
         self.lockstep = values["clock_mode"] == "lockstep"
         self._max_strides = int(values["max_strides"])

@@ -1,4 +1,5 @@
-"""``tdslip replay RUN [--rate R]``: re-publish a recording on its original topics, like ``ros2 bag play``.
+"""Re-publish a recording on its original topics, like ``ros2 bag play`` (what ``tdslip replay RUN
+[--rate R]`` does).
 
 Every message of the recording (a bag directory or a bare ``.mcap``) is published as the raw CDR
 bytes it was recorded as, in the order of its log (receive) time, and spaced as it was recorded:
@@ -26,17 +27,14 @@ SIGINT or SIGTERM stops it between two messages, also while it waits for the nex
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import math
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import rclpy
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 from rclpy.context import Context
 from rclpy.duration import Duration
@@ -44,13 +42,12 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from tdslip_msgs.msg import RecorderStatus
 
 from tdslip_ros.bag.reader import Bag, BagReadError, TopicInfo, iter_messages, open_bag, verify
 from tdslip_ros.bag.schema import split_type_name
 from tdslip_ros.interfaces import RECORDER_STATUS
-from tdslip_ros.nodes.entry import SPIN_SLICE, spin_until, stop_on_signals
+from tdslip_ros.nodes.entry import SPIN_SLICE, spin_until
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
 from tdslip_ros.nodes.topics import RECORDER_STATUS_QOS
 
@@ -246,56 +243,3 @@ def replay(
         return node.play(rate, stop)
     finally:
         node.destroy_node()
-
-
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tdslip replay", description="Re-publish a recording on its original topics with its timing."
-    )
-    parser.add_argument("run", type=Path, help="bag directory or .mcap file")
-    parser.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1; inf: no delays)")
-    parser.add_argument("--topics", nargs="+", help="replay only these topics (default: all)")
-    parser.add_argument(
-        "--wait-for-subscribers",
-        type=int,
-        default=0,
-        metavar="N",
-        help="first wait for N subscribers per topic (default 0)",
-    )
-    parser.add_argument(
-        "--wait-for-recorder",
-        action="store_true",
-        help="first wait until a recorder_node reports every replayed topic matched",
-    )
-    return parser
-
-
-def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        check_rate(args.rate, checked_bag(args.run))  # before ROS starts and takes the signals
-    except (ReplayError, ValueError) as error:
-        print(f"tdslip replay: {error}", file=sys.stderr)
-        return 1
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    stop = stop_on_signals()
-    try:
-        result = replay(
-            args.run,
-            args.rate,
-            topics=args.topics,
-            wait_for_subscribers=args.wait_for_subscribers,
-            wait_for_recorder=args.wait_for_recorder,
-            stop=stop.is_set,
-        )
-    except (ReplayError, ValueError) as error:
-        print(f"tdslip replay: {error}", file=sys.stderr)
-        return 1
-    finally:
-        rclpy.try_shutdown()
-    counts = ", ".join(f"{topic} {count}" for topic, count in result.published.items())
-    state = "stopped" if result.stopped else "done"
-    print(f"replay {state} in {result.duration:.3f} s: {counts}")
-    if not result.acknowledged:
-        print("warning: not every reliable subscriber acknowledged every message", file=sys.stderr)
-    return 0

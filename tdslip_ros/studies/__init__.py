@@ -6,7 +6,8 @@
 * :mod:`.table`: the Parquet table, one file per chunk;
 * :mod:`.engine`: the Dask client (a local cluster by default, or ``--scheduler``), chunks written as
   they arrive, ``--resume``, retries, progress;
-* :mod:`.sweep` and :mod:`.robustness`: the ``tdslip sweep`` and ``tdslip robustness`` commands.
+* :mod:`.sweep` and :mod:`.robustness`: the studies of ``tdslip sweep`` and ``tdslip robustness``
+  (their command lines: :mod:`tdslip_ros.commands`).
 
-No ROS here: the package uses the model core only.
+No ROS here: the package uses the model core, and the output and style of :mod:`tdslip_ros.reporting`.
 """

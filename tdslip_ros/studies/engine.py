@@ -18,7 +18,6 @@ on top of the worker process with numpy, scipy, pyarrow and Dask (about 170 MB).
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import itertools
 import logging
@@ -300,34 +299,6 @@ def compute(client: Client, calls: Sequence[Call], progress: Progress | None = N
 def _call_key(name: str, args: tuple[Any, ...]) -> str:
     digest = hashlib.sha256(repr(args).encode()).hexdigest()[:16]
     return f"tdslip-{name}-{digest}"
-
-
-def add_arguments(parser: argparse.ArgumentParser, resume: bool = True) -> None:
-    """The options of the commands that run on the engine: where, and (for studies) --resume."""
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="an existing Dask cluster's scheduler")
-    where.add_argument(
-        "--workers", type=positive_int, help="worker processes of the local cluster (default: one per core)"
-    )
-    if resume:
-        parser.add_argument(
-            "--resume", action="store_true", help="complete an interrupted run in the same --out"
-        )
-
-
-def positive_int(text: str) -> int:
-    """A positive integer option (argparse type)."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
-
-
-def where_of(args: argparse.Namespace) -> Where:
-    return Where(scheduler=args.scheduler, workers=args.workers)
 
 
 def run_studies(

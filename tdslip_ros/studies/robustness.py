@@ -1,40 +1,15 @@
-"""``tdslip robustness``: how large a perturbation each policy survives, on the study engine.
-
-    tdslip robustness --out DIR [--samples 30] [--strides 50] [--policies open_loop energy ...]
-                      [--kinds terrain noise mismatch step] [--touchdown-angle 26] [--energy 3.5]
-                      [--mismatch-field stiffness] [--seed 0] [--resume]
-                      [--scheduler tcp://HOST:PORT | --workers N]
-
-Every policy starts at the same operating point and would hop there on flat ground: the exact plant's fixed
-point under energy regulation at the touchdown angle beta (``--touchdown-angle``, deg) with the goal energy
-Ebar (``--energy``, E/(m g r0)). energy and energy_exact aim at that energy (planned on the analytic map,
-energy's fixed point is within 1 % of it; energy_exact, which holds it exactly, settles from there within a
-few strides), open_loop applies the hip power at touchdown that energy regulation applies there, deadbeat
-and pd aim at the fixed point's apex (pd with its default gains). Each kind of perturbation is one study
-(DIR/terrain, ...): a grid of policy x size with ``--samples`` trajectories per cell, each with its own
-random draws (seeds from the trajectory index); the closed loop keeps the command in force where a policy
-has none, as the plant node does (:mod:`tdslip_ros.studies.perturbed`):
-
-* terrain: random blocks 0.5 m long from x = 1 m, heights with standard deviation sigma (the size, cm);
-* noise: the apex the controller sees, with standard deviations s r0 in height and s sqrt(g r0) in speed
-  (the size s);
-* mismatch: the controller plans with the hopper's stiffness (``--mismatch-field``) times a factor (the
-  size);
-* step: a single step down of the size (m) at a position drawn in [1, 4] m (one stride at the operating
-  point).
-
-A trajectory survives when it hops ``--strides`` strides. Written to DIR: ``robustness.png`` (the fraction
-surviving, per kind and policy, against the size), ``strides.png`` (the median strides survived),
-``spread.png`` (the spread of the apex heights of the survivors: the median over them of each one's
-standard deviation), ``failures.png`` (the failure kinds), ``summary.csv`` (one row per kind, size and
-policy), ``robustness.md`` (per kind and policy the sizes all and half the trajectories survive, from the
-unperturbed size on, and the failure kinds) and ``summary.json``; every trajectory's row is in
-DIR/<kind>/table.
+"""How large a perturbation each policy survives (``tdslip robustness``), as studies on the engine: every
+policy starts at energy regulation's flat-ground fixed point (the operating point, :func:`operating_point`),
+and each kind of perturbation (:data:`KINDS`: rough terrain, sensor noise, model mismatch, a step down) is
+one study, a grid of policy x size with samples per cell (:func:`studies`). A trajectory survives when it
+hops all its strides. Written: the fraction surviving, the median strides survived, the spread of the
+survivors' apex heights and the failure kinds per kind, size and policy (``robustness.png``, ``strides.png``,
+``spread.png``, ``failures.png``, ``summary.csv``, ``summary.json``), and per kind and policy the sizes all
+and half the trajectories survive (``robustness.md``).
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 from dataclasses import dataclass
@@ -49,29 +24,19 @@ import numpy as np
 import pyarrow as pa
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.report import output_directory, to_json
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import FAILURE_KINDS
-from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.policies import POLICIES, PolicySpec
+from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.reporting.output import output_directory, to_json
+from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
 from tdslip_ros.studies import chunk, engine, table
-from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform
-from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
 
-DPI = 120
 SETTLING_STRIDES = 30
 """Flat-ground strides of energy regulation to its fixed point, the operating point (|lambda| << 1)."""
 STEP_POSITIONS = Uniform(1.0, 4.0)
 """Where the step down is, m: over about one stride at the operating point."""
-COLOURS = {
-    "open_loop": "tab:orange",
-    "energy": "tab:blue",
-    "energy_exact": "tab:purple",
-    "deadbeat": "tab:red",
-    "pd": "tab:green",
-}
 FAILURES = tuple(kind.value for kind in FAILURE_KINDS) + ("no_command",)
 FAILURE_COLOURS = dict(zip(FAILURES, matplotlib.colormaps["tab10"].colors, strict=False))
 
@@ -166,7 +131,8 @@ def studies(
     seed: int,
     mismatch_field: str,
 ) -> dict[str, Study]:
-    """One study per kind (module docstring)."""
+    """One study per kind: a grid of policy x size, ``samples`` trajectories per cell with their own draws,
+    from the operating point (the sizes of each kind as ``tdslip robustness --help`` describes them)."""
     made = {}
     for name in kinds:
         axis, values = KINDS[name].axis(name, params, mismatch_field)
@@ -247,7 +213,7 @@ def draw(
                 [r["size"] for r in points],
                 [r[value] for r in points],
                 "o-",
-                color=COLOURS.get(policy),
+                color=POLICY_COLOURS.get(policy),
                 label=policy,
                 ms=3,
             )
@@ -311,101 +277,73 @@ def _size_text(sizes: list[float] | None) -> str:
     return "none" if sizes is None else f"{sizes[0]:g} to {sizes[1]:g}"
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
-        prog="tdslip robustness", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--out", type=Path, required=True, help="directory for the tables, figures and summary"
-    )
-    parser.add_argument(
-        "--samples", type=engine.positive_int, default=30, help="trajectories per size and policy"
-    )
-    parser.add_argument(
-        "--strides", type=engine.positive_int, default=50, help="strides that count as surviving"
-    )
-    parser.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES))
-    parser.add_argument("--kinds", nargs="+", choices=list(KINDS), default=list(KINDS))
-    parser.add_argument(
-        "--touchdown-angle", type=float, default=26.0, help="beta of the operating point [deg]"
-    )
-    parser.add_argument("--energy", type=float, default=3.5, help="apex energy Ebar of the operating point")
-    parser.add_argument(
-        "--mismatch-field",
-        choices=[name.removeprefix("mismatch_") for name in MISMATCH_PARAMETERS],
-        default="stiffness",
-    )
-    parser.add_argument(
-        "--seed", type=int, default=0, help="of every random draw (with the trajectory index)"
-    )
-    engine.add_arguments(parser)
-    args = parser.parse_args(argv)
-    kinds, policies = list(dict.fromkeys(args.kinds)), list(dict.fromkeys(args.policies))
-
-    def produce() -> None:
-        params = PAPER_PARAMS
-        if not 0.0 < args.touchdown_angle < 90.0:
-            raise StudyError(f"--touchdown-angle must be in (0, 90) deg, got {args.touchdown_angle:g}")
-        point = operating_point(
-            params, math.radians(args.touchdown_angle), units.energy_from_bar(params, args.energy)
-        )
-        made = studies(
-            kinds, policies, point, params, args.samples, args.strides, args.seed, args.mismatch_field
-        )
-        output_directory(args.out)
-        tables = engine.run_studies(made, args.out, engine.where_of(args), args.resume, "robustness")
-        summary = [row for name in kinds for row in summarise(name, made[name], tables[name])]
-        figures = {
-            "robustness": draw(
-                summary,
-                kinds,
-                policies,
-                "surviving",
-                f"fraction surviving {args.strides} strides",
-                "survival",
-            ),
-            "strides": draw(
-                summary, kinds, policies, "median_strides", "median strides survived", "strides survived"
-            ),
-            "spread": draw(
-                summary,
-                kinds,
-                policies,
-                "apex_height_spread",
-                "apex height spread [m] (survivors' median std)",
-                "spread of the apex heights",
-            ),
-            "failures": draw_failures(summary, kinds, policies),
-        }
-        for name, figure in figures.items():
-            figure.tight_layout()
-            figure.savefig(args.out / f"{name}.png", dpi=DPI)
-        with (args.out / "summary.csv").open("w", newline="") as stream:
-            writer = csv.DictWriter(stream, fieldnames=list(summary[0]))
-            writer.writeheader()
-            writer.writerows(summary)
-        (args.out / "robustness.md").write_text(markdown(summary, kinds, policies, args.strides))
-        document = {
-            "operating_point": {"y": point.y, "xdot": point.xdot, **point.settings},
-            "samples": args.samples,
-            "strides": args.strides,
-            "sizes": {kind: {"label": KINDS[kind].label, "sizes": list(KINDS[kind].sizes)} for kind in kinds},
-            "sizes_survived": {
-                kind: {
-                    policy: {
-                        "all": survived_range(summary, kind, policy, 1.0),
-                        "half": survived_range(summary, kind, policy, 0.5),
-                    }
-                    for policy in policies
+def write_robustness(
+    out: Path,
+    params: HopperParams,
+    beta: float,
+    energy: float,
+    kinds: list[str],
+    policies: list[str],
+    samples: int,
+    strides: int,
+    seed: int,
+    mismatch_field: str,
+    where: engine.Where,
+    resume: bool,
+) -> None:
+    """Run one study per kind from the operating point at touchdown angle beta [rad] and apex energy [J]
+    into ``out/<kind>`` on the engine ``where``, and write the figures, summary.csv, robustness.md and
+    summary.json to ``out`` (the module docstring)."""
+    point = operating_point(params, beta, energy)
+    made = studies(kinds, policies, point, params, samples, strides, seed, mismatch_field)
+    output_directory(out)
+    tables = engine.run_studies(made, out, where, resume, "robustness")
+    summary = [row for name in kinds for row in summarise(name, made[name], tables[name])]
+    figures = {
+        "robustness": draw(
+            summary,
+            kinds,
+            policies,
+            "surviving",
+            f"fraction surviving {strides} strides",
+            "survival",
+        ),
+        "strides": draw(
+            summary, kinds, policies, "median_strides", "median strides survived", "strides survived"
+        ),
+        "spread": draw(
+            summary,
+            kinds,
+            policies,
+            "apex_height_spread",
+            "apex height spread [m] (survivors' median std)",
+            "spread of the apex heights",
+        ),
+        "failures": draw_failures(summary, kinds, policies),
+    }
+    for name, figure in figures.items():
+        figure.tight_layout()
+        figure.savefig(out / f"{name}.png", dpi=DPI)
+    with (out / "summary.csv").open("w", newline="") as stream:
+        writer = csv.DictWriter(stream, fieldnames=list(summary[0]))
+        writer.writeheader()
+        writer.writerows(summary)
+    (out / "robustness.md").write_text(markdown(summary, kinds, policies, strides))
+    document = {
+        "operating_point": {"y": point.y, "xdot": point.xdot, **point.settings},
+        "samples": samples,
+        "strides": strides,
+        "sizes": {kind: {"label": KINDS[kind].label, "sizes": list(KINDS[kind].sizes)} for kind in kinds},
+        "sizes_survived": {
+            kind: {
+                policy: {
+                    "all": survived_range(summary, kind, policy, 1.0),
+                    "half": survived_range(summary, kind, policy, 0.5),
                 }
-                for kind in kinds
-            },
-            "rows": summary,
-        }
-        (args.out / "summary.json").write_text(to_json(document))
-
-    status = run_study_command("robustness", args.out, produce)
-    if status:
-        return status
-    print((args.out / "robustness.md").read_text(), end="")
-    return 0
+                for policy in policies
+            }
+            for kind in kinds
+        },
+        "rows": summary,
+    }
+    (out / "summary.json").write_text(to_json(document))

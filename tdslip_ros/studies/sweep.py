@@ -1,29 +1,10 @@
-"""``tdslip sweep``: the exact plant's basins (figs. 7 and 10) and parameter dependence (fig. 11) at any
-resolution, on the study engine (a local Dask cluster, or ``--scheduler``).
-
-    tdslip sweep fig07|fig10|fig11 --out DIR [--grid AxB] [--strides N] [--chunk-size N]
-                 [--scheduler tcp://HOST:PORT | --workers N] [--resume]
-
-* fig07: open loop at beta = 26 deg, a grid of touchdown powers alpha in [0.5, 2.5] x initial heights ybar0
-  from r0 cos(beta) + 5 mm to 2.4, each starting on the energy fixed point E*(y0) of eq. 27 (fig. 7(a));
-  150 strides. ``--grid`` is alphas x heights (default 17x20, ``tdslip figures``' resolution).
-* fig10: the goal regulator (each trajectory's initial energy is its goal) at beta = 26 deg, initial
-  energies Ebar0 in [2, 6] x heights ybar0 from r0 cos(beta) + 2 mm to 2.4; 50 strides. ``--grid`` is
-  energies x heights (default 21x20; 1000x1000 is a million trajectories).
-* fig11: the fixed points the goal regulator's exact plant reaches as beta (20..30 deg), kbar (20..52) and
-  zeta0 (0.04..0.16) vary, fig. 11's values: one study per parameter (DIR/beta_deg, DIR/kbar, DIR/zeta0),
-  each a grid of goal energies Ebar in [0.8, 14] x initial heights ybar0 in [1, 2] per value; 50 strides.
-  ``--grid`` is energies x heights (default 57x3).
-
-Each study directory holds the table (``table/``, Parquet, one row per trajectory: see
-:mod:`tdslip_ros.studies.table`) and ``study.json``; DIR gets the figure (``fig07.png``, ...) and
-``summary.json`` (outcome counts, and the fixed points reached: per grid row, the median over the converged
-trajectories, dimensionless). ``--resume`` completes an interrupted sweep, computing only missing chunks.
+"""The sweeps of the paper's basins (figs. 7 and 10) and parameter dependence (fig. 11) as studies at any
+resolution (``tdslip sweep``): how each builds its studies on the grids of
+:mod:`tdslip_ros.reporting.paper_grids`, draws their tables, and writes its figure and summary.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,23 +20,22 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from matplotlib.figure import Figure
 
-from tdslip_ros.analysis.figures import (
-    DPI,
-    EXACT,
+from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.reporting.output import output_directory, to_json
+from tdslip_ros.reporting.paper_grids import (
+    BASIN_BETA_DEG,
     FIG11_STUDIES,
-    PARAMS,
-    STABLE,
-    basin_colour_map,
-    basin_colours,
+    fig07_grid,
+    fig10_grid,
+    fig11_energies_bar,
     row_median,
 )
-from tdslip_ros.analysis.report import output_directory, to_json
-from tdslip_ros.model import basins, stability, units
+from tdslip_ros.reporting.style import DPI, EXACT, STABLE, basin_colour_map, basin_colours
 from tdslip_ros.studies import engine, table
-from tdslip_ros.studies.command import run_study_command
 from tdslip_ros.studies.design import Study
 
-BETA_DEG = 26.0
+PARAMS = PAPER_PARAMS
 
 
 @dataclass(frozen=True)
@@ -81,18 +61,11 @@ def _chunked(chunk_size: int | None, size: int) -> int:
 # --- fig. 7: the open loop --------------------------------------------------------------------------
 
 
-def _fig07_axes(grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    beta = math.radians(BETA_DEG)
-    alphas = np.linspace(0.5, 2.5, grid[0])
-    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.005, 2.4, grid[1])
-    return alphas, heights
-
-
 def fig07_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
-    alphas, heights = _fig07_axes(grid)
+    alphas, heights = fig07_grid(*grid)
     study = Study.of(
         grid={"touchdown_power": units.power_from_alpha(PARAMS, alphas), "y0": heights},
-        fixed={"policy": "open_loop", "touchdown_angle": math.radians(BETA_DEG)},
+        fixed={"policy": "open_loop", "touchdown_angle": math.radians(BASIN_BETA_DEG)},
         start="open_loop_fixed_point",
         strides=strides,
         chunk_size=_chunked(chunk_size, alphas.size * heights.size),
@@ -113,7 +86,7 @@ def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     axes.set(
         xlabel="alpha",
         ylabel="ybar0 (E0 = E*(y0))",
-        title=f"exact plant, open loop, beta = {BETA_DEG:g} deg, {study.strides} strides "
+        title=f"exact plant, open loop, beta = {BASIN_BETA_DEG:g} deg, {study.strides} strides "
         "(blue: converged, lighter later; pale: sustained; white: failed)",
     )
     axes.legend(fontsize=7)
@@ -129,9 +102,9 @@ def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
 
 
 def fig10_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
-    beta = math.radians(BETA_DEG)
-    energies = units.energy_from_bar(PARAMS, np.linspace(2.0, 6.0, grid[0]))
-    heights = np.linspace(stability.infeasible_height(PARAMS, beta) + 0.002, 2.4, grid[1])
+    beta = math.radians(BASIN_BETA_DEG)
+    energies_bar, heights = fig10_grid(*grid)
+    energies = units.energy_from_bar(PARAMS, energies_bar)
     study = Study.of(
         grid={"energy0": energies, "y0": heights},
         fixed={"policy": "energy", "touchdown_angle": beta},
@@ -153,7 +126,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     axes.plot(energies_bar, fixed, "-", color=EXACT, lw=2, label="exact plant, fixed point reached (median)")
     fine = np.linspace(energies_bar[0], energies_bar[-1], 4 * energies_bar.size)
     analytic = stability.regulated_fixed_points(
-        PARAMS, math.radians(BETA_DEG), units.energy_from_bar(PARAMS, fine)
+        PARAMS, math.radians(BASIN_BETA_DEG), units.energy_from_bar(PARAMS, fine)
     )
     x, y, stable = np.broadcast_arrays(
         fine[:, None], units.height_to_bar(PARAMS, analytic.y), analytic.stable
@@ -162,7 +135,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     axes.set(
         xlabel="Ebar (initial energy = goal)",
         ylabel="ybar (basin: initial ybar0)",
-        title=f"goal regulator on the exact plant, beta = {BETA_DEG:g} deg, {study.strides} strides "
+        title=f"goal regulator on the exact plant, beta = {BASIN_BETA_DEG:g} deg, {study.strides} strides "
         "(blue: converged, lighter later; pale: sustained; white: failed or no such apex)",
     )
     axes.legend(fontsize=7)
@@ -177,7 +150,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
 
 
 def fig11_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
-    energies_bar = np.linspace(0.8, 14.0, grid[0])
+    energies_bar = fig11_energies_bar(grid[0])
     heights = np.linspace(1.0, 2.0, grid[1]) * PARAMS.r0
     studies = {}
     for name, values in FIG11_STUDIES.items():
@@ -276,62 +249,37 @@ def outcome_counts(rows: pa.Table) -> dict[str, int]:
     return counts
 
 
-def grid_size(text: str) -> tuple[int, int]:
-    """``AxB`` as two positive ints (argparse type)."""
-    parts = text.lower().split("x")
-    try:
-        sizes = tuple(int(part) for part in parts)
-    except ValueError:
-        sizes = ()
-    if len(sizes) != 2 or min(sizes) < 1:
-        raise argparse.ArgumentTypeError(f"expected two positive counts like 1000x1000, got {text!r}")
-    return sizes[0], sizes[1]
-
-
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
-        prog="tdslip sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("sweep", choices=list(SWEEPS), help="which figure's sweep")
-    parser.add_argument("--out", type=Path, required=True, help="directory for the table, figure and summary")
-    parser.add_argument("--grid", type=grid_size, help="resolution AxB (see above)")
-    parser.add_argument("--strides", type=engine.positive_int, help="strides per trajectory")
-    parser.add_argument(
-        "--chunk-size", type=engine.positive_int, help="trajectories per chunk (default: from the size)"
-    )
-    engine.add_arguments(parser)
-    args = parser.parse_args(argv)
-    sweep = SWEEPS[args.sweep]
-
-    def produce() -> None:
-        studies = sweep.studies(args.grid or sweep.grid, args.strides or sweep.strides, args.chunk_size)
-        output_directory(args.out)
-        tables = engine.run_studies(
-            studies, args.out, engine.where_of(args), args.resume, f"sweep {args.sweep}"
-        )
-        figure, data = sweep.draw(studies, tables)
-        figure.tight_layout()
-        figure.savefig(args.out / f"{args.sweep}.png", dpi=DPI)
-        summary = {
-            "sweep": args.sweep,
-            "grid": list(args.grid or sweep.grid),
-            "studies": {
-                name or args.sweep: {
-                    "directory": str(args.out / name),
-                    "trajectories": study.size,
-                    "strides": study.strides,
-                    "outcome_counts": outcome_counts(tables[name]),
-                }
-                for name, study in studies.items()
-            },
-            **data,
-        }
-        (args.out / "summary.json").write_text(to_json(summary))
-
-    status = run_study_command("sweep", args.out, produce)
-    if status:
-        return status
-    print(
-        f"tdslip sweep: {args.out / (args.sweep + '.png')}, {args.out / 'summary.json'}, tables in {args.out}"
-    )
-    return 0
+def write_sweep(
+    name: str,
+    out: Path,
+    grid: tuple[int, int] | None,
+    strides: int | None,
+    chunk_size: int | None,
+    where: engine.Where,
+    resume: bool,
+) -> None:
+    """Run the sweep ``name`` (:data:`SWEEPS`; its default grid and strides where None) into study
+    directories under ``out`` on the engine ``where``, then write its figure (``out/<name>.png``) and
+    ``out/summary.json``."""
+    sweep = SWEEPS[name]
+    studies = sweep.studies(grid or sweep.grid, strides or sweep.strides, chunk_size)
+    output_directory(out)
+    tables = engine.run_studies(studies, out, where, resume, f"sweep {name}")
+    figure, data = sweep.draw(studies, tables)
+    figure.tight_layout()
+    figure.savefig(out / f"{name}.png", dpi=DPI)
+    summary = {
+        "sweep": name,
+        "grid": list(grid or sweep.grid),
+        "studies": {
+            study_name or name: {
+                "directory": str(out / study_name),
+                "trajectories": study.size,
+                "strides": study.strides,
+                "outcome_counts": outcome_counts(tables[study_name]),
+            }
+            for study_name, study in studies.items()
+        },
+        **data,
+    }
+    (out / "summary.json").write_text(to_json(summary))

@@ -1,0 +1,102 @@
+"""``tdslip analyze RUN [--out DIR]``: compare a recorded run with the analytic map, write the summary JSON,
+the figures and the report (:mod:`tdslip_ros.analysis.report`), and print the headline numbers. Policy
+options outside their domain are refused before anything is read."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from tdslip_ros.analysis.reader import RunReadError, read_run
+from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
+from tdslip_ros.model.policies import POLICIES, PolicyError
+from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tdslip analyze", description="Compare a recorded run with the analytic map; write a report."
+    )
+    parser.add_argument("run", type=Path, help="bag directory or .mcap file of a run")
+    parser.add_argument("--out", type=Path, help="report directory (default RUN/report, or next to an .mcap)")
+    parser.add_argument(
+        "--params",
+        type=Path,
+        help="ROS parameter file with the hopper (default: stored in the bag, or inferred)",
+    )
+    parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
+    policy = parser.add_argument_group(
+        "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
+        "a recorded policy the package does not know is not replayed)"
+    )
+    policy.add_argument("--policy", dest="name", choices=POLICIES)
+    policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy, energy_exact)")
+    policy.add_argument("--touchdown-power", type=float, help="hip power at touchdown [W] (open_loop)")
+    policy.add_argument(
+        "--target-energy", type=float, help="[J] (energy, energy_exact; default: initial apex energy)"
+    )
+    policy.add_argument("--target-height", type=float, help="[m] (deadbeat, pd)")
+    policy.add_argument("--target-speed", type=float, help="[m/s] (deadbeat, pd)")
+    policy.add_argument("--pd-kp", type=float, help="[rad/(m/s)] (pd)")
+    policy.add_argument("--pd-kd", type=float, help="[rad/(m/s)] (pd)")
+    policy.add_argument(
+        "--corrections", type=int, help="analytic-map corrections the controller planned with"
+    )
+    return parser
+
+
+POLICY_OPTION_DOMAINS: dict[str, tuple[str, Callable[[float], bool]]] = {
+    "angle": ("in (0, 90) deg", lambda value: 0.0 < value < 90.0),
+    "touchdown_power": ("a finite power >= 0 W", lambda value: 0.0 <= value < math.inf),
+    "target_energy": ("a finite energy > 0 J", lambda value: 0.0 < value < math.inf),
+    "target_height": ("a finite height > 0 m", lambda value: 0.0 < value < math.inf),
+    "target_speed": ("a finite speed >= 0 m/s", lambda value: 0.0 <= value < math.inf),
+    "pd_kp": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
+    "pd_kd": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
+    "corrections": ("a count >= 0", lambda value: value >= 0),
+}
+"""What each policy option of ``tdslip analyze`` accepts: a value outside its domain has no
+meaning for the policy (NaN commands, an empty fixed point), so it is refused up front."""
+
+
+def check_policy_options(args: argparse.Namespace) -> None:
+    """PolicyError naming the first policy option given outside its domain."""
+    for name, (domain, valid) in POLICY_OPTION_DOMAINS.items():
+        value = getattr(args, name)
+        if value is not None and not valid(value):
+            raise PolicyError(f"--{name.replace('_', '-')} must be {domain}, not {value}")
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    out = args.out or (args.run / "report" if args.run.is_dir() else args.run.with_suffix("") / "report")
+    overrides = {
+        "name": args.name,
+        "touchdown_angle": None if args.angle is None else math.radians(args.angle),
+        "touchdown_power": args.touchdown_power,
+        "target_energy": args.target_energy,
+        "target_height": args.target_height,
+        "target_speed": args.target_speed,
+        "pd_kp": args.pd_kp,
+        "pd_kd": args.pd_kd,
+        "corrections": args.corrections,
+    }
+    try:
+        check_policy_options(args)
+        output_directory(out)
+        params = None if args.params is None else hopper_params_from_yaml(args.params)
+        run = read_run(args.run, params)
+        analysis = analyze(run, out, overrides, args.stride)
+    except (RunReadError, PolicyError, OutputError, ValueError) as error:
+        print(f"tdslip analyze: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:
+        print(f"tdslip analyze: {write_failed(error)}", file=sys.stderr)
+        return 1
+    print(headline(analysis.comparison))
+    figures = sum(1 for path in analysis.files.values() if path.suffix == ".png")
+    print(f"report: {analysis.files['report']} (summary.json and {figures} figures beside it)")
+    return 0

@@ -1,0 +1,146 @@
+"""``tdslip compare``: the deadbeat controller against the PD baseline over desired speeds (paper fig. 13),
+from recorded runs.
+
+For every controller and desired apex speed the node suite runs in lockstep (``tdslip run``'s
+:func:`tdslip_ros.nodes.runner.run`, every run recorded into ``OUT/runs/<controller>-<xdotbar*>``) from the
+same initial apex, for a fixed number of strides, as the paper's 50-step runs; each recording is then
+analysed (:mod:`tdslip_ros.analysis.controller_comparison`). ``OUT/sweep.json`` lists the recorded runs as
+they finish, so ``--analyse-only`` can redo the analysis and figure without running anything;
+``OUT/comparison.json`` holds the results and ``OUT/tracking_error.png`` the figure. The recording step
+needs ROS 2 (rclpy); the analysis does not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from tdslip_ros.analysis.controller_comparison import (
+    CONTROLLERS,
+    SweepRun,
+    analyse_run,
+    load_sweep,
+    plot_tracking,
+    save_sweep,
+    stable_range,
+    table,
+)
+from tdslip_ros.analysis.reader import RunReadError
+from tdslip_ros.model import units
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.reporting.output import OutputError, output_directory, to_json, write_failed
+
+DEFAULT_SPEEDS = tuple(float(v) for v in np.round(np.arange(0.5, 3.001, 0.25), 3))
+"""Desired apex speeds xdotbar* of the default sweep (dimensionless)."""
+DEFAULT_STRIDES = 50
+COMMAND_TIMEOUT = 2.0  # s wall: a controller that finds no command ends its run quickly
+
+
+def record_sweep(
+    out: Path,
+    speeds_bar: Sequence[float],
+    target_height: float,
+    strides: int,
+    controllers: Sequence[str] = CONTROLLERS,
+    progress: Callable[[str], None] = print,
+) -> list[SweepRun]:
+    """Run and record every (controller, desired speed) in lockstep; returns the runs (also in MANIFEST)."""
+    # Imported here so that analysing recorded sweeps (--analyse-only) needs no ROS 2 installation.
+    from tdslip_ros.nodes.runner import RunError, RunOptions, run
+
+    out.mkdir(parents=True, exist_ok=True)
+    runs: list[SweepRun] = []
+    for controller in controllers:
+        for speed_bar in speeds_bar:
+            speed = float(units.speed_from_bar(PAPER_PARAMS, speed_bar))
+            bag = out / "runs" / f"{controller}-xdotbar{speed_bar:.3f}"
+            options = RunOptions(
+                out=bag,
+                strides=strides,
+                policy=controller,
+                target_height=target_height,
+                target_speed=speed,
+                command_timeout=COMMAND_TIMEOUT,
+            )
+            try:
+                report = run(options)
+            except RuntimeError as error:  # RunError, or an rclpy error out of the node suite
+                raise RunError(f"{controller} at xdotbar* = {speed_bar}: {error}") from None
+            if not report.recording_complete:
+                progress(
+                    f"warning: {bag} lost messages: published {report.published}, recorded {report.recorded}"
+                )
+            relative = str(bag.relative_to(out))
+            runs.append(SweepRun(controller, target_height, speed, speed_bar, relative, report.params))
+            save_sweep(out, runs)
+            outcome = report.outcome
+            progress(
+                f"recorded {controller:<8} xdotbar* = {speed_bar:.3f}: {outcome.kind} ({outcome.reason})"
+            )
+    return runs
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tdslip compare",
+        description="Deadbeat vs PD over desired speeds, recorded in lockstep and analysed (paper fig. 13).",
+    )
+    parser.add_argument("--out", type=Path, help="output directory (default runs/compare-<time>)")
+    parser.add_argument(
+        "--speeds", type=float, nargs="+", default=list(DEFAULT_SPEEDS), help="desired apex speeds xdotbar*"
+    )
+    parser.add_argument("--height", type=float, default=1.0, help="desired apex height [m] (default 1)")
+    parser.add_argument("--strides", type=int, default=DEFAULT_STRIDES, help="strides per run (default 50)")
+    parser.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
+    parser.add_argument(
+        "--analyse-only", action="store_true", help="re-analyse the runs listed in OUT/sweep.json"
+    )
+    return parser
+
+
+def check_sweep_options(args: argparse.Namespace) -> None:
+    """ValueError naming the first sweep option that no run can use."""
+    if args.strides < 1:
+        raise ValueError(f"--strides must be at least 1, not {args.strides}")
+    if not 0.0 < args.height < math.inf:
+        raise ValueError(f"--height must be a finite height > 0 m, not {args.height}")
+    bad = [speed for speed in args.speeds if not 0.0 <= speed < math.inf]
+    if bad:
+        raise ValueError(f"--speeds must be finite speeds >= 0, not {', '.join(map(str, bad))}")
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    out = args.out or Path("runs") / f"compare-{datetime.now():%Y%m%d-%H%M%S}"
+    try:
+        if args.analyse_only:
+            entries = load_sweep(out)
+        else:
+            check_sweep_options(args)
+            output_directory(out)
+            entries = record_sweep(out, args.speeds, args.height, args.strides, args.controllers)
+        results = [analyse_run(out, entry) for entry in entries]
+        (out / "comparison.json").write_text(to_json([asdict(r) for r in results]))
+        plot_tracking(results, out / "tracking_error.png")
+    except (RunReadError, OutputError, RuntimeError, ValueError) as error:
+        print(f"tdslip compare: {error}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:  # the progress lines' reader is gone: tdslip's cli.main ends quietly
+        raise
+    except OSError as error:
+        print(f"tdslip compare: {write_failed(error)}", file=sys.stderr)
+        return 1
+    print(table(results))
+    for controller in dict.fromkeys(r.controller for r in results):
+        span = stable_range(results, controller)
+        text = "nowhere" if span is None else f"xdotbar* in [{span[0]:.3f}, {span[1]:.3f}]"
+        print(f"{controller}: tracks its target {text}")
+    print(f"figure: {out / 'tracking_error.png'}; numbers: {out / 'comparison.json'}")
+    return 0

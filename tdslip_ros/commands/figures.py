@@ -1,0 +1,106 @@
+"""``tdslip figures``: the paper's figures 4-11 and 13 from the model core, as PNG plus the numbers as JSON.
+
+    tdslip figures --out DIR [--only fig04 fig10 ranges ...] [--fine]
+                   [--scheduler tcp://HOST:PORT | --workers N]
+
+Each figure is named after the paper's (fig04.png with fig04.json, ...); the JSON holds the numbers drawn
+(dimensionless, eq. 24; NaN as null) and the settings. Parameters: kbar = 36, zeta0 = 0.08, m = 80 kg,
+r0 = 1 m (figs 8-11, 13 and the paper's section V); the open-loop figures 4-7 use them too.
+
+Every analytic fixed point drawn (figs 4-6, 8, 9) is checked on the exact plant
+(:mod:`tdslip_ros.model.exact_stability`, the open-loop rule with the paper's t_f, or the ideal regulator
+energy_exact for the energy-regulated map): red markers are the exact plant's fixed points (filled where
+stable, by their eigenvalues), a red cross marks an analytic fixed point the exact plant does not have.
+At the end the command prints the paper's claims beside ours (:mod:`.paper_comparison`) and writes them to
+DIR/comparison.md; docs/paper.md explains the differences.
+
+* fig04: open loop, beta = 26 deg: (a) energy map E' vs E at alpha = 1.5 for several heights, with the
+  energy fixed points E*(y) (eq. 27); (b) the height section y' vs y on E*(y) for several alpha (eq. 28);
+  (c) the fixed points over alpha with the saddle-node bifurcations.
+* fig05: open-loop fixed points over (alpha, beta): apex height (a), energy (b) and largest eigenvalue
+  modulus (c) of the most stable fixed point; dark green where it is unstable, hatched where there are
+  three.
+* fig06: largest eigenvalue modulus at every open-loop fixed point over alpha, beta = 26 and 32 deg.
+* fig07: exact plant, open loop, beta = 26 deg, up to 150 strides from initial heights y0 on the energy
+  fixed point E*(y0) of eq. 27: outcome per (alpha, y0), analytic fixed points (black: solid stable,
+  dashed unstable), the fixed points the exact plant reaches (red dots) and its fixed points by
+  eigenvalue with the paper's t_f and with t_f = the stance it produces (squares); (b), (c) convergence
+  at alpha = 1 and 1.5 from the green crosses.
+* fig08: energy-regulated height map y' vs y for Ebar = 1..8 and its fixed points over Ebar, beta = 22
+  and 30 deg; grey: kinematically infeasible heights (y < r0 cos beta).
+* fig09: the eigenvalue dy'/dy at those fixed points.
+* fig10: beta = 26 deg, Ebar in [2, 6]: fixed points of the analytic map (black) and of the exact plant
+  under the paper's goal-energy regulator (red line: reached in the basin; markers: by eigenvalue) in apex
+  height (a) and speed (b); blue: the exact plant's basin after 50 strides, lighter for slower
+  convergence.
+* fig11: stable regulated fixed points (xdotbar*, ybar*) as beta, kbar or zeta0 vary (one curve over Ebar
+  per value, circles at its ends, the arrow from the smallest value to the largest); the legend gives each
+  value's stable Ebar range, analytic and on the exact plant (energy_exact).
+* ranges: the stable Ebar ranges at beta = 20, 22, 26, 30 deg: the paper's, the analytic map's, and the
+  exact plant's under the paper's goal regulator (energy) and the ideal one (energy_exact).
+* fig13: deadbeat against the PD baseline on the exact plant, 50 strides per desired speed from the apex
+  (1 m, 5 m/s) towards (1 m, xdot*): final speed and height errors in percent; crosses where a controller
+  loses stability (fails, or does not converge to 1e-4). The JSON adds deadbeat towards y* = 0.95 m.
+
+The sweeps that take the time (the exact plant's stable ranges, fixed points and basins: the @shared
+computations of :func:`shared_work`) run first, as tasks on the study engine
+(:mod:`tdslip_ros.studies.engine`: a local cluster of one worker process per core, or ``--scheduler``), the
+longest first; the figures then draw from their results. Each task is the very call the figure would make,
+so the numbers do not depend on where it ran. Defaults take some ten minutes of CPU (the exact-plant checks
+and ranges most of it); ``--fine`` uses the paper's resolutions. Progress goes to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from tdslip_ros.analysis import paper_comparison
+from tdslip_ros.analysis.figures.catalogue import FIGURES, compute_shared, shared_work, write_figure
+from tdslip_ros.analysis.figures.common import DEFAULT, FINE, PARAMS, Resolution
+from tdslip_ros.analysis.figures.shared import SHARED
+from tdslip_ros.commands.study_command import add_engine_arguments, where_of
+from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
+from tdslip_ros.studies import engine
+
+
+def precompute(names: Sequence[str], resolution: Resolution, where: engine.Where) -> None:
+    """Run the figures' sweeps (:func:`~tdslip_ros.analysis.figures.catalogue.shared_work`) as tasks on the
+    study engine, in parallel; the figures then draw from their results. Each task brings back every shared
+    result it made."""
+    work = shared_work(names, resolution)
+    if not work:
+        return
+    calls: list[engine.Call] = [(name, compute_shared, (name, args)) for name, args in work]
+    with engine.connect(where) as client:
+        for entries in engine.compute(client, calls, engine.Progress("figures", "sweeps")):
+            SHARED.store(entries)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="tdslip figures", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--out", type=Path, required=True, help="directory for the PNG and JSON files")
+    parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures")
+    parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
+    add_engine_arguments(parser, resume=False)
+    args = parser.parse_args(argv)
+    try:
+        output_directory(args.out)
+        resolution = FINE if args.fine else DEFAULT
+        names = args.only or list(FIGURES)
+        precompute(names, resolution, where_of(args))
+        documents = {name: write_figure(name, args.out, resolution) for name in names}
+        table = paper_comparison.rows(documents, PARAMS)
+        (args.out / "comparison.md").write_text(paper_comparison.markdown(table))
+    except (OutputError, engine.EngineError) as error:
+        print(f"tdslip figures: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:
+        print(f"tdslip figures: {write_failed(error)}", file=sys.stderr)
+        return 1
+    print(paper_comparison.text(table), end="")
+    return 0

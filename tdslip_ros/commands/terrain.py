@@ -1,0 +1,75 @@
+"""``tdslip terrain``: energy regulation against open loop over the same rough ground (the README figure).
+
+Both policies hop the 1 kHz plant (:class:`~tdslip_ros.model.stepper.FixedStepStepper`, the plant node's
+physics) over the same random blocks (:class:`~tdslip_ros.model.terrain.Blocks`), each apex answered as the
+controller node answers it: the policy planned on the measured apex above the ground of the last stance.
+Energy regulation (section IV.A) holds the apex energy above the ground at that of ``--height`` and
+``--speed``; both start at its fixed point on flat ground, and open loop (section III) applies the fixed
+hip power C at touchdown that energy regulation applies there. On flat ground the two would therefore hop
+identically forever; blocks start at ``--start``, so what differs is the terrain's doing.
+
+The figure shows the centre-of-mass paths over the ground and the apex energy above the ground per
+stride; the run ends at ``--strides`` apexes or a failure (marked). The same runs are recorded by the
+node suite with ``tdslip run --terrain blocks:... --policy energy`` (or ``open_loop --angle``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from tdslip_ros.analysis.rough_terrain import LABELS, draw, hop, policies
+from tdslip_ros.model import units
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, ParameterError
+from tdslip_ros.model.perturbations import Perturbations
+from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="tdslip terrain", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("docs/rough_terrain.png"), help="the PNG to write")
+    parser.add_argument("--sigma", type=float, default=0.03, help="block heights' standard deviation [m]")
+    parser.add_argument("--length", type=float, default=0.5, help="block length [m]")
+    parser.add_argument("--seed", type=int, default=1, help="terrain seed")
+    parser.add_argument("--start", type=float, default=2.0, help="where the blocks begin [m]")
+    parser.add_argument("--strides", type=int, default=40, help="apexes to hop (default 40)")
+    parser.add_argument(
+        "--angle",
+        type=float,
+        default=22.0,
+        help="touchdown angle [deg] (default 22: about 10 cm of toe clearance)",
+    )
+    parser.add_argument("--height", type=float, default=1.0, help="initial apex [m]")
+    parser.add_argument("--speed", type=float, default=5.0, help="initial apex [m/s]")
+    args = parser.parse_args(argv)
+    try:
+        if args.strides < 1:
+            raise ParameterError(f"--strides must be at least 1, got {args.strides}")
+        if not 0.0 < args.angle < 90.0:
+            raise ParameterError(f"--angle must be in (0, 90) deg, got {args.angle}")
+        blocks = Blocks(args.sigma, args.length, args.seed, args.start)
+        apex = ApexState(args.height, args.speed)
+        params = PAPER_PARAMS
+        start, specs = policies(params, apex, math.radians(args.angle))
+        output_directory(args.out.parent)
+        ground = Perturbations(terrain=blocks)
+        hops = [hop(params, spec, start, ground, args.strides) for spec in specs.values()]
+        draw(params, blocks, hops, args.out)
+    except (ParameterError, OutputError) as error:
+        print(f"tdslip terrain: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        print(f"tdslip terrain: {write_failed(error)}", file=sys.stderr)
+        return 1
+    for h in hops:
+        ended = "all strides" if h.failure is None else f"{h.failure.value} after {len(h.apexes) - 1} strides"
+        spread = np.ptp(np.array(h.energies)) / units.energy_scale(params)
+        print(f"{LABELS[h.policy]:<30} {ended}; apex energy above ground spans {spread:.4f} (Ebar)")
+    print(f"figure: {args.out}")
+    return 0

@@ -1,0 +1,39 @@
+"""How the figures of the commands look, defined once: resolution, the colours that mean the same in every
+figure, and the colouring of a basin by outcome and convergence stride."""
+
+from __future__ import annotations
+
+import matplotlib
+import numpy as np
+from matplotlib.colors import ListedColormap
+
+from tdslip_ros.model import basins
+from tdslip_ros.model.arrays import Array
+
+DPI = 120
+"""Dots per inch of every PNG the commands write."""
+
+STABLE, UNSTABLE, EXACT, START = "black", "0.45", "tab:red", "tab:green"
+"""The paper's figures: analytic fixed points (stable, unstable), the exact plant's, and start markers."""
+CONTROLLER_STYLE = {"deadbeat": ("tab:blue", "-"), "pd": ("tab:green", "--")}
+"""Colour and line style of the deadbeat controller and the PD baseline (fig. 13, ``tdslip compare``)."""
+POLICY_COLOURS = {
+    "open_loop": "tab:orange",
+    "energy": "tab:blue",
+    "energy_exact": "tab:purple",
+    "deadbeat": "tab:red",
+    "pd": "tab:green",
+}
+"""Colour of each policy where policies are compared over perturbations (robustness, rough terrain)."""
+
+
+def basin_colours(outcome: Array, convergence_stride: Array, strides: int) -> Array:
+    """Colour index per lane (basins.OUTCOMES indices): convergence stride (0..strides) where converged,
+    strides + 1 sustained, NaN for failures and impossible starts (drawn white)."""
+    colour = np.where(outcome == basins.CONVERGED, convergence_stride, np.nan)
+    return np.where(outcome == basins.SUSTAINED, strides + 1, colour)
+
+
+def basin_colour_map(strides: int) -> ListedColormap:
+    shades = matplotlib.colormaps["Blues_r"](np.linspace(0.15, 0.85, strides + 1))
+    return ListedColormap(np.vstack([shades, [[0.85, 0.9, 0.95, 1.0]]]))
