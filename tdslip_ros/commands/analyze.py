@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -13,7 +14,7 @@ from pathlib import Path
 from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
 from tdslip_ros.model.policies import POLICIES, PolicyError
-from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
+from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -84,17 +85,20 @@ def main(argv: list[str]) -> int:
         "pd_kd": args.pd_kd,
         "corrections": args.corrections,
     }
+    created = not out.exists()
     try:
+        # Everything that can be checked is, before the report folder comes into being.
         check_policy_options(args)
-        output_directory(out)
+        check_output_directory(out)
         params = None if args.params is None else hopper_params_from_yaml(args.params)
         run = read_run(args.run, params)
+        output_directory(out)
         analysis = analyze(run, out, overrides, args.stride)
-    except (RunReadError, PolicyError, OutputError, ValueError) as error:
-        print(f"tdslip analyze: {error}", file=sys.stderr)
-        return 1
-    except OSError as error:
-        print(f"tdslip analyze: {write_failed(error)}", file=sys.stderr)
+    except (RunReadError, PolicyError, OutputError, ValueError, OSError) as error:
+        if created and out.is_dir():
+            shutil.rmtree(out)  # a failed analysis leaves the file system as it found it
+        message = write_failed(error) if isinstance(error, OSError) else str(error)
+        print(f"tdslip analyze: {message}", file=sys.stderr)
         return 1
     print(headline(analysis.comparison))
     figures = sum(1 for path in analysis.files.values() if path.suffix == ".png")

@@ -8,6 +8,7 @@ does not break the others. A closed output pipe ends every one of them the same 
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import os
 import signal
@@ -43,7 +44,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if args else 2
     name, rest = args[0], args[1:]
     if name not in SUBCOMMANDS:
-        print(f"tdslip: unknown command {name!r}; try 'tdslip --help'", file=sys.stderr)
+        closest = difflib.get_close_matches(name, SUBCOMMANDS, n=1)
+        hint = f"did you mean '{closest[0]}'? " if closest else ""
+        print(f"tdslip: unknown command {name!r}; {hint}try 'tdslip --help'", file=sys.stderr)
         return 2
     module = importlib.import_module(f"{__package__}.{name}")
     try:

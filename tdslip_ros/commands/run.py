@@ -21,7 +21,7 @@ from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, P
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
 from tdslip_ros.nodes.entry import stop_on_signals
 from tdslip_ros.nodes.plant_node import CLOCK_MODES
-from tdslip_ros.nodes.runner import RunError, RunOptions, run
+from tdslip_ros.nodes.runner import RunError, RunOptionError, RunOptions, run
 
 
 def apex_table(params: HopperParams, apexes: list[ApexEvent], ground: bool = False) -> str:
@@ -137,7 +137,7 @@ def perturbations_of(args: argparse.Namespace) -> Perturbations:
             mismatch=mismatch or defaults.mismatch,
         )
     except ParameterError as error:
-        raise RunError(str(error)) from None
+        raise RunOptionError(str(error)) from None
 
 
 def main(argv: list[str]) -> int:
@@ -147,7 +147,7 @@ def main(argv: list[str]) -> int:
         perturbations = perturbations_of(args)
     except RunError as error:
         print(f"tdslip run: {error}", file=sys.stderr)
-        return 1
+        return 2
     options = RunOptions(
         out=out,
         strides=args.strides,
@@ -184,6 +184,9 @@ def main(argv: list[str]) -> int:
     ours = not options.out.exists()  # a bag directory there afterwards is this run's recording
     try:
         report = run(options, progress, stop.is_set)
+    except RunOptionError as error:  # a usage error: nothing started, nothing written
+        print(f"tdslip run: {error}", file=sys.stderr)
+        return 2
     except RunError as error:
         print(f"\ntdslip run: {error}", file=sys.stderr)
         if error.published is not None:

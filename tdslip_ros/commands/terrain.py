@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,9 @@ from tdslip_ros.reporting.output import OutputError, output_directory, write_fai
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tdslip terrain", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("docs/rough_terrain.png"), help="the PNG to write")
+    parser.add_argument(
+        "--out", type=Path, help="the PNG to write (default runs/terrain-<time>.png, never the source tree)"
+    )
     parser.add_argument("--sigma", type=float, default=0.03, help="block heights' standard deviation [m]")
     parser.add_argument("--length", type=float, default=0.5, help="block length [m]")
     parser.add_argument("--seed", type=int, default=1, help="terrain seed")
@@ -57,6 +60,8 @@ def main(argv: list[str]) -> int:
         apex = ApexState(args.height, args.speed)
         params = PAPER_PARAMS
         start, specs = policies(params, apex, math.radians(args.angle))
+        if args.out is None:
+            args.out = Path("runs") / f"terrain-{datetime.now():%Y%m%d-%H%M%S}.png"
         output_directory(args.out.parent)
         ground = Perturbations(terrain=blocks)
         hops = [hop(params, spec, start, ground, args.strides) for spec in specs.values()]

@@ -58,10 +58,17 @@ from tdslip_ros.interfaces import (
     perturbation_parameters,
     resolve,
 )
+from tdslip_ros.model.dynamics import can_place_leg, placement_clearance
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, POLICIES
+from tdslip_ros.model.policies import (
+    DEFAULT_APEX_HEIGHT,
+    DEFAULT_APEX_SPEED,
+    DEFAULT_TOUCHDOWN_ANGLE,
+    FIXED_ANGLE_POLICIES,
+    POLICIES,
+)
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
@@ -69,6 +76,7 @@ from tdslip_ros.nodes.entry import (
 )
 from tdslip_ros.nodes.plant_node import CLOCK_MODES, PlantNode, RunOutcome
 from tdslip_ros.nodes.realtime import TickTiming
+from tdslip_ros.reporting.output import OutputError, check_output_directory
 
 STARTUP_TIMEOUT = 30.0  # s for the child nodes to start and match the plant's topics
 STOP_TIMEOUT = 30.0  # s for a child to stop after SIGINT
@@ -85,6 +93,10 @@ class RunError(RuntimeError):
 
     published: dict[str, int] | None = None
     recorded: dict[str, int] | None = None
+
+
+class RunOptionError(RunError):
+    """An option ``run`` cannot use, found before any node process starts or any file is written."""
 
 
 @dataclass
@@ -310,35 +322,53 @@ def _ros_context(domain_id: int) -> Iterator[Context]:
 
 
 def check_options(options: RunOptions) -> None:
-    """RunError naming the first option ``run`` cannot use."""
+    """RunOptionError naming the first option ``run`` cannot use (nothing is created here)."""
     if options.mode not in CLOCK_MODES:
-        raise RunError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
+        raise RunOptionError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
     if options.policy not in POLICIES:
-        raise RunError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
+        raise RunOptionError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
     try:
         perturbation_parameters(options.perturbations)  # per-lane values have no node parameters
     except ParameterError as error:
-        raise RunError(str(error)) from None
+        raise RunOptionError(str(error)) from None
     if options.strides < 0:
-        raise RunError(f"strides must be 0 (no limit) or positive, not {options.strides}")
+        raise RunOptionError(f"strides must be 0 (no limit) or positive, not {options.strides}")
     if options.duration is not None and not (math.isfinite(options.duration) and options.duration > 0):
-        raise RunError(f"duration must be a positive number of seconds, not {options.duration}")
+        raise RunOptionError(f"duration must be a positive number of seconds, not {options.duration}")
     if options.strides == 0 and options.duration is None:
-        raise RunError("a run without a stride limit (strides 0) needs a duration")
+        raise RunOptionError("a run without a stride limit (strides 0) needs a duration")
     if options.domain_id is not None and options.domain_id not in isolation.VALID_DOMAIN_IDS:
         valid = isolation.VALID_DOMAIN_IDS
-        raise RunError(f"domain id must be in {valid.start}-{valid.stop - 1}, not {options.domain_id}")
+        raise RunOptionError(f"domain id must be in {valid.start}-{valid.stop - 1}, not {options.domain_id}")
     try:
         validate_full_topic_name(resolve(topics.STATE, options.namespace))
     except InvalidTopicNameException:
-        raise RunError(f"{options.namespace!r} is not a valid ROS namespace") from None
+        raise RunOptionError(f"{options.namespace!r} is not a valid ROS namespace") from None
     bag = Path(options.out)
     if bag.exists():
-        raise RunError(f"{bag} exists already; choose a new --out")
+        raise RunOptionError(f"{bag} exists already; choose a new --out")
     try:
-        bag.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise RunError(f"cannot create the directory for --out {bag}: {error.strerror}") from None
+        check_output_directory(bag)
+    except OutputError as error:
+        raise RunOptionError(str(error)) from None
+
+
+def check_placement(options: RunOptions, params: HopperParams) -> None:
+    """RunOptionError if the leg cannot be placed from the initial apex: at the policy's touchdown angle
+    for a fixed-angle policy, at any angle for the others."""
+    if options.policy in FIXED_ANGLE_POLICIES:
+        angle = DEFAULT_TOUCHDOWN_ANGLE if options.touchdown_angle is None else options.touchdown_angle
+        if not can_place_leg(params.r0, params.g, options.height, math.cos(angle)):
+            raise RunOptionError(
+                f"the leg cannot be placed from an apex at {options.height} m at the touchdown angle "
+                f"{math.degrees(angle):.4g} deg: the apex must be at least "
+                f"{params.r0 * math.cos(angle) + placement_clearance(params.g):.4g} m high"
+            )
+    elif not can_place_leg(params.r0, params.g, options.height, 0.0):
+        raise RunOptionError(
+            f"the leg cannot be placed from an apex at {options.height} m at any touchdown angle: "
+            f"the apex must be above {placement_clearance(params.g):.4g} m"
+        )
 
 
 def run(
@@ -375,12 +405,17 @@ def run(
                 ],
             )
         except (ParameterException, ParameterError) as error:
-            raise RunError(f"plant parameters: {error}") from None
+            raise RunOptionError(f"plant parameters: {error}") from None
         stack.callback(plant.destroy_node)
+        check_placement(options, plant.hopper)
         try:
             controller_parameters = controller_overrides(options, plant.hopper)
         except ParameterError as error:
-            raise RunError(f"the controller's model (--mismatch): {error}") from None
+            raise RunOptionError(f"the controller's model (--mismatch): {error}") from None
+        try:
+            bag.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise RunOptionError(f"cannot create the directory for --out {bag}: {error.strerror}") from None
         monitor = ApexMonitor(progress, context=context, namespace=options.namespace)
         stack.callback(monitor.destroy_node)
         executor = EventsExecutor(context=context)

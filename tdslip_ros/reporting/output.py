@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -34,13 +35,23 @@ class OutputError(Exception):
     """An output directory cannot be created or written; the message says why."""
 
 
+def check_output_directory(path: Path) -> None:
+    """OutputError naming the obstacle if ``path`` could not be made a writable directory; creates
+    nothing (a probe folder in the nearest existing parent is made and removed at once), so that a
+    command can refuse a bad ``--out`` before it does anything."""
+    existing = next(folder for folder in (path, *path.parents) if folder.exists())
+    if not existing.is_dir():
+        raise OutputError(f"--out {path}: {existing} exists and is not a directory")
+    if existing != path:
+        try:
+            os.rmdir(tempfile.mkdtemp(prefix=".tdslip-probe-", dir=existing))
+        except OSError as error:
+            raise OutputError(f"--out {path}: cannot create the directory ({error.strerror})") from None
+
+
 def output_directory(path: Path) -> Path:
     """``path`` as a writable directory, created if need be (OutputError naming the obstacle)."""
-    for existing in (path, *path.parents):
-        if existing.exists():
-            if not existing.is_dir():
-                raise OutputError(f"--out {path}: {existing} exists and is not a directory")
-            break
+    check_output_directory(path)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as error:
