@@ -8,20 +8,23 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from datetime import datetime
 from pathlib import Path
 
 from tdslip_msgs.msg import ApexEvent
 
+from tdslip_ros.interfaces import resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
 from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, POLICIES
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
+from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import stop_on_signals
 from tdslip_ros.nodes.plant_node import CLOCK_MODES
-from tdslip_ros.nodes.runner import RunError, RunOptionError, RunOptions, run
+from tdslip_ros.nodes.runner import RunError, RunOptionError, RunOptions, check_options, run
 
 
 def apex_table(params: HopperParams, apexes: list[ApexEvent], ground: bool = False) -> str:
@@ -70,6 +73,20 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--strides", type=int, default=50, help="the run ends at this apex (default 50)")
     parser.add_argument("--policy", choices=POLICIES, default="energy")
     parser.add_argument("--mode", choices=CLOCK_MODES, default="lockstep")
+    parser.add_argument(
+        "--controller",
+        choices=("suite", "none"),
+        default="suite",
+        help="suite: the package's controller_node with --policy; none: start none and wait for your own "
+        "(it answers tdslip/apex on tdslip/command; examples/my_controller.py) (default suite)",
+    )
+    parser.add_argument(
+        "--wait-for-controller",
+        type=float,
+        default=300.0,
+        metavar="SECONDS",
+        help="with --controller none: how long to wait for your controller to connect [s] (default 300)",
+    )
     parser.add_argument(
         "--out", type=Path, help="bag directory to create (default runs/<policy>-<mode>-<time>)"
     )
@@ -140,11 +157,23 @@ def perturbations_of(args: argparse.Namespace) -> Perturbations:
         raise RunOptionError(str(error)) from None
 
 
+def own_controller_domain(args: argparse.Namespace) -> int:
+    """The ROS domain a run with a controller of one's own uses: --domain-id, else the environment's
+    ROS_DOMAIN_ID (0 if unset), where that controller runs too."""
+    if args.domain_id is not None:
+        return int(args.domain_id)
+    value = os.environ.get("ROS_DOMAIN_ID", "").strip() or "0"
+    if not value.isdigit():
+        raise RunOptionError(f"ROS_DOMAIN_ID={value!r} is not a domain id; give --domain-id")
+    return int(value)
+
+
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     out = args.out or Path("runs") / f"{args.policy}-{args.mode}-{datetime.now():%Y%m%d-%H%M%S}"
     try:
         perturbations = perturbations_of(args)
+        domain_id = own_controller_domain(args) if args.controller == "none" else args.domain_id
     except RunError as error:
         print(f"tdslip run: {error}", file=sys.stderr)
         return 2
@@ -163,10 +192,24 @@ def main(argv: list[str]) -> int:
         realtime_priority=args.realtime_priority,
         record_clock=args.record_clock,
         duration=args.duration,
-        domain_id=args.domain_id,
+        domain_id=domain_id,
         namespace=args.namespace,
         perturbations=perturbations,
+        own_controller=args.controller == "none",
+        controller_wait=args.wait_for_controller,
     )
+    try:
+        check_options(options)
+    except RunOptionError as error:
+        print(f"tdslip run: {error}", file=sys.stderr)
+        return 2
+    if options.own_controller:
+        print(
+            f"tdslip run: waiting up to {args.wait_for_controller:g} s for your controller in ROS domain "
+            f"{options.domain_id}: it answers {resolve(topics.APEX, args.namespace)} on "
+            f"{resolve(topics.COMMAND, args.namespace)}",
+            file=sys.stderr,
+        )
     interactive = sys.stderr.isatty()
 
     def progress(apex: ApexEvent) -> None:
@@ -212,8 +255,9 @@ def main(argv: list[str]) -> int:
         print(f"the hip saturated in {report.saturated_strides} stride(s)")
     if report.late_commands:
         print(f"{report.late_commands} command(s) arrived after their touchdown; the previous command held")
+    controlled_by = "your own controller" if options.own_controller else f"policy {options.policy}"
     print(
-        f"{options.mode} run, policy {options.policy}: {outcome.stride} strides, "
+        f"{options.mode} run, {controlled_by}: {outcome.stride} strides, "
         f"{outcome.sim_time:.3f} s simulated in {outcome.wall_time:.3f} s wall ({speed_up:.2f}x)"
         f"; bag: {report.bag}"
     )

@@ -126,6 +126,10 @@ class RunOptions:
     namespace: str = "/"
     """Namespace of the three nodes (``tdslip run --namespace /h1``: topics /h1/tdslip/...)."""
     perturbations: Perturbations = field(default_factory=Perturbations)
+    own_controller: bool = False
+    """Start no controller: the user's own answers the apexes (``tdslip run --controller none``)."""
+    controller_wait: float = 300.0
+    """s to wait for the user's own controller to connect (own_controller only)."""
     """Terrain, sensing noise, placement error, torque limit and pushes for the plant; mismatch for the
     controller, whose hopper parameters become the plant's times its factors."""
 
@@ -291,10 +295,10 @@ def run_custom_data(options: RunOptions, params: HopperParams) -> str:
     """The plant's and the controller's parameters of this run (installed defaults and overrides), as
     the recorder's ``custom_data`` (KEY=VALUE pairs): the bag then says how it was made."""
     pairs = []
-    for node, overrides in (
-        ("plant", plant_overrides(options)),
-        ("controller", controller_overrides(options, params)),
-    ):
+    nodes = [("plant", plant_overrides(options))]
+    if not options.own_controller:  # a controller of one's own stores nothing (tdslip analyze says so)
+        nodes.append(("controller", controller_overrides(options, params)))
+    for node, overrides in nodes:
         values = installed_parameters(f"{node}.yaml") | {k: v for k, v in overrides.items() if v is not None}
         pairs += [
             f"{custom_data_key(node, name)}={_ros_value(value)}" for name, value in sorted(values.items())
@@ -335,6 +339,10 @@ def check_options(options: RunOptions) -> None:
         raise RunOptionError(f"strides must be 0 (no limit) or positive, not {options.strides}")
     if options.duration is not None and not (math.isfinite(options.duration) and options.duration > 0):
         raise RunOptionError(f"duration must be a positive number of seconds, not {options.duration}")
+    if not (math.isfinite(options.controller_wait) and options.controller_wait > 0):
+        raise RunOptionError(
+            f"the wait for a controller must be positive seconds, not {options.controller_wait}"
+        )
     if options.strides == 0 and options.duration is None:
         raise RunOptionError("a run without a stride limit (strides 0) needs a duration")
     if options.domain_id is not None and options.domain_id not in isolation.VALID_DOMAIN_IDS:
@@ -437,13 +445,16 @@ def run(
             options.namespace,
         )
         stack.callback(recorder.close)
-        controller = ChildNode.start(
-            "tdslip_ros.nodes.controller_node",
-            ["--params-file", str(config_file("controller.yaml"))] + _overrides(controller_parameters),
-            environment,
-            options.namespace,
-        )
-        stack.callback(controller.close)
+        controller = None
+        if not options.own_controller:
+            controller = ChildNode.start(
+                "tdslip_ros.nodes.controller_node",
+                ["--params-file", str(config_file("controller.yaml"))] + _overrides(controller_parameters),
+                environment,
+                options.namespace,
+            )
+            stack.callback(controller.close)
+        children = (recorder,) if controller is None else (recorder, controller)
 
         recorded_topics = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if options.record_clock else ())]
 
@@ -452,7 +463,13 @@ def run(
             return {resolve(topic, options.namespace): counts.get(topic, 0) for topic in recorded_topics}
 
         try:
-            _wait_for_graph(executor, plant, monitor, (recorder, controller))
+            _wait_for_graph(
+                executor,
+                plant,
+                monitor,
+                children,
+                options.controller_wait if controller is None else STARTUP_TIMEOUT,
+            )
             start = time.monotonic()
             deadline = math.inf if options.duration is None else start + options.duration
             plant.start()
@@ -462,8 +479,8 @@ def run(
                     plant.end_run(f"reached the wall-time limit of {options.duration} s")
                 elif stop_requested():
                     plant.end_run("stopped on request")
-                controller.check_alive()
-                recorder.check_alive()
+                for child in children:
+                    child.check_alive()
         except RunError as error:
             # A node died: stop the others (the recorder finalises what it has), then say what is in the bag.
             error.published = published_counts()
@@ -477,7 +494,8 @@ def run(
         if not plant.deliver(executor):
             problems.append("the recorder did not write everything the plant published")
         delivery_time = (time.monotonic_ns() - plant.start_wall_ns) * 1e-9
-        controller.stop()
+        if controller is not None:
+            controller.stop()
         _spin_until_quiet(executor, lambda: plant.received_commands)
         spin_until(executor, lambda: len(monitor.apexes) == plant.published[topics.APEX], timeout=5.0)
         recorder.stop()
@@ -494,7 +512,7 @@ def run(
             delivery_time=delivery_time,
             tick_timing=plant.tick_timing,
             bag=bag,
-            controller_log=controller.output(),
+            controller_log="" if controller is None else controller.output(),
             saturated_strides=plant.saturated_strides,
             late_commands=plant.late_commands,
             problems=problems,
@@ -503,10 +521,14 @@ def run(
 
 
 def _wait_for_graph(
-    executor: Executor, plant: PlantNode, monitor: ApexMonitor, children: tuple[ChildNode, ...]
+    executor: Executor,
+    plant: PlantNode,
+    monitor: ApexMonitor,
+    children: tuple[ChildNode, ...],
+    timeout: float,
 ) -> None:
     """Until the recorder has matched every publisher (the plant's, the controller's) and the
-    controller and the monitor hear the apex."""
+    controller (the suite's, or the user's own) and the monitor hear the apex."""
 
     def ready() -> bool:
         for child in children:
@@ -517,9 +539,9 @@ def _wait_for_graph(
             and plant.ready_to_start()
         )
 
-    if not spin_until(executor, ready, timeout=STARTUP_TIMEOUT):
+    if not spin_until(executor, ready, timeout=timeout):
         logs = "\n".join(f"--- {child.name}:\n{child.output()}" for child in children)
-        raise RunError(f"the controller and recorder did not connect within {STARTUP_TIMEOUT} s\n{logs}")
+        raise RunError(f"the controller and recorder did not connect within {timeout:g} s\n{logs}")
 
 
 def _spin_until_quiet(executor: Executor, count: Callable[[], int]) -> None:
