@@ -4,8 +4,13 @@ It answers every apex with a fixed touchdown angle and a torque ramp that pushes
 hopper is slower than 5 m/s (it settles near 5.5 m/s). Default QoS on both topics; the command
 copies the apex's epoch and stride, which is how the plant knows what it answers.
 
-    ros2 run tdslip_ros plant_node          # lockstep: it waits for a controller
-    python3 examples/my_controller.py       # in another terminal (same ROS_DOMAIN_ID)
+    tdslip run --controller none --out runs/mine   # the plant and the recorder; they wait for you
+    python3 examples/my_controller.py              # in another terminal (same ROS_DOMAIN_ID)
+    tdslip analyze runs/mine                       # each stride against the maps
+
+(On a ROS 2 install without tdslip on the PATH: `ros2 run tdslip_ros recorder_node --ros-args -p
+output:=runs/mine`, then `ros2 run tdslip_ros plant_node --ros-args -p wait_for_recorder:=true -p
+command_timeout:=60.0`, then this script.)
 """
 
 import rclpy
