@@ -21,7 +21,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from tdslip_ros.bag.padding import padded_to_4, zero_padding
 from tdslip_ros.bag.reader import BagReadError
-from tdslip_ros.bag.schema import SEPARATOR
+from tdslip_ros.bag.schema import message_fields
 
 _PRIMITIVES: dict[str, str] = {
     "bool": "?",
@@ -38,33 +38,7 @@ _PRIMITIVES: dict[str, str] = {
     "float32": "<f4",
     "float64": "<f8",
 }
-_SEPARATOR = "\n" + SEPARATOR + "\n"  # between the definitions of a message_definition text
 _CDR_LITTLE_ENDIAN = b"\x00\x01"
-
-
-def _message_fields(schema: Schema) -> dict[str, list[tuple[str, str]]]:
-    """(type, name) of the fields of the schema's message and of each nested definition, by type name
-    (``pkg/Type``); constants and comments dropped, same-package types qualified."""
-    definitions: dict[str, list[tuple[str, str]]] = {}
-    for index, section in enumerate(schema.data.decode().split(_SEPARATOR)):
-        if index == 0:
-            package, _, name = schema.name.partition("/msg/")
-            type_name, body = f"{package}/{name}", section
-        else:
-            header, _, body = section.partition("\n")
-            type_name = header.removeprefix("MSG: ").strip()
-        package = type_name.split("/")[0]
-        fields = []
-        for line in body.splitlines():
-            tokens = line.split("#", 1)[0].split()
-            if len(tokens) < 2 or "=" in tokens[1]:
-                continue
-            field_type = tokens[0]
-            if field_type not in _PRIMITIVES and field_type != "string" and "/" not in field_type:
-                field_type = f"{package}/{field_type}"
-            fields.append((field_type, tokens[1]))
-        definitions[type_name] = fields
-    return definitions
 
 
 def _fixed_layout(schema: Schema, sample: bytes) -> dict[str, tuple[int, str]] | None:
@@ -74,35 +48,37 @@ def _fixed_layout(schema: Schema, sample: bytes) -> dict[str, tuple[int, str]] |
     ``sample`` holds; callers check that every message of a batch holds the same lengths."""
     if sample[:2] != _CDR_LITTLE_ENDIAN:
         return None
-    definitions = _message_fields(schema)
-    package, _, name = schema.name.partition("/msg/")
+    type_name, definitions = message_fields(schema.name, schema.data.decode())
     layout: dict[str, tuple[int, str]] = {}
     payload = memoryview(sample)[4:]
     offset = 0
 
     def walk(type_name: str, prefix: str) -> bool:
         nonlocal offset
-        for field_type, field_name in definitions.get(type_name, []):
-            path = prefix + field_name
-            if field_type in _PRIMITIVES:
-                dtype = np.dtype(_PRIMITIVES[field_type])
+        for field in definitions.get(type_name, ()):
+            path = prefix + field.name
+            if field.count is not None or field.sequence:
+                return False  # arrays have no fixed layout here
+            if field.base in _PRIMITIVES:
+                dtype = np.dtype(_PRIMITIVES[field.base])
                 offset += -offset % dtype.itemsize
-                layout[path] = (offset, _PRIMITIVES[field_type])
+                layout[path] = (offset, _PRIMITIVES[field.base])
                 offset += dtype.itemsize
-            elif field_type == "string":
+            elif field.base == "string":
                 offset += -offset % 4
                 layout[path + ".__length__"] = (offset, "<u4")
                 if offset + 4 > len(payload):
                     return False
                 offset += 4 + int.from_bytes(payload[offset : offset + 4], "little")
-            elif field_type in definitions and "[" not in field_type:
-                if not walk(field_type, path + "."):
+            elif field.base in definitions:
+                if not walk(field.base, path + "."):
                     return False
             else:
                 return False
         return True
 
-    if not walk(f"{package}/{name}", "") or offset != len(payload):
+    # An RMW pads what it sends to a multiple of 4 bytes: up to 3 bytes may follow the last field.
+    if not walk(type_name, "") or not 0 <= len(payload) - offset < 4:
         return None
     return layout
 

@@ -15,11 +15,9 @@ what every message this package writes holds.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
-from functools import cache
 
-from tdslip_ros.bag.schema import SEPARATOR
+from tdslip_ros.bag.schema import MessageDefinitionError, message_fields
 
 PRIMITIVE_SIZES: dict[str, int] = {
     "bool": 1,
@@ -39,58 +37,10 @@ PRIMITIVE_SIZES: dict[str, int] = {
 HEADER_SIZE = 4
 """Bytes of the CDR encapsulation header (kind, options) before the payload."""
 _ENDIANNESS = {b"\x00\x00": "big", b"\x00\x01": "little"}
-_SEPARATOR = "\n" + SEPARATOR + "\n"
-_FIELD_TYPE = re.compile(r"(?P<base>[A-Za-z][\w/]*)(?:<=\d+)?(?:\[(?P<bound><=)?(?P<size>\d*)\])?")
 
 
 class PaddingError(ValueError):
     """The message does not match its schema (too short, an unknown type, an unsupported encoding)."""
-
-
-@dataclass(frozen=True)
-class _Field:
-    base: str
-    """A primitive, ``string``, or a nested ``pkg/Type``."""
-    count: int | None
-    """Elements of a fixed array; None for a single value or a sequence."""
-    sequence: bool
-
-
-def _parse_definitions(type_name: str, text: str) -> dict[str, tuple[_Field, ...]]:
-    """The fields of ``type_name`` and of every definition appended to its schema text, by ``pkg/Type``."""
-    definitions: dict[str, tuple[_Field, ...]] = {}
-    for index, section in enumerate(text.split(_SEPARATOR)):
-        if index == 0:
-            name, body = type_name, section
-        else:
-            header, _, body = section.partition("\n")
-            name = header.removeprefix("MSG: ").strip()
-        package = name.split("/")[0]
-        fields = []
-        for line in body.splitlines():
-            tokens = line.split("#", 1)[0].split()
-            if len(tokens) < 2 or "=" in tokens[1] or (len(tokens) > 2 and tokens[2].startswith("=")):
-                continue  # blank, comment or constant (NAME=VALUE)
-            match = _FIELD_TYPE.fullmatch(tokens[0])
-            if match is None:
-                raise PaddingError(f"{name}: cannot read the field type {tokens[0]!r}")
-            base = match["base"]
-            if base not in PRIMITIVE_SIZES and base != "string" and "/" not in base:
-                base = f"{package}/{base}"
-            base = base.replace("/msg/", "/")
-            is_array = match["size"] is not None
-            sequence = is_array and (match["bound"] is not None or match["size"] == "")
-            fields.append(_Field(base, int(match["size"]) if is_array and not sequence else None, sequence))
-        # rosidl gives a message without fields one uint8 member, which CDR writes like any other.
-        definitions[name] = tuple(fields) or (_Field("uint8", None, False),)
-    return definitions
-
-
-@cache
-def _definitions(schema_name: str, schema_text: str) -> tuple[str, dict[str, tuple[_Field, ...]]]:
-    package, _, name = schema_name.partition("/msg/")
-    type_name = f"{package}/{name}" if name else schema_name
-    return type_name, _parse_definitions(type_name, schema_text)
 
 
 @dataclass(frozen=True)
@@ -111,7 +61,10 @@ def layout(schema_name: str, schema_text: str, data: bytes) -> Layout:
     if len(data) < HEADER_SIZE or kind not in _ENDIANNESS:
         raise PaddingError(f"{schema_name}: not plain CDR (encapsulation {kind.hex() or 'missing'})")
     byteorder = _ENDIANNESS[kind]
-    type_name, definitions = _definitions(schema_name, schema_text)
+    try:
+        type_name, definitions = message_fields(schema_name, schema_text)
+    except MessageDefinitionError as error:
+        raise PaddingError(str(error)) from None
     payload = memoryview(data)[HEADER_SIZE:]
     padding: list[int] = [2, 3]
     length_fields: list[int] = []

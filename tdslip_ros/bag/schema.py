@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import re
 import sys
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
@@ -132,3 +133,57 @@ def type_description_hash(type_name: str) -> str:
         return next(str(entry["hash_string"]) for entry in hashes if entry["type_name"] == canonical)
     except (ValueError, KeyError, TypeError, StopIteration) as error:
         raise MessageDefinitionError(f"{canonical}: no type hash in {path}: {error!r}") from None
+
+
+@dataclass(frozen=True)
+class Field:
+    """One field of a message definition."""
+
+    name: str
+    base: str
+    """A primitive (``float64``, ...), ``string``, ``wstring`` or a nested ``pkg/Type``."""
+    count: int | None
+    """Elements of a fixed array (``float64[3]``); None for a single value or a sequence."""
+    sequence: bool
+    """A bounded or unbounded sequence (``float64[]``, ``float64[<=5]``)."""
+
+
+_FIELD_TYPE = re.compile(r"(?P<base>[A-Za-z][\w/]*)(?:<=\d+)?(?:\[(?P<bound><=)?(?P<size>\d*)\])?")
+_DEFINITION_SEPARATOR = "\n" + SEPARATOR + "\n"
+
+
+@cache
+def message_fields(schema_name: str, schema_text: str) -> tuple[str, dict[str, tuple[Field, ...]]]:
+    """``pkg/Type`` of a schema (``pkg/msg/Type``) and the fields of it and of every definition appended
+    to its text (the format of :func:`message_definition`), by ``pkg/Type``: constants and comments
+    dropped, same-package types qualified. A message without fields gets rosidl's one ``uint8``.
+    MessageDefinitionError for a field type it cannot read."""
+    package, _, name = schema_name.partition("/msg/")
+    type_name = f"{package}/{name}" if name else schema_name
+    definitions: dict[str, tuple[Field, ...]] = {}
+    for index, section in enumerate(schema_text.split(_DEFINITION_SEPARATOR)):
+        if index == 0:
+            current, body = type_name, section
+        else:
+            header, _, body = section.partition("\n")
+            current = header.removeprefix("MSG: ").strip()
+        own_package = current.split("/")[0]
+        fields = []
+        for line in body.splitlines():
+            tokens = line.split("#", 1)[0].split()
+            if len(tokens) < 2 or "=" in tokens[1] or (len(tokens) > 2 and tokens[2].startswith("=")):
+                continue  # blank, comment or constant (NAME=VALUE)
+            match = _FIELD_TYPE.fullmatch(tokens[0])
+            if match is None:
+                raise MessageDefinitionError(f"{current}: cannot read the field type {tokens[0]!r}")
+            base = match["base"]
+            if base not in PRIMITIVE_TYPES and "/" not in base:
+                base = f"{own_package}/{base}"
+            is_array = match["size"] is not None
+            sequence = is_array and (match["bound"] is not None or match["size"] == "")
+            count = int(match["size"]) if is_array and not sequence else None
+            fields.append(Field(tokens[1], base.replace("/msg/", "/"), count, sequence))
+        definitions[current] = tuple(fields) or (
+            Field("structure_needs_at_least_one_member", "uint8", None, False),
+        )
+    return type_name, definitions
