@@ -23,7 +23,9 @@ HEIGHT = 1.0
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("compare")
-    assert compare.main(["--out", str(out), "--speeds", *map(str, SPEEDS), "--strides", str(STRIDES)]) == 0
+    assert (
+        compare.main(["--out", str(out), "--speeds-bar", *map(str, SPEEDS), "--strides", str(STRIDES)]) == 0
+    )
     return out
 
 

@@ -165,7 +165,7 @@ def test_a_run_that_fails_on_the_terrain_says_where_and_why(
 def test_malformed_perturbations_stop_tdslip_run_with_one_line(
     arguments: list[str], phrase: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert run_command.main(["--out", str(tmp_path / "bag"), *arguments]) == 1
+    assert run_command.main(["--out", str(tmp_path / "bag"), *arguments]) == 2  # a usage error
     error = capsys.readouterr().err.strip()
     assert error.startswith("tdslip run: ") and phrase in error and "\n" not in error
     assert not (tmp_path / "bag").exists()

@@ -210,12 +210,12 @@ def test_a_bag_cut_while_finalising_loses_nothing(small_chunks: Path, tmp_path: 
     ("content", "needle"),
     [(b"", "not an MCAP file"), (b"stride,y\n0,1.0\n" * 10, "not an MCAP file")],
 )
-def test_what_is_not_an_mcap_file_is_one_line_and_exit_1(
+def test_what_is_not_an_mcap_file_is_one_line_and_exit_2(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes, needle: str
 ) -> None:
     path = tmp_path / "run.mcap"
     path.write_bytes(content)
-    assert cli.main(["recover", str(path)]) == 1
+    assert cli.main(["recover", str(path)]) == 2
     error = capsys.readouterr().err
     assert error.startswith("tdslip recover: ") and needle in error and error.count("\n") == 1
     assert [p.name for p in tmp_path.iterdir()] == ["run.mcap"]  # untouched

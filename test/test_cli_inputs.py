@@ -1,5 +1,5 @@
-"""Command-line input errors of the offline commands: one line on stderr and exit status 1, never a
-traceback or a hang; a closed output pipe ends every command quietly."""
+"""Command-line input errors of the offline commands: one line on stderr and exit status 2 (a usage error,
+as argparse's), never a traceback or a hang; a closed output pipe ends every command quietly."""
 
 from __future__ import annotations
 
@@ -39,10 +39,10 @@ def test_an_unusable_output_directory_is_one_line(
     out = {"/proc/x": Path("/proc/x"), "the file": a_file, "below the file": a_file / "sub"}[where]
     arguments = {
         "analyze": [str(tmp_path / "run"), "--out", str(out)],
-        "compare": ["--out", str(out), "--speeds", "1.0", "--strides", "2"],  # refused before any run
+        "compare": ["--out", str(out), "--speeds-bar", "1.0", "--strides", "2"],  # refused before any run
         "figures": ["--out", str(out), "--only", "fig04"],
     }[command]
-    assert cli.main([command, *arguments]) == 1
+    assert cli.main([command, *arguments]) == 2
     error = one_line_error(capsys, command)
     assert f"--out {out}: " in error
     assert ("is not a directory" in error) if where != "/proc/x" else ("cannot create the directory" in error)
@@ -52,8 +52,8 @@ def test_an_unusable_output_directory_is_one_line(
 @pytest.mark.parametrize(
     ("option", "value", "needle"),
     [
-        ("--angle", "nan", "--angle must be in (0, 90) deg, not nan"),
-        ("--angle", "90", "--angle must be in (0, 90) deg"),
+        ("--touchdown-angle-deg", "nan", "--touchdown-angle-deg must be in (0, 90) deg, not nan"),
+        ("--touchdown-angle-deg", "90", "--touchdown-angle-deg must be in (0, 90) deg"),
         ("--target-energy", "-1", "--target-energy must be a finite energy > 0 J, not -1.0"),
         ("--target-height", "inf", "--target-height must be a finite height > 0 m"),
         ("--pd-kd", "-0.1", "--pd-kd must be a finite gain >= 0"),
@@ -64,7 +64,7 @@ def test_policy_settings_without_meaning_are_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str, value: str, needle: str
 ) -> None:
     """Before: exit 0 with NaN commands and an empty fixed point."""
-    assert cli.main(["analyze", str(tmp_path / "run"), "--out", str(tmp_path / "out"), option, value]) == 1
+    assert cli.main(["analyze", str(tmp_path / "run"), "--out", str(tmp_path / "out"), option, value]) == 2
     assert needle in one_line_error(capsys, "analyze")
     assert not (tmp_path / "out").exists()
 
@@ -74,15 +74,15 @@ def test_policy_settings_without_meaning_are_refused(
     [
         (["--strides", "0"], "--strides must be at least 1, not 0"),
         (["--strides", "-3"], "--strides must be at least 1, not -3"),
-        (["--height", "nan"], "--height must be a finite height > 0 m"),
-        (["--speeds", "1.0", "-2.0"], "--speeds must be finite speeds >= 0, not -2.0"),
+        (["--target-height", "nan"], "--target-height must be a finite height > 0 m"),
+        (["--speeds-bar", "1.0", "-2.0"], "--speeds-bar must be finite speeds >= 0, not -2.0"),
     ],
 )
 def test_a_sweep_no_run_can_make_is_refused_at_once(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], arguments: list[str], needle: str
 ) -> None:
     """Before: ``compare --strides 0`` never ended."""
-    assert cli.main(["compare", "--out", str(tmp_path / "sweep"), *arguments]) == 1
+    assert cli.main(["compare", "--out", str(tmp_path / "sweep"), *arguments]) == 2
     assert needle in one_line_error(capsys, "compare")
 
 

@@ -39,7 +39,8 @@ def test_energy_neutral_command_replaces_the_first_strides_losses() -> None:
 
 
 def test_simulate_prints_the_steppers_apexes(capsys: pytest.CaptureFixture[str]) -> None:
-    assert tdslip(["simulate", "--strides", "3", "--tau0", "-335.5", "--t-f", "0.1227"]) == 0
+    arguments = ["--strides", "3", "--tau0", "-335.5", "--t-f", "0.1227", "--touchdown-angle-deg", "22"]
+    assert tdslip(["simulate", *arguments, "--speed", "5.5"]) == 0
     rows = _table(capsys.readouterr().out)
     assert [int(row[0]) for row in rows] == [0, 1, 2, 3]
     command = StanceCommand(math.radians(22.0), -335.5, 0.1227)
@@ -64,7 +65,7 @@ def test_simulate_defaults_hop_and_failures_are_named(capsys: pytest.CaptureFixt
     assert tdslip(["simulate", "--strides", "5"]) == 0
     out = capsys.readouterr().out
     assert len(_table(out)) == 6 and "constant command" in out
-    assert tdslip(["simulate", "--beta-deg", "26", "--height", "1.2", "--speed", "3"]) == 1
+    assert tdslip(["simulate", "--touchdown-angle-deg", "26", "--height", "1.2", "--speed", "3"]) == 1
     out = capsys.readouterr().out
     assert "reversal" in out and "failure at t" in out
     assert tdslip(["simulate", "--zeta0", "-1"]) == 2

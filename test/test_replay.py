@@ -111,7 +111,7 @@ def test_replay_refuses_a_flipped_byte_before_publishing_anything(
     data[start + 500] ^= 0x01
     path = tmp_path / "flipped.mcap"
     path.write_bytes(bytes(data))
-    assert main([str(path), "--rate", "inf"]) == 1
+    assert main([str(path), "--rate", "inf"]) == 2
     error = capsys.readouterr().err
     assert error.startswith("tdslip replay: ") and "corrupt data" in error and error.count("\n") == 1
     with pytest.raises(ReplayError, match="corrupt data"):
@@ -122,7 +122,7 @@ def test_replay_refuses_a_flipped_byte_before_publishing_anything(
 def test_a_rate_that_cannot_replay_the_recording_is_one_line(
     energy: RunReport, capsys: pytest.CaptureFixture[str], rate: str
 ) -> None:
-    assert main([str(energy.bag), "--rate", rate]) == 1
+    assert main([str(energy.bag), "--rate", rate]) == 2
     error = capsys.readouterr().err
     assert error.startswith("tdslip replay: ") and error.count("\n") == 1 and "rate" in error
 
@@ -134,6 +134,6 @@ def test_replay_of_a_damaged_recording_fails_cleanly(
     path.write_bytes(mcap_file(energy.bag).read_bytes()[:5000])
     with pytest.raises(ReplayError, match="truncated"):
         replay(path)
-    assert main([str(path)]) == 1
+    assert main([str(path)]) == 2  # checked before ROS starts: a usage error
     captured = capsys.readouterr()
     assert captured.err.startswith("tdslip replay: ") and "Traceback" not in captured.err

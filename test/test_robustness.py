@@ -84,7 +84,7 @@ def test_the_command_writes_survival_figures_and_tables(tmp_path: Path) -> None:
     sizes = {kind: robustness.KINDS[kind].sizes for kind in ("terrain", "mismatch")}
     assert len(summary) == 2 * (len(sizes["terrain"]) + len(sizes["mismatch"]))
     # Every summary row from the trajectories' table, counted here.
-    for kind, axis, scale in (("terrain", "terrain_sigma", 100.0), ("mismatch", "mismatch_stiffness", 1.0)):
+    for kind, axis, scale in (("terrain", "terrain_sigma", 1.0), ("mismatch", "mismatch_stiffness", 1.0)):
         rows = pq.read_table(out / kind / "table").to_pylist()
         assert len(rows) == 2 * len(sizes[kind]) * 2
         for entry in (r for r in summary if r["kind"] == kind):
@@ -100,15 +100,17 @@ def test_the_command_writes_survival_figures_and_tables(tmp_path: Path) -> None:
             assert counted == {name: failures.count(name) for name in set(failures)}
     document = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)
     assert document["sizes_survived"]["terrain"]["pd"]["all"][0] == 0.0
-    assert document["operating_point"]["touchdown_angle"] == pytest.approx(BETA)
+    assert document["operating_point"]["touchdown_angle"] == pytest.approx(math.radians(20.0))  # the default
     table = (out / "robustness.md").read_text()
     assert table.count("\n| terrain |") == 2 and "| mismatch | energy |" in table
 
 
 def test_a_bad_operating_point_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert cli.main(["robustness", "--out", str(tmp_path / "a"), "--touchdown-angle", "95"]) == 1
-    assert capsys.readouterr().err == "tdslip robustness: --touchdown-angle must be in (0, 90) deg, got 95\n"
-    assert cli.main(["robustness", "--out", str(tmp_path / "b"), "--energy", "0.5"]) == 1
+    assert cli.main(["robustness", "--out", str(tmp_path / "a"), "--touchdown-angle-deg", "95"]) == 2
+    assert (
+        capsys.readouterr().err == "tdslip robustness: --touchdown-angle-deg must be in (0, 90) deg, got 95\n"
+    )
+    assert cli.main(["robustness", "--out", str(tmp_path / "b"), "--energy-bar", "0.5"]) == 2
     error = capsys.readouterr().err
-    assert error.startswith("tdslip robustness: energy regulation at 26 deg does not settle at Ebar = 0.5")
+    assert error.startswith("tdslip robustness: energy regulation at 20 deg does not settle at Ebar = 0.5")
     assert len(error.splitlines()) == 1

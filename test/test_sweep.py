@@ -54,7 +54,7 @@ def test_the_command_writes_the_table_figure_and_summary_and_resumes(tmp_path: P
     assert counts["converged"] > 0
     assert (out / "fig10.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     parts = {path: path.stat().st_mtime_ns for path in (out / "table").iterdir()}
-    assert cli.main(command) == 1  # the directory holds this study: --resume, or another --out
+    assert cli.main(command) == 2  # the directory holds this study: --resume, or another --out
     assert cli.main([*command, "--resume"]) == 0  # nothing left to compute: the parts stay as they were
     assert {path: path.stat().st_mtime_ns for path in (out / "table").iterdir()} == parts
 
@@ -88,6 +88,6 @@ def test_errors_of_the_run_end_in_one_line(
     assert error.startswith("tdslip sweep: cannot reach the Dask scheduler at tcp://127.0.0.1:9")
     assert len(error.splitlines()) == 1
     (tmp_path / "b").write_text("a file where the directory should go")
-    assert cli.main([*command, "--out", str(tmp_path / "b")]) == 1
+    assert cli.main([*command, "--out", str(tmp_path / "b")]) == 2
     error = capsys.readouterr().err
     assert error.startswith("tdslip sweep: --out ") and error.endswith("exists and is not a directory\n")

@@ -39,7 +39,7 @@ def energy_neutral_command(
         if energy_gain(0.0) * energy_gain(thrust_limit) > 0.0:
             raise ParameterError(
                 f"no tau0 in [{thrust_limit:.4g}, 0] N m replaces the first stride's losses from {apex} "
-                f"at touchdown_angle {touchdown_angle:.4g} rad; give --tau0 and --t-f"
+                f"at a touchdown angle of {math.degrees(touchdown_angle):.4g} deg; give --tau0 and --t-f"
             )
         tau0 = brentq(energy_gain, thrust_limit, 0.0, xtol=1e-9)
         result = apex_return_map(params, apex, StanceCommand(touchdown_angle, tau0, duration))

@@ -75,6 +75,10 @@ class RecoverError(Exception):
     """The recording cannot be recovered; the message says why."""
 
 
+class RecoverInputError(RecoverError):
+    """What was given is no recording to recover (or was recovered before): nothing was touched."""
+
+
 @dataclass
 class Scan:
     """What a record-by-record pass over an MCAP file found (see the module docstring)."""
@@ -225,14 +229,14 @@ def recover(path: Path) -> Recovery:
                 mcap_path, None, _intact_counts(mcap_path), {}, Scan(mcap_path, mcap_path.stat().st_size)
             )
     except BagReadError as error:
-        raise RecoverError(str(error)) from None
+        raise RecoverInputError(str(error)) from None
     original = mcap_path.with_name(mcap_path.name + ORIGINAL_SUFFIX)
     metadata = (
         mcap_path.parent / "metadata.yaml" if (Path(path).is_dir() or _has_metadata(mcap_path)) else None
     )
     for kept in (original, None if metadata is None else metadata.with_name(metadata.name + ORIGINAL_SUFFIX)):
         if kept is not None and kept.exists():
-            raise RecoverError(
+            raise RecoverInputError(
                 f"{kept} exists: the recording was recovered before; move it away to recover again"
             )
     work = mcap_path.parent / WORK_DIRECTORY
@@ -285,7 +289,7 @@ def _copy(source: Path, target: Path) -> tuple[Recovery, dict[str, Any]]:
     finalised bag at ``target`` (second pass); the recovery and the bag information written."""
     with open(source, "rb") as stream:
         if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise RecoverError(f"{source}: not an MCAP file (no MCAP magic at its start)")
+            raise RecoverInputError(f"{source}: not an MCAP file (no MCAP magic at its start)")
         scan = Scan(source, source.stat().st_size)
         for _ in scan_records(stream, scan):
             pass

@@ -13,16 +13,22 @@ from pathlib import Path
 
 from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
+from tdslip_ros.commands.options import add_touchdown_angle, command_parser
 from tdslip_ros.model.policies import POLICIES, PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
+DESCRIPTION = """\
+Compare a recorded run with the analytic return map: write summary.json, the figures and report.md,
+and print the headline numbers. The policy the controller ran is read from the recording; the options
+below replay it with other settings. Options outside their domain are refused before anything is read."""
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tdslip analyze", description="Compare a recorded run with the analytic map; write a report."
-    )
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("analyze", DESCRIPTION)
     parser.add_argument("run", type=Path, help="bag directory or .mcap file of a run")
-    parser.add_argument("--out", type=Path, help="report directory (default RUN/report, or next to an .mcap)")
+    parser.add_argument(
+        "--out", type=Path, help="report directory (default: RUN/report, or next to an .mcap)"
+    )
     parser.add_argument(
         "--params",
         type=Path,
@@ -33,24 +39,31 @@ def _parser() -> argparse.ArgumentParser:
         "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
         "a recorded policy the package does not know is not replayed)"
     )
-    policy.add_argument("--policy", dest="name", choices=POLICIES)
-    policy.add_argument("--angle", type=float, help="touchdown angle [deg] (open_loop, energy, energy_exact)")
-    policy.add_argument("--touchdown-power", type=float, help="hip power at touchdown [W] (open_loop)")
+    recorded = "default: the recording's"
+    policy.add_argument("--policy", dest="name", choices=POLICIES, help=f"the policy to replay ({recorded})")
+    add_touchdown_angle(policy, "--angle", what=" (open_loop, energy, energy_exact)", unset="the recording's")
     policy.add_argument(
-        "--target-energy", type=float, help="[J] (energy, energy_exact; default: initial apex energy)"
+        "--touchdown-power", type=float, help=f"hip power at touchdown [W] (open_loop; {recorded})"
     )
-    policy.add_argument("--target-height", type=float, help="[m] (deadbeat, pd)")
-    policy.add_argument("--target-speed", type=float, help="[m/s] (deadbeat, pd)")
-    policy.add_argument("--pd-kp", type=float, help="[rad/(m/s)] (pd)")
-    policy.add_argument("--pd-kd", type=float, help="[rad/(m/s)] (pd)")
     policy.add_argument(
-        "--corrections", type=int, help="analytic-map corrections the controller planned with"
+        "--target-energy", type=float, help=f"goal energy [J] (energy, energy_exact; {recorded})"
+    )
+    policy.add_argument(
+        "--target-height", type=float, help=f"target apex height [m] (deadbeat, pd; {recorded})"
+    )
+    policy.add_argument(
+        "--target-speed", type=float, help=f"target apex speed [m/s] (deadbeat, pd; {recorded})"
+    )
+    policy.add_argument("--pd-kp", type=float, help=f"PD gain [rad/(m/s)] (pd; {recorded})")
+    policy.add_argument("--pd-kd", type=float, help=f"PD gain [rad/(m/s)] (pd; {recorded})")
+    policy.add_argument(
+        "--corrections", type=int, help=f"analytic-map corrections the controller planned with ({recorded})"
     )
     return parser
 
 
 POLICY_OPTION_DOMAINS: dict[str, tuple[str, Callable[[float], bool]]] = {
-    "angle": ("in (0, 90) deg", lambda value: 0.0 < value < 90.0),
+    "touchdown_angle_deg": ("in (0, 90) deg", lambda value: 0.0 < value < 90.0),
     "touchdown_power": ("a finite power >= 0 W", lambda value: 0.0 <= value < math.inf),
     "target_energy": ("a finite energy > 0 J", lambda value: 0.0 < value < math.inf),
     "target_height": ("a finite height > 0 m", lambda value: 0.0 < value < math.inf),
@@ -72,11 +85,13 @@ def check_policy_options(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+    args = parser().parse_args(argv)
     out = args.out or (args.run / "report" if args.run.is_dir() else args.run.with_suffix("") / "report")
     overrides = {
         "name": args.name,
-        "touchdown_angle": None if args.angle is None else math.radians(args.angle),
+        "touchdown_angle": None
+        if args.touchdown_angle_deg is None
+        else math.radians(args.touchdown_angle_deg),
         "touchdown_power": args.touchdown_power,
         "target_energy": args.target_energy,
         "target_height": args.target_height,
@@ -86,10 +101,14 @@ def main(argv: list[str]) -> int:
         "corrections": args.corrections,
     }
     created = not out.exists()
-    try:
-        # Everything that can be checked is, before the report folder comes into being.
+    try:  # usage errors: exit status 2, as argparse's
         check_policy_options(args)
         check_output_directory(out)
+    except (PolicyError, OutputError) as error:
+        print(f"tdslip analyze: {error}", file=sys.stderr)
+        return 2
+    try:
+        # Everything that can be checked is, before the report folder comes into being.
         params = None if args.params is None else hopper_params_from_yaml(args.params)
         run = read_run(args.run, params)
         output_directory(out)

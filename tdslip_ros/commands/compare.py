@@ -33,6 +33,7 @@ from tdslip_ros.analysis.controller_comparison import (
     table,
 )
 from tdslip_ros.analysis.reader import RunReadError
+from tdslip_ros.commands.options import command_parser, deprecated
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.reporting.output import OutputError, output_directory, to_json, write_failed
@@ -87,18 +88,33 @@ def record_sweep(
     return runs
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tdslip compare",
-        description="Deadbeat vs PD over desired speeds, recorded in lockstep and analysed (paper fig. 13).",
+DESCRIPTION = """\
+Deadbeat against the PD baseline over desired apex speeds (paper fig. 13), from recorded runs.
+Every controller and desired speed is run by the node suite in lockstep and recorded into OUT/runs;
+each recording is then analysed into OUT/comparison.json and OUT/tracking_error.png.
+--analyse-only redoes the analysis of the runs listed in OUT/sweep.json without ROS."""
+
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("compare", DESCRIPTION)
+    parser.add_argument("--out", type=Path, help="output directory (default: runs/compare-<time>)")
+    speeds = parser.add_argument(
+        "--speeds-bar",
+        type=float,
+        nargs="+",
+        default=list(DEFAULT_SPEEDS),
+        metavar="XDOTBAR",
+        help="desired apex speeds xdot*/sqrt(g r0) (dimensionless; default: 0.5 to 3 in steps of 0.25)",
     )
-    parser.add_argument("--out", type=Path, help="output directory (default runs/compare-<time>)")
+    deprecated(parser, speeds, "--speeds")
+    height = parser.add_argument(
+        "--target-height", type=float, default=1.0, metavar="M", help="desired apex height [m]"
+    )
+    deprecated(parser, height, "--height")
+    parser.add_argument("--strides", type=int, default=DEFAULT_STRIDES, help="strides per run")
     parser.add_argument(
-        "--speeds", type=float, nargs="+", default=list(DEFAULT_SPEEDS), help="desired apex speeds xdotbar*"
+        "--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS), help="the controllers run"
     )
-    parser.add_argument("--height", type=float, default=1.0, help="desired apex height [m] (default 1)")
-    parser.add_argument("--strides", type=int, default=DEFAULT_STRIDES, help="strides per run (default 50)")
-    parser.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     parser.add_argument(
         "--analyse-only", action="store_true", help="re-analyse the runs listed in OUT/sweep.json"
     )
@@ -109,23 +125,28 @@ def check_sweep_options(args: argparse.Namespace) -> None:
     """ValueError naming the first sweep option that no run can use."""
     if args.strides < 1:
         raise ValueError(f"--strides must be at least 1, not {args.strides}")
-    if not 0.0 < args.height < math.inf:
-        raise ValueError(f"--height must be a finite height > 0 m, not {args.height}")
-    bad = [speed for speed in args.speeds if not 0.0 <= speed < math.inf]
+    if not 0.0 < args.target_height < math.inf:
+        raise ValueError(f"--target-height must be a finite height > 0 m, not {args.target_height}")
+    bad = [speed for speed in args.speeds_bar if not 0.0 <= speed < math.inf]
     if bad:
-        raise ValueError(f"--speeds must be finite speeds >= 0, not {', '.join(map(str, bad))}")
+        raise ValueError(f"--speeds-bar must be finite speeds >= 0, not {', '.join(map(str, bad))}")
 
 
 def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+    args = parser().parse_args(argv)
     out = args.out or Path("runs") / f"compare-{datetime.now():%Y%m%d-%H%M%S}"
+    try:  # usage errors: exit status 2, as argparse's
+        if not args.analyse_only:
+            check_sweep_options(args)
+            output_directory(out)
+    except (OutputError, ValueError) as error:
+        print(f"tdslip compare: {error}", file=sys.stderr)
+        return 2
     try:
         if args.analyse_only:
             entries = load_sweep(out)
         else:
-            check_sweep_options(args)
-            output_directory(out)
-            entries = record_sweep(out, args.speeds, args.height, args.strides, args.controllers)
+            entries = record_sweep(out, args.speeds_bar, args.target_height, args.strides, args.controllers)
         results = [analyse_run(out, entry) for entry in entries]
         (out / "comparison.json").write_text(to_json([asdict(r) for r in results]))
         plot_tracking(results, out / "tracking_error.png")

@@ -61,6 +61,7 @@ from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures.catalogue import FIGURES, compute_shared, shared_work, write_figure
 from tdslip_ros.analysis.figures.common import DEFAULT, FINE, PARAMS, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED
+from tdslip_ros.commands.options import command_parser
 from tdslip_ros.commands.study_command import add_engine_arguments, where_of
 from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
 from tdslip_ros.studies import engine
@@ -79,17 +80,30 @@ def precompute(names: Sequence[str], resolution: Resolution, where: engine.Where
             SHARED.store(entries)
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
-        prog="tdslip figures", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+DESCRIPTION = """\
+The paper's figures 4-11 and 13 from the model (no ROS): DIR/figNN.png, with the numbers drawn in
+DIR/figNN.json, and "ranges" (the stable Ebar ranges). The slow sweeps run first, in parallel on a local
+Dask cluster (or --scheduler); the defaults take some ten minutes of CPU, --fine much longer.
+Prints the paper's claims beside ours (also DIR/comparison.md); docs/paper.md explains the differences."""
+
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("figures", DESCRIPTION)
     parser.add_argument("--out", type=Path, required=True, help="directory for the PNG and JSON files")
-    parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures")
+    parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures (default: all)")
     parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
     add_engine_arguments(parser, resume=False)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = parser().parse_args(argv)
     try:
         output_directory(args.out)
+    except OutputError as error:  # a usage error: exit status 2, as argparse's
+        print(f"tdslip figures: {error}", file=sys.stderr)
+        return 2
+    try:
         resolution = FINE if args.fine else DEFAULT
         names = args.only or list(FIGURES)
         precompute(names, resolution, where_of(args))

@@ -11,8 +11,9 @@ import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
-from tdslip_ros.bag.recover import RecoverError, Recovery, recover
+from tdslip_ros.bag.recover import RecoverError, RecoverInputError, Recovery, recover
 from tdslip_ros.bag.writer import BagWriteError
+from tdslip_ros.commands.options import command_parser
 
 _NS_PER_S = 1_000_000_000
 
@@ -60,19 +61,25 @@ def report(recovery: Recovery) -> str:
     return "\n".join(lines)
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tdslip recover",
-        description="Make a truncated or unfinalised recording readable (the original is kept as *.orig).",
-    )
+DESCRIPTION = """\
+Make a truncated or unfinalised recording readable again; the original is kept as *.orig.
+Says how much was lost: messages recovered (and missing) per topic, the bytes discarded and why,
+and the log time of the last recovered message."""
+
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("recover", DESCRIPTION)
     parser.add_argument("run", type=Path, help="bag directory or .mcap file")
     return parser
 
 
 def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+    args = parser().parse_args(argv)
     try:
         recovery = recover(args.run)
+    except RecoverInputError as error:  # no recording there: a usage error, exit status 2 as argparse's
+        print(f"tdslip recover: {error}", file=sys.stderr)
+        return 2
     except (RecoverError, BagWriteError) as error:
         print(f"tdslip recover: {error}", file=sys.stderr)
         return 1

@@ -1,13 +1,13 @@
 """``tdslip robustness``: how large a perturbation each policy survives, on the study engine.
 
     tdslip robustness --out DIR [--samples 30] [--strides 50] [--policies open_loop energy ...]
-                      [--kinds terrain noise mismatch step] [--touchdown-angle 26] [--energy 3.5]
+                      [--kinds terrain noise mismatch step] [--touchdown-angle-deg 20] [--energy-bar 2.274]
                       [--mismatch-field stiffness] [--seed 0] [--resume]
                       [--scheduler tcp://HOST:PORT | --workers N]
 
 Every policy starts at the same operating point and would hop there on flat ground: the exact plant's fixed
-point under energy regulation at the touchdown angle beta (``--touchdown-angle``, deg) with the goal energy
-Ebar (``--energy``, E/(m g r0)). energy and energy_exact aim at that energy (planned on the analytic map,
+point under energy regulation at the touchdown angle beta (``--touchdown-angle-deg``) with the goal energy
+Ebar (``--energy-bar``, E/(m g r0)). energy and energy_exact aim at that energy (planned on the analytic map,
 energy's fixed point is within 1 % of it; energy_exact, which holds it exactly, settles from there within a
 few strides), open_loop applies the hip power at touchdown that energy regulation applies there, deadbeat
 and pd aim at the fixed point's apex (pd with its default gains). Each kind of perturbation is one study
@@ -15,7 +15,7 @@ and pd aim at the fixed point's apex (pd with its default gains). Each kind of p
 random draws (seeds from the trajectory index); the closed loop keeps the command in force where a policy
 has none, as the plant node does (:mod:`tdslip_ros.studies.perturbed`):
 
-* terrain: random blocks 0.5 m long from x = 1 m, heights with standard deviation sigma (the size, cm);
+* terrain: random blocks 0.5 m long from x = 1 m, heights with standard deviation sigma (the size, m);
 * noise: the apex the controller sees, with standard deviations s r0 in height and s sqrt(g r0) in speed
   (the size s);
 * mismatch: the controller plans with the hopper's stiffness (``--mismatch-field``) times a factor (the
@@ -38,51 +38,76 @@ import argparse
 import math
 from pathlib import Path
 
+from tdslip_ros.commands.options import add_energy_bar, add_touchdown_angle, command_parser
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.policies import POLICIES
+from tdslip_ros.model.policies import DEFAULT_TARGET_ENERGY, POLICIES
 from tdslip_ros.studies.design import StudyError
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
 from tdslip_ros.studies.robustness import KINDS, write_robustness
 
+DEFAULT_ENERGY_BAR = units.energy_to_bar(PAPER_PARAMS, DEFAULT_TARGET_ENERGY)
+"""The operating point's apex energy: the default apex's (1 m, 5 m/s), Ebar = 2.274, inside the stable range
+[1.12, 3.32] of energy regulation at the default 20 deg (docs/paper.md)."""
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
-        prog="tdslip robustness", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+DESCRIPTION = """\
+How large a perturbation each policy survives, on a local Dask cluster (or --scheduler). Every policy
+starts at energy regulation's flat-ground fixed point at the touchdown angle and energy given.
+Kinds and their sizes: terrain (block height std. dev. [m]), noise (apex sensor noise, in r0 and
+sqrt(g r0)), mismatch (factor on the controller's model), step (a step down [m]).
+Writes DIR/robustness.png, strides.png, spread.png, failures.png, summary.csv/json and robustness.md."""
+
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("robustness", DESCRIPTION)
     parser.add_argument(
         "--out", type=Path, required=True, help="directory for the tables, figures and summary"
     )
     parser.add_argument("--samples", type=positive_int, default=30, help="trajectories per size and policy")
     parser.add_argument("--strides", type=positive_int, default=50, help="strides that count as surviving")
-    parser.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES))
-    parser.add_argument("--kinds", nargs="+", choices=list(KINDS), default=list(KINDS))
     parser.add_argument(
-        "--touchdown-angle", type=float, default=26.0, help="beta of the operating point [deg]"
+        "--policies", nargs="+", choices=POLICIES, default=list(POLICIES), help="the policies"
     )
-    parser.add_argument("--energy", type=float, default=3.5, help="apex energy Ebar of the operating point")
+    parser.add_argument(
+        "--kinds", nargs="+", choices=list(KINDS), default=list(KINDS), help="the kinds of perturbation"
+    )
+    add_touchdown_angle(parser, "--touchdown-angle", what=" of the operating point")
+    add_energy_bar(
+        parser,
+        DEFAULT_ENERGY_BAR,
+        f"apex energy of the operating point (default: {DEFAULT_ENERGY_BAR:.4g}, the default apex's, 1 m and "
+        "5 m/s)",
+        "--energy",
+    )
     parser.add_argument(
         "--mismatch-field",
         choices=[name.removeprefix("mismatch_") for name in MISMATCH_PARAMETERS],
         default="stiffness",
+        help="the hopper parameter the mismatch kind scales",
     )
     parser.add_argument(
         "--seed", type=int, default=0, help="of every random draw (with the trajectory index)"
     )
     add_engine_arguments(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = parser().parse_args(argv)
     kinds, policies = list(dict.fromkeys(args.kinds)), list(dict.fromkeys(args.policies))
 
     def produce() -> None:
         params = PAPER_PARAMS
-        if not 0.0 < args.touchdown_angle < 90.0:
-            raise StudyError(f"--touchdown-angle must be in (0, 90) deg, got {args.touchdown_angle:g}")
+        if not 0.0 < args.touchdown_angle_deg < 90.0:
+            raise StudyError(
+                f"--touchdown-angle-deg must be in (0, 90) deg, got {args.touchdown_angle_deg:g}"
+            )
         write_robustness(
             args.out,
             params,
-            math.radians(args.touchdown_angle),
-            units.energy_from_bar(params, args.energy),
+            math.radians(args.touchdown_angle_deg),
+            units.energy_from_bar(params, args.energy_bar),
             kinds,
             policies,
             args.samples,

@@ -15,11 +15,12 @@ from pathlib import Path
 
 from tdslip_msgs.msg import ApexEvent
 
+from tdslip_ros.commands.options import add_initial_apex, add_touchdown_angle, command_parser
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, POLICIES
+from tdslip_ros.model.policies import POLICIES
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import stop_on_signals
@@ -65,73 +66,102 @@ def recording_note(bag: Path) -> str:
     return f"The recording so far is in {bag} (finalised: tdslip analyze and replay read it)."
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tdslip run",
-        description="Run the plant, controller and recorder nodes for one hop and record it.",
+DESCRIPTION = """\
+Run the plant, controller and recorder nodes (ROS 2) for one hop and record it as a bag.
+Progress goes to stderr; then the apex table, the messages published and recorded per topic and the
+run's outcome. The exit status is 0 only for a complete run with a complete recording (2: a usage error,
+nothing started; 130: interrupted)."""
+
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("run", DESCRIPTION)
+    parser.add_argument(
+        "--strides", type=int, default=50, help="the run ends at this apex (0: no limit, needs --duration)"
     )
-    parser.add_argument("--strides", type=int, default=50, help="the run ends at this apex (default 50)")
-    parser.add_argument("--policy", choices=POLICIES, default="energy")
-    parser.add_argument("--mode", choices=CLOCK_MODES, default="lockstep")
+    parser.add_argument("--policy", choices=POLICIES, default="energy", help="the controller's policy")
+    parser.add_argument(
+        "--mode",
+        choices=CLOCK_MODES,
+        default="lockstep",
+        help="lockstep: the plant waits for each command; realtime: 1 kHz on the wall clock",
+    )
+    parser.add_argument(
+        "--out", type=Path, help="bag directory to create (default: runs/<policy>-<mode>-<time>)"
+    )
     parser.add_argument(
         "--controller",
         choices=("suite", "none"),
         default="suite",
-        help="suite: the package's controller_node with --policy; none: start none and wait for your own "
-        "(it answers tdslip/apex on tdslip/command; examples/my_controller.py) (default suite)",
+        help="suite: the package's controller_node with --policy; none: start none and wait for your own, "
+        "which answers tdslip/apex on tdslip/command (examples/my_controller.py)",
     )
     parser.add_argument(
         "--wait-for-controller",
         type=float,
         default=300.0,
         metavar="SECONDS",
-        help="with --controller none: how long to wait for your controller to connect [s] (default 300)",
+        help="with --controller none: how long to wait for your controller to connect [s]",
+    )
+    add_initial_apex(parser)
+    add_touchdown_angle(parser, "--angle", what=" (open_loop, energy, energy_exact)")
+    parser.add_argument(
+        "--target-energy", type=float, help="energy policies' goal [J] (default: the initial apex's energy)"
     )
     parser.add_argument(
-        "--out", type=Path, help="bag directory to create (default runs/<policy>-<mode>-<time>)"
+        "--target-height",
+        type=float,
+        help="deadbeat/pd target apex height [m] (default: config/controller.yaml's, 1)",
     )
-    parser.add_argument("--height", type=float, default=DEFAULT_APEX_HEIGHT, help="initial apex [m]")
-    parser.add_argument("--speed", type=float, default=DEFAULT_APEX_SPEED, help="initial apex [m/s]")
-    parser.add_argument("--angle", type=float, help="touchdown angle [deg] (default 20)")
     parser.add_argument(
-        "--target-energy", type=float, help="energy policy [J] (default: initial apex energy)"
+        "--target-speed",
+        type=float,
+        help="deadbeat/pd target apex speed [m/s] (default: config/controller.yaml's, 5)",
     )
-    parser.add_argument("--target-height", type=float, help="deadbeat/pd target apex height [m]")
-    parser.add_argument("--target-speed", type=float, help="deadbeat/pd target apex speed [m/s]")
-    parser.add_argument("--timeout", type=float, help="lockstep command timeout [s wall]")
-    parser.add_argument("--duration", type=float, help="end the run after this wall time [s]")
     parser.add_argument(
-        "--realtime-priority", type=int, help="SCHED_FIFO priority 1-99 of the realtime tick (needs root)"
+        "--timeout",
+        type=float,
+        help="lockstep: wait this long for a command [s wall] (default: the plant's command_timeout, 5)",
+    )
+    parser.add_argument("--duration", type=float, help="end the run after this wall time [s] (default: none)")
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        help="SCHED_FIFO priority 1-99 of the realtime tick, needs root (default: normal scheduling)",
     )
     parser.add_argument("--record-clock", action="store_true", help="also record /clock")
     parser.add_argument("--domain-id", type=int, help="ROS domain id (default: a free one from 120-229)")
     parser.add_argument(
-        "--namespace", default="/", help="ROS namespace of the nodes (default /: topics /tdslip/...)"
+        "--namespace", default="/", help="ROS namespace of the nodes (default: /, topics /tdslip/...)"
     )
     perturb = parser.add_argument_group("perturbations (default: none; see README, Perturbations)")
-    perturb.add_argument("--terrain", metavar="SPEC", help=f"ground [m]: {TERRAIN_FORMS}")
+    perturb.add_argument("--terrain", metavar="SPEC", help=f"ground [m]: {TERRAIN_FORMS} (default: flat)")
     perturb.add_argument(
         "--apex-noise",
         metavar="height=M,speed=M_PER_S,seed=N",
-        help="the controller's sensor noise (std. dev.)",
+        help="the controller's sensor noise, std. dev. [m], [m/s] (default: none)",
     )
     perturb.add_argument(
-        "--angle-noise", metavar="sigma=DEG,seed=N", help="touchdown angle error (std. dev., degrees)"
+        "--angle-noise",
+        metavar="sigma=DEG,seed=N",
+        help="touchdown angle error, std. dev. [deg] (default: none)",
     )
     perturb.add_argument(
         "--mismatch",
         metavar="mass=F,stiffness=F,damping=F,rest_length=F",
-        help="the controller plans with the plant's parameters times these factors",
+        help="the controller plans with the plant's parameters times these factors (default: all 1)",
     )
     perturb.add_argument(
-        "--tau-max", type=float, metavar="N_M", help="the hip torque saturates at +-N_M [N m]"
+        "--tau-max",
+        type=float,
+        metavar="N_M",
+        help="the hip torque saturates at +-N_M [N m] (default: no limit)",
     )
     perturb.add_argument(
         "--push",
         action="append",
         default=[],
         metavar="STRIDE:DV | random:size=DV,rate=P,seed=N",
-        help="a push of DV m/s right after the apex of STRIDE, or random ones (repeatable)",
+        help="a push of DV [m/s] right after the apex of STRIDE, or random ones (repeatable; default: none)",
     )
     return parser
 
@@ -169,7 +199,7 @@ def own_controller_domain(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+    args = parser().parse_args(argv)
     out = args.out or Path("runs") / f"{args.policy}-{args.mode}-{datetime.now():%Y%m%d-%H%M%S}"
     try:
         perturbations = perturbations_of(args)
@@ -184,7 +214,7 @@ def main(argv: list[str]) -> int:
         mode=args.mode,
         height=args.height,
         speed=args.speed,
-        touchdown_angle=None if args.angle is None else math.radians(args.angle),
+        touchdown_angle=math.radians(args.touchdown_angle_deg),
         target_energy=args.target_energy,
         target_height=args.target_height,
         target_speed=args.target_speed,

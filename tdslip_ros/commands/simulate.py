@@ -16,6 +16,7 @@ import math
 import sys
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
+from tdslip_ros.commands.options import add_initial_apex, add_touchdown_angle, command_parser
 from tdslip_ros.model import units
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
@@ -35,30 +36,44 @@ def _row(
     )
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tdslip simulate", description=__doc__.splitlines()[0])
-    parser.add_argument("--strides", type=int, default=10, help="apexes to simulate (default 10)")
-    parser.add_argument("--kbar", type=float, default=36.0, help="leg stiffness k r0/(m g) (default 36)")
-    parser.add_argument("--zeta0", type=float, default=0.08, help="leg damping ratio (default 0.08)")
-    parser.add_argument("--mass", type=float, default=80.0, help="body mass m [kg] (default 80)")
-    parser.add_argument("--r0", type=float, default=1.0, help="leg rest length [m] (default 1)")
-    parser.add_argument("--beta-deg", type=float, default=22.0, help="touchdown angle [deg] (default 22)")
-    parser.add_argument("--height", type=float, default=1.0, help="initial apex height [m] (default 1.0)")
-    parser.add_argument("--speed", type=float, default=5.5, help="initial apex speed [m/s] (default 5.5)")
+DESCRIPTION = """\
+Simulate the hopper alone (no ROS) on the 1 kHz stepper and print one table row per apex.
+It hops open loop under one constant stance command: the touchdown angle and a hip torque ramp tau0
+over t_f, by default chosen so that the first stride replaces its own losses. Open-loop hopping is at
+best marginally stable, so the run drifts and may end in a named failure (exit status 1)."""
+
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("simulate", DESCRIPTION)
+    parser.add_argument("--strides", type=int, default=10, help="apexes to simulate")
+    parser.add_argument("--kbar", type=float, default=36.0, help="leg stiffness k r0/(m g) (dimensionless)")
+    parser.add_argument("--zeta0", type=float, default=0.08, help="leg damping ratio (dimensionless)")
+    parser.add_argument("--mass", type=float, default=80.0, help="body mass m [kg]")
+    parser.add_argument("--r0", type=float, default=1.0, help="leg rest length [m]")
+    add_touchdown_angle(parser, "--beta-deg")
+    add_initial_apex(parser)
     parser.add_argument("--tau0", type=float, help="ramp torque [N m] (default: energy-neutral first stride)")
     parser.add_argument("--t-f", type=float, help="ramp duration [s] (default: first stride's stance time)")
-    parser.add_argument("--dt", type=float, default=1e-3, help="stepper tick [s] (default 0.001)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--dt", type=float, default=1e-3, help="stepper tick [s]")
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = parser().parse_args(argv)
     # Bad input: one line on stderr and exit code 2 (argparse's code for a usage error); 1 is a failure.
     try:
         if args.strides < 1:
             raise ParameterError(f"--strides must be at least 1, got {args.strides}")
+        if not 0.0 < args.touchdown_angle_deg < 90.0:
+            raise ParameterError(
+                f"--touchdown-angle-deg must be in (0, 90) deg, got {args.touchdown_angle_deg}"
+            )
         params = HopperParams.from_dimensionless(args.kbar, args.zeta0, m=args.mass, r0=args.r0)
         check_hopper(params)
         limits = PlausibilityLimits.for_hopper(params)
         apex = ApexState(args.height, args.speed)
         limits.check_apex(apex)
-        angle = math.radians(args.beta_deg)
+        angle = math.radians(args.touchdown_angle_deg)
         if args.tau0 is None:
             command = energy_neutral_command(params, apex, angle, args.t_f)
         else:
@@ -76,7 +91,7 @@ def main(argv: list[str]) -> int:
         f"r0 = {params.r0:g} m, c = {params.c:.2f} N s/m (kbar = {params.kbar:g}, zeta0 = {params.zeta0:g})"
     )
     print(
-        f"constant command: touchdown angle {args.beta_deg:g} deg, tau0 = {command.tau0:.2f} N m "
+        f"constant command: touchdown angle {args.touchdown_angle_deg:g} deg, tau0 = {command.tau0:.2f} N m "
         f"(taubar = {units.torque_to_bar(params, command.tau0):.4f}), t_f = {command.t_f:.4f} s"
     )
     print(

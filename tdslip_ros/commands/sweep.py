@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from tdslip_ros.commands.options import command_parser
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.studies.sweep import SWEEPS, write_sweep
 
@@ -42,19 +43,41 @@ def grid_size(text: str) -> tuple[int, int]:
     return sizes[0], sizes[1]
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
-        prog="tdslip sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+DESCRIPTION = """\
+The exact plant's basins (figs 7 and 10) and parameter dependence (fig 11) at any resolution, in
+parallel on a local Dask cluster (or --scheduler). fig07: open loop, touchdown powers x initial heights;
+fig10: the goal regulator, initial energies x heights; fig11: fixed points as beta, kbar, zeta0 vary.
+Writes per study a Parquet table and study.json; DIR gets the figure and summary.json."""
+
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("sweep", DESCRIPTION)
     parser.add_argument("sweep", choices=list(SWEEPS), help="which figure's sweep")
     parser.add_argument("--out", type=Path, required=True, help="directory for the table, figure and summary")
-    parser.add_argument("--grid", type=grid_size, help="resolution AxB (see above)")
-    parser.add_argument("--strides", type=positive_int, help="strides per trajectory")
+    parser.add_argument(
+        "--grid",
+        type=grid_size,
+        metavar="AxB",
+        help="resolution: fig07 alphas x heights, fig10/fig11 energies x heights (default: "
+        + ", ".join(f"{name} {sweep.grid[0]}x{sweep.grid[1]}" for name, sweep in SWEEPS.items())
+        + ")",
+    )
+    parser.add_argument(
+        "--strides",
+        type=positive_int,
+        help="strides per trajectory (default: "
+        + ", ".join(f"{name} {sweep.strides}" for name, sweep in SWEEPS.items())
+        + ")",
+    )
     parser.add_argument(
         "--chunk-size", type=positive_int, help="trajectories per chunk (default: from the size)"
     )
     add_engine_arguments(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = parser().parse_args(argv)
 
     def produce() -> None:
         write_sweep(

@@ -10,7 +10,7 @@ identically forever; blocks start at ``--start``, so what differs is the terrain
 
 The figure shows the centre-of-mass paths over the ground and the apex energy above the ground per
 stride; the run ends at ``--strides`` apexes or a failure (marked). The same runs are recorded by the
-node suite with ``tdslip run --terrain blocks:... --policy energy`` (or ``open_loop --angle``).
+node suite with ``tdslip run --terrain blocks:... --policy energy`` (or ``open_loop --touchdown-angle-deg``).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from tdslip_ros.analysis.rough_terrain import LABELS, draw, hop, policies
+from tdslip_ros.commands.options import add_initial_apex, add_touchdown_angle, command_parser
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError
@@ -31,35 +32,41 @@ from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.terrain import Blocks
 from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
 
+DESCRIPTION = """\
+Energy regulation against open loop over the same random blocks, on the 1 kHz plant (no ROS).
+Both start at energy regulation's flat-ground fixed point for the initial apex's energy; the blocks begin
+at --start. Draws the centre-of-mass paths and the apex energy above the ground per stride (PNG).
+The node suite records the same runs with: tdslip run --terrain blocks:... --policy energy"""
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="tdslip terrain", description=__doc__.splitlines()[0])
+
+def parser() -> argparse.ArgumentParser:
+    parser = command_parser("terrain", DESCRIPTION)
     parser.add_argument(
-        "--out", type=Path, help="the PNG to write (default runs/terrain-<time>.png, never the source tree)"
+        "--out", type=Path, help="the PNG to write (default: runs/terrain-<time>.png, never the source tree)"
     )
     parser.add_argument("--sigma", type=float, default=0.03, help="block heights' standard deviation [m]")
     parser.add_argument("--length", type=float, default=0.5, help="block length [m]")
     parser.add_argument("--seed", type=int, default=1, help="terrain seed")
     parser.add_argument("--start", type=float, default=2.0, help="where the blocks begin [m]")
-    parser.add_argument("--strides", type=int, default=40, help="apexes to hop (default 40)")
-    parser.add_argument(
-        "--angle",
-        type=float,
-        default=22.0,
-        help="touchdown angle [deg] (default 22: about 10 cm of toe clearance)",
-    )
-    parser.add_argument("--height", type=float, default=1.0, help="initial apex [m]")
-    parser.add_argument("--speed", type=float, default=5.0, help="initial apex [m/s]")
-    args = parser.parse_args(argv)
+    parser.add_argument("--strides", type=int, default=40, help="apexes to hop")
+    add_touchdown_angle(parser, "--angle")
+    add_initial_apex(parser)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = parser().parse_args(argv)
     try:
         if args.strides < 1:
             raise ParameterError(f"--strides must be at least 1, got {args.strides}")
-        if not 0.0 < args.angle < 90.0:
-            raise ParameterError(f"--angle must be in (0, 90) deg, got {args.angle}")
+        if not 0.0 < args.touchdown_angle_deg < 90.0:
+            raise ParameterError(
+                f"--touchdown-angle-deg must be in (0, 90) deg, got {args.touchdown_angle_deg}"
+            )
         blocks = Blocks(args.sigma, args.length, args.seed, args.start)
         apex = ApexState(args.height, args.speed)
         params = PAPER_PARAMS
-        start, specs = policies(params, apex, math.radians(args.angle))
+        start, specs = policies(params, apex, math.radians(args.touchdown_angle_deg))
         if args.out is None:
             args.out = Path("runs") / f"terrain-{datetime.now():%Y%m%d-%H%M%S}.png"
         output_directory(args.out.parent)

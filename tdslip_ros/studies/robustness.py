@@ -53,7 +53,7 @@ class Kind:
     def axis(self, name: str, params: HopperParams, mismatch_field: str) -> tuple[str, list[Any]]:
         """The grid axis (parameter names, values) of this kind's sizes."""
         if name == "terrain":
-            return "terrain_sigma", [size / 100.0 for size in self.sizes]
+            return "terrain_sigma", list(self.sizes)
         if name == "noise":
             speed = math.sqrt(params.g * params.r0)
             return "noise_height,noise_speed", [(size * params.r0, size * speed) for size in self.sizes]
@@ -63,7 +63,7 @@ class Kind:
 
 
 KINDS = {
-    "terrain": Kind("block height sigma [cm]", (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0), "linear"),
+    "terrain": Kind("block height sigma [m]", (0.0, 0.01, 0.02, 0.03, 0.04, 0.06, 0.08, 0.12), "linear"),
     "noise": Kind(
         "sensor noise s (height s r0, speed s sqrt(g r0))", (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3), "linear"
     ),

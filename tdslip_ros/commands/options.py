@@ -1,0 +1,129 @@
+"""The ``tdslip`` vocabulary, declared once: the options several subcommands share, each with one name, one
+unit and one default, and the help formatter every subcommand uses.
+
+Values on the command line are SI, or carry their unit in the option's name where the natural value is not
+(``--touchdown-angle-deg``, the dimensionless ``--energy-bar`` and ``--speeds-bar``). Old spellings keep
+working for now, hidden from ``--help``, with a one-line deprecation warning on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
+
+TOUCHDOWN_ANGLE_DEG = round(math.degrees(DEFAULT_TOUCHDOWN_ANGLE), 9)
+"""The model's touchdown angle [deg] (20): the default of ``--touchdown-angle-deg`` everywhere."""
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions as written (line breaks kept); every option's help ends with its default, unless the
+    help already states it: "(default: X)", "(default: off)" for a flag, "(required)" for a required one."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if not action.option_strings or "default" in text or action.default is argparse.SUPPRESS:
+            return text
+        if action.required:
+            return f"{text} (required)"
+        if isinstance(action, argparse._StoreTrueAction):
+            return f"{text} (default: off)"
+        if action.default is None:
+            return text  # the help says in words what no value means
+        return f"{text} (default: {shown(action.default)})".replace("%", "%%")
+
+
+def shown(value: Any) -> str:
+    """A default as the user would type it."""
+    if isinstance(value, list | tuple):
+        return " ".join(shown(item) for item in value)
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
+def command_parser(name: str, description: str) -> argparse.ArgumentParser:
+    """The parser of ``tdslip NAME``, with the shared help formatter."""
+    return argparse.ArgumentParser(
+        prog=f"tdslip {name}", description=description, formatter_class=HelpFormatter
+    )
+
+
+class _Deprecated(argparse.Action):
+    """An old spelling of an option: stores into the new one's destination and warns in one line."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, use: str = "", **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, **kwargs)
+        self.use = use
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        print(f"{parser.prog}: {option_string} is deprecated; use {self.use}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def deprecated(parser: argparse.ArgumentParser | Any, new: argparse.Action, *old: str) -> None:
+    """Accept the old spellings ``old`` of the option ``new`` (same unit), hidden from --help."""
+    for spelling in old:
+        parser.add_argument(
+            spelling,
+            action=_Deprecated,
+            dest=new.dest,
+            use=new.option_strings[0],
+            type=new.type,
+            nargs=new.nargs,
+            choices=new.choices,
+            metavar=new.metavar,
+            default=argparse.SUPPRESS,
+            help=argparse.SUPPRESS,
+        )
+
+
+def add_touchdown_angle(
+    parser: argparse.ArgumentParser | Any,
+    *old: str,
+    what: str = "",
+    unset: str | None = None,
+) -> argparse.Action:
+    """``--touchdown-angle-deg`` [deg], default the model's 20 deg, or (with ``unset``) None, described in
+    words by ``unset``; ``old``: its deprecated spellings in this command."""
+    action = parser.add_argument(
+        "--touchdown-angle-deg",
+        type=float,
+        default=None if unset else TOUCHDOWN_ANGLE_DEG,
+        metavar="DEG",
+        help=f"touchdown angle beta [deg]{what}" + (f" (default: {unset})" if unset else ""),
+    )
+    deprecated(parser, action, *old)
+    return action
+
+
+def add_initial_apex(parser: argparse.ArgumentParser | Any) -> None:
+    """``--height`` [m] and ``--speed`` [m/s] of the initial apex, defaults the model's (1 m, 5 m/s)."""
+    parser.add_argument(
+        "--height", type=float, default=DEFAULT_APEX_HEIGHT, metavar="M", help="initial apex height [m]"
+    )
+    parser.add_argument(
+        "--speed", type=float, default=DEFAULT_APEX_SPEED, metavar="M_PER_S", help="initial apex speed [m/s]"
+    )
+
+
+def add_energy_bar(parser: argparse.ArgumentParser | Any, default: float, what: str, *old: str) -> None:
+    """``--energy-bar``: an apex energy, dimensionless E/(m g r0)."""
+    action = parser.add_argument(
+        "--energy-bar",
+        type=float,
+        default=default,
+        metavar="EBAR",
+        help=f"{what}, E/(m g r0) (dimensionless)",
+    )
+    deprecated(parser, action, *old)
