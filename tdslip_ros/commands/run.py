@@ -133,7 +133,7 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--namespace", default="/", help="ROS namespace of the nodes (default: /, topics /tdslip/...)"
     )
-    perturb = parser.add_argument_group("perturbations (default: none; see README, Perturbations)")
+    perturb = parser.add_argument_group("perturbations (default: none; see docs/perturbations.md)")
     perturb.add_argument("--terrain", metavar="SPEC", help=f"ground [m]: {TERRAIN_FORMS} (default: flat)")
     perturb.add_argument(
         "--apex-noise",

@@ -1,6 +1,6 @@
 """Names, types and QoS of the node suite's topics and service: the one place they are spelled.
 
-The QoS contract (the README states it for users' own nodes):
+The QoS contract (docs/nodes.md states it for users' own nodes):
 
 * Everything the plant publishes is **reliable, volatile, KEEP_LAST** (:data:`STREAM_QOS`, depth
   :data:`STREAM_DEPTH`). Any subscriber matches it (a default-QoS ``create_subscription(..., 10)``,
