@@ -65,6 +65,13 @@ STATE_FIELDS = (
 GRF_FIELDS = ("wrench.force.x", "wrench.force.y")
 """The fields of the GRF's WrenchStamped that the plant sets (the rest is 0)."""
 
+RUN_COMPLETE = "run_complete"
+"""The kind of the Status that ends a run without a failure (the plant's Status.KIND_RUN_COMPLETE); every
+other kind of a fatal Status is a failure."""
+STOP_REQUESTED = "stopped on request"
+"""The reason of the ``run_complete`` Status of a run its caller stopped before its limits (``tdslip run``
+on Ctrl-C); a run_complete with any other reason reached a limit it was given (max_strides, a wall time)."""
+
 
 def resolve(name: str, namespace: str = "/") -> str:
     """The fully qualified name of a suite topic or service in ``namespace`` (``/h1`` ->

@@ -122,13 +122,13 @@ def test_analyze_reports_the_perturbations(
     saturated = summary["run"]["perturbations"]["saturated_strides"]
     assert f"the hip saturated (|tau0| > tau_max) in {saturated} stride(s)" in printed
     assert summary["run"]["perturbations"]["mismatch"] == pytest.approx(
-        {"mass": 1.05, "stiffness": 1.0, "damping": 0.9, "rest_length": 1.0}
+        {"mass_factor": 1.05, "stiffness_factor": 1.0, "damping_factor": 0.9, "rest_length_factor": 1.0}
     )
     assert {"terrain_path", "measured_apex"} <= set(summary["figures"])
     for name in ("terrain_path.png", "measured_apex.png"):
         assert (tmp_path / name).stat().st_size > 10_000
     rows = summary["strides"]
-    assert [row["ground"] for row in rows] == [s.ground for s in read_run(rough.bag).strides]
+    assert [row["ground_m"] for row in rows] == [s.ground for s in read_run(rough.bag).strides]
     assert sum(row["saturated"] for row in rows) == saturated
 
 
@@ -145,7 +145,7 @@ def test_a_run_that_fails_on_the_terrain_says_where_and_why(
     x = float(line.split("x = ")[1].split(" m")[0])
     assert 6.0 < x < 8.5  # at the wall
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["run"]["failure_location"]["x"] == pytest.approx(x, abs=1e-3)
+    assert summary["run"]["failure_location"]["x_m"] == pytest.approx(x, abs=1e-3)
 
 
 @pytest.mark.parametrize(

@@ -47,21 +47,23 @@ def test_analyze_writes_summary_figures_and_report(
     assert isinstance(summary, dict)
     strides = summary["strides"]
     assert [row["stride"] for row in strides] == [apex.stride for apex in energy.apexes]
-    assert [row["y"] for row in strides] == [apex.height for apex in energy.apexes]
-    assert strides[-1]["command"] is None and strides[-1]["hip_work"] is None  # NaN became null
+    assert [row["y_m"] for row in strides] == [apex.height for apex in energy.apexes]
+    assert strides[-1]["command"] is None and strides[-1]["hip_work_J"] is None  # NaN became null
     assert summary["run"]["outcome"]["kind"] == "run_complete"
     assert summary["run"]["params"]["kbar"] == pytest.approx(36.0, rel=1e-12)
     comparison = summary["comparison"]
     assert comparison["policy"]["name"] == "energy" and comparison["policy_reproduced"]
     assert comparison["converged_at_stride"] is not None
-    assert set(summary["figures"]) == set(FIGURES)
+    # No perturbation: the path over flat ground and the measured (= true) apexes would repeat the others.
+    assert set(summary["figures"]) == set(FIGURES) - {"terrain_path", "measured_apex"}
+    assert set(summary["figures_omitted"]) == {"terrain_path", "measured_apex"}
     for name in summary["figures"].values():
         assert (out / name).stat().st_size > 10_000
     markdown = (out / "report.md").read_text()
     assert all(f"({name})" in markdown for name in summary["figures"].values())
     # The headline carries the numbers of the summary.
     errors = comparison["prediction_errors"]["analytic_1_corrections"]
-    assert f"{errors['max_height']:.2e}" in printed
+    assert f"{errors['max_error_ybar']:.2e}" in printed
     assert f"converged (apex change < 1e-4) from stride {comparison['converged_at_stride']}" in printed
     recorded = comparison["recorded_fixed_point"]
     assert f"{recorded['ybar']:.5f}" in printed and f"{recorded['dominant_modulus']:.4f}" in printed
@@ -120,9 +122,9 @@ def test_analyze_a_run_of_ones_own_controller_and_name_a_policy_to_compare_with(
     assert isinstance(summary, dict)
     comparison = summary["comparison"]
     assert comparison["policy"] is None and comparison["policy_reproduced"] is None
-    assert comparison["command_deviation"] is None and comparison["analytic_fixed_point"] is None
+    assert comparison["command_deviation_ratio"] is None and comparison["analytic_fixed_point"] is None
     assert comparison["prediction_errors"]["exact_map"]["strides"] == len(energy.apexes) - 1
-    assert set(summary["figures"]) == set(FIGURES)
+    assert set(summary["figures"]) == set(FIGURES) - {"terrain_path", "measured_apex"}
     # The policy it was, named, is replayed as for the original recording (settings from the recording).
     assert main([str(path), "--out", str(tmp_path / "named"), "--policy", "energy"]) == 0
     printed = capsys.readouterr().out
@@ -135,14 +137,22 @@ def test_analyze_reports_a_failed_run(
     assert main([str(fall.bag), "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     outcome = fall.outcome
-    assert f"ended {outcome.kind} at stride {outcome.stride}" in printed
+    assert f"failed at stride {outcome.stride}: {outcome.kind}" in printed
     # The policy commands only strides its map accepts: this failure is the map's error, and says so.
     assert f"predicted a next apex for stride {outcome.stride}" in printed
     assert "not converged: the run failed" in printed
     summary = _strict_json(tmp_path / "summary.json")
     assert isinstance(summary, dict)
     last = summary["strides"][-1]
-    assert last["failure"] == outcome.kind and last["next_apex_predicted"]["exact_map"] == [None, None]
+    assert last["failure"] == outcome.kind
+    assert last["next_apex_predicted"]["exact_map"] == {"y_m": None, "xdot_m_per_s": None}
+    ended = summary["run"]["outcome"]
+    assert (ended["ended"], ended["failed"], ended["kind"], ended["stride"]) == (
+        "failed",
+        True,
+        outcome.kind,
+        outcome.stride,
+    )
 
 
 def test_a_run_recorded_without_its_1khz_topics_is_analysed(energy: RunReport, tmp_path: Path) -> None:

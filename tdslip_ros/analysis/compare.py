@@ -45,7 +45,7 @@ and the analytic fixed point, which need the policy, are skipped (``Comparison.p
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -62,7 +62,8 @@ from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.closed_loop import eigenvalues
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.policies import FIXED_ANGLE_POLICIES, POLICIES, PolicyError, PolicySpec
+from tdslip_ros.model.policies import FIXED_ANGLE_POLICIES, POLICIES, POLICY_SETTINGS, PolicyError, PolicySpec
+from tdslip_ros.reporting.output import unit_key
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -512,8 +513,31 @@ def energy_balance_residual(run: Run) -> float:
     return worst
 
 
+def policy_summary(policy: PolicySpec) -> dict[str, Any]:
+    """JSON-ready settings of ``policy``, each key with its unit (POLICY_SETTINGS)."""
+    return {
+        "name": policy.name,
+        **{
+            unit_key(setting.name, setting.unit): getattr(policy, setting.name) for setting in POLICY_SETTINGS
+        },
+        "source": policy.source,
+    }
+
+
+def error_summary(stats: ErrorStats) -> dict[str, Any]:
+    """JSON-ready prediction errors: counts, and the errors in ybar and xdotbar."""
+    return {
+        "strides": stats.strides,
+        "failures": stats.failures,
+        "mean_error_ybar": stats.mean_height,
+        "max_error_ybar": stats.max_height,
+        "mean_error_xdotbar": stats.mean_speed,
+        "max_error_xdotbar": stats.max_speed,
+    }
+
+
 def comparison_summary(comparison: Comparison) -> dict[str, Any]:
-    """JSON-ready summary of a comparison (SI and dimensionless)."""
+    """JSON-ready summary of a comparison (SI and dimensionless; each key says its unit)."""
     params = comparison.run.params
 
     def point(fixed: FixedPoint | None) -> dict[str, Any] | None:
@@ -521,8 +545,8 @@ def comparison_summary(comparison: Comparison) -> dict[str, Any]:
             return None
         bar = dimensionless(params, (fixed.y, fixed.xdot))
         return {
-            "y": fixed.y,
-            "xdot": fixed.xdot,
+            "y_m": fixed.y,
+            "xdot_m_per_s": fixed.xdot,
             "ybar": float(bar[0]),
             "xdotbar": float(bar[1]),
             "eigenvalues": [[v.real, v.imag] for v in fixed.eigenvalues],
@@ -530,16 +554,16 @@ def comparison_summary(comparison: Comparison) -> dict[str, Any]:
         }
 
     return {
-        "policy": None if comparison.policy is None else asdict(comparison.policy),
+        "policy": None if comparison.policy is None else policy_summary(comparison.policy),
         "policy_reproduced": None if comparison.policy is None else comparison.policy_reproduced,
-        "command_deviation": comparison.command_deviation,
+        "command_deviation_ratio": comparison.command_deviation,
         "prediction_errors": {
-            **{f"analytic_{c}_corrections": asdict(stats) for c, stats in comparison.errors.items()},
-            "exact_map": asdict(comparison.exact_errors),
+            **{f"analytic_{c}_corrections": error_summary(stats) for c, stats in comparison.errors.items()},
+            "exact_map": error_summary(comparison.exact_errors),
         },
         "converged_at_stride": comparison.converged_at,
-        "convergence_tolerance": CONVERGENCE_TOLERANCE,
+        "convergence_tolerance_bar": CONVERGENCE_TOLERANCE,
         "recorded_fixed_point": point(comparison.recorded_fixed_point),
         "analytic_fixed_point": point(comparison.analytic_fixed_point),
-        "energy_balance_residual": comparison.energy_balance_residual,
+        "energy_balance_residual_ratio": comparison.energy_balance_residual,
     }

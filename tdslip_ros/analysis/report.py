@@ -1,12 +1,14 @@
 """A recorded run against the analytic map, as numbers and pictures: what ``tdslip analyze RUN --out DIR``
 writes and prints.
 
-Writes ``DIR/summary.json`` (run, hopper parameters, policy, per-stride records and predictions,
-convergence, fixed points, eigenvalues), four PNG figures and ``DIR/report.md``, and prints the
-headline numbers. Policy settings that the recording does not show can be given on the command line
-(see :func:`tdslip_ros.analysis.compare.policy_for_run`); so can the hopper parameters (``--params``,
-a ROS parameter file such as config/plant.yaml), which otherwise come from the bag's custom_data
-(``tdslip run`` stores them) or are inferred from the recording. A run of a controller of the user's
+Writes ``DIR/summary.json`` (run, how it ended, hopper parameters, policy, per-stride records and
+predictions, convergence, fixed points, eigenvalues; each number's key says its unit, see UNITLESS_KEYS),
+the PNG figures that show something (:func:`omitted_figures`) and ``DIR/report.md``, which opens with a
+glossary of every term it uses (:func:`glossary`), and prints the headline numbers. Policy settings that
+the recording does not show can be given on the command line (see
+:func:`tdslip_ros.analysis.compare.policy_for_run`); so can the hopper parameters (``--params``, a ROS
+parameter file such as config/plant.yaml), which otherwise come from the bag's custom_data (``tdslip run``
+stores them) or are inferred from the recording. A run of a controller of the user's
 own is analysed without a policy unless ``--policy`` names one; the report says what that skips.
 """
 
@@ -18,10 +20,13 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import (
+    CONVERGENCE_TOLERANCE,
     CORRECTIONS,
     Comparison,
     FixedPoint,
@@ -31,12 +36,17 @@ from tdslip_ros.analysis.compare import (
     policy_for_run,
 )
 from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError
-from tdslip_ros.interfaces import hopper_from_parameters, perturbation_parameters
+from tdslip_ros.interfaces import (
+    RUN_COMPLETE,
+    STOP_REQUESTED,
+    hopper_from_parameters,
+    perturbation_parameters,
+)
 from tdslip_ros.model import units
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
 from tdslip_ros.model.policies import POLICIES, PolicySpec, settings_of
-from tdslip_ros.reporting.output import to_json
+from tdslip_ros.reporting.output import DIMENSIONLESS_SUFFIXES, UNIT_SUFFIXES, to_json, unit_key
 
 FIGURES = {
     "apex_sequence": "apex height and speed per stride",
@@ -46,6 +56,38 @@ FIGURES = {
     "terrain_path": "COM path over the ground, toe landings and saturated stances",
     "measured_apex": "true and measured apexes per stride, saturated strides",
 }
+
+
+RUN_ENDINGS = {
+    "completed": f"the plant ended the run normally ({RUN_COMPLETE}): it reached its stride limit "
+    "(max_strides) or the wall-time limit it was given",
+    "stopped": f"the run was stopped on request before its limits ({RUN_COMPLETE}, '{STOP_REQUESTED}')",
+    "failed": "the hopper failed: the run ended in a failure, named by its kind (toe_stubbing, no_liftoff, "
+    "fall, reversal, state_limit, command_timeout, publish_failed)",
+    "unknown": "the recording ends before the run did: it holds no final status",
+}
+"""How a run ended (``run.outcome.ended`` in summary.json), and what each way means."""
+
+
+UNITLESS_KEYS = {
+    "stride": "the index of a stride (of its apex)",
+    "strides": "the number of strides compared",
+    "failures": "the number of those a map predicted to fail",
+    "apexes_recorded": "the number of recorded apexes",
+    "samples": "the number of 1 kHz states recorded",
+    "message_counts": "messages recorded, by topic",
+    "saturated_strides": "the number of strides in which the hip saturated",
+    "converged_at_stride": "the stride from which the run converged",
+    "corrections": "correction iterations of the analytic map the policy plans with",
+    "apex_noise_seed": "the seed of the sensor's noise",
+    "angle_noise_seed": "the seed of the placement error",
+    "zeta0": "the damping ratio c/(2 sqrt(m k))",
+    "eigenvalues": "the eigenvalues lambda of a fixed point, as [real, imaginary]",
+    "dominant_modulus": "|lambda|, the largest modulus of those",
+}
+"""The keys of summary.json whose numbers carry no unit suffix: counts, indices, seeds and dimensionless
+numbers; every other number's key ends in its unit (reporting.output.UNIT_SUFFIXES) or in a dimensionless
+suffix (DIMENSIONLESS_SUFFIXES)."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +108,22 @@ def hopper_params_from_yaml(path: Path) -> HopperParams:
         raise RunReadError(f"{path}: {error}") from None
 
 
+def command_summary(command: StanceCommand | None) -> dict[str, float] | None:
+    """JSON-ready stance command: touchdown angle, the hip torque ramp's tau0 and duration t_f."""
+    if command is None:
+        return None
+    return {
+        "touchdown_angle_rad": command.touchdown_angle,
+        "tau0_N_m": command.tau0,
+        "t_f_s": command.t_f,
+    }
+
+
+def _apex(apex: npt.ArrayLike) -> dict[str, float]:
+    y, xdot = np.asarray(apex, dtype=float).tolist()
+    return {"y_m": y, "xdot_m_per_s": xdot}
+
+
 def stride_table(comparison: Comparison) -> list[dict[str, Any]]:
     """One JSON row per recorded stride: apex, applied command, energy flows, failure, predictions."""
     run, predictions = comparison.run, comparison.predictions
@@ -74,30 +132,30 @@ def stride_table(comparison: Comparison) -> list[dict[str, Any]]:
     for stride in run.strides:
         row: dict[str, Any] = {
             "stride": stride.stride,
-            "t": stride.t,
-            "y": stride.y,
-            "xdot": stride.xdot,
-            "energy": stride.energy,
-            "command": None if stride.command is None else asdict(stride.command),
+            "t_s": stride.t,
+            "y_m": stride.y,
+            "xdot_m_per_s": stride.xdot,
+            "energy_J": stride.energy,
+            "command": command_summary(stride.command),
             "policy": stride.policy or None,
-            "hip_work": stride.hip_work,
-            "damping_loss": stride.damping_loss,
-            "spring_loss": stride.spring_loss,
+            "hip_work_J": stride.hip_work,
+            "damping_loss_J": stride.damping_loss,
+            "spring_loss_J": stride.spring_loss,
             "failure": stride.failure,
             "failure_reason": stride.failure_reason or None,
-            "ground": stride.ground,
-            "stance_ground": stride.stance_ground,
-            "measured_y": stride.measured_y,
-            "measured_xdot": stride.measured_xdot,
-            "placed_angle": stride.placed_angle,
-            "push": stride.push,
+            "ground_m": stride.ground,
+            "stance_ground_m": stride.stance_ground,
+            "measured_y_m": stride.measured_y,
+            "measured_xdot_m_per_s": stride.measured_xdot,
+            "placed_angle_rad": stride.placed_angle,
+            "push_m_per_s": stride.push,
             "saturated": stride.saturated,
         }
         i = row_of.get(stride.stride)
         if i is not None:
             row["next_apex_predicted"] = {
-                **{f"analytic_{c}_corrections": predictions.analytic[c][i].tolist() for c in CORRECTIONS},
-                "exact_map": predictions.exact[i].tolist(),
+                **{f"analytic_{c}_corrections": _apex(predictions.analytic[c][i]) for c in CORRECTIONS},
+                "exact_map": _apex(predictions.exact[i]),
             }
             row["analytic_failure"] = {
                 f"analytic_{c}_corrections": predictions.analytic_failures[c][i] for c in CORRECTIONS
@@ -106,25 +164,85 @@ def stride_table(comparison: Comparison) -> list[dict[str, Any]]:
     return rows
 
 
+def run_ending(run: Run) -> str:
+    """How ``run`` ended: one of RUN_ENDINGS, from the Status that ended it (the plant marks it ``fatal``,
+    whether the run failed or completed)."""
+    outcome = run.outcome
+    if outcome is None:
+        return "unknown"
+    if outcome.kind != RUN_COMPLETE:
+        return "failed"
+    return "stopped" if outcome.reason == STOP_REQUESTED else "completed"
+
+
+def outcome_summary(run: Run) -> dict[str, Any]:
+    """How the run ended (RUN_ENDINGS), whether it failed (None: unknown), and the final Status's kind,
+    reason, stride and time."""
+    ended, outcome = run_ending(run), run.outcome
+    return {
+        "ended": ended,
+        "failed": None if outcome is None else ended == "failed",
+        "kind": None if outcome is None else outcome.kind,
+        "reason": None if outcome is None else outcome.reason,
+        "stride": None if outcome is None else outcome.stride,
+        "t_s": None if outcome is None else outcome.t,
+    }
+
+
 def run_summary(run: Run) -> dict[str, Any]:
     params = run.params
-    outcome = None if run.outcome is None else asdict(run.outcome)
     return {
         "path": str(run.path),
         "apexes_recorded": len(run.strides),
-        "sim_time": float(run.samples.t[-1]) if len(run.samples) else run.strides[-1].t,
+        "sim_time_s": float(run.samples.t[-1]) if len(run.samples) else run.strides[-1].t,
         "samples": len(run.samples),
-        "outcome": outcome,
+        "outcome": outcome_summary(run),
         "message_counts": run.message_counts,
-        "params": {**asdict(params), "kbar": params.kbar, "zeta0": params.zeta0, "source": run.params_source},
-        "controller_params": None if run.controller_params is None else asdict(run.controller_params),
-        "perturbations": {
-            **perturbation_parameters(run.perturbations),
-            "mismatch": _mismatch(run),
-            "saturated_strides": run.saturated_strides,
+        "params": {
+            **hopper_summary(params),
+            "kbar": params.kbar,
+            "zeta0": params.zeta0,
+            "source": run.params_source,
         },
+        "controller_params": None if run.controller_params is None else hopper_summary(run.controller_params),
+        "perturbations": perturbation_summary(run),
         "failure_location": failure_location(run),
     }
+
+
+HOPPER_UNITS = {"m": "kg", "k": "N/m", "r0": "m", "c": "N s/m", "g": "m/s^2"}
+"""The SI unit of each HopperParams field."""
+PERTURBATION_UNITS = {
+    "apex_height_noise": "m",
+    "apex_speed_noise": "m/s",
+    "angle_noise": "rad",
+    "tau_max": "N m",
+}
+"""The SI unit of each numeric perturbation parameter of the plant (interfaces.PERTURBATION_PARAMETERS) but
+the seeds; the others are text (terrain, pushes)."""
+
+
+def hopper_summary(params: HopperParams) -> dict[str, float]:
+    """JSON-ready hopper parameters, each key with its unit."""
+    return {unit_key(name, HOPPER_UNITS[name]): value for name, value in asdict(params).items()}
+
+
+def perturbation_summary(run: Run) -> dict[str, Any]:
+    """JSON-ready perturbations of ``run`` (the plant's parameters, each key with its unit; tau_max null
+    without a torque limit), the mismatch factors and the saturated strides."""
+    values = perturbation_parameters(run.perturbations)
+    if not run.perturbations.saturates:
+        values["tau_max"] = None  # the parameter's 0: no limit
+    return {
+        **{unit_key(name, PERTURBATION_UNITS.get(name, "")): value for name, value in values.items()},
+        "mismatch": _mismatch_summary(run),
+        "saturated_strides": run.saturated_strides,
+    }
+
+
+def _mismatch_summary(run: Run) -> dict[str, float] | None:
+    mismatch = _mismatch(run)
+    return None if mismatch is None else {f"{name}_factor": factor for name, factor in mismatch.items()}
 
 
 def _mismatch(run: Run) -> dict[str, float] | None:
@@ -137,6 +255,31 @@ def _mismatch(run: Run) -> dict[str, float] | None:
     }
 
 
+def omitted_figures(run: Run, stride: int | None = None) -> dict[str, str]:
+    """The FIGURES not drawn for ``run``, each with the reason: those with nothing to draw (no complete
+    stride, no recorded state), and those that would show nothing the others do not: the path over the
+    ground on flat ground (the centre of mass is in com_trajectory, the apexes in apex_sequence), the
+    measured apexes where the sensor reported the true ones and the hip never saturated. ``stride``: the
+    stride com_trajectory is asked to draw (None: the last complete one)."""
+    omitted = {}
+    if plots.last_complete_stride(run) is None:
+        omitted["com_trajectory"] = omitted["energy_flows"] = (
+            "no complete stride: the run failed in its first"
+        )
+    elif len(run.samples) == 0 and stride is None:
+        omitted["com_trajectory"] = "no 1 kHz state recorded: no path to draw"
+    if len(run.samples) == 0:
+        omitted["terrain_path"] = "no 1 kHz state recorded: no path to draw"
+    elif run.perturbations.terrain.is_flat and not np.any(run.samples.ground_height != 0.0):
+        omitted["terrain_path"] = "flat ground: nothing beyond com_trajectory and apex_sequence"
+    true = run.apex_array()
+    measured = np.array([(s.measured_y - s.ground, s.measured_xdot) for s in run.strides]).reshape(-1, 2)
+    differs = np.isfinite(measured) & (measured != true)
+    if not np.any(differs) and run.saturated_strides == 0:
+        omitted["measured_apex"] = "the sensor reported the true apexes and the hip never saturated"
+    return omitted
+
+
 def failure_location(run: Run) -> dict[str, float] | None:
     """Where a failed run failed: the body's x and the ground under it at the last sample, and the toe
     and ground of the failed stride's stance if it touched down (None for a run that did not fail)."""
@@ -146,10 +289,10 @@ def failure_location(run: Run) -> dict[str, float] | None:
     touchdown = next((c for c in run.contacts if c.kind == "touchdown" and c.stride == failed.stride), None)
     samples = run.samples
     return {
-        "x": float(samples.x[-1]) if len(samples) else failed.x,
-        "ground_under_body": float(samples.ground_height[-1]) if len(samples) else failed.ground,
-        "toe_x": math.nan if touchdown is None else touchdown.state.toe_x,
-        "stance_ground": math.nan if touchdown is None else touchdown.ground,
+        "x_m": float(samples.x[-1]) if len(samples) else failed.x,
+        "ground_under_body_m": float(samples.ground_height[-1]) if len(samples) else failed.ground,
+        "toe_x_m": math.nan if touchdown is None else touchdown.state.toe_x,
+        "stance_ground_m": math.nan if touchdown is None else touchdown.ground,
     }
 
 
@@ -159,7 +302,8 @@ def analyze(
     """Compare ``run``, write the summary JSON, the figures and the Markdown report into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     comparison = compare_run(run, policy_for_run(run, **(policy_overrides or {})))
-    files = {name: out / f"{name}.png" for name in FIGURES}
+    omitted = omitted_figures(run, stride)
+    files = {name: out / f"{name}.png" for name in FIGURES if name not in omitted}
     drawers = {
         "apex_sequence": lambda path: plots.apex_sequence(comparison, path),
         "return_map": lambda path: plots.return_map(comparison, path),
@@ -168,18 +312,13 @@ def analyze(
         "terrain_path": lambda path: plots.terrain_path(run, path),
         "measured_apex": lambda path: plots.measured_apex(comparison, path),
     }
-    if len(run.samples) == 0:  # no state recorded: no path to draw
-        del files["terrain_path"]
-    if plots.last_complete_stride(run) is None:  # failed in its first stride: nothing per stride to draw
-        del files["com_trajectory"], files["energy_flows"]
-    elif len(run.samples) == 0 and stride is None:
-        del files["com_trajectory"]
     for name, path in files.items():
         drawers[name](path)
     summary = {
         "run": run_summary(run),
         "comparison": comparison_summary(comparison),
         "figures": {name: path.name for name, path in files.items()},
+        "figures_omitted": omitted,
         "strides": stride_table(comparison),
     }
     files["summary"] = out / "summary.json"
@@ -193,9 +332,12 @@ def analyze(
 
 
 def _outcome_text(run: Run) -> str:
-    if run.outcome is None:
+    outcome, ended = run.outcome, run_ending(run)
+    if outcome is None:
         return "the recording ends before the run did"
-    return f"ended {run.outcome.kind} at stride {run.outcome.stride} ({run.outcome.reason})"
+    if ended == "failed":
+        return f"failed at stride {outcome.stride}: {outcome.kind} ({outcome.reason})"
+    return f"{ended} at stride {outcome.stride} ({outcome.reason})"
 
 
 def _perturbation_lines(run: Run) -> list[str]:
@@ -207,13 +349,13 @@ def _perturbation_lines(run: Run) -> list[str]:
     where = failure_location(run)
     if where is not None and not perturbations.terrain.is_flat and run.outcome is not None:
         stance = (
-            f"; its stance's toe at x = {where['toe_x']:.3f} m on ground {where['stance_ground']:.4f} m"
-            if math.isfinite(where["toe_x"])
+            f"; its stance's toe at x = {where['toe_x_m']:.3f} m on ground {where['stance_ground_m']:.4f} m"
+            if math.isfinite(where["toe_x_m"])
             else ""
         )
         lines.append(
-            f"failed on the terrain at x = {where['x']:.3f} m over ground {where['ground_under_body']:.4f} m"
-            f"{stance}: {run.outcome.kind}: {run.outcome.reason}"
+            f"failed on the terrain at x = {where['x_m']:.3f} m over ground "
+            f"{where['ground_under_body_m']:.4f} m{stance}: {run.outcome.kind}: {run.outcome.reason}"
         )
     return lines
 
@@ -327,11 +469,183 @@ def headline(comparison: Comparison) -> str:
     return "\n".join(lines)
 
 
+_TOLERANCE_TEXT = f"{CONVERGENCE_TOLERANCE:.0e}".replace("e-0", "e-")  # 1e-4, as the headline writes it
+
+GLOSSARY: tuple[tuple[str, str], ...] = (
+    (
+        "SI units; ybar, xdotbar, Ebar, alpha (eq. 24)",
+        "numbers are in SI units (m, kg, s, N, J, W, rad) unless they are dimensionless; the bars are the "
+        "dimensionless units of eq. 24 of the paper (Ankarali & Saranli, Chaos 2010): ybar = y/r0, "
+        "xdotbar = xdot/sqrt(g r0), Ebar = E/(m g r0), and alpha = C/(m g sqrt(g r0)) for a hip power C",
+    ),
+    (
+        "m, k, r0, c, g; kbar, zeta0",
+        "the hopper: body mass m, leg stiffness k, leg rest length r0, leg damping c, gravity g; "
+        "kbar = k r0/(m g) the dimensionless stiffness, zeta0 = c/(2 sqrt(m k)) the damping ratio; "
+        "after them, where they come from (stored in the recording by tdslip run, given with --params, "
+        "or inferred from the recorded events)",
+    ),
+    (
+        "apex, stride",
+        "apex k: the top of the k-th flight (vertical speed ydot = 0; apex 0 the start), at height y above "
+        "the ground of the stance before it (summary.json: y_m the world height, ground_m that ground), "
+        "forward speed xdot, energy E = m (g y + xdot^2/2); stride k: from apex k through touchdown (the toe "
+        "lands), stance and liftoff to apex k + 1",
+    ),
+    (
+        "completed, stopped, failed; max_strides",
+        "how the run ended (run.outcome.ended in summary.json): "
+        + "; ".join(f"{name}: {meaning}" for name, meaning in RUN_ENDINGS.items())
+        + "; max_strides: the plant's stride limit",
+    ),
+    (
+        "command: beta, tau0, t_f",
+        "what the controller sends at each apex for the next stance: the touchdown angle beta of the leg "
+        "from the vertical, and the hip torque ramp tau = tau0 (1 - t/t_f) from touchdown, over t_f or "
+        "until liftoff (tau0 < 0 drives forward); saturated: a stride whose |tau0| exceeds the hip's torque "
+        "limit tau_max (a perturbation), its ramp cut at +-tau_max",
+    ),
+    (
+        "policy; replaying, max rel. dev.",
+        "the controller's rule from apex to command (" + ", ".join(POLICIES) + "); replaying it: running "
+        "it offline on the apexes the controller was given; max rel. dev.: the largest relative "
+        "difference of the replayed commands from the applied ones (angle, tau0, t_f each relative to its "
+        "own size)",
+    ),
+    (
+        "analytic map, corrections",
+        "the paper's approximate apex return map: the next apex in closed form from an apex and a command "
+        "(the stance linearised about the rest length, at constant angular momentum); corrections: how "
+        "often the stance is re-evaluated with the angular momentum corrected for the impulse of the hip "
+        "torque and of gravity (eqs. 19-22): 0 keeps the angular momentum of touchdown, 1 corrects it "
+        "once (the policies' default)",
+    ),
+    (
+        "exact map (DOP853)",
+        "the exact plant (the TD-SLIP equations of motion, with the run's terrain, torque limit, pushes "
+        "and placement errors) integrated over one stride by DOP853, an adaptive 8th-order Runge-Kutta "
+        "method; the recorded 1 kHz plant integrates the same equations by fixed-step RK4, so the exact "
+        "map's error is the plant's own integration error and the analytic map's error beyond it is its "
+        "approximation",
+    ),
+    (
+        "next-apex prediction error, predicted to fail",
+        "|predicted - recorded| of the next apex, predicted from each recorded apex with the command "
+        "applied there, in ybar (height) and xdotbar (speed), max and mean over the strides with a "
+        "recorded next apex; predicted to fail: of those, how many the map predicted to end in a failure",
+    ),
+    (
+        "converged",
+        f"from apex n on every apex-to-apex change of ybar and xdotbar is below {_TOLERANCE_TEXT} "
+        "(the paper's tolerance) and the changes shrink (|lambda| < 1)",
+    ),
+    (
+        "fixed point (fixed pt), lambda, |lambda|; recorded, analytic",
+        "an apex that the closed-loop return map (apex to command by the policy, command to next apex) "
+        "maps onto itself; lambda: an eigenvalue of that map's Jacobian there, |lambda| the largest "
+        "modulus; |lambda| < 1: stable, a small deviation shrinks by about |lambda| per stride. recorded: "
+        "fitted to the recorded apexes (changes D_{k+1} = A D_k, A by least squares, lambda its "
+        "eigenvalues, the fixed point extrapolated from the last apex); analytic: of the closed-loop "
+        "analytic map with the policy (Newton's method; Jacobian in ybar, xdotbar and the previous xdotbar, "
+        "by central differences)",
+    ),
+    (
+        "energy balance residual",
+        "the largest |E_{k+1} - E_k - (hip work - damping loss - spring loss + push work)| / E_k over the "
+        "strides: how well the recorded energy flows account for the apex energies",
+    ),
+    (
+        "hip work, damping loss, spring energy left at liftoff (losses)",
+        "the energy flows of a stance: the energy the hip torque puts in, the energy the leg damper "
+        "dissipates, and the energy left in the leg spring at liftoff (lost with the massless leg)",
+    ),
+    (
+        "COM, GRF, toe, virtual footfalls",
+        "COM: the body's centre of mass (a point mass on a massless leg); GRF: the ground reaction force; "
+        "toe: the leg's end, fixed on the ground in stance; virtual footfall: where the line through the "
+        "COM along the GRF meets y = 0, x - y fx/fy (x from the stride's toe, (fx, fy) the GRF), drawn "
+        f"every {plots.GRF_LINE_PERIOD}th 1 kHz stance sample while the leg pushes up (fy > 0); the hip "
+        "torque turns the GRF off the leg, so it need not point at the toe (paper fig. 12)",
+    ),
+    (
+        "cobweb",
+        "the return-map figure: ybar_k+1 against ybar_k, the recorded apexes stepping between the diagonal "
+        "y' = y and the closed-loop analytic height map drawn on the energy level Ebar of the fixed point",
+    ),
+)
+"""The terms of every report, each with its definition: what the code computes (see compare.py, plots.py)."""
+
+PERTURBATION_TERMS = (
+    "perturbations: terrain, apex noise, angle noise, tau_max, pushes, mismatch",
+    "terrain: the ground the toe lands on (flat; step: a step of height at x; blocks: blocks of length "
+    "whose heights are Gaussian with std sigma, from start on, drawn with seed; profile: a polyline from a "
+    "file); apex noise: the std of the Gaussian errors of the apex height [m] and speed [m/s] the "
+    "controller's sensor reports (measured; true: the plant's apex); angle noise: the std [rad] of the "
+    "Gaussian error of the leg's placed angle (the commanded angle plus the error); tau_max: the hip's "
+    "torque limit [N m] (saturated: see command); "
+    "pushes: forward speed changes [m/s] right after an apex, STRIDE:DV at chosen strides, random: of "
+    "size, with probability rate per stride, drawn with seed; mismatch: the factors by which the "
+    "controller's model (mass, stiffness, damping, rest_length) differs from the plant's",
+)
+"""The glossary entry of a perturbed run."""
+
+FAILURE_TERMS = (
+    "failure kinds",
+    "toe_stubbing: the toe is below the ground when the leg is placed at the apex; no_liftoff: the stance "
+    "lasts too long; fall: the body reaches height 0 in stance, or lifts off moving down; reversal: the "
+    "body swings back over the toe, or lifts off moving backwards; state_limit: the motion leaves the "
+    "plausibility limits; command_timeout: no valid command in time; publish_failed: the plant could not "
+    "publish",
+)
+"""The glossary entry of a failed run."""
+
+
+def glossary(comparison: Comparison) -> list[tuple[str, str]]:
+    """The glossary of the report of ``comparison``: GLOSSARY, the settings of its policy (from
+    POLICY_SETTINGS), the perturbations if the run has any, the failure kinds if it failed, and the
+    conventions of summary.json."""
+    run = comparison.run
+    entries = list(GLOSSARY)
+    if comparison.policy is not None:
+        settings = settings_of(comparison.policy.name)
+        entries.append(
+            (
+                f"settings of {comparison.policy.name}: " + ", ".join(setting.name for setting in settings),
+                "; ".join(
+                    f"{setting.name}: {setting.description}" + (f" [{setting.unit}]" if setting.unit else "")
+                    for setting in settings
+                ),
+            )
+        )
+    if run.perturbations.active or _mismatch(run) is not None:
+        entries.append(PERTURBATION_TERMS)
+    if run_ending(run) == "failed":
+        entries.append(FAILURE_TERMS)
+    dimensionless = "; ".join(f"{suffix}: {meaning}" for suffix, meaning in DIMENSIONLESS_SUFFIXES.items())
+    entries.append(
+        (
+            "summary.json keys",
+            f"the key of a number ends in its SI unit ({', '.join(UNIT_SUFFIXES.values())}) or says it is "
+            f"dimensionless ({dimensionless}); without a suffix: "
+            + ", ".join(UNITLESS_KEYS)
+            + " (counts, indices, seeds, and zeta0, eigenvalues [re, im] and their largest modulus |lambda|)",
+        )
+    )
+    return entries
+
+
+def glossary_markdown(entries: list[tuple[str, str]]) -> str:
+    return "\n".join(f"- **{terms}**: {definition}." for terms, definition in entries)
+
+
 def markdown(comparison: Comparison, summary: dict[str, Any]) -> str:
     figures = "\n".join(f"![{FIGURES[name]}]({file})\n" for name, file in summary["figures"].items())
+    omitted = "; ".join(f"{name} ({reason})" for name, reason in summary["figures_omitted"].items())
+    not_drawn = f"\nNot drawn: {omitted}.\n" if omitted else ""
     return (
         f"# Run analysis: {comparison.run.path.name}\n\n"
-        "Recorded run against the analytic apex return map of the paper (dimensionless units of eq. 24 "
-        "unless marked). Numbers: `summary.json`.\n\n"
-        f"```\n{headline(comparison)}\n```\n\n{figures}"
+        "A recorded run of the TD-SLIP hopper against the analytic apex return map of the paper "
+        "(Ankarali & Saranli, Chaos 2010). Numbers: `summary.json`.\n\n"
+        f"## Terms\n\n{glossary_markdown(glossary(comparison))}\n\n"
+        f"## Results\n\n```\n{headline(comparison)}\n```\n\n{figures}{not_drawn}"
     )

@@ -52,6 +52,7 @@ from tdslip_msgs.msg import ApexEvent
 
 from tdslip_ros.interfaces import (
     HOPPER_PARAMETERS,
+    STOP_REQUESTED,
     config_file,
     custom_data_key,
     installed_parameters,
@@ -478,7 +479,7 @@ def run(
                 if time.monotonic() >= deadline:
                     plant.end_run(f"reached the wall-time limit of {options.duration} s")
                 elif stop_requested():
-                    plant.end_run("stopped on request")
+                    plant.end_run(STOP_REQUESTED)
                 for child in children:
                     child.check_alive()
         except RunError as error:

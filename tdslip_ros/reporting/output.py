@@ -1,4 +1,5 @@
-"""Output files of the commands: a writable ``--out`` directory, strict JSON, one line for a failed write."""
+"""Output files of the commands: a writable ``--out`` directory, strict JSON whose keys say their units, one
+line for a failed write."""
 
 from __future__ import annotations
 
@@ -9,6 +10,33 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+
+UNIT_SUFFIXES = {
+    "m": "_m",
+    "m/s": "_m_per_s",
+    "m/s^2": "_m_per_s2",
+    "s": "_s",
+    "kg": "_kg",
+    "J": "_J",
+    "W": "_W",
+    "rad": "_rad",
+    "N m": "_N_m",
+    "N/m": "_N_per_m",
+    "N s/m": "_N_s_per_m",
+    "rad/(m/s)": "_rad_s_per_m",
+}
+"""The key suffix of a JSON value in each SI unit: a key says its value's unit (``touchdown_angle_rad``)."""
+DIMENSIONLESS_SUFFIXES = {
+    "bar": "in the paper's dimensionless units of eq. 24 (ybar, xdotbar, kbar, ...)",
+    "_ratio": "a ratio of two quantities of one unit (a relative deviation)",
+    "_factor": "a dimensionless multiplier",
+}
+"""The key suffixes of dimensionless JSON values, and what each means."""
+
+
+def unit_key(name: str, unit: str) -> str:
+    """The JSON key of quantity ``name`` in ``unit`` (one of UNIT_SUFFIXES; "" for a count: ``name``)."""
+    return name + UNIT_SUFFIXES[unit] if unit else name
 
 
 def _json_ready(value: object) -> object:
