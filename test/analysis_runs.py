@@ -1,7 +1,8 @@
 """Recordings for the analysis and replay tests, made by the real node suite in lockstep.
 
 Each named run is recorded once per test process (``tdslip run``'s :func:`~tdslip_ros.nodes.runner.run`,
-a few seconds) under pytest's session temporary directory and shared by every test module. The helpers
+a few seconds) under pytest's session temporary directory and shared by every test module: conftest.py
+has a session fixture of each name (tests using one are in the ``nodes`` tier). The helpers
 below derive damaged or reduced copies of a recording for the error tests, and copies as a
 controller of the user's own would leave them.
 """

@@ -111,6 +111,7 @@ def test_a_params_file_configures_the_node_and_bad_values_are_refused(ros: RosGr
         PlantNode(context=ros.context, parameter_overrides=overrides(initial_height=math.inf))
 
 
+@pytest.mark.nodes
 def test_the_recorder_refuses_malformed_custom_data_before_creating_a_bag(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     with isolation.reserved_domain() as domain_id:
@@ -162,6 +163,7 @@ def node_executable(module: str, *arguments: str) -> subprocess.CompletedProcess
         ("controller_node", "polcy:=pd", "polcy"),
     ],
 )
+@pytest.mark.nodes
 def test_a_value_of_the_wrong_type_on_the_command_line_is_an_error_naming_the_parameter(
     module: str, override: str, named: str
 ) -> None:
@@ -217,6 +219,7 @@ def test_an_integer_for_a_float_parameter_is_taken_as_that_float() -> None:
         (["-p", "pushes:=3:fast"], "neither STRIDE:DV"),
     ],
 )
+@pytest.mark.nodes
 def test_implausible_or_missing_inputs_stop_the_plant_with_one_line(
     arguments: list[str], message: str
 ) -> None:

@@ -18,7 +18,7 @@ from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.parameters import PAPER_PARAMS
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.nodes
 
 
 def tdslip_run(*arguments: str) -> subprocess.CompletedProcess[str]:

@@ -171,7 +171,7 @@ def readme_colcon_command(repo_root: Path) -> list[str]:
     return shlex.split(command)
 
 
-@pytest.mark.slow
+@pytest.mark.nodes
 def test_the_readmes_colcon_command_builds_both_packages_and_plant_node_runs_from_the_install(
     repo_root: Path, tmp_path: Path
 ) -> None:

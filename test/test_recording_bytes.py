@@ -10,8 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-from analysis_runs import RUNS, raw_messages, recorded_run
+from analysis_runs import RUNS, raw_messages
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -20,11 +19,6 @@ from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunOptions, RunReport, run
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
 
 
 def _schemas(mcap_path: Path) -> dict[str, tuple[str, str]]:
