@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from analysis_runs import RUNS
+from matplotlib.colors import to_rgb
+from matplotlib.image import imread
 
 from tdslip_ros.analysis import rough_terrain
 from tdslip_ros.analysis.compare import compare_run, dimensionless
@@ -177,11 +179,24 @@ def test_the_readme_figure_starts_both_policies_at_one_fixed_point(
     assert _energy_spans(capsys.readouterr().out) == {"energy": 0.0, "open": 0.0}
 
 
+def _pixels_of(panel: np.ndarray, colour: str) -> int:
+    """How many pixels of an RGB image ``panel`` have the matplotlib ``colour`` (to rounding)."""
+    return int(np.count_nonzero(np.all(np.abs(panel - np.array(to_rgb(colour))) < 0.01, axis=-1)))
+
+
 def test_the_readme_figure(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The README's figure: over 3 cm blocks energy regulation holds the apex energy above the ground
-    closer than open loop, whose energy wanders."""
+    closer than open loop, whose energy wanders. The PNG is the 10 x 6.5 in figure: both policies' paths
+    over the ground above, their apex energies below."""
     out = tmp_path / "rough.png"
     assert rough_terrain.main(["--out", str(out), "--strides", "25"]) == 0
-    assert out.stat().st_size > 20_000
     spans = _energy_spans(capsys.readouterr().out)
     assert 0.0 < spans["energy"] < 0.75 * spans["open"]
+    pixels = imread(out)[..., :3]
+    assert pixels.shape == (round(6.5 * rough_terrain.DPI), round(10 * rough_terrain.DPI), 3)
+    split = round(0.6 * len(pixels))  # the panels' height ratio is 3:2
+    paths, energies = pixels[:split], pixels[split:]
+    # A legend entry is some 40 pixels of its colour: hundreds are a drawn path or energy series.
+    for colour in rough_terrain.COLOURS.values():
+        assert _pixels_of(paths, colour) > 200 and _pixels_of(energies, colour) > 200, colour
+    assert _pixels_of(paths, "saddlebrown") > 200 and _pixels_of(energies, "saddlebrown") == 0  # the ground
