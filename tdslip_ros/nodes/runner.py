@@ -71,7 +71,8 @@ from tdslip_ros.nodes.entry import (
     spin_until,
     stop_on_signals,
 )
-from tdslip_ros.nodes.plant_node import CLOCK_MODES, PlantNode, RunOutcome
+from tdslip_ros.nodes.plant_node import PlantNode, RunOutcome
+from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.nodes.realtime import TickTiming
 
 STARTUP_TIMEOUT = 30.0  # s for the child nodes to start and match the plant's topics
