@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 if TYPE_CHECKING:
+    from colcon_workspace import ColconBuild
     from ros_harness import RosGraph
 
     from tdslip_ros.nodes.runner import RunReport
@@ -31,7 +32,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall")
 """Session fixtures, one per run of analysis_runs.RUNS: its RunReport, recorded by the node suite once
 per test process on first use."""
-NODE_FIXTURES = frozenset({"ros", *RECORDED_RUNS})
+NODE_FIXTURES = frozenset({"ros", "readme_colcon_build", *RECORDED_RUNS})
 """Fixtures that start nodes: every test using one (directly or through another fixture) is ``nodes``."""
 
 
@@ -39,6 +40,36 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if NODE_FIXTURES.intersection(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.nodes)
+
+
+_colcon_build: ColconBuild | None = None
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Start the README's colcon build in the background if a selected test needs it (colcon_workspace.py)."""
+    global _colcon_build
+    if session.config.option.collectonly:
+        return
+    if any("readme_colcon_build" in getattr(item, "fixturenames", ()) for item in session.items):
+        from colcon_workspace import ColconBuild
+
+        _colcon_build = ColconBuild.start(REPO_ROOT)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    if _colcon_build is not None:
+        _colcon_build.remove()
+
+
+@pytest.fixture(scope="session")
+def readme_colcon_build() -> ColconBuild:
+    """The README's colcon build, started as collection ended (colcon_workspace.py): running or finished."""
+    global _colcon_build
+    if _colcon_build is None:  # requested by a test collection did not see
+        from colcon_workspace import ColconBuild
+
+        _colcon_build = ColconBuild.start(REPO_ROOT)
+    return _colcon_build
 
 
 @pytest.fixture
