@@ -9,11 +9,19 @@ controller of the user's own would leave them.
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import pickle
+import subprocess
+import sys
+import time
+import traceback
 import warnings
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 from mcap.reader import make_reader
@@ -59,20 +67,92 @@ RUNS: dict[str, dict[str, Any]] = {
 _recorded: dict[str, RunReport] = {}
 
 
+def record(name: str, directory: Path) -> tuple[RunReport, list[str]]:
+    """Run ``name`` (see RUNS) into ``directory``/``name``-<attempt>: its report, and the warnings of the
+    attempt that had to be retried."""
+    retried = []
+    for attempt in range(2):
+        report = run(RunOptions(out=directory / f"{name}-{attempt}", **RUNS[name]))
+        # A recorder that had not matched the controller's publisher used to miss every command
+        # (about 1 run in 15 under load); the controller now waits for that match before it exits.
+        # These tests are about the analysis: one retry, and a warning in the summary if it was needed.
+        if report.recording_complete:
+            break
+        retried.append(f"run {name!r} recorded incompletely, retried: {report.recorded}")
+    assert report.recording_complete, (report.published, report.recorded)
+    return report, retried
+
+
+@dataclass
+class Background:
+    """Runs recorded, then ``tdslip`` commands run, by a child process (``python analysis_runs.py
+    DIRECTORY JOBS``), started when collection ended (conftest.py): the node runs the tests need are made
+    while the fast tests run, mostly on the core those leave idle. The child pickles each run's report as
+    it is done (a run it could not record leaves the error) and writes each command's exit status."""
+
+    directory: Path
+    names: tuple[str, ...]
+    commands: dict[str, list[str]]
+    process: subprocess.Popen[bytes]
+
+    @classmethod
+    def start(cls, directory: Path, names: tuple[str, ...], commands: dict[str, list[str]]) -> Background:
+        """Record the runs ``names`` (of RUNS), then run each of ``commands`` (``tdslip`` argv by key)."""
+        directory.mkdir(parents=True, exist_ok=True)
+        # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
+        path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
+        with (directory / "background.log").open("wb") as log:
+            process = subprocess.Popen(
+                [sys.executable, __file__, str(directory), json.dumps([names, commands])],
+                env={**os.environ, "PYTHONPATH": path.rstrip(os.pathsep)},
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+        return cls(directory, names, commands, process)
+
+    def _wait_for(self, result: Path, job: str) -> bytes:
+        failed = result.with_suffix(".error")
+        while not (result.exists() or failed.exists() or self.process.poll() is not None):
+            time.sleep(0.05)
+        if not result.exists():
+            log = (self.directory / "background.log").read_text(errors="replace")
+            error = failed.read_text() if failed.exists() else f"the child exited with {self.process.poll()}"
+            pytest.fail(f"{job} did not finish in the background: {error}\n{log[-3000:]}", pytrace=False)
+        return result.read_bytes()
+
+    def report(self, name: str) -> RunReport:
+        """The report of run ``name`` once the child has recorded it (its retries warned here)."""
+        report, retried = pickle.loads(self._wait_for(self.directory / f"{name}.pickle", f"run {name!r}"))
+        for warning in retried:
+            warnings.warn(warning, stacklevel=1)
+        return cast(RunReport, report)
+
+    def command(self, key: str) -> tuple[int, str]:
+        """The exit status of command ``key`` once the child has run it, and the child's output so far."""
+        status = int(self._wait_for(self.directory / f"{key}.status", f"tdslip {self.commands[key][0]}"))
+        return status, (self.directory / "background.log").read_text(errors="replace")
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+
+BACKGROUND: Background | None = None
+"""Set by conftest.py when a test that uses a recorded run was collected."""
+
+
 def recorded_run(name: str, tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    """The report of run ``name`` (see RUNS), recording it on first use."""
+    """The report of run ``name`` (see RUNS): from the background child if it records it, else recorded
+    here on first use."""
     if name not in _recorded:
-        for attempt in range(2):
-            out = tmp_path_factory.getbasetemp() / "analysis_runs" / f"{name}-{attempt}"
-            report = run(RunOptions(out=out, **RUNS[name]))
-            # A recorder that had not matched the controller's publisher used to miss every command
-            # (about 1 run in 15 under load); the controller now waits for that match before it exits.
-            # These tests are about the analysis: one retry, and a warning in the summary if it was needed.
-            if report.recording_complete:
-                break
-            warnings.warn(f"run {name!r} recorded incompletely, retried: {report.recorded}", stacklevel=1)
-        assert report.recording_complete, (report.published, report.recorded)
-        _recorded[name] = report
+        if BACKGROUND is not None and name in BACKGROUND.names:
+            _recorded[name] = BACKGROUND.report(name)
+        else:
+            report, retried = record(name, tmp_path_factory.getbasetemp() / "analysis_runs")
+            for warning in retried:
+                warnings.warn(warning, stacklevel=1)
+            _recorded[name] = report
     return _recorded[name]
 
 
@@ -126,3 +206,33 @@ def as_if_from_ones_own_controller(report: RunReport, target: Path) -> Path:
     controller = custom_data_key("controller", "")
     kept = {key: value for key, value in stored.items() if not key.startswith(controller)}
     return rewrite(mcap_file(report.bag), target, change=rename, custom_data=kept)
+
+
+def _write(path: Path, data: bytes) -> None:
+    partial = path.with_name(path.name + ".partial")
+    partial.write_bytes(data)
+    partial.rename(path)  # whole or not at all for the waiting parent
+
+
+def _background(directory: Path, names: list[str], commands: dict[str, list[str]]) -> None:
+    """The child of :class:`Background`: each run's (report, retry warnings) pickled as it is done, then
+    each command's exit status."""
+    for name in names:
+        try:
+            _write(directory / f"{name}.pickle", pickle.dumps(record(name, directory)))
+        except BaseException:
+            (directory / f"{name}.error").write_text(traceback.format_exc())
+    from tdslip_ros import cli
+
+    for key, argv in commands.items():
+        try:
+            status = cli.main(argv)
+        except BaseException:
+            (directory / f"{key}.error").write_text(traceback.format_exc())
+            continue
+        sys.stdout.flush()
+        _write(directory / f"{key}.status", str(status).encode())
+
+
+if __name__ == "__main__":
+    _background(Path(sys.argv[1]), *json.loads(sys.argv[2]))

@@ -32,25 +32,39 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall")
 """Session fixtures, one per run of analysis_runs.RUNS: its RunReport, recorded by the node suite once
 per test process on first use."""
-NODE_FIXTURES = frozenset({"ros", "readme_colcon_build", *RECORDED_RUNS})
+NODE_FIXTURES = frozenset({"ros", "readme_colcon_build", "compare_sweep", *RECORDED_RUNS})
 """Fixtures that start nodes: every test using one (directly or through another fixture) is ``nodes``."""
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark the tests that use a node fixture, and run the fast tier first: the recorded runs and the
+    colcon build (below) are made in the background meanwhile, on the core the fast tests leave idle."""
     for item in items:
         if NODE_FIXTURES.intersection(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.nodes)
+    items.sort(key=lambda item: item.get_closest_marker("nodes") is not None)  # stable: file order kept
 
 
 _colcon_build: ColconBuild | None = None
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
-    """Start the README's colcon build in the background if a selected test needs it (colcon_workspace.py)."""
+    """Start in the background what the selected tests will need: the recorded runs they use, in the
+    order they use them (analysis_runs.Background), and the README's colcon build (colcon_workspace.py)."""
     global _colcon_build
     if session.config.option.collectonly:
         return
-    if any("readme_colcon_build" in getattr(item, "fixturenames", ()) for item in session.items):
+    used = [name for item in session.items for name in getattr(item, "fixturenames", ())]
+    runs = tuple(dict.fromkeys(name for name in used if name in RECORDED_RUNS))
+    factory: pytest.TempPathFactory = session.config._tmp_path_factory  # type: ignore[attr-defined]
+    commands = {"compare_sweep": _compare_sweep_command(factory)} if "compare_sweep" in used else {}
+    if runs or commands:
+        import analysis_runs
+
+        analysis_runs.BACKGROUND = analysis_runs.Background.start(
+            factory.getbasetemp() / "analysis_runs", runs, commands
+        )
+    if "readme_colcon_build" in used:
         from colcon_workspace import ColconBuild
 
         _colcon_build = ColconBuild.start(REPO_ROOT)
@@ -59,6 +73,33 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 def pytest_sessionfinish(session: pytest.Session) -> None:
     if _colcon_build is not None:
         _colcon_build.remove()
+    if "analysis_runs" in sys.modules and sys.modules["analysis_runs"].BACKGROUND is not None:
+        sys.modules["analysis_runs"].BACKGROUND.stop()
+
+
+def _compare_sweep_command(factory: pytest.TempPathFactory) -> list[str]:
+    from test_analysis_controller_comparison import SPEEDS, STRIDES
+
+    out = factory.getbasetemp() / "compare"
+    return ["compare", "--out", str(out), "--speeds", *map(str, SPEEDS), "--strides", str(STRIDES)]
+
+
+@pytest.fixture(scope="session")
+def compare_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The output directory of ``tdslip compare`` on test_analysis_controller_comparison's speeds and
+    strides, run in the background (analysis_runs.Background); it exited with status 0."""
+    import analysis_runs
+
+    command = _compare_sweep_command(tmp_path_factory)
+    background = analysis_runs.BACKGROUND
+    if background is not None and "compare_sweep" in background.commands:
+        status, output = background.command("compare_sweep")
+        assert status == 0, output[-3000:]
+    else:  # requested by a test collection did not see
+        from tdslip_ros import cli
+
+        assert cli.main(command) == 0
+    return Path(command[2])
 
 
 @pytest.fixture(scope="session")

@@ -21,10 +21,9 @@ pytestmark = pytest.mark.nodes  # tdslip compare records its runs with the node 
 
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("compare")
-    assert cc.main(["--out", str(out), "--speeds", *map(str, SPEEDS), "--strides", str(STRIDES)]) == 0
-    return out
+def sweep(compare_sweep: Path) -> Path:
+    """tdslip compare --out DIR --speeds SPEEDS --strides STRIDES, recorded in the background (conftest)."""
+    return compare_sweep
 
 
 def _model_final_apex(controller: str, speed: float) -> tuple[float, float] | None:
