@@ -88,27 +88,38 @@ class Background:
     """Runs recorded, then ``tdslip`` commands run, by a child process (``python analysis_runs.py
     DIRECTORY JOBS``), started when collection ended (conftest.py): the node runs the tests need are made
     while the fast tests run, mostly on the core those leave idle. The child pickles each run's report as
-    it is done (a run it could not record leaves the error) and writes each command's exit status."""
+    it is done (a run it could not record leaves the error), writes each command's exit status and
+    pickles each ``tdslip run`` process's result (:meth:`tdslip_run`)."""
 
     directory: Path
     names: tuple[str, ...]
     commands: dict[str, list[str]]
+    tdslip_runs: dict[str, tuple[list[str], str]]
+    """By key: the arguments of a ``tdslip run`` process (without ``--out``) and its output directory
+    relative to the test's tmp_path."""
     process: subprocess.Popen[bytes]
 
     @classmethod
-    def start(cls, directory: Path, names: tuple[str, ...], commands: dict[str, list[str]]) -> Background:
-        """Record the runs ``names`` (of RUNS), then run each of ``commands`` (``tdslip`` argv by key)."""
+    def start(
+        cls,
+        directory: Path,
+        names: tuple[str, ...],
+        commands: dict[str, list[str]],
+        tdslip_runs: dict[str, tuple[list[str], str]],
+    ) -> Background:
+        """Record the runs ``names`` (of RUNS), then run each of ``commands`` (``tdslip`` argv by key)
+        in the child, then each of ``tdslip_runs`` as a process of its own."""
         directory.mkdir(parents=True, exist_ok=True)
         # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
         path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
         with (directory / "background.log").open("wb") as log:
             process = subprocess.Popen(
-                [sys.executable, __file__, str(directory), json.dumps([names, commands])],
+                [sys.executable, __file__, str(directory), json.dumps([names, commands, tdslip_runs])],
                 env={**os.environ, "PYTHONPATH": path.rstrip(os.pathsep)},
                 stdout=log,
                 stderr=subprocess.STDOUT,
             )
-        return cls(directory, names, commands, process)
+        return cls(directory, names, commands, tdslip_runs, process)
 
     def _wait_for(self, result: Path, job: str) -> bytes:
         failed = result.with_suffix(".error")
@@ -131,6 +142,23 @@ class Background:
         """The exit status of command ``key`` once the child has run it, and the child's output so far."""
         status = int(self._wait_for(self.directory / f"{key}.status", f"tdslip {self.commands[key][0]}"))
         return status, (self.directory / "background.log").read_text(errors="replace")
+
+    def tdslip_run(self, arguments: list[str], out: Path) -> subprocess.CompletedProcess[str] | None:
+        """The result of ``tdslip run ARGUMENTS --out OUT`` if the child ran it (with its output moved
+        to ``out``), else None. The child ran it into the same path below its directory as ``out`` is
+        below the test's tmp_path (e.g. runs/hop: a parent that does not exist yet)."""
+        for key, (background_arguments, relative) in self.tdslip_runs.items():
+            if (
+                background_arguments == arguments
+                and out.parts[-len(Path(relative).parts) :] == Path(relative).parts
+            ):
+                result = pickle.loads(self._wait_for(self.directory / f"{key}.result", f"tdslip run {key}"))
+                ran = self.directory / key / relative
+                if ran.exists():
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    ran.rename(out)
+                return cast(subprocess.CompletedProcess[str], result)
+        return None
 
     def stop(self) -> None:
         if self.process.poll() is None:
@@ -214,9 +242,14 @@ def _write(path: Path, data: bytes) -> None:
     partial.rename(path)  # whole or not at all for the waiting parent
 
 
-def _background(directory: Path, names: list[str], commands: dict[str, list[str]]) -> None:
+def _background(
+    directory: Path,
+    names: list[str],
+    commands: dict[str, list[str]],
+    tdslip_runs: dict[str, tuple[list[str], str]],
+) -> None:
     """The child of :class:`Background`: each run's (report, retry warnings) pickled as it is done, then
-    each command's exit status."""
+    each command's exit status, then each ``tdslip run`` process's result."""
     for name in names:
         try:
             _write(directory / f"{name}.pickle", pickle.dumps(record(name, directory)))
@@ -232,6 +265,20 @@ def _background(directory: Path, names: list[str], commands: dict[str, list[str]
             continue
         sys.stdout.flush()
         _write(directory / f"{key}.status", str(status).encode())
+    for key, (arguments, relative) in tdslip_runs.items():
+        out = directory / key / relative
+        try:
+            result = subprocess.run(
+                [sys.executable, "-m", "tdslip_ros.cli", "run", *arguments, "--out", str(out)],
+                capture_output=True,
+                text=True,
+                timeout=180,
+                check=False,
+            )
+        except BaseException:
+            (directory / f"{key}.error").write_text(traceback.format_exc())
+            continue
+        _write(directory / f"{key}.result", pickle.dumps(result))
 
 
 if __name__ == "__main__":

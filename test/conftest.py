@@ -58,11 +58,20 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     runs = tuple(dict.fromkeys(name for name in used if name in RECORDED_RUNS))
     factory: pytest.TempPathFactory = session.config._tmp_path_factory  # type: ignore[attr-defined]
     commands = {"compare_sweep": _compare_sweep_command(factory)} if "compare_sweep" in used else {}
-    if runs or commands:
+    # A module's IN_BACKGROUND: tdslip run processes of its tests, by test name (test_nodes_run.py).
+    tdslip_runs = {
+        f"tdslip_run_{index}": (list(arguments), relative)
+        for index, (arguments, relative) in enumerate(
+            getattr(item.module, "IN_BACKGROUND", {})[item.name]
+            for item in session.items
+            if isinstance(item, pytest.Function) and item.name in getattr(item.module, "IN_BACKGROUND", {})
+        )
+    }
+    if runs or commands or tdslip_runs:
         import analysis_runs
 
         analysis_runs.BACKGROUND = analysis_runs.Background.start(
-            factory.getbasetemp() / "analysis_runs", runs, commands
+            factory.getbasetemp() / "analysis_runs", runs, commands, tdslip_runs
         )
     if "readme_colcon_build" in used:
         from colcon_workspace import ColconBuild
