@@ -6,6 +6,11 @@ is the fast tier, ``pytest -m "not nodes"``. Tests using a fixture of :data:`NOD
 here; modules and tests that start nodes by themselves are marked where they are written. A guard
 (:func:`node_guard`) fails any test without the marker that inits an rclpy context or spawns a node
 process, in both tiers, so that the marker stays exact.
+
+The fast tier runs first. Meanwhile a background child (analysis_runs.Background) makes the node runs
+the selected tests will use (recorded runs, tdslip compare, some tdslip run processes), and the README's
+colcon build (colcon_workspace.py) compiles at the lowest CPU priority: on a 2-core machine most fast tests
+leave one core idle. The tests that use them wait for them.
 """
 
 from __future__ import annotations
@@ -29,9 +34,9 @@ if TYPE_CHECKING:
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
-RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall")
-"""Session fixtures, one per run of analysis_runs.RUNS: its RunReport, recorded by the node suite once
-per test process on first use."""
+RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall", "energy_again")
+"""Session fixtures, one per run of analysis_runs.RUNS and AGAIN: its RunReport, recorded by the node suite
+once per test process (by the background child, or here on first use)."""
 NODE_FIXTURES = frozenset({"ros", "readme_colcon_build", "compare_sweep", *RECORDED_RUNS})
 """Fixtures that start nodes: every test using one (directly or through another fixture) is ``nodes``."""
 
@@ -56,6 +61,7 @@ def pytest_collection_finish(session: pytest.Session) -> None:
         return
     used = [name for item in session.items for name in getattr(item, "fixturenames", ())]
     runs = tuple(dict.fromkeys(name for name in used if name in RECORDED_RUNS))
+    # The session's tmp_path_factory (pytest's tmpdir plugin keeps it there; fixtures are not up yet).
     factory: pytest.TempPathFactory = session.config._tmp_path_factory  # type: ignore[attr-defined]
     commands = {"compare_sweep": _compare_sweep_command(factory)} if "compare_sweep" in used else {}
     # A module's IN_BACKGROUND: tdslip run processes of its tests, by test name (test_nodes_run.py).
@@ -201,6 +207,12 @@ def energy_exact(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
 def deadbeat(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
     """Deadbeat to 4 m/s, 4 strides (analysis_runs.RUNS)."""
     return _recorded("deadbeat", tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def energy_again(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    """A second run with energy's options, recorded once as it comes (analysis_runs.AGAIN)."""
+    return _recorded("energy_again", tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
