@@ -13,6 +13,7 @@ import json
 import math
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import time
@@ -123,6 +124,7 @@ class Background:
                 env={**os.environ, "PYTHONPATH": path.rstrip(os.pathsep)},
                 stdout=log,
                 stderr=subprocess.STDOUT,
+                start_new_session=True,  # stop() ends its node processes with it
             )
         return cls(directory, names, commands, tdslip_runs, process)
 
@@ -166,13 +168,18 @@ class Background:
         return None
 
     def stop(self) -> None:
+        """End the child and the processes it started, if it is still at work (a session cut short)."""
         if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait()
+            os.killpg(self.process.pid, signal.SIGINT)  # a run stops its nodes on the way out
+            try:
+                self.process.wait(30)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
 
 
 BACKGROUND: Background | None = None
-"""Set by conftest.py when a test that uses a recorded run was collected."""
+"""Set by conftest.py when a selected test needs a job of the background child."""
 
 
 def recorded_run(name: str, tmp_path_factory: pytest.TempPathFactory) -> RunReport:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -68,6 +69,7 @@ class ColconBuild:
                 env=environment,
                 stdout=stdout,
                 stderr=stderr,
+                start_new_session=True,  # remove() ends cmake and the compilers with it
             )
         return cls(workspace, environment, process)
 
@@ -76,7 +78,7 @@ class ColconBuild:
         try:
             returncode = self.process.wait(BUILD_TIMEOUT)
         except subprocess.TimeoutExpired:
-            self.process.kill()
+            os.killpg(self.process.pid, signal.SIGKILL)
             raise
         logs = self.workspace.parent
         return subprocess.CompletedProcess(
@@ -88,6 +90,6 @@ class ColconBuild:
 
     def remove(self) -> None:
         if self.process.poll() is None:
-            self.process.kill()
+            os.killpg(self.process.pid, signal.SIGKILL)
             self.process.wait()
         shutil.rmtree(self.workspace.parent, ignore_errors=True)
