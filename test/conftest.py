@@ -275,11 +275,13 @@ def node_process(arguments: Sequence[str]) -> str | None:
         code = _python_code(arguments[1:])
         if code is None:
             return None
-        module = code.split()[1:3] if code.startswith("-m ") else []
-        if module[:1] == ["tdslip_ros.cli"] and module[1:] and module[1] in NODE_SUBCOMMANDS:
-            return f"runs tdslip {module[1]}"
-        if module[:1] and module[0].startswith("tdslip_ros.nodes."):
-            return f"runs python -m {module[0]}"
+        module, subcommand = (code.split()[1:3] + ["", ""])[:2] if code.startswith("-m ") else ("", "")
+        if module in ("tdslip_ros.cli", "tdslip_ros.commands.cli") and subcommand in NODE_SUBCOMMANDS:
+            return f"runs tdslip {subcommand}"
+        if module.startswith("tdslip_ros.nodes.") or module in [
+            f"tdslip_ros.commands.{s}" for s in NODE_SUBCOMMANDS
+        ]:
+            return f"runs python -m {module}"
         if not code.startswith("-m ") and _STARTS_ROS.search(code):
             return f"runs Python code that starts ROS ({_STARTS_ROS.search(code).group(0)})"  # type: ignore[union-attr]
     return None

@@ -24,6 +24,8 @@ def test_every_recorded_run_is_a_session_fixture_that_starts_nodes() -> None:
         [PYTHON, "-m", "tdslip_ros.cli", "run", "--strides", "3"],
         [PYTHON, "-m", "tdslip_ros.cli", "replay", "bag"],
         [PYTHON, "-m", "tdslip_ros.cli", "compare", "--out", "x"],
+        [PYTHON, "-m", "tdslip_ros.commands.cli", "run", "--strides", "3"],  # the commands layer
+        [PYTHON, "-m", "tdslip_ros.commands.replay", "bag"],
         [PYTHON, "-m", "tdslip_ros.nodes.plant_node", "--ros-args"],
         [PYTHON, "-c", "import rclpy; rclpy.init()"],
         ["tdslip", "run"],
@@ -42,6 +44,7 @@ def test_the_guard_knows_a_command_that_starts_nodes(command: list[str]) -> None
     [
         [PYTHON, "-m", "tdslip_ros.cli", "analyze", "bag"],
         [PYTHON, "-m", "tdslip_ros.cli", "simulate", "--strides", "3"],
+        [PYTHON, "-m", "tdslip_ros.commands.cli", "figures", "--out", "x"],
         [PYTHON, "-c", "import tdslip_ros.nodes.replay, sys; print('rclpy' in sys.modules)"],
         [PYTHON, "-m", "ruff", "check", "."],
         ["/tmp/stand-in/lib/tdslip_ros/plant_node", "--flag"],  # a launcher moved to another prefix
