@@ -3,6 +3,7 @@
 #
 #   ./run.sh demo [args]    set up, then run a recorded closed-loop hop and analyse it (args go to tdslip run)
 #   ./run.sh test [args]    set up, then run the test suite (extra args go to pytest)
+#   ./run.sh test -m "not nodes"   the fast tier: no node process, no ROS context (test/conftest.py)
 #   ./run.sh setup          set up only
 #
 # Set-up is idempotent: each step runs again only when its inputs changed (a hash of them is kept in
@@ -187,7 +188,7 @@ main() {
         demo) enter_environment; ensure_environment; run_demo "$@" ;;
         test) enter_environment; ensure_environment; run_tests "$@" ;;
         setup) enter_environment; ensure_environment ;;
-        *) sed -n '2,10p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2; exit 2 ;;
+        *) sed -n '2,11p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2; exit 2 ;;
     esac
 }
 

@@ -1,18 +1,28 @@
 """Recordings for the analysis and replay tests, made by the real node suite in lockstep.
 
 Each named run is recorded once per test process (``tdslip run``'s :func:`~tdslip_ros.nodes.runner.run`,
-a few seconds) under pytest's session temporary directory and shared by every test module. The helpers
+a few seconds) under pytest's session temporary directory and shared by every test module: conftest.py
+has a session fixture of each name (tests using one are in the ``nodes`` tier). The helpers
 below derive damaged or reduced copies of a recording for the error tests, and copies as a
 controller of the user's own would leave them.
 """
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+import traceback
 import warnings
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 from mcap.reader import make_reader
@@ -55,23 +65,134 @@ RUNS: dict[str, dict[str, Any]] = {
     # A 30 cm wall 8 m ahead: the toe cannot clear it.
     "wall": {"strides": 8, "perturbations": Perturbations(terrain=Step(0.3, 8.0))},
 }
+AGAIN = {"energy_again": "energy"}
+"""Second runs with the options of another (test_recording_bytes compares the two): recorded once, as they
+come (no retry; the test asserts that the recording is complete)."""
 _recorded: dict[str, RunReport] = {}
 
 
+def record(name: str, directory: Path) -> tuple[RunReport, list[str]]:
+    """Run ``name`` (see RUNS and AGAIN) into ``directory``/``name``-<attempt>: its report, and the
+    warnings of the attempt that had to be retried."""
+    if name in AGAIN:
+        return run(RunOptions(out=directory / name, **RUNS[AGAIN[name]])), []
+    retried = []
+    for attempt in range(2):
+        report = run(RunOptions(out=directory / f"{name}-{attempt}", **RUNS[name]))
+        # A recorder that had not matched the controller's publisher used to miss every command
+        # (about 1 run in 15 under load); the controller now waits for that match before it exits.
+        # These tests are about the analysis: one retry, and a warning in the summary if it was needed.
+        if report.recording_complete:
+            break
+        retried.append(f"run {name!r} recorded incompletely, retried: {report.recorded}")
+    assert report.recording_complete, (report.published, report.recorded)
+    return report, retried
+
+
+@dataclass
+class Background:
+    """Runs recorded, then ``tdslip`` commands run, by a child process (``python analysis_runs.py
+    DIRECTORY JOBS``), started when collection ended (conftest.py): the node runs the tests need are made
+    while the fast tests run, mostly on the core those leave idle. The child pickles each run's report as
+    it is done (a run it could not record leaves the error), writes each command's exit status and
+    pickles each ``tdslip run`` process's result (:meth:`tdslip_run`)."""
+
+    directory: Path
+    names: tuple[str, ...]
+    commands: dict[str, list[str]]
+    tdslip_runs: dict[str, tuple[list[str], str]]
+    """By key: the arguments of a ``tdslip run`` process (without ``--out``) and its output directory
+    relative to the test's tmp_path."""
+    process: subprocess.Popen[bytes]
+
+    @classmethod
+    def start(
+        cls,
+        directory: Path,
+        names: tuple[str, ...],
+        commands: dict[str, list[str]],
+        tdslip_runs: dict[str, tuple[list[str], str]],
+    ) -> Background:
+        """Record the runs ``names`` (of RUNS), then run each of ``commands`` (``tdslip`` argv by key)
+        in the child, then each of ``tdslip_runs`` as a process of its own."""
+        directory.mkdir(parents=True, exist_ok=True)
+        # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
+        path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
+        with (directory / "background.log").open("wb") as log:
+            process = subprocess.Popen(
+                [sys.executable, __file__, str(directory), json.dumps([names, commands, tdslip_runs])],
+                env={**os.environ, "PYTHONPATH": path.rstrip(os.pathsep)},
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,  # stop() ends its node processes with it
+            )
+        return cls(directory, names, commands, tdslip_runs, process)
+
+    def _wait_for(self, result: Path, job: str) -> bytes:
+        failed = result.with_suffix(".error")
+        while not (result.exists() or failed.exists() or self.process.poll() is not None):
+            time.sleep(0.05)
+        if not result.exists():
+            log = (self.directory / "background.log").read_text(errors="replace")
+            error = failed.read_text() if failed.exists() else f"the child exited with {self.process.poll()}"
+            pytest.fail(f"{job} did not finish in the background: {error}\n{log[-3000:]}", pytrace=False)
+        return result.read_bytes()
+
+    def report(self, name: str) -> RunReport:
+        """The report of run ``name`` once the child has recorded it (its retries warned here)."""
+        report, retried = pickle.loads(self._wait_for(self.directory / f"{name}.pickle", f"run {name!r}"))
+        for warning in retried:
+            warnings.warn(warning, stacklevel=1)
+        return cast(RunReport, report)
+
+    def command(self, key: str) -> tuple[int, str]:
+        """The exit status of command ``key`` once the child has run it, and the child's output so far."""
+        status = int(self._wait_for(self.directory / f"{key}.status", f"tdslip {self.commands[key][0]}"))
+        return status, (self.directory / "background.log").read_text(errors="replace")
+
+    def tdslip_run(self, arguments: list[str], out: Path) -> subprocess.CompletedProcess[str] | None:
+        """The result of ``tdslip run ARGUMENTS --out OUT`` if the child ran it (with its output moved
+        to ``out``), else None. The child ran it into the same path below its directory as ``out`` is
+        below the test's tmp_path (e.g. runs/hop: a parent that does not exist yet)."""
+        for key, (background_arguments, relative) in self.tdslip_runs.items():
+            if (
+                background_arguments == arguments
+                and out.parts[-len(Path(relative).parts) :] == Path(relative).parts
+            ):
+                result = pickle.loads(self._wait_for(self.directory / f"{key}.result", f"tdslip run {key}"))
+                ran = self.directory / key / relative
+                if ran.exists():
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    ran.rename(out)
+                return cast(subprocess.CompletedProcess[str], result)
+        return None
+
+    def stop(self) -> None:
+        """End the child and the processes it started, if it is still at work (a session cut short)."""
+        if self.process.poll() is None:
+            os.killpg(self.process.pid, signal.SIGINT)  # a run stops its nodes on the way out
+            try:
+                self.process.wait(30)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.process.pid, signal.SIGKILL)
+                self.process.wait()
+
+
+BACKGROUND: Background | None = None
+"""Set by conftest.py when a selected test needs a job of the background child."""
+
+
 def recorded_run(name: str, tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    """The report of run ``name`` (see RUNS), recording it on first use."""
+    """The report of run ``name`` (see RUNS): from the background child if it records it, else recorded
+    here on first use."""
     if name not in _recorded:
-        for attempt in range(2):
-            out = tmp_path_factory.getbasetemp() / "analysis_runs" / f"{name}-{attempt}"
-            report = run(RunOptions(out=out, **RUNS[name]))
-            # A recorder that had not matched the controller's publisher used to miss every command
-            # (about 1 run in 15 under load); the controller now waits for that match before it exits.
-            # These tests are about the analysis: one retry, and a warning in the summary if it was needed.
-            if report.recording_complete:
-                break
-            warnings.warn(f"run {name!r} recorded incompletely, retried: {report.recorded}", stacklevel=1)
-        assert report.recording_complete, (report.published, report.recorded)
-        _recorded[name] = report
+        if BACKGROUND is not None and name in BACKGROUND.names:
+            _recorded[name] = BACKGROUND.report(name)
+        else:
+            report, retried = record(name, tmp_path_factory.getbasetemp() / "analysis_runs")
+            for warning in retried:
+                warnings.warn(warning, stacklevel=1)
+            _recorded[name] = report
     return _recorded[name]
 
 
@@ -125,3 +246,52 @@ def as_if_from_ones_own_controller(report: RunReport, target: Path) -> Path:
     controller = custom_data_key("controller", "")
     kept = {key: value for key, value in stored.items() if not key.startswith(controller)}
     return rewrite(mcap_file(report.bag), target, change=rename, custom_data=kept)
+
+
+def _write(path: Path, data: bytes) -> None:
+    partial = path.with_name(path.name + ".partial")
+    partial.write_bytes(data)
+    partial.rename(path)  # whole or not at all for the waiting parent
+
+
+def _background(
+    directory: Path,
+    names: list[str],
+    commands: dict[str, list[str]],
+    tdslip_runs: dict[str, tuple[list[str], str]],
+) -> None:
+    """The child of :class:`Background`: each run's (report, retry warnings) pickled as it is done, then
+    each command's exit status, then each ``tdslip run`` process's result."""
+    for name in names:
+        try:
+            _write(directory / f"{name}.pickle", pickle.dumps(record(name, directory)))
+        except BaseException:
+            (directory / f"{name}.error").write_text(traceback.format_exc())
+    from tdslip_ros.commands import cli
+
+    for key, argv in commands.items():
+        try:
+            status = cli.main(argv)
+        except BaseException:
+            (directory / f"{key}.error").write_text(traceback.format_exc())
+            continue
+        sys.stdout.flush()
+        _write(directory / f"{key}.status", str(status).encode())
+    for key, (arguments, relative) in tdslip_runs.items():
+        out = directory / key / relative
+        try:
+            result = subprocess.run(
+                [sys.executable, "-m", "tdslip_ros.commands.cli", "run", *arguments, "--out", str(out)],
+                capture_output=True,
+                text=True,
+                timeout=180,
+                check=False,
+            )
+        except BaseException:
+            (directory / f"{key}.error").write_text(traceback.format_exc())
+            continue
+        _write(directory / f"{key}.result", pickle.dumps(result))
+
+
+if __name__ == "__main__":
+    _background(Path(sys.argv[1]), *json.loads(sys.argv[2]))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import as_if_from_ones_own_controller, recorded_run
+from analysis_runs import as_if_from_ones_own_controller
 
 from tdslip_ros.analysis.compare import (
     analytic_fixed_point,
@@ -31,11 +31,6 @@ from tdslip_ros.model.params import ApexState, HopperParams
 from tdslip_ros.model.policies import PolicyError, PolicySpec
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes.runner import RunReport
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -122,9 +117,9 @@ def test_the_policy_replay_reproduces_the_applied_commands(run: Run) -> None:
 
 
 def test_the_policy_settings_come_from_the_parameters_stored_in_the_bag(
-    tmp_path_factory: pytest.TempPathFactory,
+    deadbeat: RunReport, tmp_path_factory: pytest.TempPathFactory
 ) -> None:
-    run = read_run(recorded_run("deadbeat", tmp_path_factory).bag)
+    run = read_run(deadbeat.bag)
     assert run.custom_data["tdslip_ros.controller.target_speed"] == "4.0"
     assert run.custom_data["tdslip_ros.plant.max_strides"] == "4"
     policy = policy_for_run(run)
@@ -137,12 +132,10 @@ def test_the_policy_settings_come_from_the_parameters_stored_in_the_bag(
     assert read_run(bare).custom_data == run.custom_data
 
 
-def test_energy_exact_holds_the_1khz_plant_at_its_target_energy(
-    tmp_path_factory: pytest.TempPathFactory,
-) -> None:
+def test_energy_exact_holds_the_1khz_plant_at_its_target_energy(energy_exact: RunReport) -> None:
     """The ideal regulator in the node suite: every recorded apex has the target energy (the initial
     one) to the 1 kHz plant's own accuracy (~1e-11), and the analysis replays its commands."""
-    run = read_run(recorded_run("energy_exact", tmp_path_factory).bag)
+    run = read_run(energy_exact.bag)
     policy = policy_for_run(run)
     assert policy.name == "energy_exact" and policy.target_energy == run.strides[0].energy
     energies = np.array([stride.energy for stride in run.strides])
@@ -199,8 +192,8 @@ def test_a_converged_run_has_its_fixed_point_near_the_analytic_one(run: Run) -> 
     assert abs(abs(recorded.dominant) - abs(analytic.dominant)) < 0.1
 
 
-def test_a_failed_run_is_reported_by_stride(tmp_path_factory: pytest.TempPathFactory) -> None:
-    report = recorded_run("fall", tmp_path_factory)
+def test_a_failed_run_is_reported_by_stride(fall: RunReport) -> None:
+    report = fall
     run = read_run(report.bag)
     assert run.outcome is not None and run.outcome.fatal and run.outcome.kind == report.outcome.kind
     failed = [s for s in run.strides if s.failure is not None]

@@ -19,14 +19,13 @@ SPEEDS = (0.75, 1.5)  # from the default apex, PD cannot plan for 0.75 (fig. 13'
 STRIDES = 8
 HEIGHT = 1.0
 
+pytestmark = pytest.mark.nodes  # tdslip compare records its runs with the node suite
+
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("compare")
-    assert (
-        compare.main(["--out", str(out), "--speeds-bar", *map(str, SPEEDS), "--strides", str(STRIDES)]) == 0
-    )
-    return out
+def sweep(compare_sweep: Path) -> Path:
+    """tdslip compare --out DIR --speeds SPEEDS --strides STRIDES, recorded in the background (conftest)."""
+    return compare_sweep
 
 
 def _model_final_apex(controller: str, speed: float) -> tuple[float, float] | None:
@@ -52,7 +51,6 @@ def _model_final_apex(controller: str, speed: float) -> tuple[float, float] | No
     return float(result.y[-1]), float(result.xdot[-1])
 
 
-@pytest.mark.slow
 def test_recorded_sweep_matches_the_model_and_marks_lost_stability(sweep: Path) -> None:
     results = json.loads((sweep / "comparison.json").read_text(), parse_constant=lambda c: pytest.fail(c))
     assert [(r["controller"], r["target_speed_bar"]) for r in results] == [
@@ -83,7 +81,6 @@ def test_recorded_sweep_matches_the_model_and_marks_lost_stability(sweep: Path) 
     assert abs(by_key["pd", 1.5]["speed_error_percent"]) > 1.0
 
 
-@pytest.mark.slow
 def test_figure_marks_where_a_controller_loses_stability(sweep: Path, tmp_path: Path) -> None:
     results = [cc.analyse_run(sweep, entry) for entry in cc.load_sweep(sweep)]
     assert cc.stable_range(results, "deadbeat") == (0.75, 1.5)
@@ -99,7 +96,6 @@ def test_figure_marks_where_a_controller_loses_stability(sweep: Path, tmp_path: 
         assert np.isnan(pd_errors[0]) and pd_errors[1] > 0.0  # no error drawn where PD is lost
 
 
-@pytest.mark.slow
 def test_analyse_only_redoes_the_analysis_from_the_manifest(
     sweep: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

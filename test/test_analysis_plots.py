@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import recorded_run
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
@@ -16,13 +15,14 @@ from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import Comparison, compare_run, dimensionless
 from tdslip_ros.analysis.reader import Run, read_run
 from tdslip_ros.model import units
+from tdslip_ros.nodes.runner import RunReport
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
-def comparison(tmp_path_factory: pytest.TempPathFactory) -> Comparison:
-    return compare_run(read_run(recorded_run("energy", tmp_path_factory).bag))
+def comparison(energy: RunReport) -> Comparison:
+    return compare_run(read_run(energy.bag))
 
 
 @pytest.fixture(scope="module")

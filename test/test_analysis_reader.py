@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import raw_messages, recorded_run, rewrite
+from analysis_runs import raw_messages, rewrite
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
@@ -28,11 +28,6 @@ from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from analysis_runs import as_if_from_ones_own_controller, recorded_run, rewrite
+from analysis_runs import as_if_from_ones_own_controller, rewrite
 
 from tdslip_ros.analysis.reader import RunReadError
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml
@@ -16,18 +16,6 @@ from tdslip_ros.commands.analyze import main
 from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def fall(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    # Recorded outside the tests: rclpy's EventsExecutor enables faulthandler, which needs a real stderr
-    # (capsys replaces it).
-    return recorded_run("fall", tmp_path_factory)
 
 
 def _strict_json(path: Path) -> object:

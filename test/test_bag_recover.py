@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml  # type: ignore[import-untyped]
-from analysis_runs import raw_messages, recorded_run
+from analysis_runs import raw_messages
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
@@ -46,11 +46,6 @@ for number, (channel, message) in enumerate(iter_messages(source), start=1):
     if number == int(sys.argv[3]):
         os.kill(os.getpid(), signal.SIGKILL)
 """
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
 
 
 def kill_writer_after(source: Path, bag: Path, messages: int) -> None:

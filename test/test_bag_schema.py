@@ -95,6 +95,7 @@ def test_type_hash_equals_the_rosbags_rihs01_computation(type_name: str) -> None
     assert type_description_hash(type_name) == get_typestore(Stores.ROS2_KILTED).hash_rihs01(type_name)
 
 
+@pytest.mark.nodes
 def test_type_hash_equals_what_rmw_reports_for_a_live_publisher() -> None:
     rclpy = pytest.importorskip("rclpy")
     from geometry_msgs.msg import WrenchStamped

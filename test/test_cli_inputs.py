@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from analysis_runs import recorded_run
 
 from tdslip_ros.commands import cli
 from tdslip_ros.nodes.runner import RunReport
@@ -109,8 +108,7 @@ def test_a_closed_pipe_ends_simulate_quietly() -> None:
     assert (result.returncode, result.stderr) == (cli.BROKEN_PIPE, "")
 
 
-def test_a_closed_pipe_ends_analyze_quietly(tmp_path_factory: pytest.TempPathFactory, tmp_path: Path) -> None:
-    energy: RunReport = recorded_run("energy", tmp_path_factory)
+def test_a_closed_pipe_ends_analyze_quietly(energy: RunReport, tmp_path: Path) -> None:
     result = run_with_closed_output(["analyze", str(energy.bag), "--out", str(tmp_path / "report")])
     assert (result.returncode, result.stderr) == (cli.BROKEN_PIPE, "")
     assert (tmp_path / "report" / "summary.json").is_file()  # the work was done before the output

@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from analysis_runs import recorded_run
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
@@ -20,11 +19,6 @@ from tdslip_ros.nodes import markers, topics
 from tdslip_ros.nodes.runner import RunReport
 
 NS = 1_000_000_000
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
 
 
 def stamp(message: Any) -> int:

@@ -16,7 +16,7 @@ from rclpy.node import Node
 from ros_harness import RosGraph, overrides
 
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.nodes import controller_node, isolation, parameters, plant_node, recorder_node
+from tdslip_ros.nodes import controller_node, isolation, parameters, plant_parameters, recorder_node
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.entry import BAD_PARAMETERS, with_default_params_file
 from tdslip_ros.nodes.parameters import ParameterSpec
@@ -24,7 +24,7 @@ from tdslip_ros.nodes.plant_node import PlantNode
 from tdslip_ros.nodes.recorder_node import RecorderNode
 
 NODE_SPECS = {
-    "plant.yaml": plant_node.SPECS,
+    "plant.yaml": plant_parameters.SPECS,
     "controller.yaml": controller_node.SPECS,
     "recorder.yaml": recorder_node.SPECS,
 }
@@ -111,6 +111,7 @@ def test_a_params_file_configures_the_node_and_bad_values_are_refused(ros: RosGr
         PlantNode(context=ros.context, parameter_overrides=overrides(initial_height=math.inf))
 
 
+@pytest.mark.nodes
 def test_the_recorder_refuses_malformed_custom_data_before_creating_a_bag(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     with isolation.reserved_domain() as domain_id:
@@ -162,6 +163,7 @@ def node_executable(module: str, *arguments: str) -> subprocess.CompletedProcess
         ("controller_node", "polcy:=pd", "polcy"),
     ],
 )
+@pytest.mark.nodes
 def test_a_value_of_the_wrong_type_on_the_command_line_is_an_error_naming_the_parameter(
     module: str, override: str, named: str
 ) -> None:
@@ -176,7 +178,9 @@ def test_a_misspelt_name_is_named_with_the_closest_parameter_and_rclpy_s_own_pas
     with pytest.raises(
         ParameterError, match="max_strids: this node has no such parameter .did you mean max_strides"
     ):
-        parameters.check_command_line(["plant_node", "--ros-args", "-p", "max_strids:=5"], plant_node.SPECS)
+        parameters.check_command_line(
+            ["plant_node", "--ros-args", "-p", "max_strids:=5"], plant_parameters.SPECS
+        )
     argv = [
         "plant_node",
         "--ros-args",
@@ -187,12 +191,12 @@ def test_a_misspelt_name_is_named_with_the_closest_parameter_and_rclpy_s_own_pas
         "-p",
         "controller:polcy:=pd",  # another node's
     ]
-    assert parameters.check_command_line(argv, plant_node.SPECS) == argv
+    assert parameters.check_command_line(argv, plant_parameters.SPECS) == argv
 
 
 def test_an_integer_for_a_float_parameter_is_taken_as_that_float() -> None:
     argv = ["plant_node", "--ros-args", "-p", "mass:=80", "-p", "max_strides:=3", "--", "-p", "mass:=x"]
-    checked = parameters.check_command_line(argv, plant_node.SPECS)
+    checked = parameters.check_command_line(argv, plant_parameters.SPECS)
     assert checked == [
         "plant_node",
         "--ros-args",
@@ -217,6 +221,7 @@ def test_an_integer_for_a_float_parameter_is_taken_as_that_float() -> None:
         (["-p", "pushes:=3:fast"], "neither STRIDE:DV"),
     ],
 )
+@pytest.mark.nodes
 def test_implausible_or_missing_inputs_stop_the_plant_with_one_line(
     arguments: list[str], message: str
 ) -> None:

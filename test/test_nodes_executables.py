@@ -24,7 +24,6 @@ from tdslip_ros.nodes.plant_node import TICK_PERIOD
 STRIDES = 3
 
 
-@pytest.mark.slow
 @pytest.mark.usefixtures("ament_index")
 def test_executables_hop_on_their_own_with_the_installed_config(ros: RosGraph, tmp_path: Path) -> None:
     lib = Path(get_package_prefix("tdslip_ros")) / "lib" / "tdslip_ros"

@@ -58,7 +58,6 @@ def bag_messages(bag: Path) -> dict[str, list[Any]]:
     return messages
 
 
-@pytest.mark.slow
 @pytest.mark.usefixtures("ament_index")
 def test_two_hoppers_in_their_own_namespaces_share_a_domain_and_each_hops_like_one(
     ros: RosGraph, tmp_path: Path
@@ -99,7 +98,6 @@ def test_two_hoppers_in_their_own_namespaces_share_a_domain_and_each_hops_like_o
         )
 
 
-@pytest.mark.slow
 @pytest.mark.usefixtures("ament_index")
 def test_a_controller_of_ones_own_with_default_qos_drives_the_plant_and_is_recorded(
     ros: RosGraph, tmp_path: Path
@@ -198,7 +196,6 @@ def frozen_subscriber(ros: RosGraph, log: Path) -> subprocess.Popen[bytes]:
     return ros.start_process([sys.executable, "-c", code], log)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(("mode", "strides"), [("lockstep", 150), ("realtime", 40)])
 def test_a_subscriber_frozen_for_5_s_neither_stops_nor_holds_the_plant(
     ros: RosGraph, tmp_path: Path, mode: str, strides: int
@@ -293,7 +290,6 @@ def flood(ros: RosGraph, log: Path, stride: int) -> subprocess.Popen[bytes]:
     return ros.start_process([sys.executable, "-c", code], log)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("stride", [0, 1_000_000], ids=["late-answers", "future-strides"])
 def test_a_flood_of_wrong_commands_does_not_keep_the_valid_one_from_the_plant(
     ros: RosGraph, tmp_path: Path, stride: int

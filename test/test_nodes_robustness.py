@@ -164,7 +164,6 @@ def finite(message: Any) -> bool:
     return True
 
 
-@pytest.mark.slow
 def test_fuzzed_commands_and_resets_leave_the_plant_alive_and_every_number_finite(ros: RosGraph) -> None:
     rng = random.Random(20261201)
     plant = ros.add(

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import shlex
 import signal
 import subprocess
 import sys
@@ -22,6 +21,7 @@ from typing import Any
 import pytest
 from ament_index_python.packages import get_package_share_directory
 from ament_index_python.resources import get_resource
+from colcon_workspace import ColconBuild
 
 from tdslip_ros.nodes import isolation
 
@@ -164,42 +164,19 @@ def test_tdslip_msgs_is_an_installed_interface_package() -> None:
     assert Path(tdslip_msgs.msg.__file__).is_relative_to(sys.prefix)
 
 
-def readme_colcon_command(repo_root: Path) -> list[str]:
-    """The ``colcon build`` line of the README's colcon section, as a user copies it."""
-    lines = [line.strip() for line in (repo_root / "README.md").read_text().splitlines()]
-    (command,) = [line for line in lines if line.startswith("colcon build")]
-    return shlex.split(command)
-
-
-@pytest.mark.slow
+@pytest.mark.nodes
 def test_the_readmes_colcon_command_builds_both_packages_and_plant_node_runs_from_the_install(
-    repo_root: Path, tmp_path: Path
+    readme_colcon_build: ColconBuild,
 ) -> None:
     """A plain workspace (this repository cloned as src/tdslip_ros) built with the README's command,
     the venv as underlay (as an activated venv presents it): after `source install/local_setup.bash`
-    both packages come from the overlay, and `ros2 run tdslip_ros plant_node` hops."""
-    venv = Path(sys.prefix)
-    environment = {
-        key: value
-        for key, value in os.environ.items()
-        if key not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "CMAKE_PREFIX_PATH", "COLCON_PREFIX_PATH")
-    }
-    environment |= {
-        "AMENT_PREFIX_PATH": str(venv),
-        "CMAKE_PREFIX_PATH": str(venv),
-        "VIRTUAL_ENV": str(venv),
-        "PATH": f"{venv / 'bin'}{os.pathsep}{os.environ['PATH']}",
-    }
-    workspace = tmp_path / "tdslip_ws"
-    (workspace / "src").mkdir(parents=True)
-    (workspace / "src" / PACKAGE).symlink_to(repo_root)
-    command = readme_colcon_command(repo_root)
-    build = subprocess.run(
-        command, cwd=workspace, env=environment, capture_output=True, text=True, timeout=900, check=False
-    )
+    both packages come from the overlay, and `ros2 run tdslip_ros plant_node` hops. (The build started
+    in the background when collection ended: colcon_workspace.py.)"""
+    build = readme_colcon_build.wait()
     assert build.returncode == 0, build.stdout + build.stderr
     assert "Summary: 2 packages finished" in build.stdout, build.stdout
-    install = workspace / "install"
+    environment = readme_colcon_build.environment
+    install = readme_colcon_build.workspace / "install"
 
     sourced = f'source "{install}/local_setup.bash" && '
     lookup = ros2run_lookup(environment, sourced)

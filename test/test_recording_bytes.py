@@ -10,8 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-from analysis_runs import RUNS, raw_messages, recorded_run
+from analysis_runs import raw_messages
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -19,12 +18,7 @@ from tdslip_ros.bag.padding import padded_to_4, padding_positions
 from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
-from tdslip_ros.nodes.runner import RunOptions, RunReport, run
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
+from tdslip_ros.nodes.runner import RunReport
 
 
 def _schemas(mcap_path: Path) -> dict[str, tuple[str, str]]:
@@ -70,9 +64,9 @@ def test_every_padding_byte_of_every_recorded_message_is_zero(energy: RunReport)
 
 
 def test_two_lockstep_runs_with_the_same_options_record_the_same_bytes(
-    energy: RunReport, tmp_path: Path
+    energy: RunReport, energy_again: RunReport
 ) -> None:
-    again = run(RunOptions(out=tmp_path / "again", **RUNS["energy"]))
+    again = energy_again  # the same RunOptions (analysis_runs.AGAIN), recorded once
     assert again.recording_complete
     first, second = _by_topic(mcap_file(energy.bag)), _by_topic(mcap_file(again.bag))
     assert set(first) == set(second) == {resolve(topic) for topic in topics.RECORDED_TOPICS}

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import rclpy
-from analysis_runs import raw_messages, recorded_run
+from analysis_runs import raw_messages
 from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.qos import HistoryPolicy
@@ -22,11 +22,6 @@ from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.replay import ReplayError, check_rate, offered_qos, replay, send_offset
 from tdslip_ros.nodes.runner import ChildNode, RunReport
-
-
-@pytest.fixture(scope="module")
-def energy(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    return recorded_run("energy", tmp_path_factory)
 
 
 @contextmanager

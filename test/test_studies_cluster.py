@@ -24,7 +24,6 @@ from distributed import Client
 from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.design import Study, Uniform
 
-pytestmark = pytest.mark.slow
 DEADLINE = 180  # s per test
 DASK = Path(sys.executable).with_name("dask")
 # 3 policies x 3 energies x 4 draws of y0 = 36 trajectories of 12 strides, in 8 chunks.

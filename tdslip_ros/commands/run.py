@@ -24,7 +24,7 @@ from tdslip_ros.model.policies import POLICIES
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import stop_on_signals
-from tdslip_ros.nodes.plant_node import CLOCK_MODES
+from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.nodes.runner import RunError, RunOptionError, RunOptions, check_options, run
 
 

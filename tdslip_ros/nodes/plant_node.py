@@ -44,7 +44,9 @@ in lockstep, or holds a value that :class:`~tdslip_ros.model.params.StanceComman
 refuses (non-finite, out of range, or a touchdown angle the body cannot reach). Answers to
 other apexes are recognised from their bytes and cost next to nothing (a flood of them cannot delay
 the valid one); late answers are only counted, other rejections are logged and reported, at most
-:data:`REJECTION_REPORTS` per :data:`REJECTION_REPORT_PERIOD`, the rest summed.
+:data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORTS` per
+:data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORT_PERIOD`, the rest summed
+(:mod:`tdslip_ros.nodes.command_admission`). The parameters are :mod:`tdslip_ros.nodes.plant_parameters`.
 
 With ``wait_for_recorder`` the plant treats a recorder_node (``tdslip/recorder_status``) as part
 of the run (:mod:`tdslip_ros.nodes.flow_control`): it starts once the recorder hears every
@@ -63,7 +65,6 @@ simulated time runs on.
 from __future__ import annotations
 
 import dataclasses
-import struct
 import sys
 import threading
 import time
@@ -96,13 +97,13 @@ from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
+from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
 from tdslip_ros.nodes.markers import HopperMarkers
-from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
 from tdslip_ros.nodes.wire import (
     SAMPLE_FIELDS,
@@ -126,136 +127,6 @@ DELIVERY_TIMEOUT = 10.0
 """s a finished run waits for the recorder it waits for to write everything (and, without one, at
 most :data:`ACK_TIMEOUT` for subscribers' acknowledgements)."""
 ACK_TIMEOUT = 1.0  # s
-REJECTION_REPORTS = 10
-REJECTION_REPORT_PERIOD = 1.0
-"""s: at most REJECTION_REPORTS rejections per period are logged and reported one by one."""
-
-CLOCK_MODES = ("realtime", "lockstep")
-SPECS: tuple[ParameterSpec, ...] = (
-    *parameters.HOPPER,
-    ParameterSpec(
-        "initial_height",
-        DEFAULT_APEX_HEIGHT,
-        "initial apex height [m] above the ground under the body",
-        1e-3,
-        1e2,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "initial_forward_speed",
-        DEFAULT_APEX_SPEED,
-        "initial apex forward speed [m/s]",
-        0.0,
-        1e2,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "initial_touchdown_angle",
-        DEFAULT_TOUCHDOWN_ANGLE,
-        "touchdown angle [rad] of the command in force until a controller answers",
-        1e-6,
-        1.5707953,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "initial_tau0",
-        -273.0,
-        "ramp torque tau0 [N m] of the initial command (negative = forward thrust)",
-        -1e6,
-        1e6,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "initial_t_f", 0.13, "ramp duration t_f [s] of the initial command", 1e-4, 1e2, read_only=True
-    ),
-    ParameterSpec(
-        "max_torque",
-        0.0,
-        "actuator limit |tau0| [N m]: a command beyond it is rejected (0: 20 m g r0 of this hopper, "
-        "tdslip_ros.model.limits)",
-        0.0,
-        1e9,
-        read_only=True,
-    ),
-    *parameters.PERTURBATIONS,
-    ParameterSpec(
-        "clock_mode",
-        "lockstep",
-        "realtime: 1 kHz against wall time; lockstep: as fast as possible, each apex waiting for its command",
-        choices=CLOCK_MODES,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "command_timeout",
-        5.0,
-        "wall time [s] to wait for a controller before starting, and in lockstep at an apex for its "
-        "command before the run ends",
-        1e-3,
-        3600.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "max_stale_strides",
-        3,
-        "realtime: the run ends (command_timeout) after this many strides in a row without a valid "
-        "command answering them (0: never; the plant hops on the command in force)",
-        0,
-        1_000_000,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "max_strides", 50, "the run ends at this apex (0: never)", 0, 2_000_000_000, read_only=True
-    ),
-    ParameterSpec(
-        "realtime_priority",
-        0,
-        "realtime: SCHED_FIFO priority of the tick thread (0: normal scheduling; needs CAP_SYS_NICE)",
-        0,
-        99,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "realtime_cpu",
-        -1,
-        "realtime: the CPU the tick thread is pinned to (-1: any; e.g. one kept free with isolcpus)",
-        -1,
-        1023,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "min_subscribers",
-        0,
-        "the run starts once each of the plant's topics has this many subscribers",
-        0,
-        1000,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "wait_for_recorder",
-        False,
-        "start once a recorder_node has matched every publisher, keep a lockstep run within reach of "
-        "what it has written, and wait at the end until everything is in its bag",
-        read_only=True,
-    ),
-    ParameterSpec(
-        "publish_clock",
-        True,
-        "publish /clock (simulated time) while someone subscribes to it; off for all hoppers but one "
-        "when several share a domain",
-        read_only=True,
-    ),
-    ParameterSpec(
-        "marker_rate",
-        60.0,
-        "rate [Hz of simulated time] of the tdslip/markers drawing (0: none)",
-        0.0,
-        1000.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "exit_when_done", True, "plant_node exits when the run has ended (else it stays for tdslip/reset)"
-    ),
-)
 
 _CONTACT_KINDS = {
     EventKind.TOUCHDOWN: ContactEvent.TOUCHDOWN,
@@ -263,8 +134,6 @@ _CONTACT_KINDS = {
     EventKind.LIFTOFF: ContactEvent.LIFTOFF,
 }
 _NS_PER_S = 1_000_000_000
-_CDR_LITTLE_ENDIAN = 1
-_UINT32_PAIR = struct.Struct("<II")
 
 
 @dataclass(frozen=True)
@@ -281,46 +150,6 @@ class RunOutcome:
     @property
     def ok(self) -> bool:
         return bool(self.kind == Status.KIND_RUN_COMPLETE)
-
-
-def command_key(data: bytes) -> tuple[int, int] | None:
-    """(epoch, stride) of a serialized StanceCommand, read without deserializing it (None if the
-    bytes are not little-endian CDR of that layout). After the 4-byte encapsulation header come
-    header.stamp (8 bytes), header.frame_id (uint32 length, then its bytes), then epoch and stride,
-    each aligned to 4 bytes counted from the end of the encapsulation header."""
-    if len(data) < 16 or data[1] != _CDR_LITTLE_ENDIAN:
-        return None
-    offset = 12 + int.from_bytes(data[12:16], "little")  # payload offset after frame_id
-    offset += -offset % 4
-    if 4 + offset + _UINT32_PAIR.size > len(data):
-        return None
-    epoch, stride = _UINT32_PAIR.unpack_from(data, 4 + offset)
-    return epoch, stride
-
-
-class RejectionLog:
-    """Rejected commands, logged and reported one by one up to REJECTION_REPORTS per
-    REJECTION_REPORT_PERIOD, the rest summed into the next report: a flood of bad commands cannot
-    flood the log or the status topic."""
-
-    def __init__(self) -> None:
-        self._period_start_ns = 0
-        self._reports_in_period = 0
-        self.suppressed = 0
-        self.total = 0
-
-    def admit(self, now_ns: int) -> str | None:
-        """Count a rejection; the prefix of its report if it is to be reported now, else None."""
-        self.total += 1
-        if now_ns - self._period_start_ns >= REJECTION_REPORT_PERIOD * _NS_PER_S:
-            self._period_start_ns, self._reports_in_period = now_ns, 0
-        if self._reports_in_period >= REJECTION_REPORTS:
-            self.suppressed += 1
-            return None
-        self._reports_in_period += 1
-        prefix = f"({self.suppressed} more rejected, not reported one by one) " if self.suppressed else ""
-        self.suppressed = 0
-        return prefix
 
 
 class PlantNode(Node):
@@ -766,9 +595,8 @@ class PlantNode(Node):
         if key is not None and key != (self._epoch, self._stepper.stride):
             if key > (self._epoch, self._stepper.stride):
                 epoch, stride = key
-                self._report_rejection(
-                    f"command for epoch {epoch}, stride {stride} rejected: {self._not_yet(key)}"
-                )
+                reason = not_yet(key, self._epoch, self._stepper.stride)
+                self._report_rejection(f"command for epoch {epoch}, stride {stride} rejected: {reason}")
             else:
                 self.rejections.total += 1  # a late answer: counted, not reported
                 if key[0] == self._epoch and key[1] > self._answered:
@@ -783,12 +611,6 @@ class PlantNode(Node):
         if stride != self._late_stride:
             self._late_stride = stride
             self.late_commands += 1
-
-    def _not_yet(self, key: tuple[int, int]) -> str:
-        epoch, stride = key
-        if epoch != self._epoch:
-            return f"the run is in epoch {self._epoch}"
-        return f"the latest apex is stride {self._stepper.stride}"
 
     def _report_rejection(self, reason: str) -> None:
         """Log and report a rejection (at most REJECTION_REPORTS per period, the rest summed)."""
@@ -820,21 +642,21 @@ class PlantNode(Node):
             self._lockstep_timer.reset()
 
     def _apply(self, msg: StanceCommand) -> None:
-        """Validate a command and hand it to the stepper; ParameterError gives the reason to refuse it."""
+        """Admit a command and hand it to the stepper; ParameterError gives the reason to refuse it."""
         stride = self._stepper.stride
-        if msg.epoch != self._epoch:
-            raise ParameterError(
-                f"it answers epoch {msg.epoch}, but the run is in epoch {self._epoch} (copy the apex's epoch)"
+        try:
+            command = admit(
+                msg,
+                epoch=self._epoch,
+                stride=stride,
+                lockstep=self.lockstep,
+                awaiting=self._awaiting,
+                past_touchdown=self._stepper.past_touchdown,
+                limits=self.limits,
             )
-        if msg.stride != stride:
-            raise ParameterError(f"it answers stride {msg.stride}, but the latest apex is stride {stride}")
-        if self.lockstep and self._awaiting != stride:
-            raise ParameterError(f"stride {stride} already has its command (lockstep)")
-        if self._stepper.past_touchdown:  # in its stance, or rising after it
+        except LateCommand:
             self._count_late(stride)
-            raise ParameterError(f"it arrived after the touchdown of stride {stride}")
-        command = ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f)
-        self.limits.check_command(command)
+            raise
         self._stepper.set_command(command)
 
     def _on_reset(self, request: Reset.Request, response: Reset.Response) -> Reset.Response:

@@ -55,6 +55,7 @@ from tdslip_ros.interfaces import (
     STOP_REQUESTED,
     config_file,
     custom_data_key,
+    hopper_from_parameters,
     installed_parameters,
     perturbation_parameters,
     resolve,
@@ -75,7 +76,8 @@ from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
     spin_until,
 )
-from tdslip_ros.nodes.plant_node import CLOCK_MODES, PlantNode, RunOutcome
+from tdslip_ros.nodes.plant_node import PlantNode, RunOutcome
+from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.nodes.realtime import TickTiming
 from tdslip_ros.reporting.output import OutputError, check_output_directory
 
@@ -360,6 +362,7 @@ def check_options(options: RunOptions) -> None:
         check_output_directory(bag)
     except OutputError as error:
         raise RunOptionError(str(error)) from None
+    check_placement(options, hopper_from_parameters(installed_parameters("plant.yaml")))
 
 
 def check_placement(options: RunOptions, params: HopperParams) -> None:
@@ -416,7 +419,6 @@ def run(
         except (ParameterException, ParameterError) as error:
             raise RunOptionError(f"plant parameters: {error}") from None
         stack.callback(plant.destroy_node)
-        check_placement(options, plant.hopper)
         try:
             controller_parameters = controller_overrides(options, plant.hopper)
         except ParameterError as error:
