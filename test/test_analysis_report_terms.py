@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from analysis_runs import recorded_run
 
 from tdslip_ros.analysis.compare import compare_run
 from tdslip_ros.analysis.reader import read_run
@@ -24,6 +23,7 @@ from tdslip_ros.analysis.report import (
 )
 from tdslip_ros.commands.analyze import main
 from tdslip_ros.interfaces import STOP_REQUESTED
+from tdslip_ros.nodes.runner import RunReport
 from tdslip_ros.reporting.output import DIMENSIONLESS_SUFFIXES, UNIT_SUFFIXES
 
 RUN_NAMES = ("energy", "rough", "fall", "wall")
@@ -31,12 +31,15 @@ RUN_NAMES = ("energy", "rough", "fall", "wall")
 REDUNDANT_WITHOUT_PERTURBATIONS = {"terrain_path", "measured_apex"}
 
 
+pytestmark = pytest.mark.nodes  # the recorded runs of conftest
+
+
 @pytest.fixture(scope="module")
-def reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def reports(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """The report directory of each of RUN_NAMES, analysed once."""
     out = {}
     for name in RUN_NAMES:
-        report = recorded_run(name, tmp_path_factory)
+        report = request.getfixturevalue(name)
         directory = tmp_path_factory.mktemp(f"report_{name}")
         assert main([str(report.bag), "--out", str(directory)]) == 0
         out[name] = directory
@@ -130,10 +133,10 @@ def test_a_term_missing_from_the_glossary_is_found(reports: dict[str, Path]) -> 
 
 
 def test_the_glossary_is_the_one_the_report_module_makes(
-    reports: dict[str, Path], tmp_path_factory: pytest.TempPathFactory
+    reports: dict[str, Path], request: pytest.FixtureRequest
 ) -> None:
     for name in ("energy", "fall"):
-        comparison = compare_run(read_run(recorded_run(name, tmp_path_factory).bag))
+        comparison = compare_run(read_run(request.getfixturevalue(name).bag))
         terms, _ = _split((reports[name] / "report.md").read_text())
         assert terms.strip() == glossary_markdown(glossary(comparison))
     assert "failure kinds" in terms  # the failed run's glossary names the failures
@@ -207,8 +210,8 @@ def test_a_completed_run_says_it_completed_and_did_not_fail(reports: dict[str, P
         )
 
 
-def test_a_stopped_run_and_one_without_its_end_say_so(tmp_path_factory: pytest.TempPathFactory) -> None:
-    run = read_run(recorded_run("energy", tmp_path_factory).bag)
+def test_a_stopped_run_and_one_without_its_end_say_so(energy: RunReport) -> None:
+    run = read_run(energy.bag)
     assert run.outcome is not None and run_ending(run) == "completed"
     stopped = dataclasses.replace(run, outcome=dataclasses.replace(run.outcome, reason=STOP_REQUESTED))
     assert run_ending(stopped) == "stopped"

@@ -62,7 +62,6 @@ def _changed(setting: PolicySetting) -> Any:
     return setting.default * 1.05 if setting.default else 0.1
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("policy", POLICIES)
 def test_a_policy_uses_exactly_the_settings_declared_for_it(policy: str) -> None:
     """Changing a setting changes the policy's command where the declaration says the policy uses it, and
