@@ -9,7 +9,7 @@
 # Set-up is idempotent: each step runs again only when its inputs changed (a hash of them is kept in
 # .venv/.tdslip-stamps), so a second run takes seconds. Everything lands in .venv (Python 3.11 venv
 # with the pinned ROS 2 Kilted wheels, tdslip_msgs and tdslip_ros), build/ (the msg_defs build) and
-# tdslip_ros/model/__pycache__ (the compiled kernels).
+# the compiled kernels' cache (~/.cache/tdslip_ros, or $NUMBA_CACHE_DIR; tdslip_ros/model/compiled.py).
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -119,7 +119,7 @@ ensure_tdslip_ros() {
     write_stamp tdslip_ros "$key"
 }
 
-# The model's compiled kernels (numba) are cached in tdslip_ros/model/__pycache__; compiling them here
+# The model's compiled kernels (numba) are cached (tdslip_ros/model/compiled.py says where); compiling them here
 # spares the first node, run or test the wait. Redone when a model source changes (the cache's own key).
 ensure_kernels() {
     local key
