@@ -112,3 +112,42 @@ def test_a_closed_pipe_ends_analyze_quietly(energy: RunReport, tmp_path: Path) -
     result = run_with_closed_output(["analyze", str(energy.bag), "--out", str(tmp_path / "report")])
     assert (result.returncode, result.stderr) == (cli.BROKEN_PIPE, "")
     assert (tmp_path / "report" / "summary.json").is_file()  # the work was done before the output
+
+
+def _tree(root: Path) -> dict[str, bytes | None]:
+    """Every path below root, with the contents of the files."""
+    return {
+        str(path.relative_to(root)): path.read_bytes() if path.is_file() else None for path in root.rglob("*")
+    }
+
+
+@pytest.mark.parametrize(
+    ("arguments", "status"),
+    [
+        (["analyze", "{tmp}/no/such/run"], 1),
+        (["analyze", "{tmp}/not_a_bag"], 1),
+        (["analyze", "{tmp}/not_a_bag", "--out", "{tmp}/new/report"], 1),
+        (["figures", "--out", "/proc/x/y", "--only", "fig04"], 2),
+        (["run", "--height", "0.2", "--out", "{tmp}/new/run"], 2),
+        (["run", "--out", "/proc/x"], 2),
+        (["run", "--terrain", "blocks:sigma=abc", "--out", "{tmp}/new/run"], 2),
+    ],
+)
+def test_a_failing_command_leaves_the_file_system_as_it_found_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], arguments: list[str], status: int
+) -> None:
+    (tmp_path / "not_a_bag").mkdir()
+    (tmp_path / "not_a_bag" / "notes.txt").write_text("not a recording\n")
+    before = _tree(tmp_path)
+    assert cli.main([argument.format(tmp=tmp_path) for argument in arguments]) == status
+    one_line_error(capsys, arguments[0])
+    assert _tree(tmp_path) == before
+    assert not Path("/proc/x").exists()
+
+
+def test_a_misspelt_subcommand_gets_the_closest_name(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["anaylze", "RUN"]) == 2
+    assert (
+        capsys.readouterr().err
+        == "tdslip: unknown command 'anaylze'; did you mean 'analyze'? try 'tdslip --help'\n"
+    )
