@@ -17,7 +17,7 @@ import sys
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
 from tdslip_ros.commands.options import add_initial_apex, add_touchdown_angle, command_parser
-from tdslip_ros.model import units
+from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
@@ -74,6 +74,7 @@ def main(argv: list[str]) -> int:
         apex = ApexState(args.height, args.speed)
         limits.check_apex(apex)
         angle = math.radians(args.touchdown_angle_deg)
+        dynamics.check_placement(params, apex.y, angle)
         if args.tau0 is None:
             command = energy_neutral_command(params, apex, angle, args.t_f)
         else:

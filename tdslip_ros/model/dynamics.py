@@ -28,7 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.model.events import FailureKind, HopperState, Phase
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.params import HopperParams, ParameterError
 
 FloatArray = npt.NDArray[np.float64]
 Real = TypeVar("Real", float, FloatArray)
@@ -73,6 +73,23 @@ def can_place_leg(r0: Real, g: Real, apex_y: Real, cos_touchdown: Real) -> bool 
     """
     clear: bool | npt.NDArray[np.bool_] = apex_y - r0 * cos_touchdown >= placement_clearance(g)
     return clear
+
+
+def check_placement(params: HopperParams, apex_y: float, touchdown_angle: float | None) -> None:
+    """ParameterError if the leg cannot be placed (:func:`can_place_leg`) from an apex at apex_y [m] at
+    touchdown_angle [rad], or at any angle when it is None (a policy that chooses its angle)."""
+    if touchdown_angle is None:
+        if not can_place_leg(params.r0, params.g, apex_y, 0.0):
+            raise ParameterError(
+                f"the leg cannot be placed from an apex at {apex_y} m at any touchdown angle: the apex must "
+                f"be above {placement_clearance(params.g):.4g} m"
+            )
+    elif not can_place_leg(params.r0, params.g, apex_y, math.cos(touchdown_angle)):
+        raise ParameterError(
+            f"the leg cannot be placed from an apex at {apex_y} m at the touchdown angle "
+            f"{math.degrees(touchdown_angle):.4g} deg: the apex must be at least "
+            f"{params.r0 * math.cos(touchdown_angle) + placement_clearance(params.g):.4g} m high"
+        )
 
 
 def fall_time(y: Real, ydot: Real, y_target: Real, g: float) -> Real:

@@ -60,7 +60,7 @@ from tdslip_ros.interfaces import (
     perturbation_parameters,
     resolve,
 )
-from tdslip_ros.model.dynamics import can_place_leg, placement_clearance
+from tdslip_ros.model import dynamics
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
@@ -368,19 +368,13 @@ def check_options(options: RunOptions) -> None:
 def check_placement(options: RunOptions, params: HopperParams) -> None:
     """RunOptionError if the leg cannot be placed from the initial apex: at the policy's touchdown angle
     for a fixed-angle policy, at any angle for the others."""
+    angle = None
     if options.policy in FIXED_ANGLE_POLICIES:
         angle = DEFAULT_TOUCHDOWN_ANGLE if options.touchdown_angle is None else options.touchdown_angle
-        if not can_place_leg(params.r0, params.g, options.height, math.cos(angle)):
-            raise RunOptionError(
-                f"the leg cannot be placed from an apex at {options.height} m at the touchdown angle "
-                f"{math.degrees(angle):.4g} deg: the apex must be at least "
-                f"{params.r0 * math.cos(angle) + placement_clearance(params.g):.4g} m high"
-            )
-    elif not can_place_leg(params.r0, params.g, options.height, 0.0):
-        raise RunOptionError(
-            f"the leg cannot be placed from an apex at {options.height} m at any touchdown angle: "
-            f"the apex must be above {placement_clearance(params.g):.4g} m"
-        )
+    try:
+        dynamics.check_placement(params, options.height, angle)
+    except ParameterError as error:
+        raise RunOptionError(str(error)) from None
 
 
 def run(
