@@ -270,3 +270,50 @@ def test_a_realtime_run_that_records_clock_completes_with_every_message(tmp_path
     assert result.returncode == 0, result.stdout + result.stderr
     counts = bag_counts(bag)
     assert counts["/clock"] == counts[resolve(topics.STATE)] > 700  # /clock at every tick, like the state
+
+
+def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analysable(tmp_path: Path) -> None:
+    """``tdslip run --controller none`` starts the plant and the recorder only and waits for the user's own
+    controller (examples/my_controller.py, started a few seconds later in the same domain); the run ends by
+    itself, everything is recorded, and tdslip analyze reads it as a controller of one's own."""
+    from tdslip_ros.nodes import isolation
+
+    bag = tmp_path / "mine"
+    # A free domain from the pool; released at once, the run reserves it (its ROS_DOMAIN_ID), and the pool's
+    # cool-down keeps other runs off it meanwhile.
+    with isolation.reserved_domain() as domain_id:
+        pass
+    environment = isolation.isolated_environment(domain_id)
+    command = [sys.executable, "-m", "tdslip_ros.commands.cli", "run", "--controller", "none"]
+    run = subprocess.Popen(
+        [*command, "--strides", "5", "--wait-for-controller", "60", "--out", str(bag)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=environment,
+    )
+    controller = subprocess.Popen(
+        [sys.executable, str(Path(__file__).parents[1] / "examples" / "my_controller.py")],
+        env=environment,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        stdout, stderr = run.communicate(timeout=120)
+    finally:
+        controller.terminate()
+        controller.wait(timeout=30)
+    assert run.returncode == 0, stderr[-2000:]
+    assert stderr.startswith(f"tdslip run: waiting up to 60 s for your controller in ROS domain {domain_id}")
+    assert "lockstep run, your own controller: 5 strides" in stdout and "LOST" not in stdout
+    counts = bag_counts(bag)
+    assert counts[resolve(topics.APEX)] == 6 and counts[resolve(topics.COMMAND)] >= 5
+    analysed = subprocess.run(
+        [sys.executable, "-m", "tdslip_ros.commands.cli", "analyze", str(bag)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert analysed.returncode == 0, analysed.stderr[-2000:]
+    assert "skip" in analysed.stdout + analysed.stderr  # the replay of a known policy is skipped, and said
