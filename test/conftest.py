@@ -128,6 +128,17 @@ def readme_colcon_build() -> ColconBuild:
     return _colcon_build
 
 
+@pytest.fixture(scope="session")
+def dask_scheduler() -> Iterator[str]:
+    """The address of one local Dask cluster of 2 worker processes, started as the study engine starts one
+    (``engine.connect``) and shared by the tests that run studies on a cluster: each cluster's start, its
+    workers importing the model's kernels, takes seconds. The commands reach it with ``--scheduler``."""
+    from tdslip_ros.studies import engine
+
+    with engine.connect(engine.Where(workers=2)) as client:
+        yield str(client.scheduler.address)
+
+
 @pytest.fixture
 def repo_root() -> Path:
     """The work tree under test (the directory holding package.xml)."""

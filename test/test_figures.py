@@ -40,11 +40,13 @@ def _quiet() -> Reporter:
 
 
 def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, dask_scheduler: str
 ) -> None:
     assert "figures" in cli.SUBCOMMANDS  # run by tdslip_ros.commands.figures
     monkeypatch.setattr(figures_command, "DEFAULT", TINY)  # the default resolution takes a minute per figure
-    assert cli.main(["figures", "--out", str(tmp_path), "--only", "fig09"]) == 0
+    assert (
+        cli.main(["figures", "--out", str(tmp_path), "--only", "fig09", "--scheduler", dask_scheduler]) == 0
+    )
     assert (tmp_path / "fig09.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     document = json.loads((tmp_path / "fig09.json").read_text(), parse_constant=pytest.fail)
     assert document["figure"] == "fig09" and document["params"]["kbar"] == pytest.approx(36.0)
@@ -132,9 +134,9 @@ def test_the_comparison_table_reads_our_numbers_from_the_figure_documents() -> N
 
 
 def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_results(
-    monkeypatch: pytest.MonkeyPatch,
+    monkeypatch: pytest.MonkeyPatch, dask_scheduler: str
 ) -> None:
-    figures_command.precompute(["fig10"], TINY, engine.Where(workers=2))
+    figures_command.precompute(["fig10"], TINY, engine.Where(scheduler=dask_scheduler))
 
     def computed_here(*args: object, **kwargs: object) -> None:
         raise AssertionError("a figure computed a sweep itself instead of taking the engine's result")

@@ -73,9 +73,19 @@ def test_each_kind_is_a_grid_of_policy_and_size_with_its_own_draws(point: robust
     assert set(lanes["y0"]) == {point.y} and set(lanes["xdot0"]) == {point.xdot}
 
 
-def test_the_command_writes_survival_figures_and_tables(tmp_path: Path) -> None:
+def test_the_command_writes_survival_figures_and_tables(tmp_path: Path, dask_scheduler: str) -> None:
     out = tmp_path / "robustness"
-    command = ["robustness", "--out", str(out), "--samples", "2", "--strides", "10", "--workers", "2"]
+    command = [
+        "robustness",
+        "--out",
+        str(out),
+        "--samples",
+        "2",
+        "--strides",
+        "10",
+        "--scheduler",
+        dask_scheduler,
+    ]
     assert cli.main([*command, "--kinds", "terrain", "mismatch", "--policies", "energy", "pd"]) == 0
     for name in ("robustness", "strides", "spread", "failures"):
         assert (out / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

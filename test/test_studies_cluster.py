@@ -53,9 +53,10 @@ def deadline() -> Iterator[None]:
 
 
 @pytest.fixture(scope="module")
-def local() -> Iterator[Client]:
-    """One LocalCluster of 2 worker processes for the module's tests (a cluster takes seconds to start)."""
-    with engine.connect(engine.Where(workers=2)) as client:
+def local(dask_scheduler: str) -> Iterator[Client]:
+    """A client of the session's local cluster of 2 worker processes (conftest.dask_scheduler), which the
+    study engine started as it starts its own (a cluster takes seconds to start)."""
+    with engine.connect(engine.Where(scheduler=dask_scheduler)) as client:
         yield client
 
 
@@ -81,13 +82,12 @@ def test_the_reference_has_converged_failed_and_sustained_rows(one_process: pa.T
 
 
 def test_a_local_cluster_of_two_workers_gives_the_rows_of_one_process(
-    tmp_path: Path, one_process: pa.Table
+    tmp_path: Path, one_process: pa.Table, local: Client
 ) -> None:
-    with engine.connect(engine.Where(workers=2)) as client:
-        assert len(client.scheduler_info()["workers"]) == 2
-        pids = set(client.run(os.getpid).values())
-        assert len(pids) == 2 and os.getpid() not in pids  # two worker processes, not threads of this one
-        summary = engine.run_study(STUDY, tmp_path, client)
+    assert len(local.scheduler_info()["workers"]) == 2
+    pids = set(local.run(os.getpid).values())
+    assert len(pids) == 2 and os.getpid() not in pids  # two worker processes, not threads of this one
+    summary = engine.run_study(STUDY, tmp_path, local)
     assert (summary.chunks, summary.computed, summary.reused) == (8, 8, 0)
     assert sorted(path.name for path in (tmp_path / table.PARTS).iterdir()) == [
         f"part-{index:06d}.parquet" for index in range(8)

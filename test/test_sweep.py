@@ -42,9 +42,22 @@ def test_the_sweeps_are_the_figures_grids_at_any_resolution() -> None:
     assert fig11["beta_deg"].size == 6 * 4 * 2
 
 
-def test_the_command_writes_the_table_figure_and_summary_and_resumes(tmp_path: Path) -> None:
+def test_the_command_writes_the_table_figure_and_summary_and_resumes(
+    tmp_path: Path, dask_scheduler: str
+) -> None:
     out = tmp_path / "fig10"
-    command = ["sweep", "fig10", "--out", str(out), "--grid", "4x5", "--strides", "20", "--workers", "2"]
+    command = [
+        "sweep",
+        "fig10",
+        "--out",
+        str(out),
+        "--grid",
+        "4x5",
+        "--strides",
+        "20",
+        "--scheduler",
+        dask_scheduler,
+    ]
     assert cli.main(command) == 0
     rows = pq.read_table(out / "table").sort_by("trajectory")
     assert rows.num_rows == 20 and rows["trajectory"].to_pylist() == list(range(20))
