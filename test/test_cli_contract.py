@@ -96,7 +96,7 @@ def test_compares_old_speeds_spelling_takes_the_same_dimensionless_speeds(
 def test_simulate_speaks_degrees_when_given_degrees(capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["simulate", "--touchdown-angle-deg", "95"]) == 2
     assert (
-        capsys.readouterr().err == "tdslip simulate: --touchdown-angle-deg must be in (0, 90) deg, got 95.0\n"
+        capsys.readouterr().err == "tdslip simulate: --touchdown-angle-deg must be in (0, 90) deg, got 95\n"
     )
     assert cli.main(["simulate", "--touchdown-angle-deg", "89", "--strides", "1"]) == 2
     error = capsys.readouterr().err

@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
 
 TOUCHDOWN_ANGLE_DEG = round(math.degrees(DEFAULT_TOUCHDOWN_ANGLE), 9)
@@ -105,6 +106,22 @@ def add_touchdown_angle(
     )
     deprecated(parser, action, *old)
     return action
+
+
+def touchdown_angle_error(degrees: float) -> str | None:
+    """Why ``--touchdown-angle-deg`` cannot be ``degrees``, or None."""
+    if 0.0 < degrees < 90.0:
+        return None
+    return f"--touchdown-angle-deg must be in (0, 90) deg, got {degrees:g}"
+
+
+def check_strides_and_angle(strides: int, degrees: float) -> None:
+    """ParameterError for a stride count below 1 or a touchdown angle outside (0, 90) deg."""
+    if strides < 1:
+        raise ParameterError(f"--strides must be at least 1, got {strides}")
+    reason = touchdown_angle_error(degrees)
+    if reason is not None:
+        raise ParameterError(reason)
 
 
 def add_initial_apex(parser: argparse.ArgumentParser | Any) -> None:

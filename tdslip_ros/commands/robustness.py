@@ -38,7 +38,12 @@ import argparse
 import math
 from pathlib import Path
 
-from tdslip_ros.commands.options import add_energy_bar, add_touchdown_angle, command_parser
+from tdslip_ros.commands.options import (
+    add_energy_bar,
+    add_touchdown_angle,
+    command_parser,
+    touchdown_angle_error,
+)
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
@@ -99,10 +104,8 @@ def main(argv: list[str]) -> int:
 
     def produce() -> None:
         params = PAPER_PARAMS
-        if not 0.0 < args.touchdown_angle_deg < 90.0:
-            raise StudyError(
-                f"--touchdown-angle-deg must be in (0, 90) deg, got {args.touchdown_angle_deg:g}"
-            )
+        if (reason := touchdown_angle_error(args.touchdown_angle_deg)) is not None:
+            raise StudyError(reason)
         write_robustness(
             args.out,
             params,

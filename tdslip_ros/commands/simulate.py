@@ -16,7 +16,12 @@ import math
 import sys
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
-from tdslip_ros.commands.options import add_initial_apex, add_touchdown_angle, command_parser
+from tdslip_ros.commands.options import (
+    add_initial_apex,
+    add_touchdown_angle,
+    check_strides_and_angle,
+    command_parser,
+)
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
@@ -62,12 +67,7 @@ def main(argv: list[str]) -> int:
     args = parser().parse_args(argv)
     # Bad input: one line on stderr and exit code 2 (argparse's code for a usage error); 1 is a failure.
     try:
-        if args.strides < 1:
-            raise ParameterError(f"--strides must be at least 1, got {args.strides}")
-        if not 0.0 < args.touchdown_angle_deg < 90.0:
-            raise ParameterError(
-                f"--touchdown-angle-deg must be in (0, 90) deg, got {args.touchdown_angle_deg}"
-            )
+        check_strides_and_angle(args.strides, args.touchdown_angle_deg)
         params = HopperParams.from_dimensionless(args.kbar, args.zeta0, m=args.mass, r0=args.r0)
         check_hopper(params)
         limits = PlausibilityLimits.for_hopper(params)

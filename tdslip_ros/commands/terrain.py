@@ -24,7 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from tdslip_ros.analysis.rough_terrain import LABELS, draw, hop, policies
-from tdslip_ros.commands.options import add_initial_apex, add_touchdown_angle, command_parser
+from tdslip_ros.commands.options import (
+    add_initial_apex,
+    add_touchdown_angle,
+    check_strides_and_angle,
+    command_parser,
+)
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError
@@ -57,12 +62,7 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str]) -> int:
     args = parser().parse_args(argv)
     try:
-        if args.strides < 1:
-            raise ParameterError(f"--strides must be at least 1, got {args.strides}")
-        if not 0.0 < args.touchdown_angle_deg < 90.0:
-            raise ParameterError(
-                f"--touchdown-angle-deg must be in (0, 90) deg, got {args.touchdown_angle_deg}"
-            )
+        check_strides_and_angle(args.strides, args.touchdown_angle_deg)
         blocks = Blocks(args.sigma, args.length, args.seed, args.start)
         apex = ApexState(args.height, args.speed)
         params = PAPER_PARAMS
