@@ -91,15 +91,14 @@ def record(name: str, directory: Path) -> tuple[RunReport, list[str]]:
 
 @dataclass
 class Background:
-    """Runs recorded, then ``tdslip`` commands run, by a child process (``python analysis_runs.py
+    """Runs recorded, then ``tdslip run`` processes run, by a child process (``python analysis_runs.py
     DIRECTORY JOBS``), started when collection ended (conftest.py): the node runs the tests need are made
     while the fast tests run, mostly on the core those leave idle. The child pickles each run's report as
-    it is done (a run it could not record leaves the error), writes each command's exit status and
-    pickles each ``tdslip run`` process's result (:meth:`tdslip_run`)."""
+    it is done (a run it could not record leaves the error) and each ``tdslip run`` process's result
+    (:meth:`tdslip_run`)."""
 
     directory: Path
     names: tuple[str, ...]
-    commands: dict[str, list[str]]
     tdslip_runs: dict[str, tuple[list[str], str]]
     """By key: the arguments of a ``tdslip run`` process (without ``--out``) and its output directory
     relative to the test's tmp_path."""
@@ -110,23 +109,22 @@ class Background:
         cls,
         directory: Path,
         names: tuple[str, ...],
-        commands: dict[str, list[str]],
         tdslip_runs: dict[str, tuple[list[str], str]],
     ) -> Background:
-        """Record the runs ``names`` (of RUNS), then run each of ``commands`` (``tdslip`` argv by key)
-        in the child, then each of ``tdslip_runs`` as a process of its own."""
+        """Record the runs ``names`` (of RUNS) in the child, then run each of ``tdslip_runs`` as a process
+        of its own."""
         directory.mkdir(parents=True, exist_ok=True)
         # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
         path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
         with (directory / "background.log").open("wb") as log:
             process = subprocess.Popen(
-                [sys.executable, __file__, str(directory), json.dumps([names, commands, tdslip_runs])],
+                [sys.executable, __file__, str(directory), json.dumps([names, tdslip_runs])],
                 env={**os.environ, "PYTHONPATH": path.rstrip(os.pathsep)},
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,  # stop() ends its node processes with it
             )
-        return cls(directory, names, commands, tdslip_runs, process)
+        return cls(directory, names, tdslip_runs, process)
 
     def _wait_for(self, result: Path, job: str) -> bytes:
         failed = result.with_suffix(".error")
@@ -144,11 +142,6 @@ class Background:
         for warning in retried:
             warnings.warn(warning, stacklevel=1)
         return cast(RunReport, report)
-
-    def command(self, key: str) -> tuple[int, str]:
-        """The exit status of command ``key`` once the child has run it, and the child's output so far."""
-        status = int(self._wait_for(self.directory / f"{key}.status", f"tdslip {self.commands[key][0]}"))
-        return status, (self.directory / "background.log").read_text(errors="replace")
 
     def tdslip_run(self, arguments: list[str], out: Path) -> subprocess.CompletedProcess[str] | None:
         """The result of ``tdslip run ARGUMENTS --out OUT`` if the child ran it (with its output moved
@@ -257,26 +250,15 @@ def _write(path: Path, data: bytes) -> None:
 def _background(
     directory: Path,
     names: list[str],
-    commands: dict[str, list[str]],
     tdslip_runs: dict[str, tuple[list[str], str]],
 ) -> None:
     """The child of :class:`Background`: each run's (report, retry warnings) pickled as it is done, then
-    each command's exit status, then each ``tdslip run`` process's result."""
+    each ``tdslip run`` process's result."""
     for name in names:
         try:
             _write(directory / f"{name}.pickle", pickle.dumps(record(name, directory)))
         except BaseException:
             (directory / f"{name}.error").write_text(traceback.format_exc())
-    from tdslip_ros.commands import cli
-
-    for key, argv in commands.items():
-        try:
-            status = cli.main(argv)
-        except BaseException:
-            (directory / f"{key}.error").write_text(traceback.format_exc())
-            continue
-        sys.stdout.flush()
-        _write(directory / f"{key}.status", str(status).encode())
     for key, (arguments, relative) in tdslip_runs.items():
         out = directory / key / relative
         try:
