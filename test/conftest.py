@@ -91,24 +91,20 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
         sys.modules["analysis_runs"].BACKGROUND.stop()
 
 
-def _compare_sweep_command(factory: pytest.TempPathFactory) -> list[str]:
-    from test_analysis_controller_comparison import SPEEDS, STRIDES
-
-    out = factory.getbasetemp() / "compare"
-    return ["compare", "--out", str(out), "--speeds-bar", *map(str, SPEEDS), "--strides", str(STRIDES)]
-
-
 @pytest.fixture(scope="session")
 def compare_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The output directory of ``tdslip compare`` on test_analysis_controller_comparison's speeds and
     strides; it exited with status 0. It is not made in the background while the fast tier runs: its
     runs' wall-clock budgets (command timeout, the recorder's shutdown) are for a machine it has to
     itself."""
+    from test_analysis_controller_comparison import SPEEDS, STRIDES
+
     from tdslip_ros.commands import cli
 
-    command = _compare_sweep_command(tmp_path_factory)
-    assert cli.main(command) == 0
-    return Path(command[2])
+    out = tmp_path_factory.getbasetemp() / "compare"
+    speeds = [str(speed) for speed in SPEEDS]
+    assert cli.main(["compare", "--out", str(out), "--speeds-bar", *speeds, "--strides", str(STRIDES)]) == 0
+    return out
 
 
 @pytest.fixture(scope="session")
