@@ -3,7 +3,7 @@
 #
 #   ./run.sh demo [args]    set up, then run a recorded closed-loop hop and analyse it (args go to tdslip run)
 #   ./run.sh test [args]    set up, then run the test suite (extra args go to pytest)
-#   ./run.sh test -m "not nodes"   the fast tier: no node process, no ROS context (test/conftest.py)
+#   ./run.sh test -m "not nodes" -n 2   the fast tier on both cores: no node process, no ROS context (test/conftest.py)
 #   ./run.sh setup          set up only
 #
 # Set-up is idempotent: each step runs again only when its inputs changed (a hash of them is kept in

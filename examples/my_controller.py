@@ -14,6 +14,7 @@ command_timeout:=60.0`, then this script.)
 """
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
@@ -33,15 +34,13 @@ class MyController(Node):
 
 
 def main() -> None:
-    rclpy.init()
-    node = MyController()
+    # As ros2/demos' demo_nodes_py: Ctrl-C (KeyboardInterrupt) and SIGTERM (rclpy shuts the context
+    # down: ExternalShutdownException) both end the script quietly.
     try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
+        with rclpy.init():
+            rclpy.spin(MyController())
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 if __name__ == "__main__":

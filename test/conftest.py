@@ -2,7 +2,8 @@
 
 Every test that starts a node process or a ROS context (rclpy.init, the ``ros`` graph, a recorded run,
 ``tdslip run``/``replay``/``compare``, a node executable, colcon) carries the marker ``nodes``; the rest
-is the fast tier, ``pytest -m "not nodes"``. Tests using a fixture of :data:`NODE_FIXTURES` are marked
+is the fast tier, ``pytest -m "not nodes" -n 2`` (pytest-xdist; the full suite runs in one process, where the
+recorded runs below are made once). Tests using a fixture of :data:`NODE_FIXTURES` are marked
 here; modules and tests that start nodes by themselves are marked where they are written. A guard
 (:func:`node_guard`) fails any test without the marker that inits an rclpy context or spawns a node
 process, in both tiers, so that the marker stays exact.

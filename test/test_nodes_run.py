@@ -272,6 +272,18 @@ def test_a_realtime_run_that_records_clock_completes_with_every_message(tmp_path
     assert counts["/clock"] == counts[resolve(topics.STATE)] > 700  # /clock at every tick, like the state
 
 
+def stop_controller(controller: subprocess.Popen[bytes], grace: float = 10.0) -> None:
+    """SIGTERM, then SIGKILL after ``grace`` s. The example relies on rclpy's own signal handlers, which
+    now and then lose a signal that arrives while rclpy starts (about 1 in 30 at 0.5-0.8 s after launch
+    here; the process then spins on). The test is about the run, not about that upstream race."""
+    controller.terminate()
+    try:
+        controller.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        controller.kill()
+        controller.wait()
+
+
 def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analysable(tmp_path: Path) -> None:
     """``tdslip run --controller none`` starts the plant and the recorder only and waits for the user's own
     controller (examples/my_controller.py, started a few seconds later in the same domain); the run ends by
@@ -301,8 +313,7 @@ def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analy
     try:
         stdout, stderr = run.communicate(timeout=120)
     finally:
-        controller.terminate()
-        controller.wait(timeout=30)
+        stop_controller(controller)
     assert run.returncode == 0, stderr[-2000:]
     assert stderr.startswith(f"tdslip run: waiting up to 60 s for your controller in ROS domain {domain_id}")
     assert "lockstep run, your own controller: 5 strides" in stdout and "LOST" not in stdout
