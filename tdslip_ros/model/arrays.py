@@ -236,7 +236,9 @@ class Lanes:
         shape = np.broadcast_shapes(*(np.shape(field) for field in fields), *(a.shape for a in arrays))
 
         def flat(value: Array, kind: type) -> Array:
-            return np.ascontiguousarray(np.broadcast_to(value, shape), dtype=kind).reshape(-1)
+            # Always a fresh, writable, C-ordered copy: numba compiles a loop once per array type, and a
+            # read-only view (what broadcast_to gives) is another type than its copy.
+            return np.array(np.broadcast_to(value, shape), dtype=kind, order="C").reshape(-1)
 
         block = np.stack([flat(field, float) for field in fields])
         return cls(shape, block, tuple(flat(a, dtype) for a in arrays), dtype)
