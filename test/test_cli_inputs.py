@@ -124,12 +124,13 @@ def _tree(root: Path) -> dict[str, bytes | None]:
 @pytest.mark.parametrize(
     ("arguments", "status"),
     [
-        (["analyze", "{tmp}/no/such/run"], 1),
+        (["analyze", "{tmp}/no/such/run"], 2),
         (["analyze", "{tmp}/not_a_bag"], 1),
         (["analyze", "{tmp}/not_a_bag", "--out", "{tmp}/new/report"], 1),
         (["figures", "--out", "/proc/x/y", "--only", "fig04"], 2),
         (["run", "--height", "0.2", "--out", "{tmp}/new/run"], 2),
         (["run", "--out", "/proc/x"], 2),
+        (["run", "--touchdown-angle-deg", "95", "--out", "{tmp}/new/run"], 2),
         (["run", "--terrain", "blocks:sigma=abc", "--out", "{tmp}/new/run"], 2),
     ],
 )

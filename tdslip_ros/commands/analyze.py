@@ -107,6 +107,9 @@ def main(argv: list[str]) -> int:
     except (PolicyError, OutputError) as error:
         print(f"tdslip analyze: {error}", file=sys.stderr)
         return 2
+    if not args.run.exists():
+        print(f"tdslip analyze: {args.run}: no such file or directory", file=sys.stderr)
+        return 2
     try:
         # Everything that can be checked is, before the report folder comes into being.
         params = None if args.params is None else hopper_params_from_yaml(args.params)

@@ -15,7 +15,12 @@ from pathlib import Path
 
 from tdslip_msgs.msg import ApexEvent
 
-from tdslip_ros.commands.options import add_initial_apex, add_touchdown_angle, command_parser
+from tdslip_ros.commands.options import (
+    add_initial_apex,
+    add_touchdown_angle,
+    command_parser,
+    touchdown_angle_error,
+)
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
@@ -202,6 +207,9 @@ def main(argv: list[str]) -> int:
     args = parser().parse_args(argv)
     out = args.out or Path("runs") / f"{args.policy}-{args.mode}-{datetime.now():%Y%m%d-%H%M%S}"
     try:
+        angle_error = touchdown_angle_error(args.touchdown_angle_deg)
+        if angle_error is not None:
+            raise RunOptionError(angle_error)
         perturbations = perturbations_of(args)
         domain_id = own_controller_domain(args) if args.controller == "none" else args.domain_id
     except RunError as error:
