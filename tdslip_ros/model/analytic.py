@@ -68,7 +68,10 @@ energy balance ``E' = E + E_tau - E_c - E_k`` (exact for the true plant), and th
 ``xdot' = sqrt(2 (E'/m - g y'))``. This makes the (y, xdot) and (y, E) maps one map in two coordinates,
 keeps the torque's effect even with zero corrections, makes eq. (32) (``E_tau = E_loss``) conserve the map's
 energy exactly as the paper states, and is more accurate than the liftoff speed of (7) (see
-``bench/bench_analytic.py``, which prints the accuracy table).
+``bench/bench_analytic.py``, which prints the accuracy table). The paper's own map, which keeps the
+horizontal liftoff velocity through the flight (``xdot' = xdot_lo``, ``E' = m (g y' + xdot_lo^2/2)``), is the
+variant ``speed="liftoff"`` of :func:`approximate_map`; both are one kernel with a flag
+(:func:`map_variant_code`).
 
 Implementation. The equations are written once, as compiled scalar kernels of one lane
 (:mod:`tdslip_ros.model.map_kernels`): the one-apex controller calls them directly and the vectorised API
@@ -101,8 +104,10 @@ from tdslip_ros.model.arrays import (
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_from_code
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.map_kernels import (
+    ENERGY_SPEED,
     FORCE_ROOT_LIFTOFF,
     LANE_STANCE_VALUES,
+    LIFTOFF_SPEED,
     PAPER_LIFTOFF,
     STRIDE_ROWS,
     Angle,
@@ -128,15 +133,21 @@ from tdslip_ros.model.map_kernels import (
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
 LiftoffMethod = Literal["paper", "force_root"]
+SpeedSource = Literal["energy", "liftoff"]
+"""Where the map takes the next apex speed from: the energy balance (``"energy"``, the default, ours) or
+the horizontal liftoff velocity of eq. (7) (``"liftoff"``, the paper's map as printed)."""
 
 
-def liftoff_code(method: str) -> int:
-    """The kernels' code of a liftoff method; ValueError names the methods."""
-    if method == "paper":
-        return PAPER_LIFTOFF
-    if method == "force_root":
-        return FORCE_ROOT_LIFTOFF
-    raise ValueError(f"unknown liftoff method {method!r}; use 'paper' or 'force_root'")
+def map_variant_code(liftoff: str, speed: str = "energy") -> int:
+    """The kernels' code of a map variant (a liftoff method and a speed source, map_kernels); ValueError
+    names the choices."""
+    methods = {"paper": PAPER_LIFTOFF, "force_root": FORCE_ROOT_LIFTOFF}
+    sources = {"energy": ENERGY_SPEED, "liftoff": LIFTOFF_SPEED}
+    if liftoff not in methods:
+        raise ValueError(f"unknown liftoff method {liftoff!r}; use 'paper' or 'force_root'")
+    if speed not in sources:
+        raise ValueError(f"unknown speed source {speed!r}; use 'energy' or 'liftoff'")
+    return methods[liftoff] | sources[speed]
 
 
 def check_corrections(corrections: int) -> None:
@@ -248,7 +259,7 @@ class StanceApproximation:
 
     def liftoff_time(self, method: LiftoffMethod = "paper") -> tuple[Array, Array]:
         """Liftoff time and a mask of lanes where it exists (see the module docstring for both methods)."""
-        code = liftoff_code(method)
+        code = map_variant_code(method)
         t_lo, exists = self._call(lambda s: lane_liftoff(s, code), [complex, bool])
         return t_lo, exists
 
@@ -361,7 +372,7 @@ def stance_map(
     iterations stop early once p_hat changes by less than CORRECTION_TOLERANCE (relative).
     """
     check_corrections(corrections)
-    code = liftoff_code(liftoff)
+    code = map_variant_code(liftoff)
 
     def one(
         m: float, k: float, r0: float, c: float, g: float, *touchdown_and_ramp: complex
@@ -413,17 +424,20 @@ def approximate_map(
     command: CommandArrays | StanceCommand,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> Stride:
     """The approximate apex return map (eqs. 3-7) from apex (y, xdot), vectorised with broadcasting.
 
-    NaN in a command field (a policy that found no command) propagates to a failed lane; other
-    out-of-range command values raise ParameterError.
+    ``speed`` is where the next apex speed comes from (:data:`SpeedSource`; the module docstring). NaN in a
+    command field (a policy that found no command) propagates to a failed lane; other out-of-range command
+    values raise ParameterError.
     """
     params = ParamArrays.of(params)
     angle, tau0, t_f = command_arrays(command)
     validate_command(angle, t_f)
     check_corrections(corrections)
-    code = liftoff_code(liftoff)
+    code = map_variant_code(liftoff, speed)
     lanes = Lanes.of(params, y, xdot, angle, tau0, t_f)
     block = lanes.rows(STRIDE_ROWS)
     lanes.run(stride_lanes, corrections, code, block)
@@ -456,9 +470,12 @@ def approximate_map_energy(
     command: CommandArrays | StanceCommand,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> Stride:
     """The same map from apex (y, E) coordinates (eq. 23); read ``.y`` and ``.energy`` of the result."""
-    return approximate_map(params, y, speed_from_energy(params, y, energy), command, corrections, liftoff)
+    xdot = speed_from_energy(params, y, energy)
+    return approximate_map(params, y, xdot, command, corrections, liftoff, speed=speed)
 
 
 def approximate_return_map(
@@ -468,6 +485,7 @@ def approximate_return_map(
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
     *,
+    speed: SpeedSource = "energy",
     limits: PlausibilityLimits | None = None,
 ) -> tuple[ApexState | None, FailureKind | None]:
     """Scalar convenience: the next apex and None, or None and the failure. An apex or command beyond
@@ -476,7 +494,7 @@ def approximate_return_map(
     checked = PlausibilityLimits.of(params, limits)
     checked.check_apex(apex)
     checked.check_command(command)
-    stride = approximate_map(params, apex.y, apex.xdot, command, corrections, liftoff)
+    stride = approximate_map(params, apex.y, apex.xdot, command, corrections, liftoff, speed=speed)
     failure = failure_from_code(int(stride.failure))
     if failure is not None:
         return None, failure

@@ -123,7 +123,7 @@ def lane_plan(
     rule: int,
     value: complex,
     corrections: int,
-    liftoff: int,
+    map_variant: int,
     max_iterations: int,
     has_start: bool,
     start_tau0: complex,
@@ -159,7 +159,7 @@ def lane_plan(
     lifts_off, solved = True, False
     for _ in range(max_iterations if reason == HAS_COMMAND else 0):  # a lane with its reason has no plan
         tau0, t_f = x0 * scale_tau, x1 * scale_t
-        stance = lane_stance(start, tau0, t_f, corrections, liftoff)
+        stance = lane_stance(start, tau0, t_f, corrections, map_variant)
         g0, g1 = rule_torque(rule, value, stance, touchdown.thetadot, t_f) / scale_tau, stance.t_lo / scale_t
         lifts_off = lifts_off and stance.liftoff_exists
         solved = converged(g0, x0, FIXED_POINT_TOLERANCE) and converged(g1, x1, FIXED_POINT_TOLERANCE)
@@ -168,11 +168,11 @@ def lane_plan(
             break
         # G at the two shifts of x, for its Jacobian.
         tau0 = (x0 + JACOBIAN_STEP) * scale_tau
-        shifted = lane_stance(start, tau0, t_f, corrections, liftoff)
+        shifted = lane_stance(start, tau0, t_f, corrections, map_variant)
         g00 = rule_torque(rule, value, shifted, touchdown.thetadot, t_f) / scale_tau
         g01 = shifted.t_lo / scale_t
         tau0, t_f = x0 * scale_tau, (x1 + JACOBIAN_STEP) * scale_t
-        shifted = lane_stance(start, tau0, t_f, corrections, liftoff)
+        shifted = lane_stance(start, tau0, t_f, corrections, map_variant)
         g10 = rule_torque(rule, value, shifted, touchdown.thetadot, t_f) / scale_tau
         g11 = shifted.t_lo / scale_t
         residual0, residual1 = g0 - x0, g1 - x1
@@ -209,23 +209,32 @@ class Apex(NamedTuple):
     angle: complex
     touchdown: Touchdown
     start: StanceStart
+    map_variant: int  # the map the policy plans on (map_kernels: liftoff method and next-apex speed)
 
 
 @kernel
 def lane_apex(
-    m: float, k: float, r0: float, c: float, g: float, y: complex, xdot: complex, angle: complex, liftoff: int
+    m: float,
+    k: float,
+    r0: float,
+    c: float,
+    g: float,
+    y: complex,
+    xdot: complex,
+    angle: complex,
+    map_variant: int,
 ) -> Apex:
     touchdown = lane_descent(r0, g, y, xdot, angle)
-    start = lane_stance_start(m, k, r0, c, g, angle, touchdown.rdot, touchdown.thetadot, liftoff)
-    return Apex(m, k, r0, c, g, y, xdot, angle, touchdown, start)
+    start = lane_stance_start(m, k, r0, c, g, angle, touchdown.rdot, touchdown.thetadot, map_variant)
+    return Apex(m, k, r0, c, g, y, xdot, angle, touchdown, start, map_variant)
 
 
 @kernel
 def planned_energy_per_torque(
-    apex: Apex, tau0: complex, t_f: complex, corrections: int, liftoff: int
+    apex: Apex, tau0: complex, t_f: complex, corrections: int, map_variant: int
 ) -> float:
     """Real part of e for the stance of (tau0, t_f) from the apex."""
-    return real(lane_stance(apex.start, tau0, t_f, corrections, liftoff).energy_per_torque)
+    return real(lane_stance(apex.start, tau0, t_f, corrections, map_variant).energy_per_torque)
 
 
 class Planned(NamedTuple):
@@ -237,7 +246,7 @@ class Planned(NamedTuple):
 
 @kernel
 def lane_regulated_plan(
-    apex: Apex, change: complex, corrections: int, liftoff: int, max_iterations: int
+    apex: Apex, change: complex, corrections: int, map_variant: int, max_iterations: int
 ) -> Planned:
     """Energy regulation's (tau0, t_f) on the forward root (e < 0, :mod:`.controllers`), dE = change.
 
@@ -250,14 +259,25 @@ def lane_regulated_plan(
     """
     y, angle, touchdown, start = apex.y, apex.angle, apex.touchdown, apex.start
     plan = lane_plan(
-        y, angle, touchdown, start, ENERGY_RULE, change, corrections, liftoff, max_iterations, False, 0.0, 0.0
+        y,
+        angle,
+        touchdown,
+        start,
+        ENERGY_RULE,
+        change,
+        corrections,
+        map_variant,
+        max_iterations,
+        False,
+        0.0,
+        0.0,
     )
     tau0, t_f, reason = plan.tau0, plan.t_f, plan.reason
-    stance = lane_stance(start, tau0, t_f, corrections, liftoff)
+    stance = lane_stance(start, tau0, t_f, corrections, map_variant)
     rate = real(stance.energy_per_torque)
     if rate >= 0.0:  # the backward root
         backward = real(tau0)
-        at_zero = planned_energy_per_torque(apex, 0.0, t_f, corrections, liftoff)
+        at_zero = planned_energy_per_torque(apex, 0.0, t_f, corrections, map_variant)
         root_sum = backward - rate * backward / (rate - at_zero)  # tau_e
         again = lane_plan(
             y,
@@ -267,14 +287,14 @@ def lane_regulated_plan(
             ENERGY_RULE,
             change,
             corrections,
-            liftoff,
+            map_variant,
             max_iterations,
             True,
             root_sum - backward,
             t_f,
         )
         tau0, t_f, reason = again.tau0, again.t_f, again.reason
-        stance = lane_stance(start, tau0, t_f, corrections, liftoff)
+        stance = lane_stance(start, tau0, t_f, corrections, map_variant)
         forward = real(stance.energy_per_torque) < 0.0
         if reason == HAS_COMMAND and not forward:
             tau0, t_f, reason = np.nan, np.nan, NO_SOLUTION_REASON
@@ -297,7 +317,7 @@ def lane_checked(apex: Apex, planned: Planned) -> Checked:
     """The planned command, or no command with the reason the analytic map rejects it, and the map's
     stride with the planned command."""
     plan = planned.plan
-    stride = lane_ascent(apex.m, apex.g, apex.y, apex.xdot, apex.touchdown, planned.stance)
+    stride = lane_ascent(apex.m, apex.g, apex.y, apex.xdot, apex.touchdown, planned.stance, apex.map_variant)
     reason = plan.reason
     if reason == HAS_COMMAND:
         reason = reason_of_failure(stride.failure)
@@ -309,10 +329,10 @@ def lane_checked(apex: Apex, planned: Planned) -> Checked:
 
 @kernel
 def lane_energy_regulation(
-    apex: Apex, change: complex, corrections: int, liftoff: int, max_iterations: int
+    apex: Apex, change: complex, corrections: int, map_variant: int, max_iterations: int
 ) -> Checked:
     """Energy regulation's command (E_tau = E_loss + change) and the map's stride with it."""
-    return lane_checked(apex, lane_regulated_plan(apex, change, corrections, liftoff, max_iterations))
+    return lane_checked(apex, lane_regulated_plan(apex, change, corrections, map_variant, max_iterations))
 
 
 @kernel
@@ -362,13 +382,13 @@ def planned_lanes(
     rule: int,
     check: bool,
     corrections: int,
-    liftoff: int,
+    map_variant: int,
     out: Array,
 ) -> None:
     """A rule's plan per lane, checked in the map (fixed_power) or not (ramp_to_liftoff)."""
     for i in range(y.size):
         m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
-        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], liftoff)
+        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], map_variant)
         plan = lane_plan(
             y[i],
             angle[i],
@@ -377,14 +397,14 @@ def planned_lanes(
             rule,
             value[i],
             corrections,
-            liftoff,
+            map_variant,
             FIXED_POINT_ITERATIONS,
             False,
             0.0,
             0.0,
         )
         if check:
-            stance = lane_stance(apex.start, plan.tau0, plan.t_f, corrections, liftoff)
+            stance = lane_stance(apex.start, plan.tau0, plan.t_f, corrections, map_variant)
             write_command(out, i, lane_checked(apex, Planned(plan, stance)).command)
         else:
             planned = angle[i] if plan.reason == HAS_COMMAND else np.nan
@@ -400,16 +420,16 @@ def regulated_lanes(
     target: Array,
     has_target: bool,
     corrections: int,
-    liftoff: int,
+    map_variant: int,
     max_iterations: int,
     out: Array,
 ) -> None:
     for i in range(y.size):
         m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
-        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], liftoff)
+        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle[i], map_variant)
         change = energy_change(m, g, y[i], xdot[i], has_target, target[i])
         write_command(
-            out, i, lane_energy_regulation(apex, change, corrections, liftoff, max_iterations).command
+            out, i, lane_energy_regulation(apex, change, corrections, map_variant, max_iterations).command
         )
 
 
@@ -424,7 +444,7 @@ def pd_lanes(
     kp: Array,
     kd: Array,
     corrections: int,
-    liftoff: int,
+    map_variant: int,
     out: Array,
 ) -> None:
     for i in range(y.size):
@@ -433,9 +453,11 @@ def pd_lanes(
         angle = angle + kp[i] * (xdot[i] - target_xdot[i]) + kd[i] * (xdot[i] - previous_xdot[i])
         lower, upper = lane_admissible_angles(r0, g, y[i])
         angle = clip(angle, lower, upper) if lower < upper else np.nan  # NaN: no angle places the leg
-        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle, liftoff)
+        apex = lane_apex(m, k, r0, c, g, y[i], xdot[i], angle, map_variant)
         target = apex_energy(m, g, target_y[i], target_xdot[i])
         change = energy_change(m, g, y[i], xdot[i], True, target)
         write_command(
-            out, i, lane_energy_regulation(apex, change, corrections, liftoff, FIXED_POINT_ITERATIONS).command
+            out,
+            i,
+            lane_energy_regulation(apex, change, corrections, map_variant, FIXED_POINT_ITERATIONS).command,
         )

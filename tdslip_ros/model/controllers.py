@@ -39,7 +39,7 @@ from tdslip_ros.model.analytic import (
     LiftoffMethod,
     approximate_map,
     check_corrections,
-    liftoff_code,
+    map_variant_code,
     validate_angle,
 )
 from tdslip_ros.model.arrays import (
@@ -114,7 +114,7 @@ def _planned(
     liftoff: LiftoffMethod,
 ) -> CommandArrays:
     check_corrections(corrections)
-    code = liftoff_code(liftoff)
+    code = map_variant_code(liftoff)
     lanes = Lanes.of(params, y, xdot, angle, value)
     block = lanes.rows(COMMAND_ROWS)
     lanes.run(planned_lanes, rule, check, corrections, code, block)
@@ -183,7 +183,7 @@ def energy_regulation(
     _require_at_least("max_iterations", max_iterations, 1)
     validate_angle(beta)
     check_corrections(corrections)
-    code = liftoff_code(liftoff)
+    code = map_variant_code(liftoff)
     params = ParamArrays.of(params)
     target = 0.0 if target_energy is None else target_energy
     lanes = Lanes.of(params, y, xdot, beta, target)
@@ -349,7 +349,7 @@ def deadbeat(
     """
     _require_at_least("grid", grid, 2)
     check_corrections(corrections)
-    code = liftoff_code(liftoff)
+    code = map_variant_code(liftoff)
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, *(np.real(v) for v in (y, xdot, target_y, target_xdot)))
     block = lanes.rows(COMMAND_ROWS)
@@ -394,7 +394,7 @@ def pd_speed_energy_height(
     Unlike :func:`deadbeat`, the angle ignores the map, so height and speed converge only over strides.
     """
     check_corrections(corrections)
-    code = liftoff_code(liftoff)
+    code = map_variant_code(liftoff)
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, y, xdot, previous_xdot, target_y, target_xdot, kp, kd)
     block = lanes.rows(COMMAND_ROWS)

@@ -107,7 +107,7 @@ class DeadbeatGoal(NamedTuple):
     target_xdot: float
     change: float  # E* - E_a
     corrections: int
-    liftoff: int
+    map_variant: int
 
 
 @kernel
@@ -116,8 +116,8 @@ def deadbeat_values(goal: DeadbeatGoal, apex: Apex, z1: float, z2: float) -> tup
     scale_tau, scale_t = torque_scales(goal.m, goal.k, goal.r0, goal.g)
     tau0, t_f = z1 * scale_tau, z2 * scale_t
     t_f = t_f if t_f > 0.0 else np.nan  # a wild step fails its point, not the lane
-    stance = lane_stance(apex.start, tau0, t_f, goal.corrections, goal.liftoff)
-    stride = lane_ascent(goal.m, goal.g, goal.y, goal.xdot, apex.touchdown, stance)
+    stance = lane_stance(apex.start, tau0, t_f, goal.corrections, goal.map_variant)
+    stride = lane_ascent(goal.m, goal.g, goal.y, goal.xdot, apex.touchdown, stance, goal.map_variant)
     torque = rule_torque(ENERGY_RULE, goal.change, stride.stance, stride.touchdown.thetadot, t_f)
     return (
         real(torque / scale_tau - z1),
@@ -131,8 +131,8 @@ def deadbeat_values(goal: DeadbeatGoal, apex: Apex, z1: float, z2: float) -> tup
 def linearise(goal: DeadbeatGoal, angle: float, z1: float, z2: float) -> DeadbeatPoint:
     """The point z and its linearisation, from the values at z and at its three forward shifts."""
     m, k, r0, c, g, y, xdot = goal.m, goal.k, goal.r0, goal.c, goal.g, goal.y, goal.xdot
-    apex = lane_apex(m, k, r0, c, g, y, xdot, angle, goal.liftoff)
-    shifted = lane_apex(m, k, r0, c, g, y, xdot, angle + JACOBIAN_STEP, goal.liftoff)
+    apex = lane_apex(m, k, r0, c, g, y, xdot, angle, goal.map_variant)
+    shifted = lane_apex(m, k, r0, c, g, y, xdot, angle + JACOBIAN_STEP, goal.map_variant)
     c0, c1, r, clear = deadbeat_values(goal, apex, z1, z2)
     a0, a1, ar, _ = deadbeat_values(goal, shifted, z1, z2)
     b0, b1, br, _ = deadbeat_values(goal, apex, z1 + JACOBIAN_STEP, z2)
@@ -157,7 +157,7 @@ def lane_deadbeat(goal: DeadbeatGoal, fractions: Array, angle_tolerance: float) 
     """Deadbeat's command for one apex (:func:`.controllers.deadbeat`); ``fractions`` are the scan's angles
     as fractions of the admissible interval."""
     m, k, r0, c, g, y, xdot = goal.m, goal.k, goal.r0, goal.c, goal.g, goal.y, goal.xdot
-    corrections, liftoff = goal.corrections, goal.liftoff
+    corrections, map_variant = goal.corrections, goal.map_variant
     scale_tau, scale_t = torque_scales(m, k, r0, g)
     lower, upper = lane_admissible_angles(r0, g, y)
     placeable = lower < upper
@@ -168,8 +168,10 @@ def lane_deadbeat(goal: DeadbeatGoal, fractions: Array, angle_tolerance: float) 
     best = 0
     for j in range(grid):
         angle = lower + (upper - lower) * fractions[j] if placeable else np.nan
-        apex = lane_apex(m, k, r0, c, g, y, xdot, angle, liftoff)
-        checked = lane_energy_regulation(apex, goal.change, corrections, liftoff, DEADBEAT_SCAN_ITERATIONS)
+        apex = lane_apex(m, k, r0, c, g, y, xdot, angle, map_variant)
+        checked = lane_energy_regulation(
+            apex, goal.change, corrections, map_variant, DEADBEAT_SCAN_ITERATIONS
+        )
         cost = (checked.stride.xdot - goal.target_xdot) ** 2
         if not (rises_clear(g, checked.stride) and np.isfinite(cost)):
             cost = np.inf
@@ -210,8 +212,10 @@ def lane_deadbeat(goal: DeadbeatGoal, fractions: Array, angle_tolerance: float) 
         if not (new.ok and trusted(new)):
             # Far from the torque's fixed point (or where the map fails there) the joint step says little:
             # solve the torque at that angle from scratch, as energy_regulation does, and linearise there.
-            apex = lane_apex(m, k, r0, c, g, y, xdot, new.angle, liftoff)
-            solved = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS).plan
+            apex = lane_apex(m, k, r0, c, g, y, xdot, new.angle, map_variant)
+            solved = lane_regulated_plan(
+                apex, goal.change, corrections, map_variant, FIXED_POINT_ITERATIONS
+            ).plan
             new = linearise(goal, new.angle, real(solved.tau0) / scale_tau, real(solved.t_f) / scale_t)
         good = new.ok and trusted(new)
         if not settled:
@@ -228,12 +232,14 @@ def lane_deadbeat(goal: DeadbeatGoal, fractions: Array, angle_tolerance: float) 
     reason = HAS_COMMAND if found else (NO_SOLUTION_REASON if placeable else LEG_PLACEMENT_REASON)
     if not found:
         angle, tau0, t_f = np.nan, np.nan, np.nan
-    apex = lane_apex(m, k, r0, c, g, y, xdot, angle, liftoff)
+    apex = lane_apex(m, k, r0, c, g, y, xdot, angle, map_variant)
     if found and not here.converged:
         # Out of steps with the torque not yet solved (an optimum at the edge of the failures): solve it.
-        planned = lane_regulated_plan(apex, goal.change, corrections, liftoff, FIXED_POINT_ITERATIONS)
+        planned = lane_regulated_plan(apex, goal.change, corrections, map_variant, FIXED_POINT_ITERATIONS)
     else:
-        planned = Planned(Plan(tau0, t_f, reason), lane_stance(apex.start, tau0, t_f, corrections, liftoff))
+        planned = Planned(
+            Plan(tau0, t_f, reason), lane_stance(apex.start, tau0, t_f, corrections, map_variant)
+        )
     refined = lane_checked(apex, planned)
     if scan_found and not rises_clear(g, refined.stride):
         # The map rejects the refined command (or it leaves no margin from a fall): the best scanned one (its
@@ -252,11 +258,11 @@ def deadbeat_lanes(
     fractions: Array,
     angle_tolerance: float,
     corrections: int,
-    liftoff: int,
+    map_variant: int,
     out: Array,
 ) -> None:
     for i in range(y.size):
         m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
         change = real(apex_energy(m, g, target_y[i], target_xdot[i]) - apex_energy(m, g, y[i], xdot[i]))
-        goal = DeadbeatGoal(m, k, r0, c, g, y[i], xdot[i], target_xdot[i], change, corrections, liftoff)
+        goal = DeadbeatGoal(m, k, r0, c, g, y[i], xdot[i], target_xdot[i], change, corrections, map_variant)
         write_command(out, i, lane_deadbeat(goal, fractions, angle_tolerance))

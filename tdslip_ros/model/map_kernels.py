@@ -256,13 +256,15 @@ def lane_force_root_liftoff(s: LaneApproximation) -> tuple[complex, bool]:
 
 
 PAPER_LIFTOFF, FORCE_ROOT_LIFTOFF = 0, 1
-"""Codes of the liftoff methods in the kernels."""
+"""The liftoff method's bit of a map variant (:func:`.analytic.map_variant_code`)."""
+ENERGY_SPEED, LIFTOFF_SPEED = 0, 2
+"""The next apex speed's bit of a map variant: from the energy balance, or the liftoff velocity of eq. 7."""
 
 
 @kernel
-def lane_liftoff(s: LaneApproximation, method: int) -> tuple[complex, bool]:
+def lane_liftoff(s: LaneApproximation, map_variant: int) -> tuple[complex, bool]:
     """Liftoff time and whether it exists (both methods: the docstring of :mod:`.analytic`)."""
-    if method == FORCE_ROOT_LIFTOFF:
+    if map_variant & FORCE_ROOT_LIFTOFF:
         return lane_force_root_liftoff(s)
     return lane_paper_liftoff(s)
 
@@ -379,11 +381,11 @@ def lane_stance_start(
     theta_td: complex,
     rdot_td: complex,
     thetadot_td: complex,
-    liftoff: int,
+    map_variant: int,
 ) -> StanceStart:
     momentum_td = m * r0**2 * thetadot_td
     s = lane_approximation(m, k, r0, c, g, theta_td, rdot_td, momentum_td / (m * r0**2))
-    t_lo, exists = lane_liftoff(s, liftoff)
+    t_lo, exists = lane_liftoff(s, map_variant)
     wave = lane_wave(s, t_lo)
     at_liftoff = lane_state(s, wave, t_lo)
     gravity = lane_gravity_correction(m, g, r0, theta_td, t_lo, at_liftoff.r, at_liftoff.theta)
@@ -415,7 +417,7 @@ LANE_STANCE_VALUES = 11
 
 @inlined_kernel
 def lane_stance(
-    start: StanceStart, tau0: complex, t_f: complex, corrections: int, liftoff: int
+    start: StanceStart, tau0: complex, t_f: complex, corrections: int, map_variant: int
 ) -> LaneStance:
     """P_s (eqs. 17, 19-22) from the unforced stance: ``corrections`` updates of p_hat = p(0) + dp_tau + dp_g,
     fewer once p_hat changes by less than CORRECTION_TOLERANCE (relative)."""
@@ -433,7 +435,7 @@ def lane_stance(
         momentum = corrected
         done += 1
         s = lane_approximation(m, k, r0, c, g, s.theta_td, s.rdot_td, momentum / (m * r0**2))
-        t_lo, exists = lane_liftoff(s, liftoff)
+        t_lo, exists = lane_liftoff(s, map_variant)
         if stop:
             break
     wave = start.wave if done == 0 else lane_wave(s, t_lo)
@@ -486,29 +488,34 @@ def lane_stride(
     tau0: complex,
     t_f: complex,
     corrections: int,
-    liftoff: int,
+    map_variant: int,
 ) -> LaneStride:
     """The approximate apex return map P = P_a o P_s o P_d (eqs. 3-7) of one lane."""
     touchdown = lane_descent(r0, g, y, xdot, angle)
-    start = lane_stance_start(m, k, r0, c, g, angle, touchdown.rdot, touchdown.thetadot, liftoff)
-    stance = lane_stance(start, tau0, t_f, corrections, liftoff)
-    return lane_ascent(m, g, y, xdot, touchdown, stance)
+    start = lane_stance_start(m, k, r0, c, g, angle, touchdown.rdot, touchdown.thetadot, map_variant)
+    stance = lane_stance(start, tau0, t_f, corrections, map_variant)
+    return lane_ascent(m, g, y, xdot, touchdown, stance, map_variant)
 
 
 @inlined_kernel
 def lane_ascent(
-    m: float, g: float, y: complex, xdot: complex, touchdown: Touchdown, stance: LaneStance
+    m: float, g: float, y: complex, xdot: complex, touchdown: Touchdown, stance: LaneStance, map_variant: int
 ) -> LaneStride:
     """The stride from the apex (y, xdot) through its touchdown and stance: the ascent P_a (eq. 7) to the next
-    apex, the next energy from the energy balance, and the stride's failure."""
+    apex height, the next speed from the energy balance (ENERGY_SPEED) or the liftoff velocity of eq. 7
+    (LIFTOFF_SPEED), and the stride's failure."""
     sin, cos = np.sin(stance.theta_lo), np.cos(stance.theta_lo)
     ydot_lo = stance.rdot_lo * cos - stance.r_lo * stance.thetadot_lo * sin
     xdot_lo = -stance.rdot_lo * sin - stance.r_lo * stance.thetadot_lo * cos
     y_next = stance.r_lo * cos + ydot_lo**2 / (2.0 * g)
-    energy_next = (
-        apex_energy(m, g, y, xdot) + stance.hip_energy - (stance.damping_loss + stance.spring_energy)
-    )
-    kinetic = energy_next / m - g * y_next
+    if map_variant & LIFTOFF_SPEED:
+        kinetic = 0.5 * xdot_lo**2
+        energy_next = m * (g * y_next + kinetic)
+    else:
+        energy_next = (
+            apex_energy(m, g, y, xdot) + stance.hip_energy - (stance.damping_loss + stance.spring_energy)
+        )
+        kinetic = energy_next / m - g * y_next
     xdot_next = np.sqrt(2.0 * kinetic)
     failure = touchdown.failure
     if failure == NO_FAILURE_CODE and not stance.liftoff_exists:
@@ -560,11 +567,13 @@ def stride_lanes(
     tau0: Array,
     t_f: Array,
     corrections: int,
-    liftoff: int,
+    map_variant: int,
     out: Array,
 ) -> None:
     """The map of every lane (arguments as :class:`~.arrays.Lanes` packs them) into the block ``out``."""
     for i in range(y.size):
         m, k, r0, c, g = params[0, i], params[1, i], params[2, i], params[3, i], params[4, i]
-        stride = lane_stride(m, k, r0, c, g, y[i], xdot[i], angle[i], tau0[i], t_f[i], corrections, liftoff)
+        stride = lane_stride(
+            m, k, r0, c, g, y[i], xdot[i], angle[i], tau0[i], t_f[i], corrections, map_variant
+        )
         write_stride(out, i, stride)
