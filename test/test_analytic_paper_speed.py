@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model.analytic import approximate_map, approximate_return_map, descent_map, stance_map
-from tdslip_ros.model.arrays import ParamArrays
-from tdslip_ros.model.controllers import energy_regulation
+from tdslip_ros.model.arrays import CommandArrays, ParamArrays
+from tdslip_ros.model.controllers import deadbeat, energy_regulation, fixed_power
 from tdslip_ros.model.events import FailureKind, failure_code
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.stability import open_loop_fixed_points
 
 # Apexes (y [m], xdot [m/s]) and touchdown angles [deg] in the paper's running range.
 APEXES = [(1.0, 4.0), (1.05, 5.0), (1.1, 4.5), (1.2, 6.0)]
@@ -105,3 +106,37 @@ def test_the_energy_balance_is_the_more_accurate_speed_against_the_exact_plant()
     assert ours.max() < 0.015 and paper.min() > 0.03
     assert np.all(np.asarray(errors["liftoff"]) < 0.0)  # the paper's map under-predicts the speed
     assert np.all(ours < paper / 2.0)
+
+
+def test_open_loop_fixed_points_of_the_paper_s_map_are_its_fixed_points_and_not_ours() -> None:
+    """The stability tools take the variant too: a fixed point found on the paper's map maps to itself under
+    that map (fixed_power's command, one stride), and not under ours."""
+    beta = math.radians(26.0)
+    for speed in ("liftoff", "energy"):
+        points = open_loop_fixed_points(PAPER_PARAMS, beta, [1.25], speed=speed)
+        found = np.isfinite(points.y[0])
+        assert found.any()
+        y, xdot = points.y[0][found], points.xdot[0][found]
+        command = fixed_power(PAPER_PARAMS, y, xdot, beta, 1.25)
+        same = approximate_map(PAPER_PARAMS, y, xdot, command, speed=speed)
+        np.testing.assert_allclose(same.y, y, rtol=1e-9)
+        np.testing.assert_allclose(same.xdot, xdot, rtol=1e-9)
+        other = approximate_map(
+            PAPER_PARAMS, y, xdot, command, speed="energy" if speed == "liftoff" else "liftoff"
+        )
+        assert np.all(np.abs(other.xdot / xdot - 1.0) > 1e-3)
+
+
+def test_deadbeat_plans_on_the_map_it_is_given() -> None:
+    """On our map deadbeat reaches the target speed exactly; on the paper's map the torque still supplies the
+    target's energy (eq. 33) while eq. 7 sets the speed, so it reaches the best speed that map allows, closer
+    to the target under that map than our map's plan is."""
+    y, xdot, target_y, target_xdot = 1.05, 4.5, 1.05, 5.0
+    ours = deadbeat(PAPER_PARAMS, y, xdot, target_y, target_xdot)
+    paper = deadbeat(PAPER_PARAMS, y, xdot, target_y, target_xdot, speed="liftoff")
+    assert float(approximate_map(PAPER_PARAMS, y, xdot, ours).xdot) == pytest.approx(target_xdot, rel=1e-9)
+
+    def miss_on_the_paper_s_map(command: CommandArrays) -> float:
+        return abs(float(approximate_map(PAPER_PARAMS, y, xdot, command, speed="liftoff").xdot) - target_xdot)
+
+    assert miss_on_the_paper_s_map(paper) < miss_on_the_paper_s_map(ours) / 2.0

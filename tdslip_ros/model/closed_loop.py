@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from tdslip_ros.model.analytic import LiftoffMethod, Stride, approximate_map, speed_from_energy
+from tdslip_ros.model.analytic import LiftoffMethod, SpeedSource, Stride, approximate_map, speed_from_energy
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays, ParamArrays, command_arrays
 from tdslip_ros.model.params import HopperParams, StanceCommand
 
@@ -40,12 +40,14 @@ def closed_loop_map(
     coordinates: Coordinates = "speed",
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> Stride:
     """One stride with the command chosen by ``policy`` from the apex; ``second`` is xdot or E."""
     params = ParamArrays.of(params)
     y = np.asarray(y)
     xdot = np.asarray(second) if coordinates == "speed" else speed_from_energy(params, y, second)
-    return approximate_map(params, y, xdot, policy(params, y, xdot), corrections, liftoff)
+    return approximate_map(params, y, xdot, policy(params, y, xdot), corrections, liftoff, speed=speed)
 
 
 def map_jacobian(
@@ -56,6 +58,8 @@ def map_jacobian(
     coordinates: Coordinates = "speed",
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> Array:
     """Jacobian d(y', s')/d(y, s) of the closed-loop map by complex step, shape (..., 2, 2).
 
@@ -74,6 +78,7 @@ def map_jacobian(
             coordinates,
             corrections,
             liftoff,
+            speed=speed,
         )
         out_second = stride.xdot if coordinates == "speed" else stride.energy
         column = np.stack([np.imag(stride.y), np.imag(out_second)], axis=-1) / COMPLEX_STEP

@@ -37,6 +37,7 @@ import numpy as np
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic import (
     LiftoffMethod,
+    SpeedSource,
     approximate_map,
     check_corrections,
     map_variant_code,
@@ -112,9 +113,10 @@ def _planned(
     check: bool,
     corrections: int,
     liftoff: LiftoffMethod,
+    speed: SpeedSource,
 ) -> CommandArrays:
     check_corrections(corrections)
-    code = map_variant_code(liftoff)
+    code = map_variant_code(liftoff, speed)
     lanes = Lanes.of(params, y, xdot, angle, value)
     block = lanes.rows(COMMAND_ROWS)
     lanes.run(planned_lanes, rule, check, corrections, code, block)
@@ -129,6 +131,8 @@ def ramp_to_liftoff(
     tau0: ArrayLike,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> CommandArrays:
     """A given touchdown angle and ramp torque tau0, with t_f the liftoff time the map predicts for them.
 
@@ -136,7 +140,9 @@ def ramp_to_liftoff(
     returned wherever t_f exists, also where the map then predicts a fall or a reversal, so that the
     failures of the analytic and the exact map can be compared.
     """
-    return _planned(ParamArrays.of(params), y, xdot, angle, tau0, TORQUE_RULE, False, corrections, liftoff)
+    return _planned(
+        ParamArrays.of(params), y, xdot, angle, tau0, TORQUE_RULE, False, corrections, liftoff, speed
+    )
 
 
 def fixed_power(
@@ -147,6 +153,8 @@ def fixed_power(
     alpha: ArrayLike,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> CommandArrays:
     """Open-loop regime of section III: theta_td = beta, tau0 = C/thetadot_td (eq. 26), t_f = predicted t_lo.
 
@@ -157,7 +165,9 @@ def fixed_power(
     """
     validate_angle(beta)
     power = units.power_from_alpha(params, np.asarray(alpha, dtype=float))
-    return _planned(ParamArrays.of(params), y, xdot, beta, power, POWER_RULE, True, corrections, liftoff)
+    return _planned(
+        ParamArrays.of(params), y, xdot, beta, power, POWER_RULE, True, corrections, liftoff, speed
+    )
 
 
 def energy_regulation(
@@ -169,6 +179,7 @@ def energy_regulation(
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
     *,
+    speed: SpeedSource = "energy",
     max_iterations: int = FIXED_POINT_ITERATIONS,
 ) -> CommandArrays:
     """Energy regulation of section IV.A: theta_td = beta and tau0 with E_tau = E_loss (eq. 32), t_f = t_lo.
@@ -183,7 +194,7 @@ def energy_regulation(
     _require_at_least("max_iterations", max_iterations, 1)
     validate_angle(beta)
     check_corrections(corrections)
-    code = map_variant_code(liftoff)
+    code = map_variant_code(liftoff, speed)
     params = ParamArrays.of(params)
     target = 0.0 if target_energy is None else target_energy
     lanes = Lanes.of(params, y, xdot, beta, target)
@@ -319,6 +330,8 @@ def deadbeat(
     liftoff: LiftoffMethod = "paper",
     grid: int = 32,
     angle_tolerance: float = 1e-9,
+    *,
+    speed: SpeedSource = "energy",
 ) -> CommandArrays:
     """Deadbeat control by inversion of the analytic map (section V.A, eqs. 33-34).
 
@@ -349,7 +362,7 @@ def deadbeat(
     """
     _require_at_least("grid", grid, 2)
     check_corrections(corrections)
-    code = map_variant_code(liftoff)
+    code = map_variant_code(liftoff, speed)
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, *(np.real(v) for v in (y, xdot, target_y, target_xdot)))
     block = lanes.rows(COMMAND_ROWS)
@@ -377,6 +390,8 @@ def pd_speed_energy_height(
     kd: ArrayLike = PD_KD,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> CommandArrays:
     """PD baseline in the spirit of the paper's ref. 36 (energy control of height, PD control of speed).
 
@@ -394,7 +409,7 @@ def pd_speed_energy_height(
     Unlike :func:`deadbeat`, the angle ignores the map, so height and speed converge only over strides.
     """
     check_corrections(corrections)
-    code = map_variant_code(liftoff)
+    code = map_variant_code(liftoff, speed)
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, y, xdot, previous_xdot, target_y, target_xdot, kp, kd)
     block = lanes.rows(COMMAND_ROWS)

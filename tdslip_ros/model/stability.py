@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import LiftoffMethod, speed_from_energy
+from tdslip_ros.model.analytic import LiftoffMethod, SpeedSource, speed_from_energy
 from tdslip_ros.model.arrays import Array, ArrayLike
 from tdslip_ros.model.closed_loop import COMPLEX_STEP, Policy, closed_loop_map, eigenvalues, map_jacobian
 from tdslip_ros.model.controllers import energy_regulation, fixed_power
@@ -151,11 +151,20 @@ def open_loop_energy_map(
     energy: ArrayLike,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> tuple[Array, Array]:
     """The open-loop (y, E) map (eq. 23): next apex height [m] and energy [J], NaN where the stride fails."""
     with np.errstate(invalid="ignore", over="ignore"):  # failing lanes
         stride = closed_loop_map(
-            params, y, energy, open_loop_policy(params, beta, alpha), "energy", corrections, liftoff
+            params,
+            y,
+            energy,
+            open_loop_policy(params, beta, alpha),
+            "energy",
+            corrections,
+            liftoff,
+            speed=speed,
         )
     return stride.y, stride.energy
 
@@ -167,6 +176,8 @@ def energy_fixed_point(
     y: ArrayLike,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> Array:
     """E*(y) [J] of eq. 27 for broadcast arrays of alpha and apex heights y [m]; NaN where none exists.
 
@@ -180,7 +191,10 @@ def energy_fixed_point(
     scale = units.energy_scale(params)
     energies = (units.height_to_bar(params, y_)[..., None] + ENERGY_SCAN) * scale
     with np.errstate(invalid="ignore"):
-        gain = open_loop_energy_map(params, beta, alpha_[..., None], y_[..., None], energies)[1] - energies
+        scanned = open_loop_energy_map(
+            params, beta, alpha_[..., None], y_[..., None], energies, corrections, liftoff, speed=speed
+        )
+        gain = scanned[1] - energies
     falling = _sign_changes(gain) & (gain[..., :-1] > 0.0)
     index = np.argmax(falling, axis=-1)[..., None]
     found = np.any(falling, axis=-1)
@@ -189,7 +203,9 @@ def energy_fixed_point(
 
     def residual(energy: Array, lanes: Array) -> Array:
         return (
-            open_loop_energy_map(params, beta, alpha_[lanes], y_[lanes], energy, corrections, liftoff)[1]
+            open_loop_energy_map(
+                params, beta, alpha_[lanes], y_[lanes], energy, corrections, liftoff, speed=speed
+            )[1]
             - energy
         )
 
@@ -203,11 +219,13 @@ def height_section(
     y: ArrayLike,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> tuple[Array, Array]:
     """The 1-D section of eq. 28: (E*(y) [J], y'(y, E*(y)) [m]) for broadcast alpha and y [m]."""
-    energy = energy_fixed_point(params, beta, alpha, y, corrections, liftoff)
+    energy = energy_fixed_point(params, beta, alpha, y, corrections, liftoff, speed=speed)
     with np.errstate(invalid="ignore"):
-        y_next, _ = open_loop_energy_map(params, beta, alpha, y, energy, corrections, liftoff)
+        y_next, _ = open_loop_energy_map(params, beta, alpha, y, energy, corrections, liftoff, speed=speed)
     return energy, y_next
 
 
@@ -224,6 +242,8 @@ def open_loop_fixed_points(
     heights: ArrayLike | None = None,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> FixedPoints:
     """All fixed points of the open-loop map for each alpha of a 1-D array (eq. 28), with eigenvalues.
 
@@ -233,7 +253,9 @@ def open_loop_fixed_points(
     """
     alpha_ = np.atleast_1d(np.asarray(alpha, dtype=float))
     heights_ = height_grid(params, beta) if heights is None else np.asarray(heights, dtype=float)
-    energy, y_next = height_section(params, beta, alpha_[:, None], heights_[None, :], corrections, liftoff)
+    energy, y_next = height_section(
+        params, beta, alpha_[:, None], heights_[None, :], corrections, liftoff, speed=speed
+    )
     section = y_next - heights_
     changes = _sign_changes(section)
     rows, columns = np.nonzero(changes)
@@ -243,7 +265,7 @@ def open_loop_fixed_points(
     y0 = heights_[columns] + weight * (heights_[columns + 1] - heights_[columns])
     e0 = energy[rows, columns] + weight * (energy[rows, columns + 1] - energy[rows, columns])
     policy = open_loop_policy(params, beta, alpha_[rows])
-    y_star, e_star, jacobian = _newton_fixed_point(params, policy, y0, e0, corrections, liftoff)
+    y_star, e_star, jacobian = _newton_fixed_point(params, policy, y0, e0, corrections, liftoff, speed=speed)
     inside = (y_star >= heights_[columns]) & (y_star <= heights_[columns + 1])
     values = eigenvalues(jacobian[inside])
     return padded_fixed_points(params, alpha_, rows[inside], y_star[inside], e_star[inside], values)
@@ -256,14 +278,15 @@ def _newton_fixed_point(
     energy: Array,
     corrections: int,
     liftoff: LiftoffMethod,
+    speed: SpeedSource,
 ) -> tuple[Array, Array, Array]:
     """Newton's method on P(y, E) - (y, E) = 0 per lane; returns y*, E* and the Jacobian of P there."""
     jacobian = np.full((*np.shape(y), 2, 2), np.nan)
     converged = np.zeros(np.shape(y), dtype=bool)
     with np.errstate(invalid="ignore"):
         for _ in range(ROOT_ITERATIONS):
-            stride = closed_loop_map(params, y, energy, policy, "energy", corrections, liftoff)
-            jacobian = map_jacobian(params, y, energy, policy, "energy", corrections, liftoff)
+            stride = closed_loop_map(params, y, energy, policy, "energy", corrections, liftoff, speed=speed)
+            jacobian = map_jacobian(params, y, energy, policy, "energy", corrections, liftoff, speed=speed)
             residual = np.stack([stride.y - y, stride.energy - energy], axis=-1)
             step = np.linalg.solve(jacobian - np.eye(2), -residual[..., None])[..., 0]
             step = np.where(np.isfinite(step), step, np.nan)
@@ -307,6 +330,8 @@ def saddle_nodes(
     heights: ArrayLike | None = None,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> Array:
     """Alphas of the saddle-node bifurcations along a trace (where the fixed-point count changes by 2).
 
@@ -323,7 +348,7 @@ def saddle_nodes(
         if lower.size == 0:
             break
         middle = 0.5 * (lower + upper)
-        _, y_next = height_section(params, beta, middle[:, None], heights_, corrections, liftoff)
+        _, y_next = height_section(params, beta, middle[:, None], heights_, corrections, liftoff, speed=speed)
         count = np.sum(_sign_changes(y_next - heights_), axis=-1)
         same = count == lower_count
         lower, upper = np.where(same, middle, lower), np.where(same, upper, middle)
@@ -340,12 +365,14 @@ def regulated_height_map(
     y: ArrayLike,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> Array:
     """The energy-regulated 1-D map y -> y'(y; E) [m] for broadcast energies [J] and heights [m]; NaN on
     failure (including heights below r0 cos beta, where the leg cannot be placed)."""
     with np.errstate(invalid="ignore"):
         stride = closed_loop_map(
-            params, y, energy, regulated_policy(params, beta), "energy", corrections, liftoff
+            params, y, energy, regulated_policy(params, beta), "energy", corrections, liftoff, speed=speed
         )
     return stride.y
 
@@ -368,6 +395,8 @@ def regulated_fixed_points(
     points: int = 160,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> FixedPoints:
     """Fixed points of the energy-regulated height map for each apex energy [J] of a 1-D array.
 
@@ -380,10 +409,13 @@ def regulated_fixed_points(
     top = energy_ / (params.m * params.g)
     # Denser towards the bottom, where the fixed points of high energies crowd; E/(m g) itself has xdot = 0.
     heights = bottom + np.linspace(0.0, 1.0, points + 1)[:-1] ** 2 * (top - bottom)[:, None]
-    gap = regulated_height_map(params, beta, energy_[:, None], heights, corrections, liftoff) - heights
+    gap = (
+        regulated_height_map(params, beta, energy_[:, None], heights, corrections, liftoff, speed=speed)
+        - heights
+    )
 
     def section(y: Array, rows: Array) -> Array:
-        return regulated_height_map(params, beta, energy_[rows], y, corrections, liftoff) - y
+        return regulated_height_map(params, beta, energy_[rows], y, corrections, liftoff, speed=speed) - y
 
     rows, low, high = section_brackets(section, heights, gap)
     lanes_energy = energy_[rows]
@@ -462,12 +494,16 @@ def stable_energy_range(
     bisections: int = 12,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
 ) -> tuple[float, float]:
     """The energy interval [J] with a stable fixed point of the regulated height map: the longest run of
     ``energies`` with one, its ends refined by bisection (:func:`longest_run_range`)."""
 
     def has_stable(energy: Array) -> Array:
-        points = regulated_fixed_points(params, beta, energy, corrections=corrections, liftoff=liftoff)
+        points = regulated_fixed_points(
+            params, beta, energy, corrections=corrections, liftoff=liftoff, speed=speed
+        )
         return np.asarray(np.any(points.stable, axis=-1))
 
     return longest_run_range(energies, has_stable, bisections)
