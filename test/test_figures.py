@@ -57,8 +57,42 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     assert table.count("not computed in this run") >= 10 and "4.70 m/s" in table
 
 
+def test_figures_with_the_paper_s_map_draw_that_map(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, dask_scheduler: str
+) -> None:
+    """``--map paper``: fig04's fixed points are those of the map with eq. 7's speed (each maps to itself
+    under that map, not under ours), and the JSON says which map drew it."""
+    monkeypatch.setattr(figures_command, "DEFAULT", TINY)
+    arguments = ["figures", "--only", "fig04", "--scheduler", dask_scheduler, "--map"]
+    assert cli.main([*arguments, "paper", "--out", str(tmp_path / "paper")]) == 0
+    assert cli.main([*arguments, "ours", "--out", str(tmp_path / "ours")]) == 0
+    documents = {
+        name: json.loads((tmp_path / name / "fig04.json").read_text(), parse_constant=pytest.fail)
+        for name in ("paper", "ours")
+    }
+    assert documents["paper"]["analytic_map_speed"] == "liftoff"
+    assert documents["ours"]["analytic_map_speed"] == "energy"
+    beta = math.radians(documents["paper"]["beta_deg"])
+    for name, speed in (("paper", "liftoff"), ("ours", "energy")):
+        traced = documents[name]["c"]
+        alphas = np.array(traced["parameter"])[:, None]
+        y = units.height_from_bar(PARAMS, np.array(traced["ybar"], dtype=float))
+        energy = units.energy_from_bar(PARAMS, np.array(traced["Ebar"], dtype=float))
+        found = np.isfinite(y)
+        assert found.sum() >= 5
+        alpha = np.broadcast_to(alphas, y.shape)[found]
+        for map_speed in ("liftoff", "energy"):
+            y_next, energy_next = stability.open_loop_energy_map(
+                PARAMS, beta, alpha, y[found], energy[found], speed=map_speed
+            )
+            closes = np.isclose(y_next, y[found], rtol=1e-7) & np.isclose(
+                energy_next, energy[found], rtol=1e-7
+            )
+            assert closes.all() if map_speed == speed else not closes.any()
+
+
 def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
-    _, data = regulated.fig08(TINY, _quiet())
+    _, data = regulated.fig08(TINY, _quiet(), "energy")
     for beta_deg in (22.0, 30.0):
         panel = data[f"beta_{beta_deg:g}"]
         beta = math.radians(beta_deg)
@@ -77,7 +111,7 @@ def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
 
 
 def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() -> None:
-    _, data = exact_basins.fig10(TINY, _quiet())
+    _, data = exact_basins.fig10(TINY, _quiet(), "energy")
     lanes = TINY.basin_energies * TINY.basin_heights
     assert sum(data["outcome_counts"].values()) == lanes
     exact = data["exact_fixed_points"]
@@ -90,7 +124,7 @@ def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() 
 
 
 def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> None:
-    _, data = tracking.fig13(TINY, _quiet())
+    _, data = tracking.fig13(TINY, _quiet(), "energy")
     assert data["xdotbar_target"] == [0.5, 1.75, 3.0]
     deadbeat, pd = data["deadbeat"], data["pd"]
     assert all(deadbeat["stable"])
@@ -102,7 +136,7 @@ def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> Non
 
 
 def test_fig04_traces_the_open_loop_fixed_points_and_their_saddle_nodes() -> None:
-    _, data = open_loop.fig04(TINY, _quiet())
+    _, data = open_loop.fig04(TINY, _quiet(), "energy")
     low, high = data["c"]["saddle_node_alpha"]
     assert 1.1 < low < high < 1.45
     section = data["a"]
@@ -136,7 +170,7 @@ def test_the_comparison_table_reads_our_numbers_from_the_figure_documents() -> N
 def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_results(
     monkeypatch: pytest.MonkeyPatch, dask_scheduler: str
 ) -> None:
-    figures_command.precompute(["fig10"], TINY, engine.Where(scheduler=dask_scheduler))
+    figures_command.precompute(["fig10"], TINY, "energy", engine.Where(scheduler=dask_scheduler))
 
     def computed_here(*args: object, **kwargs: object) -> None:
         raise AssertionError("a figure computed a sweep itself instead of taking the engine's result")
@@ -147,7 +181,7 @@ def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_r
         (stability, "energy_fixed_point"),
     ):
         monkeypatch.setattr(module, name, computed_here)
-    _, fig10 = exact_basins.fig10(TINY, _quiet())
+    _, fig10 = exact_basins.fig10(TINY, _quiet(), "energy")
     assert sum(fig10["outcome_counts"].values()) == TINY.basin_energies * TINY.basin_heights
     assert [name for name, _ in catalogue.shared_work(["fig13", "ranges"], TINY)][:4] == ["stable_range"] * 4
 

@@ -61,17 +61,18 @@ from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures.catalogue import FIGURES, compute_shared, shared_work, write_figure
 from tdslip_ros.analysis.figures.common import DEFAULT, FINE, PARAMS, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED
-from tdslip_ros.commands.options import command_parser
+from tdslip_ros.commands.options import add_analytic_map, analytic_map_speed, command_parser
 from tdslip_ros.commands.study_command import add_engine_arguments, where_of
+from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
 from tdslip_ros.studies import engine
 
 
-def precompute(names: Sequence[str], resolution: Resolution, where: engine.Where) -> None:
+def precompute(names: Sequence[str], resolution: Resolution, speed: SpeedSource, where: engine.Where) -> None:
     """Run the figures' sweeps (:func:`~tdslip_ros.analysis.figures.catalogue.shared_work`) as tasks on the
     study engine, in parallel; the figures then draw from their results. Each task brings back every shared
     result it made."""
-    work = shared_work(names, resolution)
+    work = shared_work(names, resolution, speed)
     if not work:
         return
     calls: list[engine.Call] = [(name, compute_shared, (name, args)) for name, args in work]
@@ -92,6 +93,7 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, help="directory for the PNG and JSON files")
     parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures (default: all)")
     parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
+    add_analytic_map(parser)
     add_engine_arguments(parser, resume=False)
     return parser
 
@@ -106,8 +108,9 @@ def main(argv: list[str]) -> int:
     try:
         resolution = FINE if args.fine else DEFAULT
         names = args.only or list(FIGURES)
-        precompute(names, resolution, where_of(args))
-        documents = {name: write_figure(name, args.out, resolution) for name in names}
+        speed = analytic_map_speed(args)
+        precompute(names, resolution, speed, where_of(args))
+        documents = {name: write_figure(name, args.out, resolution, speed) for name in names}
         table = paper_comparison.rows(documents, PARAMS)
         (args.out / "comparison.md").write_text(paper_comparison.markdown(table))
     except (OutputError, engine.EngineError) as error:

@@ -15,6 +15,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from tdslip_ros.model import basins, exact_stability, stability, units
+from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.reporting.style import EXACT, STABLE, UNSTABLE
@@ -136,5 +137,6 @@ def plot_exact_check(
 
 FigureData = tuple[Figure, dict[str, Any]]
 """A drawn figure and the numbers drawn (dimensionless, eq. 24), as its JSON document holds them."""
-FigureFunction = Callable[[Resolution, Reporter], FigureData]
-"""What computes and draws one figure at a resolution, reporting its progress."""
+FigureFunction = Callable[[Resolution, Reporter, SpeedSource], FigureData]
+"""What computes and draws one figure at a resolution with the analytic map of a next-apex speed (ours or
+the paper's, :data:`~tdslip_ros.model.analytic.SpeedSource`), reporting its progress."""

@@ -25,7 +25,7 @@ from tdslip_ros.analysis.figures.common import (
 from tdslip_ros.analysis.figures.open_loop import open_loop_trace
 from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.model import basins, exact_stability, stability, units
-from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.model.analytic import SpeedSource, speed_from_energy
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.reporting.paper_grids import BASIN_BETA_DEG, fig07_grid, fig10_grid, row_median
 from tdslip_ros.reporting.style import EXACT, START, basin_colour_map, basin_colours
@@ -50,15 +50,15 @@ def _fig07_grid(resolution: Resolution) -> tuple[Array, Array]:
 
 
 @SHARED.register
-def fig07_basin(resolution: Resolution) -> basins.Basin:
-    """The open-loop exact plant from E*(y0) over fig07's grid, then from its two crosses, as lanes of one
-    basin."""
+def fig07_basin(resolution: Resolution, speed: SpeedSource) -> basins.Basin:
+    """The open-loop exact plant from the analytic map's E*(y0) (its next-apex ``speed``) over fig07's grid,
+    then from its two crosses, as lanes of one basin."""
     beta = math.radians(BASIN_BETA_DEG)
     alphas, heights = _fig07_grid(resolution)
     alpha_grid, height_grid = (a.ravel() for a in np.meshgrid(alphas, heights, indexing="ij"))
-    start_energy = stability.energy_fixed_point(PARAMS, beta, alpha_grid, height_grid)
+    start_energy = stability.energy_fixed_point(PARAMS, beta, alpha_grid, height_grid, speed=speed)
     cross_alpha, cross_height = np.array(list(FIG07_CROSSES)), np.array(list(FIG07_CROSSES.values()))
-    cross_energy = stability.energy_fixed_point(PARAMS, beta, cross_alpha, cross_height)
+    cross_energy = stability.energy_fixed_point(PARAMS, beta, cross_alpha, cross_height, speed=speed)
     return basins.open_loop_basin(
         PARAMS,
         beta,
@@ -80,12 +80,12 @@ def fig07_by_eigenvalue(
     )
 
 
-def fig07(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig07(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     alphas, heights = _fig07_grid(resolution)
     alpha_grid, height_grid = np.meshgrid(alphas, heights, indexing="ij")
     cross_alpha, cross_height = np.array(list(FIG07_CROSSES)), np.array(list(FIG07_CROSSES.values()))
     reporter.stage(f"{alpha_grid.size + cross_alpha.size} lanes, {basins.OPEN_LOOP_STRIDES} strides")
-    everything = fig07_basin(resolution)
+    everything = fig07_basin(resolution, speed)
     grid = slice(0, alpha_grid.size)
     start_energy = everything.energy0[grid].reshape(alpha_grid.shape)
     outcome = everything.outcome[grid].reshape(alpha_grid.shape)
@@ -93,7 +93,7 @@ def fig07(resolution: Resolution, reporter: Reporter) -> FigureData:
         grid
     ].reshape(alpha_grid.shape)
     reporter.stage("analytic fixed points")
-    analytic_alphas, traced, _ = open_loop_trace(BASIN_BETA_DEG, resolution)
+    analytic_alphas, traced, _ = open_loop_trace(BASIN_BETA_DEG, resolution, speed)
     by_eigenvalue = {}
     for regulator in FIG07_REGULATORS:
         reporter.stage(f"the exact plant's fixed points and eigenvalues, {regulator}")
@@ -198,13 +198,14 @@ def fig10_by_eigenvalue(resolution: Resolution) -> stability.FixedPoints:
     )
 
 
-def fig10(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig10(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     beta = math.radians(BASIN_BETA_DEG)
     energies_bar, heights = _fig10_grid(resolution)
     reporter.stage(f"{energies_bar.size * heights.size} lanes, {basins.REGULATED_STRIDES} strides")
     exact = fig10_basin(resolution)
     fine_energies = np.linspace(2.0, 6.0, 4 * resolution.energies)
-    analytic = stability.regulated_fixed_points(PARAMS, beta, units.energy_from_bar(PARAMS, fine_energies))
+    fine = units.energy_from_bar(PARAMS, fine_energies)
+    analytic = stability.regulated_fixed_points(PARAMS, beta, fine, speed=speed)
     reporter.stage("the exact plant's fixed points and eigenvalues")
     by_eigenvalue = fig10_by_eigenvalue(resolution)
     exact_y, exact_xdot, exact_energy = (row_median(values) for values in (exact.y, exact.xdot, exact.energy))

@@ -26,11 +26,12 @@ from tdslip_ros.analysis.figures.common import (
 )
 from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.model import stability, units
+from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.reporting.style import EXACT
 
 
-def fig04(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig04(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     beta, alpha_a = math.radians(26.0), 1.5
     scale = units.energy_scale(PARAMS)
     figure = Figure(figsize=(13.5, 4.2))
@@ -39,9 +40,9 @@ def fig04(resolution: Resolution, reporter: Reporter) -> FigureData:
     heights_a = np.array([1.0, 1.2, 1.4, 1.6, 1.8, 2.0])
     energies = np.linspace(0.0, 12.0, 241)[None, :] + heights_a[:, None]
     _, next_energy = stability.open_loop_energy_map(
-        PARAMS, beta, alpha_a, heights_a[:, None], energies * scale
+        PARAMS, beta, alpha_a, heights_a[:, None], energies * scale, speed=speed
     )
-    fixed_energy = stability.energy_fixed_point(PARAMS, beta, alpha_a, heights_a)
+    fixed_energy = stability.energy_fixed_point(PARAMS, beta, alpha_a, heights_a, speed=speed)
     for y, e, e_next, e_star in zip(
         heights_a, energies, bar_energy(next_energy), bar_energy(fixed_energy), strict=True
     ):
@@ -60,7 +61,9 @@ def fig04(resolution: Resolution, reporter: Reporter) -> FigureData:
     reporter.stage("height sections (eq. 28)")
     alphas_b = np.array([1.0, 1.25, 1.5, 1.75, 2.0])
     heights = stability.height_grid(PARAMS, beta, points=resolution.heights)
-    section_energy, section_next = stability.height_section(PARAMS, beta, alphas_b[:, None], heights[None, :])
+    section_energy, section_next = stability.height_section(
+        PARAMS, beta, alphas_b[:, None], heights[None, :], speed=speed
+    )
     for alpha, y_next in zip(alphas_b, section_next, strict=True):
         thick = alpha == alpha_a
         middle.plot(
@@ -81,8 +84,8 @@ def fig04(resolution: Resolution, reporter: Reporter) -> FigureData:
     middle.legend(fontsize=7)
 
     reporter.stage(f"fixed points over {resolution.alphas} alphas, saddle-nodes, the exact plant's")
-    alphas, traced, bifurcations = open_loop_trace(26.0, resolution)
-    check = open_loop_exact(26.0, resolution)
+    alphas, traced, bifurcations = open_loop_trace(26.0, resolution, speed)
+    check = open_loop_exact(26.0, resolution, speed)
     plot_fixed_points(right, alphas[:, None], bar_height(traced.y), traced.stable, label="analytic")
     plot_exact_check(right, alphas[:, None], bar_height(traced.y), check, bar_height(check.exact.y))
     for alpha in bifurcations:
@@ -112,23 +115,25 @@ def fig04(resolution: Resolution, reporter: Reporter) -> FigureData:
 
 
 @SHARED.register
-def open_loop_exact(beta_deg: float, resolution: Resolution) -> ExactCheck:
+def open_loop_exact(beta_deg: float, resolution: Resolution, speed: SpeedSource) -> ExactCheck:
     """The open-loop analytic fixed points of open_loop_trace checked on the exact plant (paper's t_f)."""
     return exact_check(
-        math.radians(beta_deg), "open_loop", open_loop_trace(beta_deg, resolution)[1], resolution
+        math.radians(beta_deg), "open_loop", open_loop_trace(beta_deg, resolution, speed)[1], resolution
     )
 
 
 @SHARED.register
-def open_loop_trace(beta_deg: float, resolution: Resolution) -> tuple[Array, stability.FixedPoints, Array]:
+def open_loop_trace(
+    beta_deg: float, resolution: Resolution, speed: SpeedSource
+) -> tuple[Array, stability.FixedPoints, Array]:
     beta = math.radians(beta_deg)
     alphas = np.linspace(0.5, 2.5, resolution.alphas)
     heights = stability.height_grid(PARAMS, beta, points=resolution.heights)
-    traced = stability.open_loop_fixed_points(PARAMS, beta, alphas, heights)
-    return alphas, traced, stability.saddle_nodes(PARAMS, beta, traced, heights)
+    traced = stability.open_loop_fixed_points(PARAMS, beta, alphas, heights, speed=speed)
+    return alphas, traced, stability.saddle_nodes(PARAMS, beta, traced, heights, speed=speed)
 
 
-def fig05(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig05(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     betas = np.linspace(20.0, 32.0, resolution.betas)
     alphas = _fig05_alphas(resolution)
     radius = np.full((betas.size, alphas.size), np.nan)
@@ -141,7 +146,7 @@ def fig05(resolution: Resolution, reporter: Reporter) -> FigureData:
     exists = np.zeros(radius.shape, dtype=bool)
     for row, beta_deg in enumerate(betas):
         reporter.stage(f"beta = {beta_deg:.1f} deg ({row + 1}/{betas.size}), analytic and exact plant")
-        points, check = open_loop_row(float(beta_deg), resolution)
+        points, check = open_loop_row(float(beta_deg), resolution, speed)
         spectral = np.where(np.isfinite(points.spectral_radius), points.spectral_radius, np.inf)
         best = np.argmin(spectral, axis=1)[:, None]
         radius[row] = np.take_along_axis(points.spectral_radius, best, 1)[:, 0]
@@ -192,7 +197,9 @@ def _fig05_alphas(resolution: Resolution) -> Array:
 
 
 @SHARED.register
-def open_loop_row(beta_deg: float, resolution: Resolution) -> tuple[stability.FixedPoints, ExactCheck]:
+def open_loop_row(
+    beta_deg: float, resolution: Resolution, speed: SpeedSource
+) -> tuple[stability.FixedPoints, ExactCheck]:
     """fig05's row at beta: the open-loop fixed points over its alphas, checked on the exact plant."""
     beta = math.radians(beta_deg)
     points = stability.open_loop_fixed_points(
@@ -200,17 +207,18 @@ def open_loop_row(beta_deg: float, resolution: Resolution) -> tuple[stability.Fi
         beta,
         _fig05_alphas(resolution),
         stability.height_grid(PARAMS, beta, points=resolution.heights),
+        speed=speed,
     )
     return points, exact_check(beta, "open_loop", points, resolution)
 
 
-def fig06(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig06(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     figure = Figure(figsize=(7, 6))
     data: dict[str, Any] = {}
     for axes, beta_deg, label in zip(figure.subplots(2, 1), (26.0, 32.0), "ab", strict=True):
         reporter.stage(f"beta = {beta_deg} deg")
-        alphas, traced, bifurcations = open_loop_trace(beta_deg, resolution)
-        check = open_loop_exact(beta_deg, resolution)
+        alphas, traced, bifurcations = open_loop_trace(beta_deg, resolution, speed)
+        check = open_loop_exact(beta_deg, resolution, speed)
         plot_fixed_points(axes, alphas[:, None], traced.spectral_radius, traced.stable, label="analytic")
         plot_exact_check(axes, alphas[:, None], traced.spectral_radius, check, check.exact.spectral_radius)
         axes.legend(fontsize=7)

@@ -13,6 +13,7 @@ from tdslip_ros.analysis.figures.common import FigureData, Reporter, Resolution
 from tdslip_ros.analysis.figures.regulated import stable_range
 from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.model import stability, units
+from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.reporting.paper_grids import FIG11_STUDIES, fig11_energies_bar
@@ -39,16 +40,15 @@ def _fig11_energies_bar(resolution: Resolution) -> Array:
 
 @SHARED.register
 def fig11_fixed_points(
-    kbar: float, zeta0: float, beta_deg: float, resolution: Resolution
+    kbar: float, zeta0: float, beta_deg: float, resolution: Resolution, speed: SpeedSource
 ) -> stability.FixedPoints:
     """The analytic regulated map's fixed points over fig11's energies for the hopper (kbar, zeta0)."""
     params = HopperParams.from_dimensionless(kbar, zeta0)
-    return stability.regulated_fixed_points(
-        params, math.radians(beta_deg), units.energy_from_bar(params, _fig11_energies_bar(resolution))
-    )
+    energies = units.energy_from_bar(params, _fig11_energies_bar(resolution))
+    return stability.regulated_fixed_points(params, math.radians(beta_deg), energies, speed=speed)
 
 
-def fig11(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig11(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     energies_bar = _fig11_energies_bar(resolution)
     figure = Figure(figsize=(14, 4.5))
     data: dict[str, Any] = {}
@@ -58,15 +58,15 @@ def fig11(resolution: Resolution, reporter: Reporter) -> FigureData:
         for _, value, kbar, zeta0, beta_deg in (hopper for hopper in fig11_hoppers() if hopper[0] == name):
             reporter.stage(f"varying {name}: {value:g}, analytic and exact plant (energy_exact)")
             params = HopperParams.from_dimensionless(kbar, zeta0)
-            points = fig11_fixed_points(kbar, zeta0, beta_deg, resolution)
+            points = fig11_fixed_points(kbar, zeta0, beta_deg, resolution, speed)
             stable = points.stable
             keep = stable.any(axis=1)
             pick = np.argmax(stable, axis=1)[:, None]
             y = np.take_along_axis(units.height_to_bar(params, points.y), pick, 1)[:, 0]
             xdot = np.take_along_axis(units.speed_to_bar(params, points.xdot), pick, 1)[:, 0]
             y, xdot = np.where(keep, y, np.nan), np.where(keep, xdot, np.nan)
-            analytic = stable_range(kbar, zeta0, beta_deg, "analytic", resolution)
-            exact = stable_range(kbar, zeta0, beta_deg, "energy_exact", resolution)
+            analytic = stable_range(kbar, zeta0, beta_deg, "analytic", resolution, speed)
+            exact = stable_range(kbar, zeta0, beta_deg, "energy_exact", resolution, speed)
             label = (
                 f"{name} = {value:g}: Ebar [{analytic[0]:.2f}, {analytic[1]:.2f}], "
                 f"exact [{exact[0]:.2f}, {exact[1]:.2f}]"

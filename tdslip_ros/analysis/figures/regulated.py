@@ -25,6 +25,7 @@ from tdslip_ros.analysis.figures.common import (
 )
 from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.model import exact_stability, stability, units
+from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.reporting.style import EXACT, STABLE
@@ -32,13 +33,14 @@ from tdslip_ros.reporting.style import EXACT, STABLE
 
 @SHARED.register
 def regulated_with_exact_check(
-    beta_deg: float, resolution: Resolution
+    beta_deg: float, resolution: Resolution, speed: SpeedSource
 ) -> tuple[Array, stability.FixedPoints, ExactCheck]:
     """Regulated fixed points over Ebar in [1, 8] (figs 8, 9), checked on the exact plant held at each
     energy exactly (energy_exact, the exact counterpart of the map's energy conservation)."""
     energies_bar = np.linspace(1.0, 8.0, resolution.energies)
     beta = math.radians(beta_deg)
-    points = stability.regulated_fixed_points(PARAMS, beta, units.energy_from_bar(PARAMS, energies_bar))
+    energies = units.energy_from_bar(PARAMS, energies_bar)
+    points = stability.regulated_fixed_points(PARAMS, beta, energies, speed=speed)
     return energies_bar, points, exact_check(beta, "energy_exact", points, resolution)
 
 
@@ -49,7 +51,7 @@ def _shade_infeasible(axes: Axes, bottom: float, horizontal: bool = True, vertic
         axes.axvspan(0.0, bottom, color="0.85", zorder=0)
 
 
-def fig08(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig08(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     figure = Figure(figsize=(11, 8))
     rows = figure.subplots(2, 2)
     data: dict[str, Any] = {}
@@ -61,7 +63,7 @@ def fig08(resolution: Resolution, reporter: Reporter) -> FigureData:
         for energy_bar in range(1, 9):
             heights = np.linspace(bottom * (1 + 1e-6), energy_bar, 200)
             y_next = stability.regulated_height_map(
-                PARAMS, beta, units.energy_from_bar(PARAMS, energy_bar), heights
+                PARAMS, beta, units.energy_from_bar(PARAMS, energy_bar), heights, speed=speed
             )
             left.plot(heights, y_next, lw=1, label=f"Ebar = {energy_bar}")
             curves[str(energy_bar)] = {"ybar": heights.tolist(), "ybar_next": y_next.tolist()}
@@ -75,7 +77,7 @@ def fig08(resolution: Resolution, reporter: Reporter) -> FigureData:
             ylim=(0.7, 3.0),
         )
         left.legend(fontsize=7, ncol=2)
-        energies_bar, points, check = regulated_with_exact_check(beta_deg, resolution)
+        energies_bar, points, check = regulated_with_exact_check(beta_deg, resolution, speed)
         analytic_y = bar_height(points.y)
         plot_fixed_points(right, energies_bar[:, None], analytic_y, points.stable, label="analytic")
         plot_exact_check(right, energies_bar[:, None], analytic_y, check, bar_height(check.exact.y))
@@ -90,12 +92,12 @@ def fig08(resolution: Resolution, reporter: Reporter) -> FigureData:
     return figure, data
 
 
-def fig09(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig09(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     figure = Figure(figsize=(7, 6))
     data: dict[str, Any] = {}
     for axes, beta_deg, label in zip(figure.subplots(2, 1), (22.0, 30.0), "ab", strict=True):
         reporter.stage(f"beta = {beta_deg} deg, analytic and exact plant (energy_exact)")
-        energies_bar, points, check = regulated_with_exact_check(beta_deg, resolution)
+        energies_bar, points, check = regulated_with_exact_check(beta_deg, resolution, speed)
         eigenvalue = np.real(points.eigenvalues[..., 0])
         plot_fixed_points(axes, energies_bar[:, None], eigenvalue, points.stable, label="analytic")
         exact_eigenvalue = np.real(check.exact.eigenvalues[..., 0])
@@ -127,16 +129,19 @@ map (the paper's goal regulator) or on the exact map (the ideal regulator)."""
 
 @SHARED.register
 def stable_range(
-    kbar: float, zeta0: float, beta_deg: float, source: str, resolution: Resolution
+    kbar: float, zeta0: float, beta_deg: float, source: str, resolution: Resolution, speed: SpeedSource
 ) -> tuple[float, float]:
     """Stable Ebar range of ``source`` (RANGE_SOURCES) for the hopper (kbar, zeta0) at beta [deg]: the
-    analytic map's from its fixed points (stability.stable_energy_range), the exact plant's from its fixed
-    points and eigenvalues (exact_stability.stable_energy_range); (NaN, NaN) where none is stable."""
+    analytic map's (its next-apex ``speed``) from its fixed points (stability.stable_energy_range), the exact
+    plant's from its fixed points and eigenvalues (exact_stability.stable_energy_range, planned on the
+    default map); (NaN, NaN) where none is stable."""
     params = HopperParams.from_dimensionless(kbar, zeta0)
     beta = math.radians(beta_deg)
     energies = units.energy_from_bar(params, np.linspace(*RANGE_EBAR, resolution.exact_energies))
     if source == "analytic":
-        ends = stability.stable_energy_range(params, beta, energies, bisections=resolution.bisections + 6)
+        ends = stability.stable_energy_range(
+            params, beta, energies, bisections=resolution.bisections + 6, speed=speed
+        )
     else:
         heights = stability.height_grid(params, beta, points=resolution.exact_heights)
         regulator: exact_stability.Regulator = "energy" if source == "energy" else "energy_exact"
@@ -147,7 +152,7 @@ def stable_range(
     return low, high
 
 
-def ranges(resolution: Resolution, reporter: Reporter) -> FigureData:
+def ranges(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     """Stable Ebar ranges at beta = 20, 22, 26, 30 deg: the paper's, the analytic map's, and the exact
     plant's under the paper's goal regulator (energy) and the ideal one (energy_exact)."""
     betas = RANGE_BETAS
@@ -159,7 +164,7 @@ def ranges(resolution: Resolution, reporter: Reporter) -> FigureData:
         found = {"paper": PAPER_RANGES.get(beta_deg)}
         for source in RANGE_SOURCES:
             reporter.stage(f"beta = {beta_deg:g} deg: stable range of {source}")
-            found[source] = stable_range(36.0, 0.08, beta_deg, source, resolution)
+            found[source] = stable_range(36.0, 0.08, beta_deg, source, resolution, speed)
         for offset, (source, ends) in enumerate(found.items()):
             data[source][f"{beta_deg:g}"] = ends
             if ends is None:

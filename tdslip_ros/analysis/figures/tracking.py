@@ -10,6 +10,7 @@ from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.figures.common import PARAMS, FigureData, Reporter, Resolution
 from tdslip_ros.model import basins, units
+from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.arrays import Array, CommandArrays
 from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
 from tdslip_ros.model.params import HopperParams
@@ -24,16 +25,20 @@ def track_targets(
     start: tuple[float, float],
     strides: int,
     progress: basins.Progress | None = None,
+    speed: SpeedSource = "energy",
 ) -> basins.Basin:
     """Exact-plant runs from ``start`` (y [m], xdot [m/s]) towards (target_y, each target speed) [m, m/s]
-    under ``controller`` ("deadbeat" or "pd", its default gains), one lane per target speed."""
+    under ``controller`` ("deadbeat" or "pd", its default gains, planning on the analytic map with the
+    next-apex ``speed``), one lane per target speed."""
     speeds = np.asarray(target_speeds, dtype=float)
     previous = np.full(speeds.shape, start[1])
 
     def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> CommandArrays:
         if controller == "deadbeat":
-            return deadbeat(params, y, xdot, target_y, speeds[lanes])
-        command = pd_speed_energy_height(params, y, xdot, previous[lanes], target_y, speeds[lanes])
+            return deadbeat(params, y, xdot, target_y, speeds[lanes], speed=speed)
+        command = pd_speed_energy_height(
+            params, y, xdot, previous[lanes], target_y, speeds[lanes], speed=speed
+        )
         previous[lanes] = xdot
         return command
 
@@ -46,7 +51,7 @@ EDGE_HEIGHT, EDGE_SPEEDS, EDGE_STRIDES = 0.95, (1.5, 2.0, 2.5, 3.0, 3.5), 20
 """Deadbeat towards an apex below r0 (m, m/s, strides): the edges of leg placement and of the fall."""
 
 
-def fig13(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig13(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     speeds_bar = np.round(np.arange(0.5, 3.0 + 1e-9, resolution.speed_step), 3)
     target_y, start = 1.0, (1.0, 5.0)
     speeds = np.asarray(units.speed_from_bar(PARAMS, speeds_bar))
@@ -67,6 +72,7 @@ def fig13(resolution: Resolution, reporter: Reporter) -> FigureData:
             start,
             basins.REGULATED_STRIDES,
             reporter.strides(controller),
+            speed,
         )
         final_y, final_xdot = run.history.y[-1], run.history.xdot[-1]
         speed_error = 100.0 * (final_xdot - speeds) / speeds
@@ -98,7 +104,9 @@ def fig13(resolution: Resolution, reporter: Reporter) -> FigureData:
             else None,
         }
     reporter.stage(f"deadbeat towards y* = {EDGE_HEIGHT} m, below r0 (the edge of leg placement)")
-    edge = track_targets(PARAMS, "deadbeat", EDGE_HEIGHT, np.array(EDGE_SPEEDS), start, EDGE_STRIDES)
+    edge = track_targets(
+        PARAMS, "deadbeat", EDGE_HEIGHT, np.array(EDGE_SPEEDS), start, EDGE_STRIDES, speed=speed
+    )
     data["edge"] = {
         "target_y": EDGE_HEIGHT,
         "target_xdot": list(EDGE_SPEEDS),
