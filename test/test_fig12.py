@@ -15,11 +15,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures import ground_reaction
 from tdslip_ros.analysis.figures.catalogue import FIGURES
 from tdslip_ros.analysis.figures.common import DEFAULT, Reporter
 from tdslip_ros.commands import cli
 from tdslip_ros.model.controllers import EXACT_STANCE_TOLERANCE, energy_regulation
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import StanceCommand
 from tdslip_ros.studies import engine
 
@@ -193,3 +195,13 @@ def test_the_command_draws_fig12_in_the_process_without_the_engine(
     assert (tmp_path / "fig12.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     document = json.loads((tmp_path / "fig12.json").read_text(), parse_constant=pytest.fail)
     assert document["figure"] == "fig12" and document["params"]["m"] == 65.4
+
+
+def test_the_claims_table_reads_fig12s_numbers(data: dict[str, Any]) -> None:
+    (row,) = [
+        row for row in paper_comparison.rows({"fig12": data}, PAPER_PARAMS) if row.figures == ("fig12",)
+    ]
+    braking = data["td_slip"]["peak_braking"]["grf_x_N"]
+    assert f"braking peak {braking:.0f} N" in row.exact and "docs/paper.md" not in row.exact
+    assert f"{data['td_slip']['footfall_at_liftoff_m']:.3f} m at liftoff" in row.exact
+    assert row.command == "tdslip figures --out DIR --only fig12" and row.explanation == "fig-12"
