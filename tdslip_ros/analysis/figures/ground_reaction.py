@@ -358,7 +358,7 @@ def fig12(resolution: Resolution, reporter: Reporter) -> FigureData:
     pushing = np.isfinite(footfall)
     second_half = td_slip.s >= 0.5 * td_slip.duration
     data: dict[str, Any] = {
-        # Replaces the catalogue's "params" (the 80 kg hopper of figs 4-11): fig. 12's hopper.
+        # Replaces the catalogue's "params" (the 80 kg hopper of the other figures): fig. 12's hopper.
         "params": {
             "kbar": params.kbar,
             "zeta0": params.zeta0,
