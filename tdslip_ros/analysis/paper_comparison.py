@@ -179,6 +179,18 @@ def _deadbeat_edge(documents: Documents) -> tuple[str, str]:
     return "-", f"y* = {edge['target_y']} m, {edge['strides']} strides: {outcomes}"
 
 
+def _ground_reaction(documents: Documents) -> tuple[str, str]:
+    """fig. 12 (3 m/s, m = 65.4 kg): TD-SLIP's braking peak beside the SLIP's, and where its footfalls lie."""
+    td_slip, slip = documents["fig12"]["td_slip"], documents["fig12"]["slip"]
+    braking, slip_braking = td_slip["peak_braking"], slip["peak_braking"]["grf_x_N"]
+    touchdown, liftoff = td_slip["footfall_at_touchdown_m"], td_slip["footfall_at_liftoff_m"]
+    return "-", (
+        f"braking peak {braking['grf_x_N']:.0f} N at {100 * braking['stance_ratio']:.0f} % of stance "
+        f"(SLIP {slip_braking:.0f} N); footfall {touchdown:.2f} m at touchdown, {liftoff:.3f} m at liftoff; "
+        f"SLIP's {slip['largest_footfall_offset_m']:.0e} m"
+    )
+
+
 def _prediction_error(params: HopperParams) -> tuple[str, str]:
     exact = analytic_accuracy.exact_strides(params, analytic_accuracy.OPERATING_GRID)
     accuracy = analytic_accuracy.accuracy(params, exact, corrections=1)
@@ -291,6 +303,13 @@ ROWS: tuple[RowSpec, ...] = (
         ("fig13",),
         "deadbeat-edge",
         lambda documents, params: _deadbeat_edge(documents),
+    ),
+    (
+        "fig. 12: TD-SLIP's GRF and virtual footfalls at 3 m/s against the SLIP's (IV.D)",
+        "large braking early; footfalls behind the toe, meeting it at liftoff; SLIP's at the toe",
+        ("fig12",),
+        "fig-12",
+        lambda documents, params: _ground_reaction(documents),
     ),
     (
         "analytic map's next-apex error (II.C)",

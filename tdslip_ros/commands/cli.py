@@ -23,7 +23,7 @@ SUBCOMMANDS: dict[str, str] = {
     "compare": "deadbeat vs PD over desired speeds, recorded and analysed (paper fig. 13)",
     "replay": "re-publish a recording on its topics with its timing (or --rate R)",
     "recover": "make a truncated or unfinalised recording readable again (the original is kept as *.orig)",
-    "figures": "the paper's figures 4-11 and 13 from the model (PNG + JSON)",
+    "figures": "the paper's figures 4-13 from the model (PNG + JSON)",
     "sweep": (
         "basins (figs 7, 10) and parameter dependence (fig 11) at any resolution, on Dask (Parquet + PNG)"
     ),

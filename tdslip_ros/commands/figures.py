@@ -1,11 +1,12 @@
-"""``tdslip figures``: the paper's figures 4-11 and 13 from the model core, as PNG plus the numbers as JSON.
+"""``tdslip figures``: the paper's figures 4-13 from the model core, as PNG plus the numbers as JSON.
 
     tdslip figures --out DIR [--only fig04 fig10 ranges ...] [--fine]
                    [--scheduler tcp://HOST:PORT | --workers N]
 
 Each figure is named after the paper's (fig04.png with fig04.json, ...); the JSON holds the numbers drawn
 (dimensionless, eq. 24; NaN as null) and the settings. Parameters: kbar = 36, zeta0 = 0.08, m = 80 kg,
-r0 = 1 m (figs 8-11, 13 and the paper's section V); the open-loop figures 4-7 use them too.
+r0 = 1 m (figs 8-11, 13 and the paper's section V); the open-loop figures 4-7 use them too. Fig. 12 uses
+the paper's m = 65.4 kg (its JSON's params say so), and its JSON is in SI units, which its keys name.
 
 Every analytic fixed point drawn (figs 4-6, 8, 9) is checked on the exact plant
 (:mod:`tdslip_ros.model.exact_stability`, the open-loop rule with the paper's t_f, or the ideal regulator
@@ -38,6 +39,11 @@ DIR/comparison.md; docs/paper.md explains the differences.
   value's stable Ebar range, analytic and on the exact plant (energy_exact).
 * ranges: the stable Ebar ranges at beta = 20, 22, 26, 30 deg: the paper's, the analytic map's, and the
   exact plant's under the paper's goal regulator (energy) and the ideal one (energy_exact).
+* fig12: ground reaction forces over one stance at 3 m/s, m = 65.4 kg: TD-SLIP at its energy_exact fixed point
+  (beta = 17 deg) beside the lossless SLIP from the same apex (the touchdown angle that maps it onto itself):
+  the centre of mass with the GRF lines down to the virtual footfalls, F_x, F_y and the footfall relative to
+  the toe over stance time. The paper's human-data panel cannot be reproduced. Computed in the process
+  (about two seconds), not on the study engine.
 * fig13: deadbeat against the PD baseline on the exact plant, 50 strides per desired speed from the apex
   (1 m, 5 m/s) towards (1 m, xdot*): final speed and height errors in percent; crosses where a controller
   loses stability (fails, or does not converge to 1e-4). The JSON adds deadbeat towards y* = 0.95 m.
@@ -82,7 +88,7 @@ def precompute(names: Sequence[str], resolution: Resolution, speed: SpeedSource,
 
 
 DESCRIPTION = """\
-The paper's figures 4-11 and 13 from the model (no ROS): DIR/figNN.png, with the numbers drawn in
+The paper's figures 4-13 from the model (no ROS): DIR/figNN.png, with the numbers drawn in
 DIR/figNN.json, and "ranges" (the stable Ebar ranges). The slow sweeps run first, in parallel on a local
 Dask cluster (or --scheduler); the defaults take some ten minutes of CPU, --fine much longer.
 Prints the paper's claims beside ours (also DIR/comparison.md); docs/paper.md explains the differences."""

@@ -9,7 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from tdslip_ros.analysis.figures import exact_basins, open_loop, parameter_dependence, regulated, tracking
+from tdslip_ros.analysis.figures import (
+    exact_basins,
+    ground_reaction,
+    open_loop,
+    parameter_dependence,
+    regulated,
+    tracking,
+)
 from tdslip_ros.analysis.figures.common import PARAMS, FigureFunction, Reporter, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED, SharedKey
 from tdslip_ros.model.analytic import SpeedSource
@@ -26,6 +33,7 @@ FIGURES: dict[str, FigureFunction] = {
     "fig10": exact_basins.fig10,
     "fig11": parameter_dependence.fig11,
     "ranges": regulated.ranges,
+    "fig12": ground_reaction.fig12,
     "fig13": tracking.fig13,
 }
 """Every figure by the name of its files (fig04.png, fig04.json, ...), in the order they are written."""
