@@ -37,7 +37,7 @@ output: a hundred times its tolerance."""
 
 @pytest.fixture(scope="module")
 def data() -> dict[str, Any]:
-    _, numbers = ground_reaction.fig12(DEFAULT, Reporter("test", interval=math.inf))
+    _, numbers = ground_reaction.fig12(DEFAULT, Reporter("test", interval=math.inf), "energy")
     return numbers
 
 

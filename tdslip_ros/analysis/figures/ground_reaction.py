@@ -41,6 +41,7 @@ from scipy.optimize import brentq
 
 from tdslip_ros.analysis.figures.common import FigureData, Reporter, Resolution
 from tdslip_ros.model import dynamics, exact_stability
+from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.closed_loop import eigenvalues
@@ -331,9 +332,10 @@ def _draw(axes: Array, stance: Stance, title: str) -> None:
     footfall_axes.legend(fontsize=7)
 
 
-def fig12(resolution: Resolution, reporter: Reporter) -> FigureData:
+def fig12(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
     """TD-SLIP (energy_exact, BETA_DEG) and the lossless SLIP from the same apex at SPEED: GRF and virtual
-    footfalls over one stance (the sampling does not depend on ``resolution``)."""
+    footfalls over one stance (the sampling does not depend on ``resolution``; the gait is the exact plant's
+    and planned on the exact map, so the analytic map's ``speed`` does not enter)."""
     params, beta = fig12_hopper(), math.radians(BETA_DEG)
     reporter.stage(f"TD-SLIP: the energy_exact fixed point at {SPEED} m/s, beta = {BETA_DEG} deg")
     apex, command = regulated_gait(params, SPEED, beta)
