@@ -318,19 +318,18 @@ def domain_markdown(domain: DomainErrors) -> str:
         for name, speed, quantity in BOUNDARY_COLUMNS
     }
     mismatches = [first_mismatches(domain, speed) for speed in SPEED_SOURCES]
+    compared = ~np.isnan(domain.errors["liftoff", "height"])  # the paper's map compares a superset of ours
     lines += [f"the largest compression up to which every stride errs less than {levels}", ""]
-    lines.append(
-        "| angle | "
-        + " | ".join(name for name, _, _ in BOUNDARY_COLUMNS)
-        + " | first failure mismatch, ours / paper's |"
-    )
-    lines.append("|---" * (len(BOUNDARY_COLUMNS) + 2) + "|")
-    for index, angle in enumerate(degrees):
-        cells = [
+    names = ["compared", *(name for name, _, _ in BOUNDARY_COLUMNS), "first failure mismatch, ours / paper's"]
+    lines += ["| angle | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for index, (angle, degree) in enumerate(zip(domain.grid.angles, degrees, strict=True)):
+        here = domain.compression[compared & (domain.angle == angle)]
+        cells = [f"{here.min():.2f}-{here.max():.2f}" if here.size else "-"]
+        cells += [
             " / ".join(_boundary(level[index]) for level in found[name]) for name, _, _ in BOUNDARY_COLUMNS
         ]
         cells.append(" / ".join(_compression(first[index]) for first in mismatches))
-        lines.append(f"| {angle} | " + " | ".join(cells) + " |")
+        lines.append(f"| {degree} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
