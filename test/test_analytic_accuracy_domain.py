@@ -4,12 +4,15 @@ the stance's maximum leg compression and the touchdown angle, the axes of the pa
 The truth is the exact plant: the compression is its bottom state's (checked here against the plant and
 against an integration of eq. 2 written in this file), the errors are against its next apex. The physics
 says where the errors should grow: the stance approximation truncates a series in the compression (eqs. 8,
-14) and holds the angular momentum constant up to a linear gravity correction (eq. 22).
+14) and holds the angular momentum constant up to a linear gravity correction (eq. 22). The boundaries that
+docs/paper.md states are measured again on the fine grid at two of its angles.
 """
 
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +21,8 @@ from scipy.integrate import solve_ivp
 from tdslip_ros.model.analytic import SpeedSource, approximate_map
 from tdslip_ros.model.analytic_accuracy import (
     DOMAIN_GRID,
+    ERROR_LEVELS,
+    FINE_DOMAIN_GRID,
     SPEED_SOURCES,
     Boundary,
     DomainErrors,
@@ -28,12 +33,14 @@ from tdslip_ros.model.analytic_accuracy import (
     domain_errors,
     domain_table,
     exact_strides,
+    first_mismatches,
 )
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
 
 PARAMS = PAPER_PARAMS
+PAPER_MD = Path(__file__).resolve().parents[1] / "docs" / "paper.md"
 
 
 @pytest.fixture(scope="module")
@@ -186,3 +193,63 @@ def test_a_boundary_is_where_the_first_stride_reaches_the_level() -> None:
     assert boundaries(domain, "energy", "height", 0.05) == [Boundary(0.3, 0.05, 0.25, 0.30)]
     assert boundaries(domain, "energy", "height", 0.1) == [Boundary(0.3, 0.1, 0.30, None)]
     assert boundaries(domain, "energy", "height", 0.001) == [Boundary(0.3, 0.001, None, 0.10)]
+
+
+# The columns of docs/paper.md's boundary table: the map (speed source) and the quantity.
+DOCUMENTED_COLUMNS: dict[str, tuple[SpeedSource, Quantity]] = {
+    "height, ours": ("energy", "height"),
+    "height, paper's": ("liftoff", "height"),
+    "speed, ours": ("energy", "speed"),
+    "speed, paper's": ("liftoff", "speed"),
+}
+MISMATCH_COLUMN = "first failure mismatch, ours / paper's"
+COMPARED_COLUMN = "compared"  # the least and the largest compression compared (by the paper's map)
+CHECKED_ANGLES_DEG = (10.0, 30.0)
+
+
+def _documented_boundaries() -> dict[str, dict[str, list[str]]]:
+    """docs/paper.md's boundary table of the section "Accuracy domain": cells by angle ("10 deg") and column,
+    each split at " / "."""
+    text = PAPER_MD.read_text()
+    section = text.split("\n## Accuracy domain\n", 1)[1].split("\n## ", 1)[0]
+    lines = [line for line in section.splitlines() if line.startswith("|")]
+    header = next(index for index, line in enumerate(lines) if line.startswith("| angle |"))
+    names = [cell.strip() for cell in lines[header].strip("|").split("|")]
+    table = {}
+    for line in lines[header + 2 :]:
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        if not re.fullmatch(r"\d+ deg", cells[0]):
+            break
+        table[cells[0]] = {name: cell.split(" / ") for name, cell in zip(names[1:], cells[1:], strict=True)}
+    return table
+
+
+def _agrees(documented: str, below: float | None, censored: bool) -> bool:
+    if below is None:
+        return documented == "none"
+    if censored != documented.startswith(">= "):
+        return False
+    return abs(float(documented.removeprefix(">= ")) - below) <= 0.005 + 1e-12
+
+
+def test_the_documented_boundaries_are_the_measured_ones() -> None:
+    """Each angle's boundaries depend on its strides alone, so the fine grid at two of its angles measures
+    their rows of the table again."""
+    angles = tuple(a for a in FINE_DOMAIN_GRID.angles if round(math.degrees(a), 6) in CHECKED_ANGLES_DEG)
+    assert len(angles) == len(CHECKED_ANGLES_DEG)
+    grid = StrideGrid(FINE_DOMAIN_GRID.heights, FINE_DOMAIN_GRID.speeds, angles, FINE_DOMAIN_GRID.torques)
+    domain = domain_errors(PARAMS, exact_strides(PARAMS, grid))
+    documented = _documented_boundaries()
+    assert set(documented["10 deg"]) == {*DOCUMENTED_COLUMNS, MISMATCH_COLUMN, COMPARED_COLUMN}
+    compared = ~np.isnan(domain.errors["liftoff", "height"])
+    for index, degrees in enumerate(CHECKED_ANGLES_DEG):
+        row = documented[f"{degrees:g} deg"]
+        here = domain.compression[compared & (domain.angle == angles[index])]
+        least, largest = (float(value) for value in row[COMPARED_COLUMN][0].split("-"))
+        assert (least, largest) == pytest.approx((here.min(), here.max()), abs=0.005 + 1e-12)
+        for name, (speed, quantity) in DOCUMENTED_COLUMNS.items():
+            for level, cell in zip(ERROR_LEVELS, row[name], strict=True):
+                found = boundaries(domain, speed, quantity, level)[index]
+                assert _agrees(cell, found.below, found.leaves is None), (degrees, name, level, cell, found)
+        for speed, cell in zip(SPEED_SOURCES, row[MISMATCH_COLUMN], strict=True):
+            assert _agrees(cell, first_mismatches(domain, speed)[index], False), (degrees, speed, cell)
