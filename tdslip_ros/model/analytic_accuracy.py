@@ -215,6 +215,7 @@ class DomainTable:
 def domain_table(
     domain: DomainErrors, speed: SpeedSource, quantity: Quantity, edges: tuple[float, ...] = COMPRESSION_EDGES
 ) -> DomainTable:
+    """The DomainTable of one map's (``speed``) error in ``quantity``, in the bins of ``edges``."""
     error = domain.errors[speed, quantity]
     shape = (len(edges) - 1, len(domain.grid.angles))
     count, mismatches = np.zeros(shape, dtype=int), np.zeros(shape, dtype=int)
