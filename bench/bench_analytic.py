@@ -1,6 +1,7 @@
 """Benchmark of the analytic apex return map, and its accuracy against the exact plant.
 
     python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy] [--baseline DIR] [--breakdown]
+    python bench/bench_analytic.py --domain [--coarse]
 
 Times are CPU seconds of this single-threaded process (time.process_time), best of several runs.
 Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1) for several
@@ -10,7 +11,12 @@ child process,
 (2) the time per stride of the analytic map against the exact plant (exact_map.apex_return_map), measured
 side by side in this run, as a ratio, and (3) the accuracy table: mean and max relative errors of the next
 apex height and speed, analytic vs exact, for corrections 0 and 1, on a broad grid and on the operating
-region of the paper's energy-regulated gaits (kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m).
+region of the paper's energy-regulated gaits (kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m), and (4) the
+accuracy domain: the next-apex errors of both maps (the next speed from the energy balance, ours, and from
+eq. 7's liftoff velocity, the paper's) over the stance's maximum leg compression and the touchdown angle, and
+per angle the largest compression up to which every stride errs less than 1 % and 5 %, as Markdown tables
+(docs/paper.md#accuracy-domain quotes them). --domain prints only (4), on the fine grid (FINE_DOMAIN_GRID;
+with --coarse, on the tests' DOMAIN_GRID).
 
 --breakdown adds where a lane's time goes: the compiled lane loop alone against the whole call (the rest
 is packaging: broadcasting, the result block, the Stride's arrays), and the C library's functions the
@@ -31,8 +37,25 @@ from pathlib import Path
 
 import numpy as np
 
-from tdslip_ros.model.analytic import approximate_map
-from tdslip_ros.model.analytic_accuracy import BROAD_GRID, OPERATING_GRID, accuracy, exact_strides
+from tdslip_ros.model.analytic import SpeedSource, approximate_map
+from tdslip_ros.model.analytic_accuracy import (
+    BROAD_GRID,
+    DOMAIN_GRID,
+    ERROR_LEVELS,
+    FINE_DOMAIN_GRID,
+    OPERATING_GRID,
+    SPEED_SOURCES,
+    Boundary,
+    DomainErrors,
+    Quantity,
+    StrideGrid,
+    accuracy,
+    boundaries,
+    domain_errors,
+    domain_table,
+    exact_strides,
+    first_mismatches,
+)
 from tdslip_ros.model.arrays import CommandArrays, Lanes, ParamArrays
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.map_kernels import STRIDE_ROWS, stride_lanes
@@ -229,6 +252,100 @@ def accuracy_table() -> None:
                 )
 
 
+def _percent(error: float) -> str:
+    return "-" if np.isnan(error) else f"{100 * error:.0f}" if error >= 1.0 else f"{100 * error:.1f}"
+
+
+def _compression(value: float | None) -> str:
+    return "none" if value is None else f"{value:.2f}"
+
+
+def _boundary(found: Boundary) -> str:
+    """The largest compression below the level: 'none' if not even the least compressed stride is, '>= c'
+    where no stride of the grid leaves the level."""
+    return f">= {found.below:.2f}" if found.leaves is None else _compression(found.below)
+
+
+def _grid_text(grid: StrideGrid) -> str:
+    def span(values: tuple[float, ...]) -> str:
+        return f"{min(values):g}-{max(values):g}"
+
+    return (
+        f"touchdown angles {span(tuple(np.degrees(grid.angles).round(1)))} deg, apex heights "
+        f"{span(grid.heights)} m, speeds {span(grid.speeds)} m/s, taubar {', '.join(map(str, grid.torques))}"
+    )
+
+
+DOMAIN_TABLES: tuple[tuple[str, SpeedSource, Quantity], ...] = (
+    (
+        "next apex height (the same eq. 7 in both maps; on the strides the paper's map completes)",
+        "liftoff",
+        "height",
+    ),
+    ("next apex speed, ours (the energy balance)", "energy", "speed"),
+    ("next apex speed, the paper's (eq. 7's liftoff velocity)", "liftoff", "speed"),
+)
+
+BOUNDARY_COLUMNS: tuple[tuple[str, SpeedSource, Quantity], ...] = (
+    ("height, ours", "energy", "height"),
+    ("height, paper's", "liftoff", "height"),
+    ("speed, ours", "energy", "speed"),
+    ("speed, paper's", "liftoff", "speed"),
+)
+
+
+def domain_markdown(domain: DomainErrors) -> str:
+    """The accuracy domain as Markdown: a table of median / max errors per quantity, and the boundaries."""
+    degrees = [f"{angle:g} deg" for angle in np.degrees(domain.grid.angles).round(1)]
+    lines = []
+    for title, speed, quantity in DOMAIN_TABLES:
+        table = domain_table(domain, speed, quantity)
+        lines += [f"{title}: median / max |map/exact - 1| in %", ""]
+        lines += ["| compression | " + " | ".join(degrees) + " |", "|---" * (len(degrees) + 1) + "|"]
+        for row, (low, high) in enumerate(zip(table.edges[:-1], table.edges[1:], strict=True)):
+            if table.count[row].sum():
+                cells = [
+                    "-" if not count else f"{_percent(median)} / {_percent(worst)}"
+                    for count, median, worst in zip(
+                        table.count[row], table.median[row], table.worst[row], strict=True
+                    )
+                ]
+                lines.append(f"| {low:.2f}-{high:.2f} | " + " | ".join(cells) + " |")
+        lines.append("")
+    levels = " / ".join(f"{100 * level:g} %" for level in ERROR_LEVELS)
+    found = {
+        name: [boundaries(domain, speed, quantity, level) for level in ERROR_LEVELS]
+        for name, speed, quantity in BOUNDARY_COLUMNS
+    }
+    mismatches = [first_mismatches(domain, speed) for speed in SPEED_SOURCES]
+    compared = ~np.isnan(domain.errors["liftoff", "height"])  # the paper's map compares a superset of ours
+    lines += [f"the largest compression up to which every stride errs less than {levels}", ""]
+    names = ["compared", *(name for name, _, _ in BOUNDARY_COLUMNS), "first failure mismatch, ours / paper's"]
+    lines += ["| angle | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for index, (angle, degree) in enumerate(zip(domain.grid.angles, degrees, strict=True)):
+        here = domain.compression[compared & (domain.angle == angle)]
+        cells = [f"{here.min():.2f}-{here.max():.2f}" if here.size else "-"]
+        cells += [
+            " / ".join(_boundary(level[index]) for level in found[name]) for name, _, _ in BOUNDARY_COLUMNS
+        ]
+        cells.append(" / ".join(_compression(first[index]) for first in mismatches))
+        lines.append(f"| {degree} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def domain_report(grid: StrideGrid) -> None:
+    domain = domain_errors(PARAMS, exact_strides(PARAMS, grid))
+    compared = domain.compression[~np.isnan(domain.errors["liftoff", "height"])]
+    ours = np.count_nonzero(~np.isnan(domain.errors["energy", "height"]))
+    print(
+        f"accuracy domain, 1 correction, ramp t_f = the predicted liftoff; {_grid_text(grid)}: "
+        f"{len(domain.index)} strides with a bottom on the exact plant; {compared.size} compared (the "
+        f"paper's map; ours: {ours}), compression {compared.min():.2f}-{compared.max():.2f}"
+    )
+    print()
+    print(domain_markdown(domain), end="")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -241,6 +358,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--strides", type=int, default=300, help="strides of the exact-vs-analytic timing")
     parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy table")
     parser.add_argument("--breakdown", action="store_true", help="where a lane's time goes")
+    parser.add_argument("--domain", action="store_true", help="only the accuracy domain (fine grid)")
+    parser.add_argument("--coarse", action="store_true", help="with --domain: the tests' coarse grid")
     parser.add_argument("--baseline", type=Path, help="checkout whose tdslip_ros to measure beside")
     parser.add_argument(
         "--throughput-json", action="store_true", help=argparse.SUPPRESS
@@ -249,12 +368,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.throughput_json:
         print(json.dumps(throughput(args.lanes, args.blocks, args.repeat)))
         return 0
+    if args.domain:
+        domain_report(DOMAIN_GRID if args.coarse else FINE_DOMAIN_GRID)
+        return 0
     print_throughput(args.lanes, args.blocks, args.repeat, args.baseline)
     if args.breakdown:
         breakdown(args.lanes, args.repeat)
     speed_ratio(args.strides)
     if not args.no_accuracy:
         accuracy_table()
+        print()
+        domain_report(FINE_DOMAIN_GRID)
     return 0
 
 
