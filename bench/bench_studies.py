@@ -36,7 +36,7 @@ from tdslip_ros.commands.sweep import grid_size
 from tdslip_ros.model import basins
 from tdslip_ros.studies import engine, sweep
 from tdslip_ros.studies.chunk import lane_policy
-from tdslip_ros.studies.design import POLICY_PARAMETERS, Study
+from tdslip_ros.studies.design import CHOICE_SETTINGS, POLICY_PARAMETERS, Study
 
 
 def load() -> str:
@@ -50,9 +50,12 @@ def direct(study: Study) -> tuple[float, float]:
     started, cpu = time.perf_counter(), time.process_time()
     for index in range(study.chunks):
         start, stop = study.chunk_range(index)
-        settings = {name: lanes[name][start:stop] for name in POLICY_PARAMETERS}
+        settings = {
+            name: lanes[name][start:stop] for name in POLICY_PARAMETERS if name not in CHOICE_SETTINGS
+        }
+        shared = {"corrections": study.corrections, **{name: lanes[name][start] for name in CHOICE_SETTINGS}}
         xdot0 = lanes["xdot0"][start:stop]
-        policy = lane_policy("energy", params, settings, study.corrections, xdot0)
+        policy = lane_policy("energy", params, settings, shared, xdot0)
         history = basins.run_strides(params, lanes["y0"][start:stop], xdot0, policy, study.strides)
         basins.settle(params, history)
     return time.perf_counter() - started, time.process_time() - cpu

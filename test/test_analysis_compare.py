@@ -302,6 +302,7 @@ def _spec(name: str, **values: float) -> PolicySpec:
         "pd_kp": 0.06,
         "pd_kd": 0.03,
         "corrections": 1,
+        "analytic_map": "ours",
     }
     return PolicySpec(name=name, **{**defaults, **values})  # type: ignore[arg-type]
 

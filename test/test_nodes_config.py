@@ -174,6 +174,15 @@ def test_a_value_of_the_wrong_type_on_the_command_line_is_an_error_naming_the_pa
     assert line.startswith(f"{module}: parameter {named}: ") and "Traceback" not in result.stderr
 
 
+@pytest.mark.nodes
+def test_the_controller_refuses_an_analytic_map_it_does_not_know_in_one_line() -> None:
+    result = node_executable("controller_node", "--ros-args", "-p", "analytic_map:=papr")
+    assert result.returncode == BAD_PARAMETERS, result.stderr
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith("controller_node: ") and "Traceback" not in result.stderr
+    assert "analytic_map must be one of ours, paper" in line and "(papr)" in line
+
+
 def test_a_misspelt_name_is_named_with_the_closest_parameter_and_rclpy_s_own_pass() -> None:
     with pytest.raises(
         ParameterError, match="max_strids: this node has no such parameter .did you mean max_strides"

@@ -113,6 +113,21 @@ def test_targets_change_at_runtime_and_bad_values_are_refused(ros: RosGraph) -> 
     assert fields(bench.answer(2, *apex)) == fields(after)
 
 
+def test_the_analytic_map_is_a_parameter_and_a_misspelt_one_is_refused(ros: RosGraph) -> None:
+    bench = Bench(ros)
+    apex = (1.0, 5.0)
+    assert bench.controller.get_parameter("analytic_map").value == "ours"
+    assert bench.set(policy="deadbeat", target_height=TARGET[0], target_speed=TARGET[1], analytic_map="paper")
+    paper = bench.answer(0, *apex)
+    assert fields(paper) == fields(controllers.deadbeat(PARAMS, *apex, *TARGET, speed="liftoff").command())
+    assert not bench.set(analytic_map="papr")  # not one of the choices: refused, the map kept
+    assert bench.controller.get_parameter("analytic_map").value == "paper"
+    assert bench.set(analytic_map="ours")
+    ours = bench.answer(1, *apex)
+    assert fields(ours) == fields(controllers.deadbeat(PARAMS, *apex, *TARGET).command())
+    assert abs(ours.touchdown_angle - paper.touchdown_angle) > 1e-3  # rad
+
+
 def test_an_apex_without_a_command_gets_no_answer(ros: RosGraph) -> None:
     bench = Bench(ros)
     assert bench.set(policy="energy")

@@ -5,27 +5,34 @@ it really uses."""
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pytest
 import yaml  # type: ignore[import-untyped]
+from rclpy.parameter import Parameter
 
 from tdslip_ros.analysis.report import policy_settings_text
+from tdslip_ros.model import controllers, units
+from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.policies import (
+    ANALYTIC_MAP_POLICIES,
     DEFAULT_POLICY,
     POLICIES,
     POLICY_SETTINGS,
+    PolicyError,
     PolicySetting,
     PolicySpec,
     settings_of,
 )
 from tdslip_ros.nodes import controller_node, parameters
-from tdslip_ros.studies import design
+from tdslip_ros.studies import design, table
 
 SETTINGS = {setting.name: setting for setting in POLICY_SETTINGS}
 DEFAULT_VALUES = {setting.name: setting.default for setting in POLICY_SETTINGS}
@@ -38,6 +45,21 @@ def test_a_declared_setting_is_consistent() -> None:
         PolicySetting("x", int, "", 0, 10, 1.0, "of the wrong type", ("pd",))
     with pytest.raises(ValueError, match="unknown policies"):
         PolicySetting("x", float, "m", 0.0, 1.0, 0.5, "of an unknown policy", ("pid",))
+    # A setting of text choices: its default is one of them; it has no range, no unit; a number, no choices.
+    choice = PolicySetting("x", str, "", None, None, "b", "a choice", ("pd",), choices=("a", "b"))
+    assert choice.text == "pd: a choice"
+    with pytest.raises(ValueError, match="default"):
+        PolicySetting("x", str, "", None, None, "c", "not among its choices", ("pd",), choices=("a", "b"))
+    with pytest.raises(ValueError, match="default"):
+        PolicySetting("x", str, "", None, None, 1.0, "of the wrong type", ("pd",), choices=("a", "b"))
+    with pytest.raises(ValueError, match="range"):
+        PolicySetting("x", str, "", 0.0, 1.0, "a", "with a range", ("pd",), choices=("a", "b"))
+    with pytest.raises(ValueError, match="unit"):
+        PolicySetting("x", str, "m", None, None, "a", "with a unit", ("pd",), choices=("a", "b"))
+    with pytest.raises(ValueError, match="choices"):
+        PolicySetting("x", float, "m", 0.0, 1.0, 0.5, "a number with choices", ("pd",), choices=("a",))
+    with pytest.raises(ValueError, match="range"):
+        PolicySetting("x", float, "m", None, None, 0.5, "a number without a range", ("pd",))
 
 
 def test_policy_spec_holds_a_value_of_each_declared_setting() -> None:
@@ -50,16 +72,49 @@ def test_policy_spec_holds_a_value_of_each_declared_setting() -> None:
     }
 
 
-def _commands(spec: PolicySpec) -> np.ndarray:
-    y, xdot, previous_xdot = 1.05, 4.8, 4.6
-    return np.array(list(spec.commands(PAPER_PARAMS, y, xdot, previous_xdot)), dtype=float)
+APEX = (1.05, 4.8, 4.6)
+"""y [m], xdot [m/s] and the previous apex's xdot of the apex at which the policies are compared."""
+
+
+def _commands(spec: PolicySpec, apex: tuple[float, float, float] = APEX) -> np.ndarray:
+    return np.array(list(spec.commands(PAPER_PARAMS, *apex)), dtype=float)
 
 
 def _changed(setting: PolicySetting) -> Any:
-    """Another valid value of the setting, close to the default."""
+    """Another valid value of the setting, close to the default (the next choice of a text setting)."""
+    if setting.kind is str:
+        return next(choice for choice in setting.choices if choice != setting.default)
     if setting.kind is int:
         return setting.default + 1
     return setting.default * 1.05 if setting.default else 0.1
+
+
+CHOICE_PROBES: tuple[tuple[tuple[float, float, float], dict[str, float]], ...] = (
+    (APEX, {}),
+    ((2.4, 4.55, 4.6), {}),
+    ((0.95, 2.95, 2.95), {"touchdown_angle": math.radians(40.0)}),
+)
+"""Apexes (and settings) at which a setting of choices is looked at. The two analytic maps differ in the next
+apex speed alone: deadbeat steers by it (its command differs at APEX); open_loop, energy and pd plan the
+stance and the energy, alike on both maps, and differ only where one map foresees a reversal and the other
+does not (ours: the energy balance leaves the next apex no kinetic energy; the paper's speed, of eq. 7, is
+that of liftoff), as at the other two probes."""
+
+
+def _responds(spec: PolicySpec, setting: PolicySetting) -> bool:
+    """Whether changing ``setting`` changes the command of ``spec`` (at APEX, or for a setting of choices
+    at one of the CHOICE_PROBES, where a lane without a command is the same as another without)."""
+    changed = replace(spec, **{setting.name: _changed(setting)})
+    if setting.kind is not str:
+        return not np.array_equal(_commands(changed), _commands(spec))
+    return any(
+        not np.array_equal(
+            _commands(replace(changed, **settings), apex),
+            _commands(replace(spec, **settings), apex),
+            equal_nan=True,
+        )
+        for apex, settings in CHOICE_PROBES
+    )
 
 
 @pytest.mark.parametrize("policy", POLICIES)
@@ -67,14 +122,71 @@ def test_a_policy_uses_exactly_the_settings_declared_for_it(policy: str) -> None
     """Changing a setting changes the policy's command where the declaration says the policy uses it, and
     only there."""
     spec = PolicySpec.default(policy)
-    before = _commands(spec)
-    assert np.all(np.isfinite(before))
+    assert np.all(np.isfinite(_commands(spec)))
     for setting in POLICY_SETTINGS:
-        after = _commands(replace(spec, **{setting.name: _changed(setting)}))
         used = policy in setting.policies
-        assert (not np.array_equal(after, before)) == used, (
-            f"{policy} {'ignores' if used else 'uses'} {setting.name}"
-        )
+        assert _responds(spec, setting) == used, f"{policy} {'ignores' if used else 'uses'} {setting.name}"
+
+
+@pytest.mark.parametrize("policy", ANALYTIC_MAP_POLICIES)
+def test_the_analytic_map_setting_is_the_speed_the_policy_functions_plan_with(policy: str) -> None:
+    """PolicySpec with analytic_map ours or paper commands what the policy's function does with speed
+    energy or liftoff (the map's next apex speed, model.analytic), called directly."""
+    direct = {
+        "open_loop": lambda y, xdot, previous, speed, spec: controllers.fixed_power(
+            PAPER_PARAMS,
+            y,
+            xdot,
+            spec.touchdown_angle,
+            units.power_to_alpha(PAPER_PARAMS, spec.touchdown_power),
+            speed=speed,
+        ),
+        "energy": lambda y, xdot, previous, speed, spec: controllers.energy_regulation(
+            PAPER_PARAMS, y, xdot, spec.touchdown_angle, spec.target_energy, speed=speed
+        ),
+        "deadbeat": lambda y, xdot, previous, speed, spec: controllers.deadbeat(
+            PAPER_PARAMS, y, xdot, spec.target_height, spec.target_speed, speed=speed
+        ),
+        "pd": lambda y, xdot, previous, speed, spec: controllers.pd_speed_energy_height(
+            PAPER_PARAMS, y, xdot, previous, spec.target_height, spec.target_speed, speed=speed
+        ),
+    }[policy]
+    for apex, settings in CHOICE_PROBES:
+        spec = replace(PolicySpec.default(policy), **settings)
+        ours, paper = (_commands(replace(spec, analytic_map=name), apex) for name in ("ours", "paper"))
+        for commands, speed in ((ours, "energy"), (paper, "liftoff")):
+            expected = np.array(list(direct(*apex, speed, spec)), dtype=float)
+            assert np.array_equal(commands, expected, equal_nan=True), (apex, speed)
+        if policy != "deadbeat":  # planned alike on both maps where both foresee a stride
+            both = np.isfinite(ours) & np.isfinite(paper)
+            assert np.array_equal(ours[both], paper[both])
+
+
+def test_deadbeat_on_the_papers_map_aims_with_eq_7s_speed() -> None:
+    ours, paper = (replace(PolicySpec.default("deadbeat"), analytic_map=name) for name in ("ours", "paper"))
+    assert PolicySpec.default("deadbeat").analytic_map == "ours"  # the default
+    target = (paper.target_height, paper.target_speed)
+    y, xdot, _ = APEX
+    command = paper.commands(PAPER_PARAMS, y, xdot, xdot)
+    direct = controllers.deadbeat(PAPER_PARAMS, y, xdot, *target, speed="liftoff")
+    assert np.array_equal(list(command), list(direct))
+    other = ours.commands(PAPER_PARAMS, y, xdot, xdot).touchdown_angle
+    assert abs(float(command.touchdown_angle) - float(other)) > 0.05  # rad: another angle for another speed
+    # From an apex whence both reach the target speed, each reaches it on its own map, not on the other's.
+    y, xdot = 1.1, 5.2
+    for spec, speed, wrong in ((paper, "liftoff", "energy"), (ours, "energy", "liftoff")):
+        planned = spec.commands(PAPER_PARAMS, y, xdot, xdot)
+        mine = approximate_map(PAPER_PARAMS, y, xdot, planned, speed=speed)
+        theirs = approximate_map(PAPER_PARAMS, y, xdot, planned, speed=wrong)
+        assert float(mine.xdot) == pytest.approx(spec.target_speed, rel=1e-9)
+        assert abs(float(theirs.xdot) - spec.target_speed) > 1e-2
+
+
+def test_an_unknown_analytic_map_is_refused() -> None:
+    with pytest.raises(PolicyError, match="analytic_map 'papr'; one of ours, paper"):
+        replace(PolicySpec.default("energy"), analytic_map="papr")
+    with pytest.raises(PolicyError, match="analytic_map 'papr'"):
+        PolicySpec.of("energy", {**DEFAULT_VALUES, "analytic_map": "papr"})
 
 
 def test_the_controller_node_has_a_parameter_per_setting() -> None:
@@ -86,8 +198,19 @@ def test_the_controller_node_has_a_parameter_per_setting() -> None:
         assert type(spec.default) is setting.kind and spec.default == setting.default, setting.name
         descriptor = spec.descriptor()
         assert descriptor.description == setting.text
-        (bounds,) = descriptor.integer_range if setting.kind is int else descriptor.floating_point_range
-        assert (bounds.from_value, bounds.to_value) == (setting.lower, setting.upper), setting.name
+        assert spec.choices == setting.choices, setting.name
+        if setting.kind is str:  # its choices, checked by the node's on-set callback, and no range
+            assert descriptor.additional_constraints == "one of: " + ", ".join(setting.choices)
+            assert not descriptor.integer_range and not descriptor.floating_point_range, setting.name
+            refused = parameters.validate(controller_node.SPECS, [Parameter(setting.name, value="papr")])
+            assert not refused.successful
+            assert refused.reason == f"{setting.name} must be one of {', '.join(setting.choices)}"
+            assert parameters.validate(
+                controller_node.SPECS, [Parameter(setting.name, value=_changed(setting))]
+            )
+        else:
+            (bounds,) = descriptor.integer_range if setting.kind is int else descriptor.floating_point_range
+            assert (bounds.from_value, bounds.to_value) == (setting.lower, setting.upper), setting.name
         assert not descriptor.read_only, setting.name  # tunable at runtime
 
 
@@ -123,12 +246,23 @@ def test_the_study_design_has_a_column_per_setting_with_its_unit() -> None:
         assert design.UNITS[setting.name] == setting.unit, setting.name
         if setting.name not in STUDY_DEFAULTS:
             assert design.DEFAULTS[setting.name] == setting.default, setting.name
+    # A setting of choices is a text column, like the policy: one value per call of the engine, never drawn.
+    choices = [setting for setting in per_trajectory if setting.kind is str]
+    assert {name: design.CHOICES[name] for name in design.CHOICE_SETTINGS} == {
+        s.name: s.choices for s in choices
+    }
+    for setting in choices:
+        assert setting.name in design.GROUP_PARAMETERS and setting.name not in design.NUMERIC_PARAMETERS
+        assert table.SCHEMA.field(setting.name).type == pa.string()
+    numeric = [setting.name for setting in per_trajectory if setting.kind is not str]
+    assert [name for name in design.NUMERIC_PARAMETERS if name in SETTINGS] == numeric
     # A trajectory's columns give the policy its settings, as a chunk does.
     study = design.Study.of(fixed={"y0": 1.0, "xdot0": 5.0}, start="speed")
     lanes = study.lanes(0, 1)
-    values = {name: float(lanes[name][0]) for name in design.POLICY_PARAMETERS}
+    values = {name: SETTINGS[name].kind(lanes[name][0]) for name in design.POLICY_PARAMETERS}
     spec = PolicySpec(name=str(lanes["policy"][0]), corrections=study.corrections, **values)
     assert spec.name == DEFAULT_POLICY and spec.target_height == SETTINGS["target_height"].default
+    assert all(getattr(spec, setting.name) == setting.default for setting in choices)
 
 
 @pytest.mark.parametrize("policy", POLICIES)
@@ -137,4 +271,5 @@ def test_the_report_gives_the_settings_the_policy_uses(policy: str) -> None:
     assert re.findall(r"(\w+) = ", text) == [setting.name for setting in settings_of(policy)]
     for setting in settings_of(policy):
         unit = f" {setting.unit}" if setting.unit else ""
-        assert f"{setting.name} = {setting.default:.6g}{unit}" in text
+        value = setting.default if setting.kind is str else f"{setting.default:.6g}"
+        assert f"{setting.name} = {value}{unit}" in text

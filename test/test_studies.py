@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tdslip_ros.analysis.figures import tracking
-from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model import basins, controllers, stability, units
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
@@ -89,11 +89,52 @@ def test_monte_carlo_draws_come_from_the_seed_and_the_trajectory_index_only() ->
         ({"grid": {"zeta0": [0.5, 1.2]}, "fixed": {"y0": 1.0, "energy0": 3000.0}}, "zeta0 must be in [0, 1)"),
         ({"fixed": {"y0": 1.0, "energy0": 3000.0}, "chunk_size": 0}, "chunk_size must be at least 1"),
         ({"fixed": {"y0": math.inf, "energy0": 3000.0}}, "y0 must be a finite number"),
+        (
+            {"grid": {"analytic_map": ["ours", "papr"]}, "fixed": {"y0": 1.0, "energy0": 3000.0}},
+            "unknown analytic_map 'papr'; one of ours, paper",
+        ),
+        (
+            {"draws": {"analytic_map": Uniform(0, 1)}, "fixed": {"y0": 1.0, "energy0": 3000.0}},
+            "analytic_map is a grid axis or fixed",
+        ),
+        ({"fixed": {"y0": 1.0, "energy0": 3000.0, "analytic_map": 1.0}}, "unknown analytic_map 1.0"),
     ],
 )
 def test_an_inconsistent_design_is_refused_with_the_reason(settings: dict, message: str) -> None:
     with pytest.raises(StudyError, match=re.escape(message)):
         Study.of(**settings)
+
+
+def test_a_study_plans_on_either_analytic_map() -> None:
+    """An analytic_map axis: each lane's policy plans on its map, so its first stride is the exact map's
+    stride under the command of the policy function with that map's next apex speed."""
+    apex, target = ApexState(1.05, 4.8), (1.0, 5.0)
+    study = Study.of(
+        grid={"analytic_map": ["ours", "paper"], "policy": ["deadbeat", "energy"]},
+        fixed={"y0": apex.y, "xdot0": apex.xdot, "target_height": target[0], "target_speed": target[1]},
+        start="speed",
+        strides=1,
+    )
+    rows = chunk.run_chunk(study, 0)
+    assert list(_column(rows, "analytic_map")) == ["ours", "ours", "paper", "paper"]
+    energy = apex.energy(PARAMS)
+    ends = []
+    for name, policy in zip(_column(rows, "analytic_map"), _column(rows, "policy"), strict=True):
+        speed = {"ours": "energy", "paper": "liftoff"}[name]
+        if policy == "deadbeat":
+            command = controllers.deadbeat(PARAMS, apex.y, apex.xdot, *target, speed=speed)
+        else:
+            command = controllers.energy_regulation(PARAMS, apex.y, apex.xdot, BETA, energy, speed=speed)
+        after = apex_return_map(
+            PARAMS, apex, command.command(), rtol=basins.EXACT_TOLERANCE, atol=basins.EXACT_TOLERANCE
+        ).apex
+        assert after is not None
+        ends.append((after.y, after.xdot))
+    np.testing.assert_allclose(
+        np.column_stack([_column(rows, "y_end"), _column(rows, "xdot_end")]), ends, rtol=1e-9
+    )
+    # deadbeat aims by the next apex speed, so the maps part; energy regulation plans alike on both here.
+    assert abs(ends[0][1] - ends[2][1]) > 0.05 and ends[1] == ends[3]
 
 
 def test_a_chunk_of_the_goal_regulator_is_fig10_s_basin_row_for_row() -> None:
@@ -141,6 +182,21 @@ def test_a_chunk_of_the_open_loop_starts_on_the_energy_fixed_point_as_fig7_does(
     expected = basins.open_loop_basin(PARAMS, BETA, alpha_grid, height_grid, energy, strides=20)
     np.testing.assert_array_equal(_column(rows, "outcome"), np.asarray(basins.OUTCOMES)[expected.outcome])
     np.testing.assert_allclose(_column(rows, "y_end"), expected.history.y[-1], rtol=1e-12)
+
+
+def test_the_open_loop_starts_on_the_energy_fixed_point_of_its_own_analytic_map() -> None:
+    alpha, heights = 1.5, np.array([1.0, 1.6])
+    study = Study.of(
+        grid={"analytic_map": ["paper", "ours"], "y0": heights},
+        fixed={"policy": "open_loop", "touchdown_power": units.power_from_alpha(PARAMS, alpha)},
+        start="open_loop_fixed_point",
+    )
+    lanes = study.lanes(0, study.size)
+    paper, ours = (
+        stability.energy_fixed_point(PARAMS, BETA, alpha, heights, speed=s) for s in ("liftoff", "energy")
+    )
+    np.testing.assert_allclose(lanes["energy0"], np.concatenate([paper, ours]), rtol=1e-12)
+    assert np.all(np.abs(paper - ours) > 1.0)  # J: the maps' fixed points differ
 
 
 def test_deadbeat_and_pd_lanes_run_as_fig13_runs_them() -> None:
@@ -257,10 +313,8 @@ def test_a_perturbed_trajectory_is_the_exact_map_s_stride_by_stride() -> None:
     )
     rows = chunk.run_chunk(study, 0)
     lanes = study.lanes(0, study.size)
-    spec = PolicySpec(
-        name="energy",
-        corrections=1,
-        **{k: float(lanes[k][0]) for k in PolicySpec.settings() if k != "corrections"},
+    spec = PolicySpec.of(
+        "energy", {k: lanes[k][0] for k in PolicySpec.settings() if k != "corrections"} | {"corrections": 1}
     )
     for lane in range(study.size):
         one = {name: values[lane : lane + 1] for name, values in lanes.items()}

@@ -82,9 +82,12 @@ _FIXED_POINT_RESIDUAL = 1e-8  # dimensionless residual up to which a Newton resu
 
 
 def controller_defaults() -> dict[str, Any]:
-    """The installed controller node's parameter file (config/controller.yaml), as a mapping."""
+    """The installed controller node's parameter file (config/controller.yaml), as a mapping, with the
+    declared default of each policy setting it does not set (the node's own, then; an older install)."""
     try:
-        return installed_parameters("controller.yaml")
+        return {setting.name: setting.default for setting in POLICY_SETTINGS} | installed_parameters(
+            "controller.yaml"
+        )
     except (
         MessageDefinitionError,
         OSError,

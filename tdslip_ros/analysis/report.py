@@ -377,7 +377,8 @@ def policy_settings_text(policy: PolicySpec, params: HopperParams) -> str:
         unit = f" {setting.unit}" if setting.unit else ""
         in_paper_terms = _IN_PAPER_TERMS.get(setting.name)
         extra = f" ({in_paper_terms(params, value)})" if in_paper_terms else ""
-        parts.append(f"{setting.name} = {value:.6g}{unit}{extra}")
+        shown = value if setting.kind is str else f"{value:.6g}"
+        parts.append(f"{setting.name} = {shown}{unit}{extra}")
     return ", ".join(parts)
 
 

@@ -23,7 +23,7 @@ from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import EventKind, FailureKind
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies import POLICY_SETTINGS, PolicySpec
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.model.terrain import Blocks
 from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
@@ -95,7 +95,8 @@ def policies(params: HopperParams, apex: ApexState, angle: float) -> tuple[ApexS
     fixed point on flat ground, where both start; open loop at the same angle with the hip power that energy
     regulation applies there, so that on flat ground both would hop on at that fixed point forever (the
     installed controller defaults otherwise)."""
-    values = {name: installed_parameters("controller.yaml")[name] for name in PolicySpec.settings()}
+    installed = installed_parameters("controller.yaml")  # an older install may lack a setting: its default
+    values = {setting.name: installed.get(setting.name, setting.default) for setting in POLICY_SETTINGS}
     values |= {"touchdown_angle": angle, "target_energy": apex.energy(params)}
     energy = PolicySpec.of("energy", values)
     flat = hop(params, energy, apex, Perturbations(), FIXED_POINT_STRIDES)

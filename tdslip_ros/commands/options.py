@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
 
@@ -147,19 +147,17 @@ def add_energy_bar(parser: argparse.ArgumentParser | Any, default: float, what: 
     deprecated(parser, action, *old)
 
 
-ANALYTIC_MAPS: dict[str, SpeedSource] = {"ours": "energy", "paper": "liftoff"}
-"""``--map``: the analytic map's next apex speed, from the energy balance (ours, the default) or from the
-liftoff velocity of eq. 7 (the paper's map as printed; docs/paper.md)."""
-
-
-def add_analytic_map(parser: argparse.ArgumentParser | Any) -> None:
-    """``--map ours|paper`` (default ours); read it with :func:`analytic_map_speed`."""
+def add_analytic_map(parser: argparse.ArgumentParser | Any, what: str = "", unset: str | None = None) -> None:
+    """``--map ours|paper`` (model.analytic.ANALYTIC_MAPS: the analytic map's next apex speed from the energy
+    balance, or from the liftoff velocity of eq. 7 as printed), default ours, or (with ``unset``) None,
+    described in words by ``unset``; read it with :func:`analytic_map_speed`."""
+    default = None if unset else DEFAULT_ANALYTIC_MAP
     parser.add_argument(
         "--map",
         choices=list(ANALYTIC_MAPS),
-        default="ours",
+        default=default,
         help="the analytic map: ours (next apex speed from the energy balance) or paper (from eq. 7's "
-        "liftoff velocity, as printed) (default: ours)",
+        f"liftoff velocity, as printed){what} (default: {unset or default})",
     )
 
 

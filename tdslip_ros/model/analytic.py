@@ -136,6 +136,11 @@ LiftoffMethod = Literal["paper", "force_root"]
 SpeedSource = Literal["energy", "liftoff"]
 """Where the map takes the next apex speed from: the energy balance (``"energy"``, the default, ours) or
 the horizontal liftoff velocity of eq. (7) (``"liftoff"``, the paper's map as printed)."""
+ANALYTIC_MAPS: dict[str, SpeedSource] = {"ours": "energy", "paper": "liftoff"}
+"""The analytic maps by name, each with its next apex speed (:data:`SpeedSource`): ours, from the energy
+balance (the default), or the paper's, from the liftoff velocity of eq. 7 as printed. The policies'
+``analytic_map`` setting (:mod:`.policies`) and ``tdslip ... --map`` name them so."""
+DEFAULT_ANALYTIC_MAP = "ours"
 
 
 def map_variant_code(liftoff: str, speed: str = "energy") -> int:

@@ -1,12 +1,12 @@
 """The stance policies by name, and their settings declared once.
 
-:data:`POLICY_SETTINGS` declares every setting of the policies: name, type, SI unit, range, default, one
-line of description and the policies that use it. Whatever lists the settings derives from it: the
-controller node's parameters (a parameter per setting, of the same name), the study designs' policy columns
-(:mod:`tdslip_ros.studies.design`), the analysis report's account of a policy; config/controller.yaml, which
-users edit, is checked against it (test/test_policy_settings.py). A :class:`PolicySpec` names one of
-:data:`POLICIES` with a value for each setting and answers apexes with the policy's commands
-(:mod:`tdslip_ros.model.controllers`).
+:data:`POLICY_SETTINGS` declares every setting of the policies: name, type, SI unit, range (or, for a
+text setting, its choices), default, one line of description and the policies that use it. Whatever lists
+the settings derives from it: the controller node's parameters (a parameter per setting, of the same name),
+the study designs' policy columns (:mod:`tdslip_ros.studies.design`), the analysis report's account of a
+policy; config/controller.yaml, which users edit, is checked against it (test/test_policy_settings.py). A
+:class:`PolicySpec` names one of :data:`POLICIES` with a value for each setting and answers apexes with the
+policy's commands (:mod:`tdslip_ros.model.controllers`).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import Any
 import numpy.typing as npt
 
 from tdslip_ros.model import units
+from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.controllers import (
     PD_KD,
@@ -37,6 +38,8 @@ FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
 """Policies that touch down at the fixed ``touchdown_angle``."""
 TARGET_APEX_POLICIES = ("deadbeat", "pd")
 """Policies that steer towards the target apex (``target_height``, ``target_speed``)."""
+ANALYTIC_MAP_POLICIES = ("open_loop", "energy", "deadbeat", "pd")
+"""Policies that plan on the analytic map (``analytic_map``); energy_exact plans on the exact plant's."""
 DEFAULT_POLICY = "energy"
 """The policy of the controller node and of a study where none is chosen."""
 
@@ -52,21 +55,33 @@ DEFAULT_TARGET_ENERGY = PAPER_PARAMS.m * (PAPER_PARAMS.g * DEFAULT_APEX_HEIGHT +
 
 @dataclass(frozen=True)
 class PolicySetting:
-    """One setting of the policies: a value of type ``kind`` in [lower, upper], in ``unit`` (SI; "" where it
-    has none), used by ``policies``."""
+    """One setting of the policies, used by ``policies``: a number of type ``kind`` (float or int) in [lower,
+    upper], in ``unit`` (SI; "" where it has none), or a text (``kind`` str) that is one of ``choices``, with
+    no range (lower and upper None) and no unit."""
 
     name: str
-    kind: type[float] | type[int]
+    kind: type[float] | type[int] | type[str]
     unit: str
-    lower: float
-    upper: float
-    default: float
+    lower: float | None
+    upper: float | None
+    default: float | str
     description: str
     policies: tuple[str, ...]
+    choices: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        if type(self.default) is not self.kind or not self.lower <= self.default <= self.upper:
-            raise ValueError(f"{self.name}: default {self.default!r} is not a {self.kind.__name__} in range")
+        if type(self.default) is not self.kind:
+            raise ValueError(f"{self.name}: default {self.default!r} is not a {self.kind.__name__}")
+        if self.kind is str:
+            if self.lower is not None or self.upper is not None or self.unit:
+                raise ValueError(f"{self.name}: a text setting has choices, not a range or a unit")
+            if self.default not in self.choices:
+                raise ValueError(f"{self.name}: default {self.default!r} is not one of {self.choices}")
+        else:
+            if self.choices or self.lower is None or self.upper is None:
+                raise ValueError(f"{self.name}: a number setting has a range, not choices")
+            if not self.lower <= float(self.default) <= self.upper:
+                raise ValueError(f"{self.name}: default {self.default!r} is not in range")
         if not set(self.policies) <= set(POLICIES):
             raise ValueError(f"{self.name}: unknown policies in {self.policies}")
 
@@ -134,6 +149,17 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         "correction iterations of the analytic map the policies plan with",
         POLICIES,
     ),
+    PolicySetting(
+        "analytic_map",
+        str,
+        "",
+        None,
+        None,
+        DEFAULT_ANALYTIC_MAP,
+        "analytic map planned on: ours (next apex speed from the energy balance) or paper (from eq. 7)",
+        ANALYTIC_MAP_POLICIES,
+        choices=tuple(ANALYTIC_MAPS),
+    ),
 )
 """Every setting of the policies, in the order the controller's parameters and a study's columns take."""
 
@@ -162,7 +188,19 @@ class PolicySpec:
     pd_kp: float
     pd_kd: float
     corrections: int
+    analytic_map: str
     source: str = ""
+
+    def __post_init__(self) -> None:
+        if self.analytic_map not in ANALYTIC_MAPS:
+            raise PolicyError(
+                f"unknown analytic_map {self.analytic_map!r}; one of {', '.join(ANALYTIC_MAPS)}"
+            )
+
+    @property
+    def speed(self) -> SpeedSource:
+        """The next apex speed of the analytic map the policy plans on (``analytic_map``)."""
+        return ANALYTIC_MAPS[self.analytic_map]
 
     def commands(
         self, params: HopperParams, y: npt.ArrayLike, xdot: npt.ArrayLike, previous_xdot: npt.ArrayLike
@@ -170,17 +208,21 @@ class PolicySpec:
         """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by ``pd`` only."""
         if self.name == "open_loop":
             alpha = units.power_to_alpha(params, self.touchdown_power)
-            return fixed_power(params, y, xdot, self.touchdown_angle, alpha, self.corrections)
+            return fixed_power(
+                params, y, xdot, self.touchdown_angle, alpha, self.corrections, speed=self.speed
+            )
         if self.name == "energy":
             return energy_regulation(
-                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
+                params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections, speed=self.speed
             )
         if self.name == "energy_exact":
             return exact_energy_regulation(
                 params, y, xdot, self.touchdown_angle, self.target_energy, self.corrections
             )
         if self.name == "deadbeat":
-            return deadbeat(params, y, xdot, self.target_height, self.target_speed, self.corrections)
+            return deadbeat(
+                params, y, xdot, self.target_height, self.target_speed, self.corrections, speed=self.speed
+            )
         if self.name == "pd":
             return pd_speed_energy_height(
                 params,
@@ -192,6 +234,7 @@ class PolicySpec:
                 kp=self.pd_kp,
                 kd=self.pd_kd,
                 corrections=self.corrections,
+                speed=self.speed,
             )
         raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
 

@@ -12,9 +12,13 @@ The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.m
 * ``pd``: the PD baseline, foot placement on speed with gains ``pd_kp``, ``pd_kd`` [rad/(m/s)]
   and energy towards the target apex.
 
+All but ``energy_exact`` plan on the analytic map ``analytic_map``: ``ours`` (the default) or ``paper``
+(the next apex speed of eq. 7 as printed).
+
 Each setting of the policies (:data:`tdslip_ros.model.policies.POLICY_SETTINGS`) is the parameter of the
-same name, with its default, range and description. Policy, targets and gains are read at every apex, so
-``ros2 param set`` changes them at runtime (values are checked against their ranges and choices first).
+same name, with its default, range (or choices) and description. Policy, targets and gains are read at
+every apex, so ``ros2 param set`` changes them at runtime (values are checked against their ranges and
+choices first; a value outside them is refused, at start-up too).
 The controller plans with its own SI hopper parameters (``mass``, ``stiffness``, ``rest_length``,
 ``damping``, ``gravity``): the plant's, as config/controller.yaml has them for the defaults, or other
 values to study model mismatch (``tdslip run --mismatch`` scales the plant's by factors).
@@ -46,8 +50,10 @@ MATCH_TIMEOUT = 1.0  # s an answer waits for its publisher to match a subscriber
 
 
 def setting_parameter(setting: PolicySetting) -> ParameterSpec:
-    """The parameter of a policy setting: its name, default, range and one-line text."""
-    return ParameterSpec(setting.name, setting.default, setting.text, setting.lower, setting.upper)
+    """The parameter of a policy setting: its name, default, range or choices, and one-line text."""
+    return ParameterSpec(
+        setting.name, setting.default, setting.text, setting.lower, setting.upper, choices=setting.choices
+    )
 
 
 TUNABLE: tuple[ParameterSpec, ...] = (

@@ -18,6 +18,9 @@ converged); and the spread of the apexes over the strides survived.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numpy as np
 import pyarrow as pa
 
@@ -27,7 +30,7 @@ from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.studies import perturbed, table
-from tdslip_ros.studies.design import GROUP_PARAMETERS, POLICY_PARAMETERS, Lanes, Study
+from tdslip_ros.studies.design import CHOICE_SETTINGS, GROUP_PARAMETERS, POLICY_PARAMETERS, Lanes, Study
 from tdslip_ros.studies.outcomes import reduce_history
 
 
@@ -41,8 +44,8 @@ def run_chunk(study: Study, index: int) -> pa.Table:
 def run_lanes(study: Study, lanes: Lanes) -> dict[str, Array]:
     """Hop every lane for study.strides strides; the outcome columns of :data:`.table.OUTCOME_COLUMNS`.
 
-    Lanes of one policy, hopper, controller model and terrain kind hop together: one call of the batched
-    engine (basins.run_strides, or perturbed.run_held for a study that holds commands)."""
+    Lanes of one policy, analytic map, hopper, controller model and terrain kind hop together: one call of
+    the batched engine (basins.run_strides, or perturbed.run_held for a study that holds commands)."""
     count = lanes["trajectory"].size
     result = table.empty_outcomes(count)
     groups: dict[tuple[object, ...], list[int]] = {}
@@ -51,17 +54,19 @@ def run_lanes(study: Study, lanes: Lanes) -> dict[str, Array]:
         groups.setdefault(tuple(key), []).append(lane)
     for key, members in groups.items():
         group = np.asarray(members)
-        params = study.params(float(key[1]), float(key[2]))
-        settings = {name: lanes[name][group] for name in POLICY_PARAMETERS}
+        value = dict(zip(GROUP_PARAMETERS, key[:-1], strict=True))
+        params = study.params(float(value["kbar"]), float(value["zeta0"]))
+        settings = {name: lanes[name][group] for name in POLICY_PARAMETERS if name not in CHOICE_SETTINGS}
+        shared = {"corrections": study.corrections, **{name: str(value[name]) for name in CHOICE_SETTINGS}}
         y0, xdot0 = _startable(params, lanes["y0"][group], lanes["xdot0"][group])
         if study.hold_commands:
             columns = {name: values[group] for name, values in lanes.items()}
             perturbations = perturbed.perturbations_of(columns, study.seed, str(key[-1]))
             outcomes = perturbed.run_held(
                 params,
-                str(key[0]),
+                str(value["policy"]),
                 settings,
-                study.corrections,
+                shared,
                 y0,
                 xdot0,
                 perturbations,
@@ -69,7 +74,7 @@ def run_lanes(study: Study, lanes: Lanes) -> dict[str, Array]:
                 study.strides,
             )
         else:
-            policy = lane_policy(str(key[0]), params, settings, study.corrections, xdot0)
+            policy = lane_policy(str(value["policy"]), params, settings, shared, xdot0)
             outcomes = reduce_history(params, basins.run_strides(params, y0, xdot0, policy, study.strides))
         for name, values in outcomes.items():
             result[name][group] = values
@@ -87,15 +92,16 @@ def _startable(params: HopperParams, y0: Array, xdot0: Array) -> tuple[Array, Ar
 
 
 def lane_policy(
-    name: str, params: HopperParams, settings: dict[str, Array], corrections: int, xdot0: Array
+    name: str, params: HopperParams, settings: dict[str, Array], shared: Mapping[str, Any], xdot0: Array
 ) -> basins.StancePolicy:
-    """The named policy with per-lane settings (arrays over the group's lanes): PolicySpec's policies are
-    vectorised, so its settings are the alive lanes' values at each stride. pd's previous apex speed is
-    kept per lane (xdot0 before the first stride)."""
+    """The named policy with per-lane settings (arrays over the group's lanes) and ``shared`` ones (one
+    value for all: ``corrections``, and the settings of text choices, ``analytic_map``): PolicySpec's
+    policies are vectorised, so its settings are the alive lanes' values at each stride. pd's previous apex
+    speed is kept per lane (xdot0 before the first stride)."""
     previous = np.array(xdot0, dtype=float)
 
     def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> CommandArrays:
-        spec = PolicySpec(name=name, corrections=corrections, **{k: v[lanes] for k, v in settings.items()})
+        spec = PolicySpec(name=name, **shared, **{k: v[lanes] for k, v in settings.items()})
         command = spec.commands(params, y, xdot, previous[lanes])
         previous[lanes] = xdot
         return command

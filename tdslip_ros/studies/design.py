@@ -15,10 +15,11 @@ policy's settings):
   ``gravity``). The batched engine runs one hopper per call, so these are grid axes or fixed, never drawn;
 * the policy's settings (:data:`POLICY_PARAMETERS`, each with its unit and default from the declaration),
   but for ``corrections``, one per study (:attr:`Study.corrections`); ``target_energy`` NaN: the
-  trajectory's initial energy, the paper's goal regulator of section IV.B;
+  trajectory's initial energy, the paper's goal regulator of section IV.B. A setting of text choices
+  (:data:`CHOICE_SETTINGS`: ``analytic_map``) is, like ``policy``, a grid axis or fixed, never drawn;
 * the initial apex ``y0`` [m] with, by the study's ``start`` rule, ``xdot0`` [m/s] (``speed``), ``energy0``
   [J] (``energy``), or neither (``open_loop_fixed_point``: energy0 is the open loop's energy fixed point
-  E*(y0) of eq. 27 at the trajectory's touchdown angle and power, fig. 7's start).
+  E*(y0) of eq. 27 at the trajectory's touchdown angle and power on its analytic map, fig. 7's start).
 
 Chunks are consecutive runs of ``chunk_size`` trajectories; a chunk is the unit of work, of retry and of
 the table's files. Keep the hopper axes outermost so that a chunk holds few hoppers (each is one call of
@@ -37,7 +38,7 @@ from typing import Any, Literal
 import numpy as np
 
 from tdslip_ros.model import stability, units
-from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.model.analytic import ANALYTIC_MAPS, speed_from_energy
 from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
 from tdslip_ros.model.policies import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS
 from tdslip_ros.studies import perturbed
@@ -45,12 +46,22 @@ from tdslip_ros.studies import perturbed
 HOPPER_PARAMETERS = ("kbar", "zeta0")
 POLICY_PARAMETERS = tuple(setting.name for setting in POLICY_SETTINGS if setting.name != "corrections")
 """The policies' settings, a value per trajectory (corrections: one per study, Study.corrections)."""
+CHOICE_SETTINGS = tuple(setting.name for setting in POLICY_SETTINGS if setting.kind is str)
+"""The policies' settings of text choices (analytic_map): string columns, one value per engine call."""
+CHOICES: dict[str, tuple[str, ...]] = {
+    "policy": POLICIES,
+    **{setting.name: setting.choices for setting in POLICY_SETTINGS if setting.kind is str},
+}
+"""The parameters of text choices, with their choices: ``policy`` and CHOICE_SETTINGS."""
 START_PARAMETERS = ("y0", "xdot0", "energy0")
 NUMERIC_PARAMETERS = (
-    HOPPER_PARAMETERS + POLICY_PARAMETERS + START_PARAMETERS + perturbed.PERTURBATION_PARAMETERS
+    HOPPER_PARAMETERS
+    + tuple(name for name in POLICY_PARAMETERS if name not in CHOICES)
+    + START_PARAMETERS
+    + perturbed.PERTURBATION_PARAMETERS
 )
-PARAMETERS = ("policy", *NUMERIC_PARAMETERS)
-GROUP_PARAMETERS = ("policy", *HOPPER_PARAMETERS, *perturbed.MISMATCH_PARAMETERS)
+PARAMETERS = (*CHOICES, *NUMERIC_PARAMETERS)
+GROUP_PARAMETERS = (*CHOICES, *HOPPER_PARAMETERS, *perturbed.MISMATCH_PARAMETERS)
 """Parameters with one value per call of the batched engine: grid axes or fixed, never drawn."""
 UNITS = {
     "kbar": "",
@@ -106,7 +117,7 @@ def _grid_value(value: Any) -> Any:
 
 
 Lanes = dict[str, np.ndarray]
-"""Columns of a run of trajectories: ``trajectory`` (index), ``policy`` (str) and NUMERIC_PARAMETERS."""
+"""Columns of a run of trajectories: ``trajectory`` (index), the CHOICES (str) and NUMERIC_PARAMETERS."""
 
 
 @dataclass(frozen=True)
@@ -216,9 +227,9 @@ class Study:
         return []
 
     def _check_value(self, name: str, value: str | float) -> None:
-        if name == "policy":
-            if value not in POLICIES:
-                raise StudyError(f"unknown policy {value!r}; one of {', '.join(POLICIES)}")
+        if name in CHOICES:
+            if value not in CHOICES[name]:
+                raise StudyError(f"unknown {name} {value!r}; one of {', '.join(CHOICES[name])}")
             return
         if isinstance(value, str):
             raise StudyError(f"{name} must be a number, got {value!r}")
@@ -312,7 +323,7 @@ class Study:
         for (axis, _), position in zip(self.grid, positions, strict=True):
             for name in axis.split(","):
                 values = [value for _, value in self._grid_values(name)]
-                columns[name] = np.asarray(values, dtype=object if name == "policy" else float)[position]
+                columns[name] = np.asarray(values, dtype=object if name in CHOICES else float)[position]
         if self.draws:
             drawn = np.array([self._draw(int(i)) for i in index]).reshape(index.size, len(self.draws))
             for column, (name, _) in enumerate(self.draws):
@@ -320,8 +331,9 @@ class Study:
         for name in PARAMETERS:
             if name not in columns:
                 value = self.values_of(name)[0]
-                columns[name] = np.full(index.size, value, dtype=object if name == "policy" else float)
-        columns["policy"] = columns["policy"].astype(str)
+                columns[name] = np.full(index.size, value, dtype=object if name in CHOICES else float)
+        for name in CHOICES:
+            columns[name] = columns[name].astype(str)
         kinds = zip(columns["terrain_sigma"], columns["step_height"], strict=True)
         columns["terrain"] = np.array([perturbed.terrain_kind(sigma, step) for sigma, step in kinds])
         self._derive_start(columns)
@@ -348,11 +360,17 @@ class Study:
                 columns["energy0"][mask] = params.m * (params.g * y0[mask] + 0.5 * xdot**2)
                 continue
             if self.start == "open_loop_fixed_point":
-                for beta in np.unique(columns["touchdown_angle"][mask]):
-                    lanes = mask & (columns["touchdown_angle"] == beta)
+                angles, maps = columns["touchdown_angle"], columns["analytic_map"]
+                for beta, name in sorted(set(zip(angles[mask], maps[mask], strict=True))):
+                    lanes = mask & (angles == beta) & (maps == name)
                     alpha = units.power_to_alpha(params, columns["touchdown_power"][lanes])
                     columns["energy0"][lanes] = stability.energy_fixed_point(
-                        params, float(beta), alpha, y0[lanes], self.corrections
+                        params,
+                        float(beta),
+                        alpha,
+                        y0[lanes],
+                        self.corrections,
+                        speed=ANALYTIC_MAPS[str(name)],
                     )
             with np.errstate(invalid="ignore"):
                 columns["xdot0"][mask] = speed_from_energy(params, y0[mask], columns["energy0"][mask])

@@ -28,6 +28,8 @@ the policy's at the true initial apex; a trajectory without one is ``no_command`
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -145,20 +147,19 @@ def run_held(
     params: HopperParams,
     policy: str,
     settings: dict[str, Array],
-    corrections: int,
+    shared: Mapping[str, Any],
     y0: Array,
     xdot0: Array,
     perturbations: Perturbations,
     trajectories: Array,
     strides: int,
 ) -> dict[str, Array]:
-    """The closed loop of the module docstring for lanes that start at (y0, xdot0) (NaN: impossible); the
-    outcome columns of :mod:`.table` (``outcome`` as a basins.OUTCOMES index)."""
+    """The closed loop of the module docstring for lanes that start at (y0, xdot0) (NaN: impossible), the
+    policy with per-lane ``settings`` and ``shared`` ones (chunk.lane_policy); the outcome columns of
+    :mod:`.table` (``outcome`` as a basins.OUTCOMES index)."""
     count = y0.size
     controller = perturbations.mismatch.controller_params(params)
-    first = PolicySpec(name=policy, corrections=corrections, **settings).commands(
-        controller, y0, xdot0, xdot0
-    )
+    first = PolicySpec(name=policy, **shared, **settings).commands(controller, y0, xdot0, xdot0)
     in_force = np.stack([np.array(np.broadcast_to(field, y0.shape), dtype=float) for field in first])
     start = np.flatnonzero(np.all(np.isfinite(in_force), axis=0))
     held = np.zeros(count, dtype=np.int64)
@@ -167,7 +168,7 @@ def run_held(
 
     def planned(stride: int, y: Array, xdot: Array, alive: Array) -> tuple[Array, Array, Array]:
         lanes = start[alive]
-        spec = PolicySpec(name=policy, corrections=corrections, **{k: v[alive] for k, v in lanes_of.items()})
+        spec = PolicySpec(name=policy, **shared, **{k: v[alive] for k, v in lanes_of.items()})
         command = np.stack(
             [np.broadcast_to(f, y.shape) for f in spec.commands(controller, y, xdot, previous[lanes])]
         )

@@ -8,8 +8,9 @@ names the study's digest and the chunk, which :func:`complete_parts` checks on `
 ``DIR/table`` is the table (``pyarrow.parquet.read_table(DIR / "table")``, or :func:`read`, which sorts by
 trajectory). Columns, SI (units in each field's metadata):
 
-* ``trajectory`` (int64), ``policy`` (string), and the design's numeric parameters (float64, see
-  :mod:`.design`), the initial apex y0, xdot0, energy0 among them (NaN xdot0: no such apex);
+* ``trajectory`` (int64), ``policy`` and ``analytic_map`` (string: the design's CHOICES), and the design's
+  numeric parameters (float64, see :mod:`.design`), the initial apex y0, xdot0, energy0 among them (NaN
+  xdot0: no such apex);
 * ``outcome`` (string, one of basins.OUTCOMES), ``failure_stride`` (-1 for none), ``strides_survived``,
   ``convergence_stride`` (-1 where not converged) (int32);
 * ``y_end``, ``xdot_end``: the last apex reached; ``y_fixed``, ``xdot_fixed``, ``energy_fixed``: the fixed
@@ -30,7 +31,7 @@ import pyarrow.parquet as pq
 
 from tdslip_ros.model import basins
 from tdslip_ros.model.arrays import Array
-from tdslip_ros.studies.design import NUMERIC_PARAMETERS, UNITS, Lanes, Study
+from tdslip_ros.studies.design import CHOICES, NUMERIC_PARAMETERS, UNITS, Lanes, Study
 
 MANIFEST = "study.json"
 PARTS = "table"
@@ -53,7 +54,7 @@ OUTCOME_COLUMNS: dict[str, tuple[pa.DataType, str]] = {
 SCHEMA = pa.schema(
     [
         pa.field("trajectory", pa.int64()),
-        pa.field("policy", pa.string()),
+        *(pa.field(name, pa.string()) for name in CHOICES),
         *(pa.field(name, pa.float64(), metadata={"unit": UNITS[name]}) for name in NUMERIC_PARAMETERS),
         *(
             pa.field(name, kind, metadata={"unit": unit} if unit else None)
@@ -78,7 +79,7 @@ def empty_outcomes(count: int) -> dict[str, Array]:
 
 def of(lanes: Lanes, outcomes: dict[str, Array], digest: str) -> pa.Table:
     """The rows of a chunk (lanes in trajectory order) with the study's digest in the metadata."""
-    columns: dict[str, Any] = {name: lanes[name] for name in ("trajectory", "policy", *NUMERIC_PARAMETERS)}
+    columns: dict[str, Any] = {name: lanes[name] for name in ("trajectory", *CHOICES, *NUMERIC_PARAMETERS)}
     columns |= {name: outcomes[name] for name in OUTCOME_COLUMNS if name != "outcome"}
     columns["outcome"] = np.asarray(basins.OUTCOMES, dtype=object)[outcomes["outcome"]]
     arrays = [pa.array(columns[field.name], type=field.type) for field in SCHEMA]
