@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from analysis_runs import as_if_from_ones_own_controller, rewrite
 
-from tdslip_ros.analysis.reader import RunReadError
+from tdslip_ros.analysis.compare import compare_run
+from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml
 from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.commands import cli
 from tdslip_ros.commands.analyze import main
 from tdslip_ros.interfaces import config_file, resolve
+from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
 
@@ -117,6 +120,61 @@ def test_analyze_a_run_of_ones_own_controller_and_name_a_policy_to_compare_with(
     assert main([str(path), "--out", str(tmp_path / "named"), "--policy", "energy"]) == 0
     printed = capsys.readouterr().out
     assert "policy energy (" in printed and "replaying it reproduces the recorded commands" in printed
+
+
+def test_analyze_on_the_papers_map_predicts_and_replays_with_eq_7s_speed(
+    deadbeat: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = read_run(deadbeat.bag)
+    assert main([str(deadbeat.bag), "--out", str(tmp_path / "ours")]) == 0
+    assert main([str(deadbeat.bag), "--out", str(tmp_path / "paper"), "--map", "paper"]) == 0
+    printed = capsys.readouterr().out
+    summaries = {name: _strict_json(tmp_path / name / "summary.json") for name in ("ours", "paper")}
+    ours, paper = (summaries[name]["comparison"] for name in ("ours", "paper"))  # type: ignore[index]
+    assert (ours["analytic_map"], ours["policy"]["analytic_map"], ours["policy_reproduced"]) == (
+        "ours",
+        "ours",
+        True,
+    )
+    assert (paper["analytic_map"], paper["policy"]["analytic_map"]) == ("paper", "paper")
+    # The controller planned deadbeat on ours: replayed on the paper's map, it aims at another angle.
+    assert not paper["policy_reproduced"] and paper["command_deviation_ratio"] > 1e-3
+    assert printed.count("analytic map: paper (next apex speed: the liftoff velocity of eq. 7)") == 1
+    # Each stride predicted from the recorded apex and applied command, with eq. 7's speed: the height of
+    # the next apex as on our map, its speed not.
+    compared = 0
+    rows = zip(summaries["ours"]["strides"], summaries["paper"]["strides"], run.strides, strict=True)  # type: ignore[index]
+    for ours_row, paper_row, stride in rows:
+        if "next_apex_predicted" not in paper_row:
+            continue
+        assert stride.command is not None and stride.ground == 0.0
+        for corrections in (0, 1):
+            key = f"analytic_{corrections}_corrections"
+            expected = approximate_map(
+                run.params, stride.y, stride.xdot, stride.command, corrections, speed="liftoff"
+            )
+            predicted, on_ours = paper_row["next_apex_predicted"][key], ours_row["next_apex_predicted"][key]
+            assert (predicted["y_m"], predicted["xdot_m_per_s"]) == pytest.approx(
+                (float(expected.y), float(expected.xdot)), rel=1e-12
+            )
+            assert (
+                predicted["y_m"] == on_ours["y_m"]
+                and abs(predicted["xdot_m_per_s"] - on_ours["xdot_m_per_s"]) > 1e-3
+            )
+        compared += 1
+    assert compared == len(run.strides) - 1
+    # A run whose controller planned on the paper's map (stored by tdslip run --map paper) is analysed on it.
+    stored = replace(run, custom_data=run.custom_data | {"tdslip_ros.controller.analytic_map": "paper"})
+    comparison = compare_run(stored)
+    assert comparison.analytic_map == "paper" and comparison.policy is not None
+    assert comparison.policy.analytic_map == "paper" and not comparison.policy_reproduced
+    assert comparison.predictions.analytic[1][:, 1] == pytest.approx(
+        [
+            row["next_apex_predicted"]["analytic_1_corrections"]["xdot_m_per_s"]
+            for row in summaries["paper"]["strides"][:-1]
+        ],  # type: ignore[index]
+        rel=1e-12,
+    )
 
 
 def test_analyze_reports_a_failed_run(

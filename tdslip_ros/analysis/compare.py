@@ -2,9 +2,9 @@
 
 * **Per-stride prediction.** From each recorded apex and the command the plant actually applied,
   the analytic map (:func:`tdslip_ros.model.analytic.approximate_map`, 0 and 1 correction
-  iterations) predicts the next apex; the exact map (batched DOP853,
-  :func:`tdslip_ros.model.batch.batch_apex_return_map`) predicts it too, which separates the analytic
-  map's approximation error from the 1 kHz plant's own integration error. On a perturbed run both
+  iterations; ours or the paper's, ``Comparison.analytic_map``) predicts the next apex; the exact map
+  (batched DOP853, :func:`tdslip_ros.model.batch.batch_apex_return_map`) predicts it too, which separates
+  the analytic map's approximation error from the 1 kHz plant's own integration error. On a perturbed run both
   predict what the plant did: the exact map with the run's terrain, torque limit, push and placement
   error (reproduced from the stored seeds), so its error stays at the flat-ground level; the analytic
   map (flat ground by construction) from the apex's height above the recorded ground of the stance, with
@@ -27,6 +27,10 @@
 The policy is replayed on the apexes the controller was given (measured, above the ground of the last
 stance) with the hopper it planned with (the controller's stored parameters: model mismatch), and the
 closed-loop analytic map pairs that planner with the plant's map.
+
+The analytic map of the predictions and the closed loop (``analytic_map``: ours, the next apex speed from
+the energy balance, or the paper's, from eq. 7's liftoff velocity) is the caller's, else the policy's own
+setting (so a run planned on the paper's map is predicted on it), else ours.
 
 Policy settings (:func:`policy_for_run`) come from the caller, else from the controller parameters
 ``tdslip run`` stores in the bag's custom_data, else from the recorded commands (policy name, fixed
@@ -56,7 +60,7 @@ from tdslip_ros.analysis.reader import Run, StrideRecord
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource, approximate_map
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.closed_loop import eigenvalues
@@ -187,6 +191,8 @@ class Comparison:
     run: Run
     policy: PolicySpec | None
     """The policy replayed and closed-loop analysed (None: the run's is unknown here, both skipped)."""
+    analytic_map: str
+    """The analytic map of the predictions (analytic.ANALYTIC_MAPS; the policy's, where there is one)."""
     predictions: Predictions
     errors: dict[int, ErrorStats]
     exact_errors: ErrorStats
@@ -212,12 +218,17 @@ class Comparison:
         return self.command_deviation is not None and self.command_deviation <= REPRODUCTION_TOLERANCE
 
 
-def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
+def compare_run(run: Run, policy: PolicySpec | None = None, analytic_map: str | None = None) -> Comparison:
     """Compare ``run`` with the analytic map (see the module docstring). ``policy`` defaults to the run's
-    own (:func:`policy_for_run`); where that is None, what needs a policy is skipped."""
+    own (:func:`policy_for_run`); where that is None, what needs a policy is skipped. ``analytic_map``
+    (analytic.ANALYTIC_MAPS) defaults to the policy's, else ours; the policy's closed loop runs on its own."""
     policy = policy_for_run(run) if policy is None else policy
+    if analytic_map is None:
+        analytic_map = DEFAULT_ANALYTIC_MAP if policy is None else policy.analytic_map
+    if analytic_map not in ANALYTIC_MAPS:
+        raise PolicyError(f"unknown analytic map {analytic_map!r}; one of {', '.join(ANALYTIC_MAPS)}")
     params = run.params
-    predictions = predict(run)
+    predictions = predict(run, ANALYTIC_MAPS[analytic_map])
     apexes = run.apex_array()
     failed = run.outcome is not None and run.outcome.kind != "run_complete"
     converged_at, recorded = convergence(params, apexes, failed)
@@ -229,6 +240,7 @@ def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
     return Comparison(
         run=run,
         policy=policy,
+        analytic_map=analytic_map,
         predictions=predictions,
         errors={c: error_stats(params, predictions.analytic[c], predictions.recorded) for c in CORRECTIONS},
         exact_errors=error_stats(params, predictions.exact, predictions.recorded),
@@ -240,9 +252,10 @@ def compare_run(run: Run, policy: PolicySpec | None = None) -> Comparison:
     )
 
 
-def predict(run: Run) -> Predictions:
-    """Analytic (0 and 1 corrections) and exact next apexes from each recorded apex and applied command
-    (module docstring), in the world frame."""
+def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
+    """Analytic (0 and 1 corrections; ``speed``: the analytic map's next apex speed, analytic.SpeedSource)
+    and exact next apexes from each recorded apex and applied command (module docstring), in the world
+    frame."""
     params, perturbations = run.params, run.perturbations
     by_stride = {s.stride: s for s in run.strides}
     rows = [
@@ -275,7 +288,7 @@ def predict(run: Run) -> Predictions:
     start_xdot = column("xdot") + column("push")
     analytic, failures, energy = {}, {}, {}
     for corrections in CORRECTIONS:
-        result = approximate_map(params, start_y, start_xdot, applied, corrections)
+        result = approximate_map(params, start_y, start_xdot, applied, corrections, speed=speed)
         analytic[corrections] = np.stack([stance_ground + result.y, result.xdot], axis=-1).reshape(-1, 2)
         codes = np.atleast_1d(result.failure)
         failures[corrections] = [None if (f := failure_from_code(int(c))) is None else str(f) for c in codes]
@@ -396,10 +409,11 @@ def closed_loop_step(
     previous: npt.ArrayLike,
     planner: HopperParams | None = None,
 ) -> FloatArray:
-    """(..., 3) next (y, xdot, xdot_prev) of the analytic closed-loop stride map, the policy planning
-    with ``planner`` (default: the plant's ``params``); NaN where it fails."""
+    """(..., 3) next (y, xdot, xdot_prev) of the analytic closed-loop stride map (the policy's own,
+    ``analytic_map``), the policy planning with ``planner`` (default: the plant's ``params``); NaN where it
+    fails."""
     command = policy.commands(params if planner is None else planner, y, xdot, previous)
-    result = approximate_map(params, y, xdot, command, policy.corrections)
+    result = approximate_map(params, y, xdot, command, policy.corrections, speed=policy.speed)
     return np.stack(np.broadcast_arrays(result.y, result.xdot, np.asarray(xdot, dtype=float)), axis=-1)
 
 
@@ -558,6 +572,7 @@ def comparison_summary(comparison: Comparison) -> dict[str, Any]:
 
     return {
         "policy": None if comparison.policy is None else policy_summary(comparison.policy),
+        "analytic_map": comparison.analytic_map,
         "policy_reproduced": None if comparison.policy is None else comparison.policy_reproduced,
         "command_deviation_ratio": comparison.command_deviation,
         "prediction_errors": {

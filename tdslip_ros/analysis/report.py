@@ -43,6 +43,7 @@ from tdslip_ros.interfaces import (
     perturbation_parameters,
 )
 from tdslip_ros.model import units
+from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
 from tdslip_ros.model.policies import POLICIES, PolicySpec, settings_of
@@ -299,9 +300,11 @@ def failure_location(run: Run) -> dict[str, float] | None:
 def analyze(
     run: Run, out: Path, policy_overrides: dict[str, Any] | None = None, stride: int | None = None
 ) -> Analysis:
-    """Compare ``run``, write the summary JSON, the figures and the Markdown report into ``out``."""
+    """Compare ``run``, write the summary JSON, the figures and the Markdown report into ``out``. An
+    ``analytic_map`` among ``policy_overrides`` is the map of the predictions too, policy or none."""
     out.mkdir(parents=True, exist_ok=True)
-    comparison = compare_run(run, policy_for_run(run, **(policy_overrides or {})))
+    overrides = policy_overrides or {}
+    comparison = compare_run(run, policy_for_run(run, **overrides), overrides.get("analytic_map"))
     omitted = omitted_figures(run, stride)
     files = {name: out / f"{name}.png" for name in FIGURES if name not in omitted}
     drawers = {
@@ -366,6 +369,8 @@ _IN_PAPER_TERMS: dict[str, Callable[[HopperParams, float], str]] = {
     "target_energy": lambda params, value: f"Ebar {units.energy_to_bar(params, value):.4f}",
 }
 """What the report adds to a setting's SI value: the paper's dimensionless value (eq. 24), or degrees."""
+ANALYTIC_MAP_SPEEDS = {"energy": "from the energy balance", "liftoff": "the liftoff velocity of eq. 7"}
+"""The analytic maps' next apex speeds (analytic.SpeedSource) in words."""
 
 
 def policy_settings_text(policy: PolicySpec, params: HopperParams) -> str:
@@ -406,6 +411,14 @@ def _policy_text(comparison: Comparison) -> str:
     return f"policy {policy.name} ({detail}); {replay}"
 
 
+def _analytic_map_lines(comparison: Comparison) -> list[str]:
+    """The analytic map of the predictions, said where it is not ours (the default)."""
+    if comparison.analytic_map == DEFAULT_ANALYTIC_MAP:
+        return []
+    speed = ANALYTIC_MAPS[comparison.analytic_map]
+    return [f"analytic map: {comparison.analytic_map} (next apex speed: {ANALYTIC_MAP_SPEEDS[speed]})"]
+
+
 def _fixed_point_row(
     label: str, params: HopperParams, fixed: FixedPoint | None, converged: bool = True
 ) -> str:
@@ -429,6 +442,7 @@ def headline(comparison: Comparison) -> str:
         f"(kbar {params.kbar:.4g}, zeta0 {params.zeta0:.4g}; {run.params_source})",
         *_perturbation_lines(run),
         _policy_text(comparison),
+        *_analytic_map_lines(comparison),
         f"next-apex prediction error, dimensionless, over {comparison.exact_errors.strides} strides:",
         f"  {'':<30} {'height max':>10} {'mean':>9} {'speed max':>10} {'mean':>9}",
     ]

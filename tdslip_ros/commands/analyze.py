@@ -1,6 +1,8 @@
-"""``tdslip analyze RUN [--out DIR]``: compare a recorded run with the analytic map, write the summary JSON,
-the figures and the report (:mod:`tdslip_ros.analysis.report`), and print the headline numbers. Policy
-options outside their domain are refused before anything is read."""
+"""``tdslip analyze RUN [--out DIR] [--map ours|paper]``: compare a recorded run with the analytic map, write
+the summary JSON, the figures and the report (:mod:`tdslip_ros.analysis.report`), and print the headline
+numbers. ``--map`` is the analytic map of the predictions and of the policy's replay and closed loop (default:
+the recorded controller's ``analytic_map``, else ours). Policy options outside their domain are refused before
+anything is read."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from pathlib import Path
 
 from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
-from tdslip_ros.commands.options import add_touchdown_angle, command_parser
+from tdslip_ros.commands.options import add_analytic_map, add_touchdown_angle, command_parser
 from tdslip_ros.model.policies import POLICIES, PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
@@ -59,6 +61,11 @@ def parser() -> argparse.ArgumentParser:
     policy.add_argument(
         "--corrections", type=int, help=f"analytic-map corrections the controller planned with ({recorded})"
     )
+    add_analytic_map(
+        policy,
+        what="; the per-stride predictions, the policy's replay and its closed loop use it",
+        unset="the recording's, else ours",
+    )
     return parser
 
 
@@ -99,6 +106,7 @@ def main(argv: list[str]) -> int:
         "pd_kp": args.pd_kp,
         "pd_kd": args.pd_kd,
         "corrections": args.corrections,
+        "analytic_map": args.map,
     }
     created = not out.exists()
     try:  # usage errors: exit status 2, as argparse's
