@@ -11,7 +11,15 @@ from pathlib import Path
 import pytest
 
 from tdslip_ros.commands import cli
-from tdslip_ros.nodes.runner import RunReport
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.nodes.runner import (
+    RunOptionError,
+    RunOptions,
+    RunReport,
+    check_options,
+    controller_overrides,
+    run_custom_data,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -144,6 +152,17 @@ def test_a_failing_command_leaves_the_file_system_as_it_found_it(
     one_line_error(capsys, arguments[0])
     assert _tree(tmp_path) == before
     assert not Path("/proc/x").exists()
+
+
+def test_run_hands_its_analytic_map_to_the_controller_and_stores_it(tmp_path: Path) -> None:
+    options = RunOptions(out=tmp_path / "run", analytic_map="paper")
+    check_options(options)
+    assert controller_overrides(options, PAPER_PARAMS)["analytic_map"] == "paper"
+    assert "tdslip_ros.controller.analytic_map=paper" in run_custom_data(options, PAPER_PARAMS).split()
+    # Not given: the installed controller parameters' (ours, as declared).
+    assert controller_overrides(RunOptions(out=tmp_path / "run"), PAPER_PARAMS)["analytic_map"] is None
+    with pytest.raises(RunOptionError, match="analytic map must be one of ours, paper, not 'papr'"):
+        check_options(RunOptions(out=tmp_path / "run", analytic_map="papr"))
 
 
 def test_a_misspelt_subcommand_gets_the_closest_name(capsys: pytest.CaptureFixture[str]) -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 from tdslip_msgs.msg import ApexEvent
 
 from tdslip_ros.commands.options import (
+    add_analytic_map,
     add_initial_apex,
     add_touchdown_angle,
     command_parser,
@@ -122,6 +123,9 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         help="deadbeat/pd target apex speed [m/s] (default: config/controller.yaml's, 5)",
     )
+    add_analytic_map(
+        parser, what=", the one the policy plans on", unset="config/controller.yaml's analytic_map, ours"
+    )
     parser.add_argument(
         "--timeout",
         type=float,
@@ -226,6 +230,7 @@ def main(argv: list[str]) -> int:
         target_energy=args.target_energy,
         target_height=args.target_height,
         target_speed=args.target_speed,
+        analytic_map=args.map,
         command_timeout=args.timeout,
         realtime_priority=args.realtime_priority,
         record_clock=args.record_clock,

@@ -61,6 +61,7 @@ from tdslip_ros.interfaces import (
     resolve,
 )
 from tdslip_ros.model import dynamics
+from tdslip_ros.model.analytic import ANALYTIC_MAPS
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
@@ -119,6 +120,8 @@ class RunOptions:
     target_energy: float | None = None
     target_height: float | None = None
     target_speed: float | None = None
+    analytic_map: str | None = None
+    """The analytic map the controller's policy plans on (model.analytic.ANALYTIC_MAPS: ours, paper)."""
     command_timeout: float | None = None
     realtime_priority: int | None = None
     """SCHED_FIFO priority of the realtime plant's tick thread (0: normal scheduling)."""
@@ -291,6 +294,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
         "target_energy": target_energy,
         "target_height": options.target_height,
         "target_speed": options.target_speed,
+        "analytic_map": options.analytic_map,
     }
 
 
@@ -334,6 +338,10 @@ def check_options(options: RunOptions) -> None:
         raise RunOptionError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
     if options.policy not in POLICIES:
         raise RunOptionError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
+    if options.analytic_map is not None and options.analytic_map not in ANALYTIC_MAPS:
+        raise RunOptionError(
+            f"analytic map must be one of {', '.join(ANALYTIC_MAPS)}, not {options.analytic_map!r}"
+        )
     try:
         perturbation_parameters(options.perturbations)  # per-lane values have no node parameters
     except ParameterError as error:
