@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import approximate_map, speed_from_energy
+from tdslip_ros.model.analytic import ANALYTIC_MAPS, approximate_map, speed_from_energy
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, NoCommandError, ParamArrays
 from tdslip_ros.model.controllers import (
     admissible_angles,
@@ -336,8 +336,10 @@ def test_every_policy_is_served_by_its_spec() -> None:
         "pd_kd": 0.03,
     }
     for name in POLICIES:
-        command = PolicySpec.of(name, values).commands(PARAMS, 1.1, 4.5, 4.5).command()
-        assert 0.0 < command.touchdown_angle < np.pi / 2 and command.t_f > 0.0
+        for analytic_map in ANALYTIC_MAPS:  # on either analytic map
+            spec = PolicySpec.of(name, values | {"analytic_map": analytic_map})
+            command = spec.commands(PARAMS, 1.1, 4.5, 4.5).command()
+            assert 0.0 < command.touchdown_angle < np.pi / 2 and command.t_f > 0.0
 
 
 # --- leg placement: one test, shared by the policies and the plant ------------------------------------
