@@ -4,12 +4,15 @@ Each row is one claim or figure of the paper: the paper's value, ours on the ana
 plant, the command that reproduces ours, and where they differ a pointer to the explanation in
 docs/paper.md (which shows the exact-plant evidence). Our values are read from the figure documents of the
 same run (their JSON), so a row needs its figures computed; rows whose figures were not are listed with
-the command that computes them. Three rows compute their own small numbers (the open-loop t_f at alpha = 1,
-the analytic map's prediction error on the accuracy grids, and its accuracy domain, a few seconds).
+the command that computes them. Some rows compute their own small numbers from the model (the open-loop t_f
+at alpha = 1, the analytic map's prediction error on the accuracy grids and its accuracy domain, the
+convergence of its corrections, the solutions of eq. 27, the first strides of fig. 10's starts; a few
+seconds). FIGURE_PARAMETERS says which parameters each figure uses and which of them the paper gives.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -17,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from tdslip_ros.model import analytic_accuracy, units
+from tdslip_ros.model import analytic_accuracy, stability, units
 from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.analytic_accuracy import Quantity
 from tdslip_ros.model.controllers import fixed_power
@@ -193,19 +196,6 @@ def _ground_reaction(documents: Documents) -> tuple[str, str]:
     )
 
 
-def _prediction_error(params: HopperParams) -> tuple[str, str]:
-    exact = analytic_accuracy.exact_strides(params, analytic_accuracy.OPERATING_GRID)
-    accuracy = analytic_accuracy.accuracy(params, exact, corrections=1)
-    analytic = (
-        f"mean {100 * accuracy.mean_height_error:.2f} % (height), "
-        f"{100 * accuracy.mean_speed_error:.2f} % (speed); "
-        f"max {100 * accuracy.max_height_error:.1f} %, {100 * accuracy.max_speed_error:.1f} %; "
-        f"the paper's eq. 7 speed: mean {100 * accuracy.mean_liftoff_speed_error:.2f} %, "
-        f"max {100 * accuracy.max_liftoff_speed_error:.1f} %"
-    )
-    return analytic, f"truth: the exact plant, {accuracy.lanes} strides of the operating grid"
-
-
 def _accuracy_domain(params: HopperParams) -> tuple[str, str]:
     """Per map and quantity, the compressions up to which every stride of the fine domain grid errs less
     than 5 %, over the touchdown angles where the least compressed stride does (docs/paper.md has 1 %)."""
@@ -229,6 +219,336 @@ def _accuracy_domain(params: HopperParams) -> tuple[str, str]:
         f"truth: the exact plant, {compared.size} strides, {degrees.min():g}-{degrees.max():g} deg, "
         f"compression {compared.min():.2f}-{compared.max():.2f}",
     )
+
+
+@functools.cache
+def _operating_strides(params: HopperParams) -> analytic_accuracy.ExactStrides:
+    """The exact plant on the operating grid (two rows read it)."""
+    return analytic_accuracy.exact_strides(params, analytic_accuracy.OPERATING_GRID)
+
+
+def _prediction_error(params: HopperParams) -> tuple[str, str]:
+    accuracy = analytic_accuracy.accuracy(params, _operating_strides(params), corrections=1)
+    analytic = (
+        f"mean {100 * accuracy.mean_height_error:.2f} % (height), "
+        f"{100 * accuracy.mean_speed_error:.2f} % (speed); "
+        f"max {100 * accuracy.max_height_error:.1f} %, {100 * accuracy.max_speed_error:.1f} %; "
+        f"the paper's eq. 7 speed: mean {100 * accuracy.mean_liftoff_speed_error:.2f} %, "
+        f"max {100 * accuracy.max_liftoff_speed_error:.1f} %"
+    )
+    return analytic, f"truth: the exact plant, {accuracy.lanes} strides of the operating grid"
+
+
+def _corrections(params: HopperParams) -> tuple[str, str]:
+    """II.D: the corrections iterated to convergence on the operating grid (and the fine domain grid): the
+    iterations, and how far one correction's next apex lies from the converged one's; then each against the
+    exact plant."""
+    operating = analytic_accuracy.correction_convergence(params, analytic_accuracy.OPERATING_GRID)
+    domain = analytic_accuracy.correction_convergence(params, analytic_accuracy.FINE_DOMAIN_GRID)
+
+    def iterations(found: analytic_accuracy.CorrectionConvergence) -> str:
+        done = found.iterations[found.iterations > 0]
+        span = f" in {done.min()}-{done.max()}" if done.size else ""
+        return f"{done.size} of {found.iterations.size}{span}"
+
+    analytic = (
+        f"converge: {iterations(operating)} iterations (operating grid), {iterations(domain)} (domain grid); "
+        f"1 vs converged: height {100 * np.nanmax(operating.height_change):.2f} %, "
+        f"speed {100 * np.nanmax(operating.speed_change):.2f} % at most"
+    )
+    errors = [
+        analytic_accuracy.accuracy(params, _operating_strides(params), corrections)
+        for corrections in (0, 1, analytic_accuracy.CORRECTION_LIMIT)
+    ]
+    exact = "mean error, height / speed: " + "; ".join(
+        f"{name} {100 * found.mean_height_error:.2f} / {100 * found.mean_speed_error:.2f} %"
+        for name, found in zip(("none", "1 correction", "converged"), errors, strict=True)
+    )
+    return analytic, exact
+
+
+EQ27_BETAS_DEG = (20.0, 22.0, 24.0, 26.0, 28.0, 30.0, 32.0)
+EQ27_ALPHAS = tuple(float(alpha) for alpha in np.linspace(0.5, 2.5, 11))
+EQ27_HEIGHTS = 20
+"""The grid on which the solutions of eq. 27 are counted: fig. 5's angles and powers, EQ27_HEIGHTS apex
+heights per angle (stability.height_grid), energies stability.EQ27_SCAN."""
+
+
+def _eq27_solutions(params: HopperParams) -> tuple[str, str]:
+    counts, falls, betas = [], 0, []
+    for beta_deg in EQ27_BETAS_DEG:
+        beta = math.radians(beta_deg)
+        count, last = stability.energy_fixed_point_count(
+            params,
+            beta,
+            np.array(EQ27_ALPHAS)[:, None],
+            stability.height_grid(params, beta, points=EQ27_HEIGHTS)[None, :],
+        )
+        counts.append(count.ravel())
+        falls += int(np.sum((count == 0) & (last > 0)))
+        if np.any(count == 0):
+            betas.append(beta_deg)
+    found = np.concatenate(counts)
+    none = int(np.sum(found == 0))
+    why = "all" if falls == none else f"{falls}"
+    where = f" (beta {_span(betas)} deg; {why} where the map fails before E' falls to E)"
+    return (
+        f"exactly 1 at {int(np.sum(found == 1))} of {found.size} (alpha, y), beta "
+        f"{EQ27_BETAS_DEG[0]:g}-{EQ27_BETAS_DEG[-1]:g} deg; none at {none}{where if none else ''}; "
+        f"2 or more at {int(np.sum(found >= 2))}",
+        "-",
+    )
+
+
+def _fig05_counts(documents: Documents) -> tuple[str, str]:
+    """III.B: how many fixed points each (beta, alpha) cell of fig. 5 has, and how many of them are stable."""
+    data = documents["fig05"]
+
+    def counted(prefix: str) -> str:
+        count = np.array(data[f"{prefix}fixed_point_count"])
+        stable = np.array(data[f"{prefix}stable_fixed_point_count"])
+        three = count >= 3
+        pattern = np.sum(three & (stable == 2) & (count == 3))
+        return (
+            f"1 in {np.sum(count == 1)} of {count.size} cells; 3 in {np.sum(three)} ({pattern} of them 2 "
+            f"stable + 1 unstable); 2 in {np.sum(count == 2)}; none in {np.sum(count == 0)}"
+        )
+
+    return counted(""), counted("exact_")
+
+
+def _fig05_beta_band(documents: Documents) -> tuple[str, str]:
+    """III.B: at each alpha of fig. 5, the cells with a fixed point but no stable one, below and above the
+    touchdown angles with a stable one."""
+    data = documents["fig05"]
+    betas, alphas = np.array(data["beta_deg"]), np.array(data["alpha"])
+
+    def band(prefix: str) -> str:
+        count = np.array(data[f"{prefix}fixed_point_count"])
+        stable = np.array(data[f"{prefix}stable_fixed_point_count"]) > 0
+        unstable = (count > 0) & ~stable
+        below = above = columns = 0
+        for column in range(alphas.size):
+            rows = np.flatnonzero(stable[:, column])
+            if rows.size == 0:
+                continue
+            columns += 1
+            below += bool(unstable[: rows.min(), column].any())
+            above += bool(unstable[rows.max() + 1 :, column].any())
+        first, last = (np.flatnonzero(stable[:, column]) for column in (0, alphas.size - 1))
+
+        def ends(rows: np.ndarray) -> str:
+            return _span(betas[rows]) if rows.size else "none"
+
+        return (
+            f"stable beta {ends(first)} deg at alpha {alphas[0]:g}, {ends(last)} at {alphas[-1]:g}; unstable "
+            f"below them at {below}, above at {above} of {columns} alphas"
+        )
+
+    return band(""), band("exact_")
+
+
+def _span(values: Any, digits: int = 0) -> str:
+    """'low-high' of some values, or the one value."""
+    low, high = (
+        f"{value:.{digits}f}" if digits else f"{value:g}" for value in (np.min(values), np.max(values))
+    )
+    return low if low == high else f"{low}-{high}"
+
+
+def _stable_alphas(points: dict[str, Any]) -> str:
+    alphas = np.array(points["parameter"])
+    stable = np.array(points["stable"], dtype=bool).any(axis=1)
+    return f"{alphas[stable].min():.2f}-{alphas[stable].max():.2f}" if stable.any() else "none"
+
+
+def _three_alphas(points: dict[str, Any]) -> str:
+    alphas = np.array(points["parameter"])
+    three = np.sum(np.isfinite(np.array(points["ybar"], dtype=float)), axis=1) >= 3
+    return f"{alphas[three].min():.2f}-{alphas[three].max():.2f}" if three.any() else "nowhere"
+
+
+def _saddle_nodes(documents: Documents) -> tuple[str, str]:
+    """Fig. 6a: the saddle-nodes bounding the three fixed points, and where a fixed point is stable."""
+    panel = documents["fig06"]["a"]
+    nodes = ", ".join(f"{alpha:.3f}" for alpha in panel["saddle_node_alpha"]) or "none"
+    step = panel["parameter"][1] - panel["parameter"][0]
+    return (
+        f"saddle-nodes at alpha {nodes}; 3 fixed points at {_three_alphas(panel)}; "
+        f"stable for alpha {_stable_alphas(panel)} only",
+        f"3 fixed points at alpha {_three_alphas(panel['exact'])} (step {step:.2f}); "
+        f"stable for alpha {_stable_alphas(panel['exact'])} only",
+    )
+
+
+def _fig07_speed(documents: Documents) -> tuple[str, str]:
+    """Fig. 7 (b), (c): the runs from the two crosses, and the eigenvalues of their fixed points."""
+    data = documents["fig07"]
+    analytic = data["analytic"]
+    alphas = np.array(analytic["parameter"])
+    exact = data["exact_by_eigenvalue"]["open_loop"]
+    exact_alphas = np.array(exact["parameter"])
+
+    def most_stable(points: dict[str, Any], row: int) -> tuple[float, float]:
+        radius = np.array(points["spectral_radius"], dtype=float)[row]
+        radius = np.where(np.isfinite(radius), radius, np.inf)
+        column = int(np.argmin(radius))
+        return float(np.array(points["ybar"], dtype=float)[row, column]), float(radius[column])
+
+    analytic_parts, exact_parts = [], []
+    for run in data["runs"]:
+        y, r = most_stable(analytic, int(np.argmin(np.abs(alphas - run["alpha"]))))
+        analytic_parts.append(f"alpha {run['alpha']:g}: |lambda| {r:.2f} (ybar* {y:.2f})")
+        _, exact_r = most_stable(exact, int(np.argmin(np.abs(exact_alphas - run["alpha"]))))
+        if run["convergence_stride"] >= 0:
+            exact_parts.append(f"alpha {run['alpha']:g} settles at stride {run['convergence_stride']}")
+        else:
+            change = np.maximum(np.abs(np.diff(run["ybar"])), np.abs(np.diff(run["xdotbar"])))
+            rate = (change[-1] / change[-51]) ** (1 / 50)
+            exact_parts.append(
+                f"alpha {run['alpha']:g} not in {data['strides']}: its change shrinks {rate:.3f} per stride "
+                f"(|lambda| {exact_r:.3f})"
+            )
+    return "; ".join(analytic_parts), "; ".join(exact_parts)
+
+
+REALISTIC_YBAR = 1.1
+"""Open-loop fixed points below this apex height are the paper's realistic family (ii)."""
+
+
+def _fig07_basin(documents: Documents) -> tuple[str, str]:
+    """Fig. 7: lanes settled on the realistic fixed points, and at the alphas where those are the exact
+    plant's only (stable) ones, the lanes that end within 0.01 of them after the run."""
+    data = documents["fig07"]
+    analytic = data["analytic"]
+    y = np.array(analytic["ybar"], dtype=float)
+    stable = np.array(analytic["stable"], dtype=bool)
+    radius = np.array(analytic["spectral_radius"], dtype=float)[stable & (y < REALISTIC_YBAR)]
+    settled_y = np.array(data["exact_fixed_ybar"], dtype=float)
+    settled = np.sum(settled_y < REALISTIC_YBAR)
+    exact = data["exact_by_eigenvalue"]["open_loop"]
+    exact_y = np.array(exact["ybar"], dtype=float)
+    exact_stable = np.array(exact["stable"], dtype=bool)
+    only = (np.sum(np.isfinite(exact_y), axis=1) == 1) & exact_stable.any(axis=1)
+    only &= np.nanmax(exact_y, axis=1, initial=-np.inf, where=np.isfinite(exact_y)) < REALISTIC_YBAR
+    alphas = np.array(data["alpha"])[only]
+    star = np.nanmax(np.where(np.isfinite(exact_y), exact_y, -np.inf), axis=1)[only]
+    last = np.array(data["last_ybar"], dtype=float)[only]
+    near = np.abs(last - star[:, None]) < 0.01
+    exact_radius = np.array(exact["spectral_radius"], dtype=float)[only, 0]
+    return (
+        f"stable fixed points below ybar {REALISTIC_YBAR}: |lambda| {radius.min():.3f}-{radius.max():.3f}"
+        if radius.size
+        else "no stable fixed point below ybar 1.1",
+        f"{settled} lanes settle on them in {data['strides']} strides; at alpha "
+        f"{alphas.min():.2f}-{alphas.max():.2f} (|lambda| {exact_radius.min():.2f}-{exact_radius.max():.2f}) "
+        f"{near.sum()} of {near.size} end within 0.01 of them"
+        if alphas.size
+        else f"{settled} lanes settle on them in {data['strides']} strides",
+    )
+
+
+def _real(value: Any) -> float:
+    """The real part of an eigenvalue as a figure holds it (complex) or its JSON document does ([re, im],
+    null for NaN)."""
+    if isinstance(value, complex):
+        return value.real
+    return math.nan if value is None or value[0] is None else float(value[0])
+
+
+def _regulated_unstable(documents: Documents) -> tuple[str, str]:
+    """Figs 9, 10: per angle, the most fixed points at one energy, the energies of the unstable ones and the
+    largest eigenvalue (a saddle-node needs one at +1)."""
+    panels = [
+        (documents["fig08"]["beta_22"]["fixed_points"], "22"),
+        (documents["fig10"]["analytic"] | {"exact": documents["fig10"]["exact_by_eigenvalue"]}, "26"),
+        (documents["fig08"]["beta_30"]["fixed_points"], "30"),
+    ]
+
+    def summary(points: dict[str, Any], beta: str) -> tuple[int, float, int, str]:
+        y = np.array(points["ybar"], dtype=float)
+        eigenvalue = np.array([[_real(values[0]) for values in row] for row in points["eigenvalues"]])
+        saddles = int(np.sum(eigenvalue >= 1.0))
+        energies = np.array(points["parameter"])[np.any(eigenvalue <= -1.0, axis=1)]
+        flips = f"{beta} deg: Ebar >= {energies.min():.2f}" if energies.size else ""
+        return int(np.sum(np.isfinite(y), axis=1).max()), float(np.nanmax(eigenvalue)), saddles, flips
+
+    def cell(exact: bool) -> str:
+        found = [summary(points["exact"] if exact else points, beta) for points, beta in panels]
+        flips = "; ".join(flips for *_, flips in found if flips) or "none"
+        return (
+            f"at most {max(most for most, *_ in found)} per Ebar; lambda >= 1 at "
+            f"{sum(saddles for _, _, saddles, _ in found)}; largest "
+            + " / ".join(f"{largest:.2f}" for _, largest, *_ in found)
+            + f" (22 / 26 / 30 deg); flips: {flips}"
+        )
+
+    return cell(False), cell(True)
+
+
+def _fig10_basin(documents: Documents) -> tuple[str, str]:
+    data = documents["fig10"]
+    counts = data["outcome_counts"]
+    lanes = sum(counts.values())
+    analytic_count = np.sum(np.isfinite(np.array(data["analytic"]["ybar"], dtype=float)), axis=1)
+    analytic = (
+        f"{analytic_count.max()} fixed point per Ebar, stable"
+        if np.all(np.array(data["analytic"]["stable"], dtype=bool)[analytic_count > 0].any(axis=1))
+        else f"at most {analytic_count.max()} fixed points per Ebar"
+    )
+    others = ", ".join(
+        f"{count} {name.replace('_', ' ')}" for name, count in counts.items() if count and name != "converged"
+    )
+    return (
+        analytic + ": no unstable one bounds the basin",
+        f"{counts['converged']} of {lanes} starts converge; the others: {others}",
+    )
+
+
+def _fig10_cavities(documents: Documents, params: HopperParams) -> tuple[str, str]:
+    """Fig. 10's cavities: the exact plant's leg-placement failures (the apex they fail from against
+    r0 cos beta), and the starts whose first stride the analytic map sends below it."""
+    data = documents["fig10"]
+    beta = math.radians(data["beta_deg"])
+    energy = units.energy_from_bar(params, np.array(data["Ebar0"]))[:, None]
+    y0 = units.height_from_bar(params, np.array(data["ybar0"]))[None, :]
+    below = stability.regulated_height_map(params, beta, energy, y0) < stability.lowest_height(params, beta)
+    outcome = np.array(data["outcome"])
+    cavity = outcome == "toe_stubbing"
+    energies = np.array(data["Ebar0"])
+
+    def where(mask: np.ndarray) -> str:
+        rows = np.flatnonzero(mask.any(axis=1))
+        return f"Ebar {_span(energies[rows], 1)}" if rows.size else "nowhere"
+
+    failed_from = np.array(data["failed_from_ybar"], dtype=float)[cavity]
+    strides = np.array(data["failure_stride"])[cavity] + 1
+    lowest = float(units.height_to_bar(params, stability.lowest_height(params, beta)))
+    return (
+        f"1st stride below r0 cos(beta) from {below.sum()} starts ({where(below)}), "
+        f"{np.sum(below & cavity)} of them exact cavities",
+        f"{cavity.sum()} starts ({where(cavity)}) fail at stride {_span(strides)} from ybar "
+        f"{failed_from.min():.3f}-{failed_from.max():.4f}, {np.sum(failed_from < lowest)} below the "
+        f"placement height {lowest:.4f}"
+        if cavity.any()
+        else "no leg-placement failure",
+    )
+
+
+def _tracking(documents: Documents) -> tuple[str, str]:
+    """Fig. 13: the target speeds each controller converges to, and its largest tracking errors there."""
+    data = documents["fig13"]
+    parts = []
+    for name in ("deadbeat", "pd"):
+        run = data[name]
+        stable = np.array(run["stable"], dtype=bool)
+        span = run["stable_xdotbar_range"]
+        where = _span(span) if span else "none"
+        speed = np.abs(np.array(run["speed_error_percent"], dtype=float)[stable])
+        height = np.abs(np.array(run["height_error_percent"], dtype=float)[stable])
+        errors = f", max error {speed.max():.2g} % speed, {height.max():.2g} % height" if stable.any() else ""
+        parts.append(f"{name}: xdotbar* {where} ({stable.sum()} of {stable.size}){errors}")
+    return "-", "; ".join(parts)
 
 
 def _speed_scale(params: HopperParams) -> tuple[str, str]:
@@ -304,6 +624,49 @@ ROWS: tuple[RowSpec, ...] = (
         lambda documents, params: _three_fixed_points(documents),
     ),
     (
+        "eq. 27 has exactly one solution E*(y) (III.A)",
+        "always a single solution",
+        (),
+        "eq-27",
+        lambda documents, params: _eq27_solutions(params),
+    ),
+    (
+        "fig. 5: one fixed point, but for a narrow region of two stable and one unstable (III.B)",
+        "generally a single fixed point, except a narrow parameter range with two stable and one unstable",
+        ("fig05",),
+        "fig-5",
+        lambda documents, params: _fig05_counts(documents),
+    ),
+    (
+        "fig. 5: fixed points unstable for beta too large or too small (III.B)",
+        "unstable once beta becomes either too large or too small",
+        ("fig05",),
+        "fig-5",
+        lambda documents, params: _fig05_beta_band(documents),
+    ),
+    (
+        "fig. 6a, beta = 26 deg: two saddle-nodes bound the three fixed points (III.B)",
+        "two saddle node bifurcations at the boundaries of the middle section; the single point unstable "
+        "outside",
+        ("fig06",),
+        "",
+        lambda documents, params: _saddle_nodes(documents),
+    ),
+    (
+        "fig. 7: fast convergence at alpha = 1, slow at alpha = 1.5 (III.B)",
+        "(b) fast and (c) slow convergence",
+        ("fig07",),
+        "",
+        lambda documents, params: _fig07_speed(documents),
+    ),
+    (
+        "fig. 7: the realistic fixed points' domain of attraction (III.B)",
+        '"only marginal stability with an extremely small domain of attraction"',
+        ("fig07",),
+        "fig-7-basin",
+        lambda documents, params: _fig07_basin(documents),
+    ),
+    (
         "open loop: t_f = the predicted liftoff time (II.D, III.A)",
         "t_f = t_lo",
         ("fig07",),
@@ -318,6 +681,27 @@ ROWS: tuple[RowSpec, ...] = (
         lambda documents, params: _fig10_match(documents),
     ),
     (
+        "figs 9, 10: unstable fixed points beside the stable ones, a saddle node at low energy (IV.B)",
+        "stable and unstable fixed points; a saddle node bifurcation at low energy levels",
+        ("fig08", "fig10"),
+        "unstable-fixed-points",
+        lambda documents, params: _regulated_unstable(documents),
+    ),
+    (
+        "fig. 10: the basin covers the region between the unstable and stable fixed points (IV.B)",
+        '"almost exactly covers the region between the unstable and stable fixed points"',
+        ("fig10",),
+        "unstable-fixed-points",
+        lambda documents, params: _fig10_basin(documents),
+    ),
+    (
+        "fig. 10: its cavities come from the leg-placement gap (IV.B)",
+        "apex too low to place the leg at beta; reproduced by the approximations and the plant",
+        ("fig10",),
+        "unstable-fixed-points",
+        _fig10_cavities,
+    ),
+    (
         "convergence of the regulated exact plant (IV.B)",
         "at most ~8 strides from most initial conditions",
         ("fig10",),
@@ -330,6 +714,14 @@ ROWS: tuple[RowSpec, ...] = (
         ("fig13",),
         "deadbeat-edge",
         lambda documents, params: _deadbeat_edge(documents),
+    ),
+    (
+        "fig. 13: deadbeat reaches more target speeds and tracks better than the PD baseline (ours, not ref. "
+        "36's) (V.B)",
+        "a significantly wider range of velocity goals; better tracking of apex speed and height",
+        ("fig13",),
+        "fig-13",
+        lambda documents, params: _tracking(documents),
     ),
     (
         "fig. 12: TD-SLIP's GRF and virtual footfalls at 3 m/s against the SLIP's (IV.D)",
@@ -353,8 +745,77 @@ ROWS: tuple[RowSpec, ...] = (
         "accuracy-domain",
         lambda documents, params: _accuracy_domain(params),
     ),
+    (
+        "corrections (eqs. 19-22) converge; one iteration suffices (II.D)",
+        "convergence for all but the most extreme initial conditions; a single iteration usually "
+        "sufficiently accurate",
+        (),
+        "",
+        lambda documents, params: _corrections(params),
+    ),
     ("xdotbar = 1.5 (IV.B)", "about 4.7 m/s", (), "", lambda documents, params: _speed_scale(params)),
 )
+
+
+FIGURE_PARAMETERS: tuple[tuple[str, str, str], ...] = (
+    (
+        "fig. 4",
+        "kbar 36, zeta0 0.08, m 80 kg, r0 1 m; beta 26 deg; (a) alpha 1.5, (b) alpha 1-2, (c) alpha 0.5-2.5",
+        "beta 26 deg, alpha 1.5 for (a); m 80 kg and r0 1 m (III.A); not kbar or zeta0",
+    ),
+    (
+        "fig. 5",
+        "kbar 36, zeta0 0.08; beta 20-32 deg, alpha 0.5-2.5",
+        "beta in [20, 32] deg, alpha in [0.5, 2.5]; not kbar or zeta0",
+    ),
+    (
+        "fig. 6",
+        "kbar 36, zeta0 0.08; beta 26 and 32 deg, alpha 0.5-2.5",
+        "beta 26 and 32 deg; not kbar or zeta0",
+    ),
+    (
+        "fig. 7",
+        "kbar 36, zeta0 0.08; beta 26 deg; alpha 0.5-2.5, ybar0 from cos(beta) to 2.4 on E*(y0); 150 "
+        "strides; crosses (alpha, ybar0) (1, 2.0), (1.5, 1.05)",
+        "beta 26 deg, 150 strides, alpha 1 and 1.5 for (b), (c); not kbar, zeta0, the grid or the crosses' "
+        "heights",
+    ),
+    (
+        "figs 8, 9",
+        "kbar 36, zeta0 0.08; beta 22 and 30 deg; Ebar 1-8",
+        "all of them (the captions; m and r0 in III.A)",
+    ),
+    (
+        "fig. 10",
+        "kbar 36, zeta0 0.08; beta 26 deg; Ebar 2-6; ybar0 from cos(beta) to 2.4; 50 strides, tolerance 1e-4",
+        "all but the grid of initial heights (the caption and IV.B; m and r0 in III.A)",
+    ),
+    (
+        "fig. 11",
+        "beta 20-30 deg, kbar 20-52, zeta0 0.04-0.16; the others kept at 26 deg, 36, 0.08",
+        "none: neither the values varied nor those kept constant (the text quotes the ranges at 20 and 30 "
+        "deg)",
+    ),
+    (
+        "fig. 12",
+        "m 65.4 kg, r0 1 m, 3.0 m/s; kbar 36, zeta0 0.08; TD-SLIP at beta 17 deg",
+        "m 65.4 kg, r0 1 m, about 3 m/s; not kbar, zeta0 or beta (tuned by hand)",
+    ),
+    (
+        "fig. 13",
+        "kbar 36, zeta0 0.08; from ybar 1 at 5 m/s to ybar* 1, xdotbar* 0.5-3; 50 strides; our PD baseline",
+        "50 steps; the parameters of IV.B (so kbar 36, zeta0 0.08 by reference); not the start, the target "
+        "height or ref. 36's gains",
+    ),
+)
+"""Per figure: the parameters it uses here, and which of them the paper gives."""
+
+
+def parameters_markdown() -> str:
+    """FIGURE_PARAMETERS as Markdown (comparison.md; docs/paper.md quotes it)."""
+    lines = ["| figure | uses | the paper gives |", "|---|---|---|"]
+    lines += [f"| {figure} | {uses} | {given} |" for figure, uses, given in FIGURE_PARAMETERS]
+    return "\n".join(lines) + "\n"
 
 
 def rows(documents: Documents, params: HopperParams) -> list[Row]:

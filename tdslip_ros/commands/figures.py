@@ -118,7 +118,9 @@ def main(argv: list[str]) -> int:
         precompute(names, resolution, speed, where_of(args))
         documents = {name: write_figure(name, args.out, resolution, speed) for name in names}
         table = paper_comparison.rows(documents, PARAMS)
-        (args.out / "comparison.md").write_text(paper_comparison.markdown(table))
+        (args.out / "comparison.md").write_text(
+            paper_comparison.markdown(table) + "\n" + paper_comparison.parameters_markdown()
+        )
     except (OutputError, engine.EngineError) as error:
         print(f"tdslip figures: {error}", file=sys.stderr)
         return 1

@@ -4,6 +4,10 @@ One stride per grid point (apex height, apex speed, touchdown angle, dimensionle
 lasts until the liftoff the analytic map predicts (:func:`controllers.ramp_to_liftoff`, as the paper's
 policies do). The exact plant (:func:`exact_map.apex_return_map`) is the truth.
 
+The corrections of eqs. 19-22 that the map applies once: :func:`correction_convergence` iterates them to
+convergence on a grid's strides, the paper's claim (II.D) that they converge but for extreme cases and
+that one iteration suffices.
+
 Two views of the same comparison: :func:`accuracy` sums the errors up over a grid; :func:`domain_errors`,
 :func:`domain_table` and :func:`boundaries` place them over the stance's maximum leg compression (measured on
 the exact plant) and the touchdown angle, the two axes of the paper's claim (II.C) that the map "remains
@@ -25,6 +29,7 @@ from tdslip_ros.model.arrays import Array, CommandArrays
 from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.events import failure_code
 from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.map_kernels import CORRECTION_TOLERANCE
 from tdslip_ros.model.params import ApexState, HopperParams
 
 
@@ -143,6 +148,57 @@ def accuracy(
         max_liftoff_speed_error=float(liftoff_speed.max()),
         failure_mismatches=int(np.sum(stride.ok != np.isfinite(exact_y))),
     )
+
+
+CORRECTION_LIMIT = 50
+"""The most corrections :func:`correction_convergence` applies (every stride of the grids here converges in
+at most 13)."""
+
+
+@dataclass(frozen=True)
+class CorrectionConvergence:
+    """The corrections of eqs. 19-22 iterated on a grid's strides, under the paper's ramp (t_f the liftoff of
+    the map with one correction), over the strides where that ramp exists (``index``: their places in
+    ``grid.points()``).
+
+    ``iterations``: the corrections after which p_hat changes by at most CORRECTION_TOLERANCE (relative),
+    the map's own stopping rule (-1: not within CORRECTION_LIMIT); ``height_change``, ``speed_change``:
+    |one/converged - 1| of the next apex, the map with one correction against the converged one (NaN where
+    either fails)."""
+
+    grid: StrideGrid
+    index: Array
+    iterations: Array
+    height_change: Array
+    speed_change: Array
+
+
+def correction_convergence(
+    params: HopperParams, grid: StrideGrid, limit: int = CORRECTION_LIMIT
+) -> CorrectionConvergence:
+    """The corrections iterated up to ``limit`` times on every stride of ``grid`` (the analytic map only)."""
+    points = np.array(grid.points())
+    tau0 = units.torque_from_bar(params, points[:, 3])
+    commands = ramp_to_liftoff(params, points[:, 0], points[:, 1], points[:, 2], tau0)
+    index = np.flatnonzero(np.isfinite(commands.t_f))
+    commands = CommandArrays(*(field[index] for field in commands))
+    y, xdot = points[index, 0], points[index, 1]
+    momentum = []
+    with np.errstate(invalid="ignore"):
+        for corrections in range(limit + 1):
+            stride = approximate_map(params, y, xdot, commands, corrections)
+            momentum.append(np.real(stride.stance.momentum))
+            if corrections == 1:
+                one = stride
+    change = np.abs(np.diff(momentum, axis=0))
+    with np.errstate(invalid="ignore"):
+        settled = change <= CORRECTION_TOLERANCE * np.abs(np.array(momentum[1:]))
+    iterations = np.where(settled.any(axis=0), np.argmax(settled, axis=0) + 1, -1)
+    both = one.ok & stride.ok
+    height_change, speed_change = np.full(index.size, np.nan), np.full(index.size, np.nan)
+    height_change[both] = np.abs(one.y[both] / stride.y[both] - 1.0)
+    speed_change[both] = np.abs(one.xdot[both] / stride.xdot[both] - 1.0)
+    return CorrectionConvergence(grid, index, iterations, height_change, speed_change)
 
 
 Quantity = Literal["height", "speed"]

@@ -212,6 +212,40 @@ def energy_fixed_point(
     return _bracketed_newton(_complex_step(residual), lower, upper, np.ones_like(lower)).reshape(shape)
 
 
+EQ27_SCAN = np.geomspace(1e-3, 30.0, 200)
+"""Dimensionless kinetic apex energies Ebar - ybar on which :func:`energy_fixed_point_count` counts the
+solutions of eq. 27 (denser and wider than ENERGY_SCAN)."""
+
+
+def energy_fixed_point_count(
+    params: HopperParams,
+    beta: float,
+    alpha: ArrayLike,
+    y: ArrayLike,
+    scan: ArrayLike = EQ27_SCAN,
+    corrections: int = 1,
+    liftoff: LiftoffMethod = "paper",
+    *,
+    speed: SpeedSource = "energy",
+) -> tuple[Array, Array]:
+    """How many solutions E* eq. 27 has for broadcast arrays of alpha and apex heights y [m]: the sign changes
+    of E'(y, E) - E, either way, between neighbours of the kinetic energies ``scan`` (Ebar - ybar) where the
+    map has a stride (:func:`energy_fixed_point` polishes the first from + to -). Also returns, per (alpha,
+    y), the sign of E' - E at the highest energy with a stride (+1: the map fails before E' falls to E)."""
+    alpha_, y_ = np.broadcast_arrays(np.asarray(alpha, dtype=float), np.asarray(y, dtype=float))
+    energies = (units.height_to_bar(params, y_)[..., None] + np.asarray(scan)) * units.energy_scale(params)
+    with np.errstate(invalid="ignore"):
+        _, next_energy = open_loop_energy_map(
+            params, beta, alpha_[..., None], y_[..., None], energies, corrections, liftoff, speed=speed
+        )
+    gain = next_energy - energies
+    finite = np.isfinite(gain)
+    last = np.take_along_axis(
+        gain, (finite.shape[-1] - 1 - np.argmax(finite[..., ::-1], axis=-1))[..., None], -1
+    )
+    return np.sum(_sign_changes(gain), axis=-1), np.where(finite.any(axis=-1), np.sign(last[..., 0]), np.nan)
+
+
 def height_section(
     params: HopperParams,
     beta: float,

@@ -154,6 +154,7 @@ def fig07(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
         "outcome": [[basins.OUTCOMES[o] for o in row] for row in outcome],
         "convergence_stride": everything.convergence_stride[grid].reshape(alpha_grid.shape).tolist(),
         "exact_fixed_ybar": bar_height(exact_y).tolist(),
+        "last_ybar": bar_height(everything.history.y[-1, grid].reshape(alpha_grid.shape)).tolist(),
         "exact_by_eigenvalue": {
             regulator: fixed_points_json(points, alphas) for regulator, points in by_eigenvalue.items()
         },
@@ -196,6 +197,13 @@ def fig10_by_eigenvalue(resolution: Resolution) -> stability.FixedPoints:
         exact_stability.ExactLoop.of(PARAMS, beta, "energy", energies),
         stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
     )
+
+
+def _failed_from(history: basins.StrideHistory) -> Array:
+    """Per lane the apex height [m] of the stride that failed (NaN where none did)."""
+    stride = np.maximum(history.failure_stride, 0)
+    apex = np.take_along_axis(history.y, stride[None], axis=0)[0]
+    return np.where(history.failure_stride >= 0, apex, np.nan)
 
 
 def fig10(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
@@ -260,6 +268,8 @@ def fig10(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
         "ybar0": bar_height(heights).tolist(),
         "outcome": [[basins.OUTCOMES[o] for o in row] for row in exact.outcome],
         "convergence_stride": exact.convergence_stride.tolist(),
+        "failure_stride": exact.history.failure_stride.tolist(),
+        "failed_from_ybar": bar_height(_failed_from(exact.history)).tolist(),
         "outcome_counts": _outcome_counts(exact),
         "converged_within_8_strides": int(np.sum(converged & (exact.convergence_stride <= 8))),
         "exact_fixed_points": {

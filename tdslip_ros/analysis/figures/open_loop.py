@@ -137,12 +137,8 @@ def fig05(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
     betas = np.linspace(20.0, 32.0, resolution.betas)
     alphas = _fig05_alphas(resolution)
     radius = np.full((betas.size, alphas.size), np.nan)
-    height, energy, count, exact_count = (
-        np.full_like(radius, np.nan),
-        np.full_like(radius, np.nan),
-        np.zeros(radius.shape, int),
-        np.zeros(radius.shape, int),
-    )
+    height, energy = np.full_like(radius, np.nan), np.full_like(radius, np.nan)
+    count, stable_count, exact_count, exact_stable_count = (np.zeros(radius.shape, int) for _ in range(4))
     exists = np.zeros(radius.shape, dtype=bool)
     for row, beta_deg in enumerate(betas):
         reporter.stage(f"beta = {beta_deg:.1f} deg ({row + 1}/{betas.size}), analytic and exact plant")
@@ -153,8 +149,10 @@ def fig05(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
         height[row] = np.take_along_axis(bar_height(points.y), best, 1)[:, 0]
         energy[row] = np.take_along_axis(bar_energy(points.energy), best, 1)[:, 0]
         count[row] = points.count
+        stable_count[row] = np.sum(points.stable, axis=1)
         exists[row] = np.take_along_axis(check.exists, best, 1)[:, 0]
         exact_count[row] = check.exact.count
+        exact_stable_count[row] = np.sum(check.exact.stable, axis=1)
     figure = Figure(figsize=(15, 4.5))
     unstable = np.where(radius >= 1.0, 1.0, np.nan)
     panels = (
@@ -186,7 +184,9 @@ def fig05(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
         "ybar": height.tolist(),
         "Ebar": energy.tolist(),
         "fixed_point_count": count.tolist(),
+        "stable_fixed_point_count": stable_count.tolist(),
         "exact_fixed_point_count": exact_count.tolist(),
+        "exact_stable_fixed_point_count": exact_stable_count.tolist(),
         "most_stable_exists_on_exact_plant": exists.tolist(),
     }
     return figure, data

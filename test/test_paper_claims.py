@@ -1,0 +1,253 @@
+"""The claims table (paper_comparison.ROWS) against docs/paper.md and the paper's text, and the numbers of the
+claims of sections II.D-V measured again on tiny figure documents and on the model."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tdslip_ros.analysis import paper_comparison
+from tdslip_ros.analysis.figures import exact_basins, open_loop, regulated, tracking
+from tdslip_ros.analysis.figures.common import Reporter, Resolution
+from tdslip_ros.model import analytic_accuracy, stability, units
+from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.controllers import ramp_to_liftoff
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.reporting.output import to_json
+
+PARAMS = PAPER_PARAMS
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DOCS = REPO_ROOT / "docs" / "paper.md"
+PAPER_TEXT = Path(os.environ.get("TDSLIP_PAPER_TEXT", "/work/shared/paper/td-slip-energy-regulation-2010.md"))
+"""The paper's text (converted from the PDF; not part of the repository)."""
+NUMBER = re.compile(r"\d+(?:\.\d+)?")
+TINY = Resolution(
+    heights=24,
+    alphas=9,
+    betas=4,
+    basin_alphas=3,
+    basin_heights=3,
+    energies=8,
+    basin_energies=3,
+    speed_step=1.25,
+    exact_heights=16,
+    exact_energies=6,
+    bisections=2,
+)
+"""test_figures.TINY with four touchdown angles in fig05 (20, 24, 28, 32 deg), so that it has a band."""
+
+
+def _quiet() -> Reporter:
+    return Reporter("test", interval=math.inf)
+
+
+def _cells(line: str) -> list[str]:
+    return [cell.strip().replace("\\|", "|") for cell in re.split(r"(?<!\\)\|", line.strip().strip("|"))]
+
+
+def _docs_claims_table() -> dict[str, list[str]]:
+    """docs/paper.md's claims table: claim -> its cells."""
+    lines = DOCS.read_text().splitlines()
+    start = lines.index("| claim | paper | ours, analytic map | ours, exact plant | reproduce | explained |")
+    table = {}
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        cells = _cells(line)
+        table[cells[0]] = cells
+    return table
+
+
+def test_every_claim_of_the_comparison_is_a_row_of_the_docs_table_with_the_same_paper_cell() -> None:
+    table = _docs_claims_table()
+    for claim, paper, figures, explanation, _ in paper_comparison.ROWS:
+        assert claim in table, f"docs/paper.md's claims table lacks {claim!r}"
+        cells = table[claim]
+        assert cells[1] == paper, claim
+        assert cells[4] == f"`{paper_comparison.Row(claim, paper, '', '', figures, explanation).command}`"
+        if explanation:
+            assert f"(#{explanation})" in cells[5], claim
+    assert len(table) == len(paper_comparison.ROWS)
+
+
+def test_the_docs_quote_the_parameters_of_every_figure() -> None:
+    text = DOCS.read_text()
+    for line in paper_comparison.parameters_markdown().splitlines():
+        assert line in text
+
+
+@pytest.mark.skipif(not PAPER_TEXT.exists(), reason="the paper's text is not here")
+def test_the_paper_cells_hold_only_numbers_the_paper_prints() -> None:
+    printed = set(NUMBER.findall(PAPER_TEXT.read_text()))
+    for cells in _docs_claims_table().values():
+        for number in NUMBER.findall(cells[1]):
+            assert number in printed, f"{number} of {cells[1]!r} is not in the paper"
+    for _, paper, *_ in paper_comparison.ROWS:
+        assert set(NUMBER.findall(paper)) <= printed, paper
+
+
+def test_the_corrections_converge_on_every_stride_and_one_is_within_the_map_s_own_error() -> None:
+    """II.D on the operating grid: every stride converges (the map's own stopping rule, checked against the
+    kernel's count on single strides); one correction's next apex is within 0.5 % of the converged one's."""
+    found = analytic_accuracy.correction_convergence(PARAMS, analytic_accuracy.OPERATING_GRID)
+    assert found.index.size == len(analytic_accuracy.OPERATING_GRID.points())
+    assert np.all((found.iterations >= 3) & (found.iterations <= 13))
+    assert np.nanmax(found.height_change) < 0.005 and np.nanmax(found.speed_change) < 0.005
+    assert 1e-5 < np.nanmedian(found.height_change)  # one correction is not yet converged
+    points = np.array(analytic_accuracy.OPERATING_GRID.points())
+    commands = ramp_to_liftoff(
+        PARAMS, points[:, 0], points[:, 1], points[:, 2], units.torque_from_bar(PARAMS, points[:, 3])
+    )
+    for lane in (0, 50, 107):
+        command, most = commands.command(lane), analytic_accuracy.CORRECTION_LIMIT
+        stride = approximate_map(PARAMS, points[lane, 0], points[lane, 1], command, most)
+        assert stride.stance.corrections_done == found.iterations[lane]
+    analytic, exact = paper_comparison._corrections(PARAMS)
+    assert analytic.startswith("converge: 108 of 108 in ")
+    assert "1 correction 0.57 / 0.90 %" in exact
+
+
+def test_eq_27_has_one_solution_and_none_where_the_map_fails_first() -> None:
+    """III.A: at 26 deg exactly one sign change of E' - E along E, the root energy_fixed_point finds; at
+    20 deg none at some (alpha, y), where the map has no stride before E' falls to E."""
+    beta = math.radians(26.0)
+    alphas, heights = np.array([0.5, 1.5, 2.5])[:, None], stability.height_grid(PARAMS, beta, points=6)
+    count, last = stability.energy_fixed_point_count(PARAMS, beta, alphas, heights)
+    assert np.all(count == 1) and np.all(last < 0)
+    root = stability.energy_fixed_point(PARAMS, beta, alphas, heights)
+    assert np.all(np.isfinite(root))
+    count, last = stability.energy_fixed_point_count(
+        PARAMS,
+        math.radians(20.0),
+        np.array([0.5, 1.5, 2.5])[:, None],
+        stability.height_grid(PARAMS, math.radians(20.0), points=20),
+    )
+    assert set(count.ravel().tolist()) == {0, 1} and np.all(last[count == 0] > 0)
+    analytic, _ = paper_comparison._eq27_solutions(PARAMS)
+    assert "2 or more at 0" in analytic and "all where the map fails" in analytic
+
+
+@pytest.fixture(scope="module")
+def documents() -> dict[str, dict[str, Any]]:
+    """The figure documents the new rows read, at TINY (fig05 with four angles)."""
+    found = {}
+    for name, figure in (
+        ("fig05", open_loop.fig05),
+        ("fig06", open_loop.fig06),
+        ("fig07", exact_basins.fig07),
+        ("fig08", regulated.fig08),
+        ("fig10", exact_basins.fig10),
+        ("fig13", tracking.fig13),
+    ):
+        found[name] = figure(TINY, _quiet(), "energy")[1]
+    return found
+
+
+def test_fig05_three_fixed_points_are_two_stable_and_one_unstable_and_the_band_of_beta(
+    documents: dict[str, dict[str, Any]],
+) -> None:
+    data = documents["fig05"]
+    count, stable = np.array(data["fixed_point_count"]), np.array(data["stable_fixed_point_count"])
+    assert np.all(stable <= count) and np.all(np.array(data["exact_stable_fixed_point_count"]) <= 3)
+    assert np.any(count == 3) and np.any((count == 3) & (stable == 2))
+    # The most stable fixed point of fig05 is stable exactly where a cell has a stable one.
+    radius = np.array(data["spectral_radius"], dtype=float)
+    assert np.array_equal(stable > 0, radius < 1.0)
+    analytic, exact = paper_comparison._fig05_counts(documents)
+    assert re.match(r"1 in \d+ of 44 cells; 3 in \d+ \(\d+ of them 2 stable \+ 1 unstable\)", analytic)
+    analytic, exact = paper_comparison._fig05_beta_band(documents)
+    # At alpha 0.5 only 20 deg is stable; at 2.5 the steep angles; unstable on both sides in between.
+    assert analytic.startswith("stable beta 20 deg at alpha 0.5, 28-32 at 2.5; unstable below them at ")
+    below, above = (int(n) for n in re.findall(r"(?:below them|above) at (\d+)", analytic))
+    assert below > 0 and above > 0
+
+
+def test_fig06_saddle_nodes_bound_the_three_fixed_points(documents: dict[str, dict[str, Any]]) -> None:
+    panel = documents["fig06"]["a"]
+    low, high = panel["saddle_node_alpha"]
+    alphas = np.array(panel["parameter"])
+    three = alphas[np.sum(np.isfinite(np.array(panel["ybar"], dtype=float)), axis=1) == 3]
+    assert three.size and low < three.min() and three.max() < high
+    analytic, _ = paper_comparison._saddle_nodes(documents)
+    assert analytic.startswith(f"saddle-nodes at alpha {low:.3f}, {high:.3f}; 3 fixed points at ")
+
+
+def test_fig07_fast_at_alpha_1_slow_at_1_5_at_the_rate_of_its_eigenvalue(
+    documents: dict[str, dict[str, Any]],
+) -> None:
+    data = documents["fig07"]
+    fast, slow = data["runs"]
+    assert (fast["alpha"], slow["alpha"]) == (1.0, 1.5)
+    assert 0 <= fast["convergence_stride"] <= 30 and slow["convergence_stride"] == -1
+    _, exact = paper_comparison._fig07_speed(documents)
+    found = re.search(r"shrinks ([\d.]+) per stride \(\|lambda\| ([\d.]+)\)", exact)
+    assert found is not None
+    rate, radius = (float(x) for x in found.groups())
+    assert rate == pytest.approx(radius, abs=0.005) and 0.95 < radius < 1.0
+    assert np.array(data["last_ybar"]).shape == np.array(data["outcome"]).shape
+    analytic, exact = paper_comparison._fig07_basin(documents)
+    assert re.match(r"stable fixed points below ybar 1.1: \|lambda\| 0.9\d\d-0.9\d\d", analytic)
+    assert re.match(r"\d+ lanes settle on them in 150 strides", exact)
+
+
+def test_regulated_maps_have_no_unstable_fixed_point_below_the_flip(
+    documents: dict[str, dict[str, Any]],
+) -> None:
+    """Figs 9, 10: at most one fixed point per energy, no eigenvalue at +1 or above, unstable only by the
+    flip at high energy (22 deg)."""
+    analytic, exact = paper_comparison._regulated_unstable(documents)
+    for cell in (analytic, exact):
+        assert cell.startswith("at most 1 per Ebar; lambda >= 1 at 0; largest ")
+        found = re.search(r"largest ([-\d./ ]+) \(", cell)
+        assert found is not None
+        assert all(float(x) < 1.0 for x in found.group(1).split(" / "))
+    assert "22 deg: Ebar >= " in analytic
+
+
+def test_fig10_cavities_are_leg_placement_failures_and_the_basin_s_other_edges(
+    documents: dict[str, dict[str, Any]],
+) -> None:
+    data = documents["fig10"]
+    outcome = np.array(data["outcome"])
+    failed_from = np.array(data["failed_from_ybar"], dtype=float)
+    lowest = units.height_to_bar(PARAMS, stability.lowest_height(PARAMS, math.radians(data["beta_deg"])))
+    cavity = outcome == "toe_stubbing"
+    assert cavity.any() and np.all(failed_from[cavity] < lowest)
+    assert np.all(np.isnan(failed_from[np.isin(outcome, ["converged", "sustained"])]))
+    analytic, exact = paper_comparison._fig10_cavities(documents, PARAMS)
+    found = re.match(r"1st stride below r0 cos\(beta\) from (\d+) starts .*, (\d+) of", analytic)
+    assert found is not None
+    below, inside = (int(n) for n in found.groups())
+    assert below == inside
+    assert re.match(rf"{cavity.sum()} starts \(Ebar 6.0\) fail at stride 2 ", exact)
+    assert exact.endswith(f"{cavity.sum()} below the placement height {lowest:.4f}")
+    analytic, exact = paper_comparison._fig10_basin(documents)
+    assert analytic.startswith("1 fixed point per Ebar, stable")
+    assert exact.startswith(f"{data['outcome_counts']['converged']} of 9 starts converge")
+
+
+def test_fig13_deadbeat_tracks_more_targets_more_accurately_than_the_pd_baseline(
+    documents: dict[str, dict[str, Any]],
+) -> None:
+    _, exact = paper_comparison._tracking(documents)
+    deadbeat, pd = exact.split("; pd: ")
+    assert deadbeat.startswith("deadbeat: xdotbar* 0.5-3 (3 of 3), max error ")
+    assert pd.startswith("xdotbar* 1.75 (1 of 3)")
+
+
+def test_the_rows_read_a_figure_s_data_and_its_json_document_alike(
+    documents: dict[str, dict[str, Any]],
+) -> None:
+    """``tdslip figures`` hands the rows the figures' data (complex eigenvalues, NaN); a reader of the JSON
+    documents gets [re, im] and null: the rows say the same of both."""
+    written = {name: json.loads(to_json(data)) for name, data in documents.items()}
+    for claim, _, figures, _, compute in paper_comparison.ROWS:
+        if figures and all(name in documents for name in figures):
+            assert compute(documents, PARAMS) == compute(written, PARAMS), claim
