@@ -57,38 +57,26 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     assert table.count("not computed in this run") >= 10 and "4.70 m/s" in table
 
 
-def test_figures_with_the_paper_s_map_draw_that_map(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, dask_scheduler: str
-) -> None:
-    """``--map paper``: fig04's fixed points are those of the map with eq. 7's speed (each maps to itself
-    under that map, not under ours), and the JSON says which map drew it."""
+def test_figures_with_the_paper_s_map_draw_that_map(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--map paper`` reaches the figures (the JSON says which map drew them), and fig04's fixed points are
+    then those of the map with eq. 7's speed: each maps to itself under that map, not under ours."""
     monkeypatch.setattr(figures_command, "DEFAULT", TINY)
-    arguments = ["figures", "--only", "fig04", "--scheduler", dask_scheduler, "--map"]
-    assert cli.main([*arguments, "paper", "--out", str(tmp_path / "paper")]) == 0
-    assert cli.main([*arguments, "ours", "--out", str(tmp_path / "ours")]) == 0
-    documents = {
-        name: json.loads((tmp_path / name / "fig04.json").read_text(), parse_constant=pytest.fail)
-        for name in ("paper", "ours")
-    }
-    assert documents["paper"]["analytic_map_speed"] == "liftoff"
-    assert documents["ours"]["analytic_map_speed"] == "energy"
-    beta = math.radians(documents["paper"]["beta_deg"])
-    for name, speed in (("paper", "liftoff"), ("ours", "energy")):
-        traced = documents[name]["c"]
-        alphas = np.array(traced["parameter"])[:, None]
-        y = units.height_from_bar(PARAMS, np.array(traced["ybar"], dtype=float))
-        energy = units.energy_from_bar(PARAMS, np.array(traced["Ebar"], dtype=float))
-        found = np.isfinite(y)
-        assert found.sum() >= 5
-        alpha = np.broadcast_to(alphas, y.shape)[found]
-        for map_speed in ("liftoff", "energy"):
-            y_next, energy_next = stability.open_loop_energy_map(
-                PARAMS, beta, alpha, y[found], energy[found], speed=map_speed
-            )
-            closes = np.isclose(y_next, y[found], rtol=1e-7) & np.isclose(
-                energy_next, energy[found], rtol=1e-7
-            )
-            assert closes.all() if map_speed == speed else not closes.any()
+    assert cli.main(["figures", "--only", "fig13", "--map", "paper", "--out", str(tmp_path)]) == 0
+    assert json.loads((tmp_path / "fig13.json").read_text())["analytic_map_speed"] == "liftoff"
+    _, data = open_loop.fig04(TINY, _quiet(), "liftoff")
+    traced = data["c"]
+    beta = math.radians(data["beta_deg"])
+    y = units.height_from_bar(PARAMS, np.array(traced["ybar"], dtype=float))
+    energy = units.energy_from_bar(PARAMS, np.array(traced["Ebar"], dtype=float))
+    found = np.isfinite(y)
+    assert found.sum() >= 5
+    alpha = np.broadcast_to(np.array(traced["parameter"])[:, None], y.shape)[found]
+    for speed, maps_to_itself in (("liftoff", True), ("energy", False)):
+        y_next, energy_next = stability.open_loop_energy_map(
+            PARAMS, beta, alpha, y[found], energy[found], speed=speed
+        )
+        closes = np.isclose(y_next, y[found], rtol=1e-7) & np.isclose(energy_next, energy[found], rtol=1e-7)
+        assert closes.all() if maps_to_itself else not closes.any()
 
 
 def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:

@@ -25,8 +25,12 @@ from tdslip_ros.reporting.output import to_json
 PARAMS = PAPER_PARAMS
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DOCS = REPO_ROOT / "docs" / "paper.md"
-PAPER_TEXT = Path(os.environ.get("TDSLIP_PAPER_TEXT", "/work/shared/paper/td-slip-energy-regulation-2010.md"))
-"""The paper's text (converted from the PDF; not part of the repository)."""
+PAPER_TEXT = Path(
+    os.environ.get(
+        "TDSLIP_PAPER_TEXT", REPO_ROOT.parent / "shared" / "paper" / "td-slip-energy-regulation-2010.md"
+    )
+)
+"""The paper's text (converted from the PDF; not part of the repository: beside it, in ../shared/paper/)."""
 NUMBER = re.compile(r"\d+(?:\.\d+)?")
 TINY = Resolution(
     heights=24,
