@@ -394,11 +394,7 @@ def stance_map(
 
 @dataclass(frozen=True)
 class Stride:
-    """One stride of the approximate map P = P_a o P_s o P_d, per lane. Failed lanes hold NaN.
-
-    ``liftoff_xdot`` is the horizontal liftoff velocity of eq. 7, kept for comparison with ``xdot``
-    (which the map takes from the energy balance, see the module docstring).
-    """
+    """One stride of the approximate map P = P_a o P_s o P_d, per lane. Failed lanes hold NaN."""
 
     y: Array
     xdot: Array
@@ -406,7 +402,6 @@ class Stride:
     failure: Array  # NO_FAILURE_CODE or events.failure_code(FailureKind)
     touchdown: Touchdown
     stance: Stance
-    liftoff_xdot: Array
 
     @property
     def ok(self) -> Array:
@@ -419,7 +414,7 @@ def strides_of_block(params: ParamArrays, lanes: Lanes, angle: Array, block: Arr
     done = int(np.real(block[17]).max(initial=0))
     stance = Stance.of_rows(params, lanes.shaped(angle), row[4], row[7:16], row[16].real != 0.0, done)
     touchdown = Touchdown(row[4], row[5], lanes.codes(block[6]))
-    return Stride(row[0], row[1], row[2], lanes.codes(block[3]), touchdown, stance, row[18])
+    return Stride(row[0], row[1], row[2], lanes.codes(block[3]), touchdown, stance)
 
 
 def approximate_map(

@@ -467,7 +467,6 @@ class LaneStride(NamedTuple):
     failure: int
     touchdown: Touchdown
     stance: LaneStance
-    liftoff_xdot: complex
 
 
 @kernel
@@ -509,14 +508,15 @@ def lane_ascent(
     xdot_lo = -stance.rdot_lo * sin - stance.r_lo * stance.thetadot_lo * cos
     y_next = stance.r_lo * cos + ydot_lo**2 / (2.0 * g)
     if map_variant & LIFTOFF_SPEED:
-        kinetic = 0.5 * xdot_lo**2
-        energy_next = m * (g * y_next + kinetic)
+        xdot_next = xdot_lo
+        energy_next = apex_energy(m, g, y_next, xdot_next)
+        kinetic = 0.5 * xdot_next**2
     else:
         energy_next = (
             apex_energy(m, g, y, xdot) + stance.hip_energy - (stance.damping_loss + stance.spring_energy)
         )
         kinetic = energy_next / m - g * y_next
-    xdot_next = np.sqrt(2.0 * kinetic)
+        xdot_next = np.sqrt(2.0 * kinetic)
     failure = touchdown.failure
     if failure == NO_FAILURE_CODE and not stance.liftoff_exists:
         failure = NO_LIFTOFF
@@ -525,11 +525,11 @@ def lane_ascent(
     if failure == NO_FAILURE_CODE and not (real(kinetic) > 0.0 and real(xdot_lo) > 0.0):
         failure = REVERSAL
     if failure != NO_FAILURE_CODE:
-        y_next, xdot_next, energy_next, xdot_lo = np.nan, np.nan, np.nan, np.nan
-    return LaneStride(y_next, xdot_next, energy_next, failure, touchdown, stance, xdot_lo)
+        y_next, xdot_next, energy_next = np.nan, np.nan, np.nan
+    return LaneStride(y_next, xdot_next, energy_next, failure, touchdown, stance)
 
 
-STRIDE_ROWS = 19
+STRIDE_ROWS = 18
 """Rows of a block of strides (write_stride)."""
 
 
@@ -555,7 +555,6 @@ def write_stride(out: Array, lane: int, stride: LaneStride) -> None:
     out[15, lane] = stance.spring_energy
     out[16, lane] = stance.liftoff_exists
     out[17, lane] = stance.corrections_done
-    out[18, lane] = stride.liftoff_xdot
 
 
 @kernel
