@@ -35,7 +35,8 @@ TINY = Resolution(
 PARAMS = PAPER_PARAMS
 
 
-def _quiet() -> Reporter:
+def quiet() -> Reporter:
+    """A reporter that stays silent (the figures' progress lines)."""
     return Reporter("test", interval=math.inf)
 
 
@@ -63,7 +64,7 @@ def test_figures_with_the_paper_s_map_draw_that_map(tmp_path: Path, monkeypatch:
     monkeypatch.setattr(figures_command, "DEFAULT", TINY)
     assert cli.main(["figures", "--only", "fig13", "--map", "paper", "--out", str(tmp_path)]) == 0
     assert json.loads((tmp_path / "fig13.json").read_text())["analytic_map_speed"] == "liftoff"
-    _, data = open_loop.fig04(TINY, _quiet(), "liftoff")
+    _, data = open_loop.fig04(TINY, quiet(), "liftoff")
     traced = data["c"]
     beta = math.radians(data["beta_deg"])
     y = units.height_from_bar(PARAMS, np.array(traced["ybar"], dtype=float))
@@ -80,7 +81,7 @@ def test_figures_with_the_paper_s_map_draw_that_map(tmp_path: Path, monkeypatch:
 
 
 def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
-    _, data = regulated.fig08(TINY, _quiet(), "energy")
+    _, data = regulated.fig08(TINY, quiet(), "energy")
     for beta_deg in (22.0, 30.0):
         panel = data[f"beta_{beta_deg:g}"]
         beta = math.radians(beta_deg)
@@ -99,7 +100,7 @@ def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
 
 
 def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() -> None:
-    _, data = exact_basins.fig10(TINY, _quiet(), "energy")
+    _, data = exact_basins.fig10(TINY, quiet(), "energy")
     lanes = TINY.basin_energies * TINY.basin_heights
     assert sum(data["outcome_counts"].values()) == lanes
     exact = data["exact_fixed_points"]
@@ -112,7 +113,7 @@ def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() 
 
 
 def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> None:
-    _, data = tracking.fig13(TINY, _quiet(), "energy")
+    _, data = tracking.fig13(TINY, quiet(), "energy")
     assert data["xdotbar_target"] == [0.5, 1.75, 3.0]
     deadbeat, pd = data["deadbeat"], data["pd"]
     assert all(deadbeat["stable"])
@@ -124,7 +125,7 @@ def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> Non
 
 
 def test_fig04_traces_the_open_loop_fixed_points_and_their_saddle_nodes() -> None:
-    _, data = open_loop.fig04(TINY, _quiet(), "energy")
+    _, data = open_loop.fig04(TINY, quiet(), "energy")
     low, high = data["c"]["saddle_node_alpha"]
     assert 1.1 < low < high < 1.45
     section = data["a"]
@@ -169,7 +170,7 @@ def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_r
         (stability, "energy_fixed_point"),
     ):
         monkeypatch.setattr(module, name, computed_here)
-    _, fig10 = exact_basins.fig10(TINY, _quiet(), "energy")
+    _, fig10 = exact_basins.fig10(TINY, quiet(), "energy")
     assert sum(fig10["outcome_counts"].values()) == TINY.basin_energies * TINY.basin_heights
     assert [name for name, _ in catalogue.shared_work(["fig13", "ranges"], TINY)][:4] == ["stable_range"] * 4
 

@@ -3,6 +3,7 @@ claims of sections II.D-V measured again on tiny figure documents and on the mod
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -12,10 +13,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+import test_figures
 
 from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures import exact_basins, open_loop, regulated, tracking
-from tdslip_ros.analysis.figures.common import Reporter, Resolution
 from tdslip_ros.model import analytic_accuracy, stability, units
 from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.model.controllers import ramp_to_liftoff
@@ -32,24 +33,8 @@ PAPER_TEXT = Path(
 )
 """The paper's text (converted from the PDF; not part of the repository: beside it, in ../shared/paper/)."""
 NUMBER = re.compile(r"\d+(?:\.\d+)?")
-TINY = Resolution(
-    heights=24,
-    alphas=9,
-    betas=4,
-    basin_alphas=3,
-    basin_heights=3,
-    energies=8,
-    basin_energies=3,
-    speed_step=1.25,
-    exact_heights=16,
-    exact_energies=6,
-    bisections=2,
-)
+TINY = dataclasses.replace(test_figures.TINY, betas=4)
 """test_figures.TINY with four touchdown angles in fig05 (20, 24, 28, 32 deg), so that it has a band."""
-
-
-def _quiet() -> Reporter:
-    return Reporter("test", interval=math.inf)
 
 
 def _cells(line: str) -> list[str]:
@@ -150,7 +135,7 @@ def documents() -> dict[str, dict[str, Any]]:
         ("fig10", exact_basins.fig10),
         ("fig13", tracking.fig13),
     ):
-        found[name] = figure(TINY, _quiet(), "energy")[1]
+        found[name] = figure(TINY, test_figures.quiet(), "energy")[1]
     return found
 
 
