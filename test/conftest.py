@@ -2,11 +2,11 @@
 
 Every test that starts a node process or a ROS context (rclpy.init, the ``ros`` graph, a recorded run,
 ``tdslip run``/``replay``/``compare``, a node executable, colcon) carries the marker ``nodes``; the rest
-is the fast tier, ``pytest -m "not nodes" -n 2`` (pytest-xdist; the full suite runs in one process, where the
-recorded runs below are made once). Tests using a fixture of :data:`NODE_FIXTURES` are marked
-here; modules and tests that start nodes by themselves are marked where they are written. A guard
-(:func:`node_guard`) fails any test without the marker that inits an rclpy context or spawns a node
-process, in both tiers, so that the marker stays exact.
+is the fast tier, ``pytest -m "not nodes" -n 2`` (pytest-xdist, --dist loadgroup in pyproject.toml; the
+full suite runs in one process, where the recorded runs below are made once). Tests using a fixture of
+:data:`NODE_FIXTURES` are marked here; modules and tests that start nodes by themselves are marked where
+they are written. A guard (:func:`node_guard`) fails any test without the marker that inits an rclpy
+context or spawns a node process, in both tiers, so that the marker stays exact.
 
 The fast tier runs first. Meanwhile a background child (analysis_runs.Background) makes the node runs
 the selected tests will use (recorded runs, tdslip compare, some tdslip run processes), and the README's
@@ -48,7 +48,16 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if NODE_FIXTURES.intersection(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.nodes)
-    items.sort(key=lambda item: item.get_closest_marker("nodes") is not None)  # stable: file order kept
+        if "dask_scheduler" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("dask"))  # one cluster, not one per worker
+    # Stable, so file order is kept within each part. Tests in an xdist group share a costly fixture (a
+    # figure's document, the Dask cluster): the fast tier's workers take those first, the longest work first.
+    items.sort(
+        key=lambda item: (
+            item.get_closest_marker("nodes") is not None,
+            item.get_closest_marker("xdist_group") is None,
+        )
+    )
 
 
 _colcon_build: ColconBuild | None = None

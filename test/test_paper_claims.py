@@ -4,6 +4,7 @@ claims of sections II.D-V measured again on tiny figure documents and on the mod
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -123,75 +124,79 @@ def test_eq_27_has_one_solution_and_none_where_the_map_fails_first() -> None:
     assert "2 or more at 0" in analytic and "all where the map fails" in analytic
 
 
-@pytest.fixture(scope="module")
-def documents() -> dict[str, dict[str, Any]]:
-    """The figure documents the new rows read, at TINY (fig05 with four angles)."""
-    found = {}
-    for name, figure in (
-        ("fig05", open_loop.fig05),
-        ("fig06", open_loop.fig06),
-        ("fig07", exact_basins.fig07),
-        ("fig08", regulated.fig08),
-        ("fig10", exact_basins.fig10),
-        ("fig13", tracking.fig13),
-    ):
-        found[name] = figure(TINY, test_figures.quiet(), "energy")[1]
-    return found
+FIGURES = {
+    "fig05": open_loop.fig05,
+    "fig06": open_loop.fig06,
+    "fig07": exact_basins.fig07,
+    "fig08": regulated.fig08,
+    "fig10": exact_basins.fig10,
+    "fig13": tracking.fig13,
+}
+"""The figures whose documents the rows read, drawn here at TINY (fig05 with four angles)."""
 
 
-def test_fig05_three_fixed_points_are_two_stable_and_one_unstable_and_the_band_of_beta(
-    documents: dict[str, dict[str, Any]],
-) -> None:
-    data = documents["fig05"]
+@functools.cache
+def _document(name: str) -> dict[str, Any]:
+    return FIGURES[name](TINY, test_figures.quiet(), "energy")[1]
+
+
+def documents(*names: str) -> dict[str, dict[str, Any]]:
+    """The documents of ``names``, each drawn once per test process. The tests that read a figure share its
+    xdist group (conftest.py), so that the fast tier's two workers do not both draw it."""
+    return {name: _document(name) for name in names}
+
+
+@pytest.mark.xdist_group("fig05")
+def test_fig05_three_fixed_points_are_two_stable_and_one_unstable_and_the_band_of_beta() -> None:
+    data = documents("fig05")["fig05"]
     count, stable = np.array(data["fixed_point_count"]), np.array(data["stable_fixed_point_count"])
     assert np.all(stable <= count) and np.all(np.array(data["exact_stable_fixed_point_count"]) <= 3)
     assert np.any(count == 3) and np.any((count == 3) & (stable == 2))
     # The most stable fixed point of fig05 is stable exactly where a cell has a stable one.
     radius = np.array(data["spectral_radius"], dtype=float)
     assert np.array_equal(stable > 0, radius < 1.0)
-    analytic, exact = paper_comparison._fig05_counts(documents)
+    analytic, exact = paper_comparison._fig05_counts(documents("fig05"))
     assert re.match(r"1 in \d+ of 44 cells; 3 in \d+ \(\d+ of them 2 stable \+ 1 unstable\)", analytic)
-    analytic, exact = paper_comparison._fig05_beta_band(documents)
+    analytic, exact = paper_comparison._fig05_beta_band(documents("fig05"))
     # At alpha 0.5 only 20 deg is stable; at 2.5 the steep angles; unstable on both sides in between.
     assert analytic.startswith("stable beta 20 deg at alpha 0.5, 28-32 at 2.5; unstable below them at ")
     below, above = (int(n) for n in re.findall(r"(?:below them|above) at (\d+)", analytic))
     assert below > 0 and above > 0
 
 
-def test_fig06_saddle_nodes_bound_the_three_fixed_points(documents: dict[str, dict[str, Any]]) -> None:
-    panel = documents["fig06"]["a"]
+@pytest.mark.xdist_group("fig06")
+def test_fig06_saddle_nodes_bound_the_three_fixed_points() -> None:
+    panel = documents("fig06")["fig06"]["a"]
     low, high = panel["saddle_node_alpha"]
     alphas = np.array(panel["parameter"])
     three = alphas[np.sum(np.isfinite(np.array(panel["ybar"], dtype=float)), axis=1) == 3]
     assert three.size and low < three.min() and three.max() < high
-    analytic, _ = paper_comparison._saddle_nodes(documents)
+    analytic, _ = paper_comparison._saddle_nodes(documents("fig06"))
     assert analytic.startswith(f"saddle-nodes at alpha {low:.3f}, {high:.3f}; 3 fixed points at ")
 
 
-def test_fig07_fast_at_alpha_1_slow_at_1_5_at_the_rate_of_its_eigenvalue(
-    documents: dict[str, dict[str, Any]],
-) -> None:
-    data = documents["fig07"]
+@pytest.mark.xdist_group("fig07")
+def test_fig07_fast_at_alpha_1_slow_at_1_5_at_the_rate_of_its_eigenvalue() -> None:
+    data = documents("fig07")["fig07"]
     fast, slow = data["runs"]
     assert (fast["alpha"], slow["alpha"]) == (1.0, 1.5)
     assert 0 <= fast["convergence_stride"] <= 30 and slow["convergence_stride"] == -1
-    _, exact = paper_comparison._fig07_speed(documents)
+    _, exact = paper_comparison._fig07_speed(documents("fig07"))
     found = re.search(r"shrinks ([\d.]+) per stride \(\|lambda\| ([\d.]+)\)", exact)
     assert found is not None
     rate, radius = (float(x) for x in found.groups())
     assert rate == pytest.approx(radius, abs=0.005) and 0.95 < radius < 1.0
     assert np.array(data["last_ybar"]).shape == np.array(data["outcome"]).shape
-    analytic, exact = paper_comparison._fig07_basin(documents)
+    analytic, exact = paper_comparison._fig07_basin(documents("fig07"))
     assert re.match(r"stable fixed points below ybar 1.1: \|lambda\| 0.9\d\d-0.9\d\d", analytic)
     assert re.match(r"\d+ lanes settle on them in 150 strides", exact)
 
 
-def test_regulated_maps_have_no_unstable_fixed_point_below_the_flip(
-    documents: dict[str, dict[str, Any]],
-) -> None:
+@pytest.mark.xdist_group("fig08")
+def test_regulated_maps_have_no_unstable_fixed_point_below_the_flip() -> None:
     """Figs 9, 10: at most one fixed point per energy, no eigenvalue at +1 or above, unstable only by the
     flip at high energy (22 deg)."""
-    analytic, exact = paper_comparison._regulated_unstable(documents)
+    analytic, exact = paper_comparison._regulated_unstable(documents("fig08", "fig10"))
     for cell in (analytic, exact):
         assert cell.startswith("at most 1 per Ebar; lambda >= 1 at 0; largest ")
         found = re.search(r"largest ([-\d./ ]+) \(", cell)
@@ -200,43 +205,47 @@ def test_regulated_maps_have_no_unstable_fixed_point_below_the_flip(
     assert "22 deg: Ebar >= " in analytic
 
 
-def test_fig10_cavities_are_leg_placement_failures_and_the_basin_s_other_edges(
-    documents: dict[str, dict[str, Any]],
-) -> None:
-    data = documents["fig10"]
+@pytest.mark.xdist_group("fig10")
+def test_fig10_cavities_are_leg_placement_failures_and_the_basin_s_other_edges() -> None:
+    data = documents("fig10")["fig10"]
     outcome = np.array(data["outcome"])
     failed_from = np.array(data["failed_from_ybar"], dtype=float)
     lowest = units.height_to_bar(PARAMS, stability.lowest_height(PARAMS, math.radians(data["beta_deg"])))
     cavity = outcome == "toe_stubbing"
     assert cavity.any() and np.all(failed_from[cavity] < lowest)
     assert np.all(np.isnan(failed_from[np.isin(outcome, ["converged", "sustained"])]))
-    analytic, exact = paper_comparison._fig10_cavities(documents, PARAMS)
+    analytic, exact = paper_comparison._fig10_cavities(documents("fig10"), PARAMS)
     found = re.match(r"1st stride below r0 cos\(beta\) from (\d+) starts .*, (\d+) of", analytic)
     assert found is not None
     below, inside = (int(n) for n in found.groups())
     assert below == inside
     assert re.match(rf"{cavity.sum()} starts \(Ebar 6.0\) fail at stride 2 ", exact)
     assert exact.endswith(f"{cavity.sum()} below the placement height {lowest:.4f}")
-    analytic, exact = paper_comparison._fig10_basin(documents)
+    analytic, exact = paper_comparison._fig10_basin(documents("fig10"))
     assert analytic.startswith("1 fixed point per Ebar, stable")
     assert exact.startswith(f"{data['outcome_counts']['converged']} of 9 starts converge")
 
 
-def test_fig13_deadbeat_tracks_more_targets_more_accurately_than_the_pd_baseline(
-    documents: dict[str, dict[str, Any]],
-) -> None:
-    _, exact = paper_comparison._tracking(documents)
+@pytest.mark.xdist_group("fig13")
+def test_fig13_deadbeat_tracks_more_targets_more_accurately_than_the_pd_baseline() -> None:
+    _, exact = paper_comparison._tracking(documents("fig13"))
     deadbeat, pd = exact.split("; pd: ")
     assert deadbeat.startswith("deadbeat: xdotbar* 0.5-3 (3 of 3), max error ")
     assert pd.startswith("xdotbar* 1.75 (1 of 3)")
 
 
-def test_the_rows_read_a_figure_s_data_and_its_json_document_alike(
-    documents: dict[str, dict[str, Any]],
-) -> None:
+@pytest.mark.parametrize(
+    "row",
+    [
+        pytest.param(row, id=row[0], marks=pytest.mark.xdist_group(row[2][0]))
+        for row in paper_comparison.ROWS
+        if row[2] and set(row[2]) <= set(FIGURES)
+    ],
+)
+def test_the_rows_read_a_figure_s_data_and_its_json_document_alike(row: paper_comparison.RowSpec) -> None:
     """``tdslip figures`` hands the rows the figures' data (complex eigenvalues, NaN); a reader of the JSON
     documents gets [re, im] and null: the rows say the same of both."""
-    written = {name: json.loads(to_json(data)) for name, data in documents.items()}
-    for claim, _, figures, _, compute in paper_comparison.ROWS:
-        if figures and all(name in documents for name in figures):
-            assert compute(documents, PARAMS) == compute(written, PARAMS), claim
+    claim, _, figures, _, compute = row
+    drawn = documents(*figures)
+    written = {name: json.loads(to_json(data)) for name, data in drawn.items()}
+    assert compute(drawn, PARAMS) == compute(written, PARAMS), claim
