@@ -237,8 +237,8 @@ class FixedStepStepper:
 
     def hold_torque(self, tau: float) -> None:
         """The torque [N m] a :class:`.stance_laws.TorqueStream` stance holds from the next sample instant
-        (the next tick's start) on, until replaced: the plant node's stream, clipped like a law's output.
-        ParameterError for a torque that is not a finite number."""
+        (the next tick's start) on, until replaced or until liftoff: the plant node's stream, clipped like a
+        law's output. ParameterError for a torque that is not a finite number."""
         if not math.isfinite(tau):
             raise ParameterError(f"a held torque must be finite, got {tau!r}")
         self._streamed = float(tau)
@@ -625,6 +625,7 @@ class FixedStepStepper:
             hip_work=y[4], damping_loss=y[5], spring_loss=dynamics.spring_energy(self._params, y[0])
         )
         self._phase = Phase.FLIGHT
+        self._streamed = 0.0  # a stance's streamed torque ends with it
         self._flight_ref = (liftoff.t, liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot)
         self._descending = False
         self._ground = self._toe_y
