@@ -235,21 +235,6 @@ class FixedStepStepper:
         that stance had a ramp."""
         return () if self._hold is None else tuple(self._hold.record)
 
-    def hold_torque(self, tau: float) -> None:
-        """The torque [N m] a :class:`.stance_laws.TorqueStream` stance holds from the next sample instant
-        (the next tick's start) on, until replaced or until liftoff: the plant node's stream, clipped like a
-        law's output. ParameterError for a torque that is not a finite number."""
-        if not math.isfinite(tau):
-            raise ParameterError(f"a held torque must be finite, got {tau!r}")
-        self._streamed = float(tau)
-
-    def _check_sample_period(self, command: StanceCommand | StanceFeedback) -> None:
-        if isinstance(command, StanceFeedback) and command.sample_period != self._dt:
-            raise ParameterError(
-                f"the stance feedback samples every {command.sample_period!r} s, but the stepper's tick is "
-                f"{self._dt!r} s: the sample instants must be its tick boundaries"
-            )
-
     @property
     def last_stride_energy(self) -> StrideEnergy | None:
         """Energy flows of the stance before the latest apex (None before the first such apex)."""
@@ -306,6 +291,21 @@ class FixedStepStepper:
                 )
         self._command = command
         self._place_leg()
+
+    def hold_torque(self, tau: float) -> None:
+        """The torque [N m] a :class:`.stance_laws.TorqueStream` stance holds from the next sample instant
+        (the next tick's start) on, until replaced or until liftoff: the plant node's stream, clipped like a
+        law's output. ParameterError for a torque that is not a finite number."""
+        if not math.isfinite(tau):
+            raise ParameterError(f"a held torque must be finite, got {tau!r}")
+        self._streamed = float(tau)
+
+    def _check_sample_period(self, command: StanceCommand | StanceFeedback) -> None:
+        if isinstance(command, StanceFeedback) and command.sample_period != self._dt:
+            raise ParameterError(
+                f"the stance feedback samples every {command.sample_period!r} s, but the stepper's tick is "
+                f"{self._dt!r} s: the sample instants must be its tick boundaries"
+            )
 
     def step(self) -> list[Event]:
         """Advance one tick; return the events inside it in time order."""
