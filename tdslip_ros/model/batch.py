@@ -1,7 +1,8 @@
 """Batched exact TD-SLIP engine: many apex-to-apex strides at once, vectorised over lanes with numpy.
 
-Each lane is one initial condition with its own command. Descent and ascent are closed-form, as
-in :mod:`.exact_map`; stance is integrated by DOP853 over the lanes still in stance, with per-lane step
+Each lane is one initial condition with its own command: a torque ramp (:func:`batch_apex_return_map`) or
+a stance law (:func:`batch_feedback_return_map`, :mod:`.stance_laws`). Descent and ascent are closed-form,
+as in :mod:`.exact_map`; stance is integrated by DOP853 over the lanes still in stance, with per-lane step
 sizes and event location (:mod:`.batch_stance`).
 
 Failures are per lane, as integer codes (:func:`.events.failure_code`, -1 for none), with the
@@ -14,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -27,6 +29,9 @@ from tdslip_ros.model.batch_stance import (
     STANCE_TIME_LIMIT,
     STATE_SIZE,
     IntArray,
+    LaneField,
+    SampledField,
+    StanceField,
     integrate_stance,
 )
 from tdslip_ros.model.dynamics import FloatArray
@@ -34,10 +39,12 @@ from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw, TorqueStream, torque_limit
 from tdslip_ros.model.terrain import FLAT, Terrain, touchdown
 
-Policy = Callable[..., tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike]]
-"""policy(stride, y, xdot[, lanes]) -> (touchdown_angle, tau0, t_f), arrays over the alive lanes."""
+Policy = Callable[..., tuple[Any, ...]]
+"""policy(stride, y, xdot[, lanes]) -> (touchdown_angle, tau0, t_f) for ramps, or (touchdown_angle, law)
+for stance feedback, arrays (and a law's per-lane fields) over the alive lanes."""
 
 
 @dataclass(frozen=True)
@@ -48,7 +55,8 @@ class BatchStrideResult:
     (-1 none); hip_work, damping_loss, spring_loss [J]: the stance's energy flows, and stance_time [s] its
     duration (touchdown to liftoff), NaN where the leg did not lift off; stride_time [s]: apex to
     next apex, NaN on failure; ground [m]: the stance's ground height (world frame, the toe's), NaN
-    without a stance; x [m]: the next apex's position, NaN on failure.
+    without a stance; x [m]: the next apex's position, NaN on failure; saturated: the hip saturated at
+    tau_max (a ramp's |tau0| beyond it, a law's sample clipped).
     """
 
     y: FloatArray
@@ -61,6 +69,25 @@ class BatchStrideResult:
     stride_time: FloatArray
     ground: FloatArray
     x: FloatArray
+    saturated: npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class _Ramp:
+    """The ramps of eq. 18 of the lanes of a stride: tau0 [N m], t_f [s]."""
+
+    tau0: FloatArray
+    t_f: FloatArray
+
+
+@dataclass(frozen=True)
+class _Feedback:
+    """Stance feedback for the lanes of a stride: the law, its sample period [s] and the lanes' apex
+    times [s] on the sample clock."""
+
+    law: StanceLaw
+    period: float
+    apex_time: FloatArray
 
 
 def batch_apex_return_map(
@@ -93,12 +120,80 @@ def batch_apex_return_map(
     ``ground`` [m] (default: the ground under the body), ``terrain`` (its per-lane fields in the lanes'
     shape), tau_max [N m], push [m/s], angle_error [rad].
     """
+    return _return_map(
+        params,
+        (y, xdot, touchdown_angle, x, tau_max, push, angle_error),
+        (tau0, t_f),
+        None,
+        rtol,
+        atol,
+        limits,
+        ground,
+        terrain,
+    )
+
+
+def batch_feedback_return_map(
+    params: HopperParams,
+    y: npt.ArrayLike,
+    xdot: npt.ArrayLike,
+    touchdown_angle: npt.ArrayLike,
+    law: StanceLaw,
+    *,
+    sample_period: float = DEFAULT_SAMPLE_PERIOD,
+    apex_time: npt.ArrayLike = 0.0,
+    rtol: float = 1e-12,
+    atol: float = 1e-12,
+    limits: PlausibilityLimits | None = None,
+    x: npt.ArrayLike = 0.0,
+    ground: npt.ArrayLike | None = None,
+    terrain: Terrain = FLAT,
+    tau_max: npt.ArrayLike = math.inf,
+    push: npt.ArrayLike = 0.0,
+    angle_error: npt.ArrayLike = 0.0,
+) -> BatchStrideResult:
+    """The exact map of :func:`.exact_map.apex_return_map` under stance feedback
+    (:class:`.stance_laws.StanceFeedback`), for broadcastable arrays of apex states, touchdown angles
+    [rad] and apex times [s] on the sample clock, whose sample instants are the multiples of
+    sample_period [s]. The law's per-lane fields are over the broadcast lanes, in flat order. The law's
+    torques are clipped at tau_max and the limits' max_torque. The rest as in
+    :func:`batch_apex_return_map`; ParameterError for a TorqueStream law.
+    """
+    if isinstance(law, TorqueStream):
+        raise ParameterError("the batched engine cannot run a torque stream: replay it with RecordedTorques")
+    if not (math.isfinite(sample_period) and sample_period > 0.0):
+        raise ParameterError(f"sample_period must be a positive finite number, got {sample_period!r}")
+    return _return_map(
+        params,
+        (y, xdot, touchdown_angle, x, tau_max, push, angle_error),
+        (apex_time,),
+        (law, sample_period),
+        rtol,
+        atol,
+        limits,
+        ground,
+        terrain,
+    )
+
+
+def _return_map(
+    params: HopperParams,
+    inputs: tuple[npt.ArrayLike, ...],
+    stance_inputs: tuple[npt.ArrayLike, ...],
+    feedback: tuple[StanceLaw, float] | None,
+    rtol: float,
+    atol: float,
+    limits: PlausibilityLimits | None,
+    ground: npt.ArrayLike | None,
+    terrain: Terrain,
+) -> BatchStrideResult:
+    """One stride of broadcast lanes: inputs (y, xdot, touchdown_angle, x, tau_max, push, angle_error),
+    and the stance's: (tau0, t_f) of ramps, or (apex_time,) under the law and period of ``feedback``."""
     check_tolerances(rtol, atol)
     limits = PlausibilityLimits.of(params, limits)
-    inputs = (y, xdot, touchdown_angle, tau0, t_f, x, tau_max, push, angle_error)
-    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in inputs))
+    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (*inputs, *stance_inputs)))
     shape = arrays[0].shape
-    y_a, xdot_a, angle, tau0_a, t_f_a, x_a, tau_max_a, push_a, error_a = (
+    y_a, xdot_a, angle, x_a, tau_max_a, push_a, error_a, *stance_a = (
         np.array(a, dtype=np.float64).ravel() for a in arrays
     )
     if ground is None:
@@ -109,20 +204,26 @@ def batch_apex_return_map(
         ground_a = np.array(
             np.broadcast_to(np.asarray(ground, dtype=np.float64), shape), dtype=np.float64
         ).ravel()
-    _validate(limits, y_a, xdot_a, angle, tau0_a, t_f_a)
+    stance = _Ramp(*stance_a) if feedback is None else _Feedback(feedback[0], feedback[1], stance_a[0])
+    _validate(limits, y_a, xdot_a, angle, _stance_checks(stance))
     _validate_perturbations(x_a, ground_a, tau_max_a, push_a, error_a)
     result = _stride(
         limits,
         y_a,
         xdot_a,
         placed_angle(angle, error_a),
-        tau0_a,
-        t_f_a,
+        stance,
         rtol,
         atol,
         _Perturbed.of(terrain, x_a, ground_a, tau_max_a, push_a),
     )
     return BatchStrideResult(**{f.name: getattr(result, f.name).reshape(shape) for f in fields(result)})
+
+
+def _stance_checks(stance: _Ramp | _Feedback) -> Checks:
+    if isinstance(stance, _Ramp):
+        return _ramp_checks(stance.tau0, stance.t_f)
+    return (("apex_time", stance.apex_time, np.isfinite(stance.apex_time), "finite"),)
 
 
 @dataclass(frozen=True)
@@ -162,7 +263,11 @@ class BatchRun:
     ground of a stance that failed after touchdown is kept, where the stance was);
     measured_y, measured_xdot: (n_strides, *shape) the apex the policy was given at stride k (height
     above ground, speed); push: (n_strides, *shape) the push at apex k [m/s]; saturated: (n_strides, *shape)
-    stride k's |tau0| exceeded tau_max. NaN (False) where not reached.
+    stride k's hip saturated at tau_max (a ramp's |tau0| beyond it, a law's sample clipped). NaN (False)
+    where not reached.
+
+    t: (n_strides + 1, *shape) the apex times [s] on the sample clock of stance feedback (row 0: t0), NaN
+    from a lane's failure on.
     """
 
     y: FloatArray
@@ -178,6 +283,7 @@ class BatchRun:
     measured_xdot: FloatArray
     push: FloatArray
     saturated: npt.NDArray[np.bool_]
+    t: FloatArray
 
 
 def simulate_strides(
@@ -194,6 +300,8 @@ def simulate_strides(
     perturbations: Perturbations | None = None,
     trajectories: npt.ArrayLike | None = None,
     x0: npt.ArrayLike = 0.0,
+    sample_period: float = DEFAULT_SAMPLE_PERIOD,
+    t0: npt.ArrayLike = 0.0,
 ) -> BatchRun:
     """Run every lane for n_strides strides under ``policy``, stopping lanes at their failure.
 
@@ -202,6 +310,10 @@ def simulate_strides(
     With pass_lanes=True it is called as policy(k, y, xdot, lanes), lanes being the alive lanes'
     flat indices into y0, for policies with per-lane memory (such as a per-lane energy goal).
     rtol, atol and limits as in :func:`batch_apex_return_map`.
+
+    A policy may answer (touchdown_angle, law) instead: stance feedback (:mod:`.stance_laws`) under
+    ``law``, whose per-lane fields are over the alive lanes, sampled every sample_period [s] on the clock
+    on which the initial apexes are at t0 [s] (each lane's apex times are kept, :attr:`BatchRun.t`).
 
     ``perturbations`` (:class:`~.perturbations.Perturbations`, its per-lane fields in the lanes' flat
     order) perturb the plant and the sensor: the policy is given the *measured* apex (height above the
@@ -241,9 +353,13 @@ def simulate_strides(
     energies = np.full((3, n_strides, lanes_total), np.nan)
     failure = np.full(lanes_total, NO_FAILURE_CODE, dtype=np.int64)
     failure_stride = np.full(lanes_total, -1, dtype=np.int64)
+    t_hist = np.full((n_strides + 1, lanes_total), np.nan)
     y_hist[0], xdot_hist[0], x_hist[0] = y_init.ravel(), xdot_init.ravel(), x_init.ravel()
+    t_hist[0] = np.broadcast_to(np.asarray(t0, dtype=np.float64), shape).ravel()
     if not np.all(np.isfinite(x_hist[0])):
         raise ParameterError("x0 must be finite")
+    if not (np.all(np.isfinite(t_hist[0])) and math.isfinite(sample_period) and sample_period > 0.0):
+        raise ParameterError("t0 must be finite and sample_period positive and finite")
     terrain = FLAT if perturbed is None else perturbed.terrain
     ground_hist[0] = 0.0 if terrain.is_flat else terrain.height(x_hist[0])
     alive = np.arange(lanes_total)
@@ -261,10 +377,18 @@ def simulate_strides(
         command = (
             policy(stride, seen_y, seen_xdot, alive) if pass_lanes else policy(stride, seen_y, seen_xdot)
         )
-        angle, tau0, t_f = (
-            np.array(np.broadcast_to(np.asarray(c, dtype=np.float64), alive.shape)) for c in command
-        )
-        _validate(limits, y_k, xdot_k, angle, tau0, t_f)
+        angle = np.array(np.broadcast_to(np.asarray(command[0], dtype=np.float64), alive.shape))
+        stance: _Ramp | _Feedback
+        if len(command) == 2:
+            stance = _Feedback(command[1], sample_period, t_hist[stride, alive])
+        else:
+            stance = _Ramp(
+                *(
+                    np.array(np.broadcast_to(np.asarray(c, dtype=np.float64), alive.shape))
+                    for c in command[1:]
+                )
+            )
+        _validate(limits, y_k, xdot_k, angle, _stance_checks(stance))
         lanes = perturbed.take(alive) if perturbed is not None else None
         push = np.zeros(alive.size) if draws is None else draws.push[stride, alive]
         tau_max = (
@@ -277,8 +401,7 @@ def simulate_strides(
             y_k,
             xdot_k,
             angle,
-            tau0,
-            t_f,
+            stance,
             rtol,
             atol,
             _Perturbed.of(
@@ -290,7 +413,8 @@ def simulate_strides(
             ),
         )
         push_hist[stride, alive] = push
-        saturated[stride, alive] = np.abs(tau0) > tau_max
+        saturated[stride, alive] = step.saturated
+        t_hist[stride + 1, alive] = t_hist[stride, alive] + step.stride_time
         y_hist[stride + 1, alive], xdot_hist[stride + 1, alive] = step.y, step.xdot
         x_hist[stride + 1, alive], ground_hist[stride + 1, alive] = step.x, step.ground
         energies[:, stride, alive] = step.hip_work, step.damping_loss, step.spring_loss
@@ -312,51 +436,61 @@ def simulate_strides(
         measured_xdot=measured[1].reshape(n_strides, *shape),
         push=push_hist.reshape(n_strides, *shape),
         saturated=saturated.reshape(n_strides, *shape),
+        t=t_hist.reshape(n_strides + 1, *shape),
     )
 
 
-def _validate(
-    limits: PlausibilityLimits,
-    y: FloatArray,
-    xdot: FloatArray,
-    angle: FloatArray,
-    tau0: FloatArray,
-    t_f: FloatArray,
-) -> None:
-    """The checks of ApexState, StanceCommand and limits.check_apex, per lane; the message names the
-    field and a lane."""
-    checks = (
-        ("apex height y", y, np.isfinite(y) & (y > 0.0), "a positive finite number"),
-        ("apex speed xdot", xdot, np.isfinite(xdot), "finite"),
-        ("touchdown_angle", angle, (angle > 0.0) & (angle < math.pi / 2), "in (0, pi/2) rad"),
-        ("tau0", tau0, np.isfinite(tau0), "finite"),
-        ("t_f", t_f, np.isfinite(t_f) & (t_f > 0.0), "a positive finite number"),
-    )
+Checks = tuple[tuple[str, FloatArray, npt.NDArray[np.bool_], str], ...]
+"""(field name, values, valid per lane, requirement)."""
+
+
+def _check_lanes(checks: Checks) -> None:
+    """ParameterError naming the field and the first lane of the first check that fails."""
     for name, values, valid, requirement in checks:
         if not np.all(valid):
             lane = int(np.flatnonzero(~valid)[0])
             raise ParameterError(f"{name} must be {requirement}, got {values[lane]!r} in lane {lane}")
+
+
+def _validate(
+    limits: PlausibilityLimits, y: FloatArray, xdot: FloatArray, angle: FloatArray, stance: Checks
+) -> None:
+    """The checks of ApexState, of the stance (``stance``: those of StanceCommand for ramps) and
+    limits.check_apex, per lane; the message names the field and a lane."""
+    _check_lanes(
+        (
+            ("apex height y", y, np.isfinite(y) & (y > 0.0), "a positive finite number"),
+            ("apex speed xdot", xdot, np.isfinite(xdot), "finite"),
+            ("touchdown_angle", angle, (angle > 0.0) & (angle < math.pi / 2), "in (0, pi/2) rad"),
+            *stance,
+        )
+    )
     beyond = limits.apex_exceeded(y, xdot)
     if np.any(beyond):
         lane = int(np.flatnonzero(beyond)[0])
         raise ParameterError(f"{limits.apex_violation(float(y[lane]), float(xdot[lane]))} in lane {lane}")
 
 
+def _ramp_checks(tau0: FloatArray, t_f: FloatArray) -> Checks:
+    return (
+        ("tau0", tau0, np.isfinite(tau0), "finite"),
+        ("t_f", t_f, np.isfinite(t_f) & (t_f > 0.0), "a positive finite number"),
+    )
+
+
 def _validate_perturbations(
     x: FloatArray, ground: FloatArray, tau_max: FloatArray, push: FloatArray, angle_error: FloatArray
 ) -> None:
     """The perturbation inputs per lane, as :func:`_validate` checks the states and commands."""
-    checks = (
-        ("x", x, np.isfinite(x), "finite"),
-        ("ground", ground, np.isfinite(ground), "finite"),
-        ("tau_max", tau_max, tau_max > 0.0, "> 0 N m (inf: no saturation)"),
-        ("push", push, np.isfinite(push), "finite"),
-        ("angle_error", angle_error, np.isfinite(angle_error), "finite"),
+    _check_lanes(
+        (
+            ("x", x, np.isfinite(x), "finite"),
+            ("ground", ground, np.isfinite(ground), "finite"),
+            ("tau_max", tau_max, tau_max > 0.0, "> 0 N m (inf: no saturation)"),
+            ("push", push, np.isfinite(push), "finite"),
+            ("angle_error", angle_error, np.isfinite(angle_error), "finite"),
+        )
     )
-    for name, values, valid, requirement in checks:
-        if not np.all(valid):
-            lane = int(np.flatnonzero(~valid)[0])
-            raise ParameterError(f"{name} must be {requirement}, got {values[lane]!r} in lane {lane}")
 
 
 def _stride(
@@ -364,8 +498,7 @@ def _stride(
     y: FloatArray,
     xdot: FloatArray,
     angle: FloatArray,
-    tau0: FloatArray,
-    t_f: FloatArray,
+    stance: _Ramp | _Feedback,
     rtol: float,
     atol: float,
     perturbed: _Perturbed,
@@ -396,8 +529,12 @@ def _stride(
         failure[(failure == NO_FAILURE_CODE) & landing.stubbed] = failure_code(FailureKind.TOE_STUBBING)
         t_td, toe_x, toe_y = landing.t, landing.toe_x, landing.toe_y
     # The same rules, in the same order, as the exact map: the torque limit, then reversal at touchdown.
-    beyond_torque = (failure == NO_FAILURE_CODE) & limits.torque_exceeded(tau0)
-    failure[beyond_torque] = failure_code(FailureKind.STATE_LIMIT)
+    saturated = np.zeros(lanes, dtype=bool)
+    if isinstance(stance, _Ramp):
+        beyond_torque = (failure == NO_FAILURE_CODE) & limits.torque_exceeded(stance.tau0)
+        failure[beyond_torque] = failure_code(FailureKind.STATE_LIMIT)
+        if perturbed.tau_max is not None:
+            saturated = np.abs(stance.tau0) > perturbed.tau_max
     touched = failure == NO_FAILURE_CODE
     out["ground"][touched] = toe_y[touched]
     ydot_td = -params.g * t_td
@@ -408,9 +545,24 @@ def _stride(
     y0 = np.zeros((STATE_SIZE, in_stance.size))
     y0[0], y0[1], y0[2], y0[3] = params.r0, angle[in_stance], rdot_td[in_stance], thetadot_td[in_stance]
     tau_max = None if perturbed.tau_max is None else perturbed.tau_max[in_stance]
-    outcome, s_end, y_end = integrate_stance(
-        params, y0, tau0[in_stance], t_f[in_stance], tau_max, limits.max_stance_time, rtol, atol
-    )
+    field: LaneField
+    if isinstance(stance, _Ramp):
+        field = StanceField(params, stance.tau0[in_stance], stance.t_f[in_stance], tau_max)
+    else:
+        limit = torque_limit(tau_max, limits.max_torque)
+        t_touchdown = stance.apex_time[in_stance] + t_td[in_stance]
+        field = SampledField(
+            params,
+            stance.law,
+            stance.period,
+            t_touchdown,
+            np.broadcast_to(limit, in_stance.shape),
+            tau_max,
+            in_stance,
+            y0,
+            saturated,
+        )
+    outcome, s_end, y_end = integrate_stance(params, y0, field, limits.max_stance_time, rtol, atol)
     stance_failures = {
         STANCE_REVERSAL: FailureKind.REVERSAL,
         STANCE_FALL: FailureKind.FALL,
@@ -458,4 +610,5 @@ def _stride(
         stride_time=out["t"],
         ground=out["ground"],
         x=out["x"],
+        saturated=saturated,
     )

@@ -3,7 +3,8 @@ event, vectorised with numpy (the stance of :mod:`.batch`'s strides).
 
 Stance (eq. 2 with the ramp torque of eq. 18, :mod:`.dynamics`) is integrated by the DOP853 Runge-Kutta
 pair (scipy's coefficients) with a step size adapted per lane, scipy's error norm and step-size rule, and
-the stance split at the kinks of the torque (the end of a saturation, the ramp end s = t_f). When a lane's
+the stance split at the kinks of the torque (the end of a saturation, the ramp end s = t_f; under stance
+feedback, each lane's sample instants, where its law sets the torque it holds next). When a lane's
 step crosses a terminal event (liftoff, reversal, fall; see :func:`.dynamics.stance_event_values`), the
 lane stops and keeps the step's start as a bracket; all brackets are then solved together by safeguarded
 Newton iteration, each trial being a DOP853 step of the trial length from the bracket start, to 1e-14 s.
@@ -13,8 +14,9 @@ result depends on that lane alone.
 
 from __future__ import annotations
 
+import copy
 import math
-from typing import Any
+from typing import Any, Protocol, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -23,8 +25,10 @@ from scipy.integrate._ivp import dop853_coefficients as _dop853
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.stance_laws import StanceLaw, StanceSample, clip_torque, first_sample
 
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
 # DOP853 (Hairer, Norsett & Wanner), the tableau scipy's solve_ivp uses; stage 12 is the FSAL stage.
 _STAGES = _dop853.N_STAGES
@@ -49,9 +53,61 @@ _TERMINAL_EVENTS = (
 STATE_SIZE = 6  # r, theta, rdot, thetadot, hip work, damper loss
 
 
-class StanceField:
-    """The stance right-hand side for a set of lanes (their torque ramps, saturated at tau_max unless
-    None), in place into ``out``."""
+class LaneField(Protocol):
+    """The stance right-hand side of a set of lanes, in place into ``out``, and the kinks of its torque:
+    :class:`StanceField` for ramps, :class:`SampledField` under stance feedback."""
+
+    def __call__(self, s: FloatArray, y: FloatArray, out: FloatArray) -> None: ...
+
+    def kink(self, s: FloatArray) -> FloatArray:
+        """The next kink of each lane's torque after s."""
+
+    def sample(self, landed: BoolArray, s: FloatArray, y: FloatArray) -> BoolArray | None:
+        """The lanes ``landed`` stand on their kink at (s, y). Returns where the torque jumped there (the
+        field must be evaluated again), or None for a torque that never jumps."""
+
+    def select(self, keep: BoolArray) -> None:
+        """Keep only these lanes."""
+
+    def take(self, lanes: BoolArray) -> Self:
+        """A field of these lanes, as they are now (for their event brackets)."""
+
+    @classmethod
+    def concatenate(cls, fields: list[Self]) -> Self:
+        """One field of the lanes of ``fields``, in order."""
+
+
+class _PerLane:
+    """Lane selection for a field whose per-lane arrays are the attributes named in PER_LANE (None where
+    a kind is off)."""
+
+    PER_LANE: tuple[str, ...] = ()
+
+    def select(self, keep: BoolArray) -> None:
+        for name in self.PER_LANE:
+            value = getattr(self, name)
+            if value is not None:
+                setattr(self, name, value[keep])
+
+    def take(self, lanes: BoolArray) -> Self:
+        taken = copy.copy(self)
+        taken.select(lanes)
+        return taken
+
+    @classmethod
+    def concatenate(cls, fields: list[Self]) -> Self:
+        joined = copy.copy(fields[0])
+        for name in cls.PER_LANE:
+            if getattr(joined, name) is not None:
+                setattr(joined, name, np.concatenate([getattr(field, name) for field in fields]))
+        return joined
+
+
+class StanceField(_PerLane):
+    """The stance right-hand side for lanes under the torque ramps of eq. 18, saturated at tau_max unless
+    None. The torque is a function of s, continuous at its kinks."""
+
+    PER_LANE = ("tau0", "t_f", "tau_max", "saturation_end")
 
     def __init__(
         self, params: HopperParams, tau0: FloatArray, t_f: FloatArray, tau_max: FloatArray | None
@@ -59,16 +115,14 @@ class StanceField:
         self.params, self.tau0, self.t_f, self.tau_max = params, tau0, t_f, tau_max
         self.saturation_end = None if tau_max is None else dynamics.saturation_end(tau0, t_f, tau_max)
 
-    def select(self, keep: npt.NDArray[np.bool_]) -> None:
-        self.tau0, self.t_f = self.tau0[keep], self.t_f[keep]
-        if self.tau_max is not None and self.saturation_end is not None:
-            self.tau_max, self.saturation_end = self.tau_max[keep], self.saturation_end[keep]
-
     def kink(self, s: FloatArray) -> FloatArray:
         """The next kink of the torque after s (the end of the saturation, else the ramp's end t_f)."""
         if self.saturation_end is None:
             return self.t_f
         return np.where(s < self.saturation_end, self.saturation_end, self.t_f)
+
+    def sample(self, landed: BoolArray, s: FloatArray, y: FloatArray) -> BoolArray | None:
+        return None
 
     def __call__(self, s: FloatArray, y: FloatArray, out: FloatArray) -> None:
         r, theta, rdot, thetadot = y[0], y[1], y[2], y[3]
@@ -80,9 +134,62 @@ class StanceField:
         out[0], out[1] = rdot, thetadot
 
 
-def _dop853_step(
-    field: StanceField, s: FloatArray, y: FloatArray, h: FloatArray, k: FloatArray
-) -> FloatArray:
+class SampledField(_PerLane):
+    """The stance right-hand side for lanes under stance feedback (:mod:`.stance_laws`): each lane holds
+    the torque its law set at its last sample instant (zero before its first), clipped at ``limit``; its
+    kinks are its sample instants index * period, on the absolute clock of its touchdown t_touchdown.
+
+    ``lane`` indexes the law's per-lane fields; ``saturated`` (by that index, over every lane of the
+    stride) records whether tau_max clipped a sample (tau_max None: no saturation)."""
+
+    PER_LANE = ("t_touchdown", "limit", "tau_max", "lane", "index", "held")
+
+    def __init__(
+        self,
+        params: HopperParams,
+        law: StanceLaw,
+        period: float,
+        t_touchdown: FloatArray,
+        limit: FloatArray,
+        tau_max: FloatArray | None,
+        lane: IntArray,
+        y0: FloatArray,
+        saturated: BoolArray,
+    ) -> None:
+        self.params, self.law, self.period = params, law, period
+        self.t_touchdown, self.limit, self.tau_max, self.lane = t_touchdown, limit, tau_max, lane
+        self.index: FloatArray = first_sample(t_touchdown, period)
+        self.held = np.zeros(t_touchdown.size)
+        self.saturated = saturated
+        self.sample(self.kink(np.zeros(t_touchdown.size)) == 0.0, np.zeros(t_touchdown.size), y0)
+
+    def kink(self, s: FloatArray) -> FloatArray:
+        kinks: FloatArray = self.index * self.period - self.t_touchdown
+        return kinks
+
+    def sample(self, landed: BoolArray, s: FloatArray, y: FloatArray) -> BoolArray | None:
+        if not landed.any():
+            return landed
+        at = np.flatnonzero(landed)
+        t = self.index[at] * self.period
+        seen = StanceSample(t, s[at], y[0, at], y[1, at], y[2, at], y[3, at], self.held[at])
+        tau = np.broadcast_to(np.asarray(self.law.torque(seen, self.lane[at]), dtype=np.float64), at.shape)
+        if self.tau_max is not None:
+            self.saturated[self.lane[at]] |= np.abs(tau) > self.tau_max[at]
+        self.held[at] = clip_torque(tau, self.limit[at])
+        self.index[at] += 1.0
+        return landed
+
+    def __call__(self, s: FloatArray, y: FloatArray, out: FloatArray) -> None:
+        r, theta, rdot, thetadot = y[0], y[1], y[2], y[3]
+        out[2], out[3] = dynamics.stance_accelerations(
+            self.params, r, np.sin(theta), np.cos(theta), rdot, thetadot, self.held
+        )
+        out[4], out[5] = dynamics.stance_powers(self.params, rdot, thetadot, self.held)
+        out[0], out[1] = rdot, thetadot
+
+
+def _dop853_step(field: LaneField, s: FloatArray, y: FloatArray, h: FloatArray, k: FloatArray) -> FloatArray:
     """One DOP853 step of lengths h; k[0] must hold the field at (s, y); fills k[1:12]."""
     for stage in range(1, _STAGES):
         field(s + _C[stage] * h, y + h * _combine(_A[stage, :stage], k), k[stage])
@@ -111,16 +218,10 @@ def _terminal_values(params: HopperParams, y: FloatArray) -> FloatArray:
 
 
 def integrate_stance(
-    params: HopperParams,
-    y0: FloatArray,
-    tau0: FloatArray,
-    t_f: FloatArray,
-    tau_max: FloatArray | None,
-    t_limit: float,
-    rtol: float,
-    atol: float,
+    params: HopperParams, y0: FloatArray, field: LaneField, t_limit: float, rtol: float, atol: float
 ) -> tuple[IntArray, FloatArray, FloatArray]:
-    """Integrate lanes from touchdown (s = 0) to their first terminal event or the time limit.
+    """Integrate lanes from touchdown (s = 0) to their first terminal event or the time limit, under the
+    torques of ``field`` (a StanceField or a SampledField of these lanes, which it consumes).
 
     Returns per lane the outcome (STANCE_LIFTOFF, STANCE_REVERSAL, STANCE_FALL, STANCE_TIME_LIMIT or
     STANCE_STEP_COLLAPSE), its time s since touchdown and the stance state there (the last accepted one on
@@ -133,8 +234,8 @@ def integrate_stance(
     # Brackets of the lanes whose last step crossed a terminal event.
     bracket_lane: list[IntArray] = []
     bracket_parts: list[tuple[npt.NDArray[Any], ...]] = []
+    bracket_fields: list[LaneField] = []
 
-    field = StanceField(params, tau0, t_f, tau_max)
     lane = np.arange(lanes)
     s = np.zeros(lanes)
     y = y0.copy()
@@ -172,6 +273,7 @@ def integrate_stance(
         stops = crossed.any(axis=0)
         if stops.any():
             bracket_lane.append(lane[stops])
+            bracket_fields.append(field.take(np.asarray(stops)))
             bracket_parts.append(
                 (
                     s[stops],
@@ -185,10 +287,16 @@ def integrate_stance(
             )
         advance = accepted & ~stops
         # Land exactly on the kink, so that the next segment (torque-free after t_f) starts there.
-        s_next = np.where(in_ramp & (h == kink - s), kink, s + h)
+        on_kink = in_ramp & (h == kink - s)
+        s_next = np.where(on_kink, kink, s + h)
         s = np.where(advance, s_next, s)
         y = np.where(advance, y_new, y)
         k[0] = np.where(advance, k[_STAGES], k[0])
+        jumped = field.sample(advance & on_kink, s, y)
+        if jumped is not None and jumped.any():  # the step's last stage saw the torque held before
+            fresh = np.empty_like(k[0])
+            field(s, y, fresh)
+            k[0] = np.where(jumped, fresh, k[0])
         g_before = np.where(advance, g_after, g_before)
         rejected = ~accepted
         h = h * factor
@@ -213,17 +321,14 @@ def integrate_stance(
     if bracket_lane:
         lanes_hit = np.concatenate(bracket_lane)
         parts = [np.concatenate(p, axis=-1) for p in zip(*bracket_parts, strict=True)]
-        saturation = None if tau_max is None else tau_max[lanes_hit]
-        event, s_event, y_event = _locate(params, tau0[lanes_hit], t_f[lanes_hit], saturation, *parts)
+        event, s_event, y_event = _locate(params, type(field).concatenate(bracket_fields), *parts)
         outcome[lanes_hit], s_end[lanes_hit], y_end[:, lanes_hit] = event, s_event, y_event
     return outcome, s_end, y_end
 
 
 def _locate(
     params: HopperParams,
-    tau0: FloatArray,
-    t_f: FloatArray,
-    tau_max: FloatArray | None,
+    field: LaneField,
     s0: FloatArray,
     y0: FloatArray,
     h: FloatArray,
@@ -240,7 +345,6 @@ def _locate(
     bisection. Converges in 2-3 steps from the regula falsi start (the time a step costs).
     """
     lanes = np.arange(s0.size)
-    field = StanceField(params, tau0, t_f, tau_max)
     k = np.empty((_STAGES + 1, STATE_SIZE, s0.size))
     k[0] = k0
     velocity = np.empty((STATE_SIZE, s0.size))

@@ -2,7 +2,9 @@
 
 Descent (P_d) and ascent (P_a) are ballistic and taken in closed form. Stance (P_s, eq. 2 with the
 ramp torque of eq. 18) is integrated by scipy's DOP853 with event location; the stance is split at
-the ramp end s = t_f so that no step straddles the kink of the torque.
+the ramp end s = t_f so that no step straddles the kink of the torque. A stance under feedback
+(:class:`.stance_laws.StanceFeedback`) is split at its sample instants, where the law sets the torque
+held until the next one; the apex's absolute time puts the stride on the sample grid.
 
 Uneven ground, torque saturation, pushes and leg placement errors (:mod:`.perturbations`) enter as
 keyword arguments; without them the map is the flat-ground map, bit for bit.
@@ -15,6 +17,7 @@ that DOP853 cannot complete is never taken for a result: it ends as ``state_limi
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,9 +26,13 @@ from scipy.integrate import solve_ivp
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
-from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import placed_angle
+from tdslip_ros.model.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
 from tdslip_ros.model.terrain import FLAT, Terrain, touchdown
+
+Torque = Callable[[float], float]
+"""The hip torque [N m] of one stance segment as a function of the time s since touchdown [s]."""
 
 
 @dataclass(frozen=True)
@@ -37,7 +44,9 @@ class StrideResult:
     touchdown, bottom (the first maximum compression) and liftoff are the event states (world frame),
     each with its time ``.t``, or None where the stride did not get there; edge tells a touchdown on a
     vertical face of the terrain. failure_state is the state at the failure. energy holds the stance's
-    energy flows whenever the leg lifted off.
+    energy flows whenever the leg lifted off. stance_torques: under stance feedback, the held torques
+    [N m] by sample instant [s, absolute], as a recording lists them (the zero hold from touchdown to
+    the first sample is not listed); empty for a ramp.
     """
 
     apex: ApexState | None
@@ -52,12 +61,13 @@ class StrideResult:
     ground: float | None = None
     apex_x: float | None = None
     edge: bool = False
+    stance_torques: tuple[tuple[float, float], ...] = ()
 
 
 def apex_return_map(
     params: HopperParams,
     apex: ApexState,
-    command: StanceCommand,
+    command: StanceCommand | StanceFeedback,
     *,
     rtol: float = 1e-12,
     atol: float = 1e-12,
@@ -68,6 +78,7 @@ def apex_return_map(
     tau_max: float = math.inf,
     push: float = 0.0,
     angle_error: float = 0.0,
+    apex_time: float = 0.0,
 ) -> StrideResult:
     """Next apex from ``apex`` under ``command``, or a named failure (see :mod:`.events`).
 
@@ -83,8 +94,15 @@ def apex_return_map(
     lands on ``terrain`` (:func:`.terrain.touchdown`); the hip torque saturates at tau_max [N m]; a push
     [m/s] changes the forward speed right after the apex; the leg lands at the commanded angle plus
     angle_error [rad] (:func:`.perturbations.placed_angle`).
+
+    Stance feedback (a :class:`.stance_laws.StanceFeedback` command): the apex is at apex_time [s] on the
+    sample clock, whose sample instants are the multiples of the command's sample_period; the law's
+    torques are clipped at tau_max and at the limits' max_torque. Times in the result (``.t`` of the
+    states, apex_time) stay relative to the apex. ParameterError for a TorqueStream law.
     """
     check_tolerances(rtol, atol)
+    if isinstance(command, StanceFeedback) and isinstance(command.law, TorqueStream):
+        raise ParameterError("the exact map cannot run a torque stream: replay it with RecordedTorques")
     limits = PlausibilityLimits.of(params, limits)
     limits.check_apex(apex)
     t_limit = limits.max_stance_time
@@ -110,6 +128,7 @@ def apex_return_map(
         next_apex: ApexState | None = None,
         apex_time: float | None = None,
         apex_x: float | None = None,
+        stance_torques: tuple[tuple[float, float], ...] = (),
     ) -> StrideResult:
         stance_ground = None if touchdown is None else touchdown.toe_y
         return StrideResult(
@@ -125,6 +144,7 @@ def apex_return_map(
             stance_ground,
             apex_x,
             edge,
+            stance_torques,
         )
 
     def flight_state(t: float) -> HopperState:
@@ -152,15 +172,15 @@ def apex_return_map(
             )
         t_td, toe_y, edge = float(landing.t[0]), float(landing.toe_y[0]), bool(landing.edge[0])
     x_td, y_fall, _, ydot_td = dynamics.ballistic(x, y_apex, xdot, 0.0, t_td, params.g)
-    beyond_limits = limits.torque_failure(command.tau0)
-    if beyond_limits is not None:  # the hip cannot act: the stride ends as the leg meets the ground
-        state = dynamics.flight_hopper_state(params, t_td, 0, x_td, y_fall, xdot, ydot_td, angle, height)
-        return result(*beyond_limits, state)
+    if isinstance(command, StanceCommand):
+        beyond_limits = limits.torque_failure(command.tau0)
+        if beyond_limits is not None:  # the hip cannot act: the stride ends as the leg meets the ground
+            state = dynamics.flight_hopper_state(params, t_td, 0, x_td, y_fall, xdot, ydot_td, angle, height)
+            return result(*beyond_limits, state)
     toe_x = x_td + params.r0 * sin_td if flat else float(landing.toe_x[0])
     rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, xdot, ydot_td)
 
-    def stance_state(s: float, y: np.ndarray) -> HopperState:
-        tau = dynamics.hip_torque(command.tau0, command.t_f, s, saturation)
+    def stance_state(s: float, y: np.ndarray, tau: float) -> HopperState:
         return dynamics.stance_hopper_state(
             params,
             t_td + s,
@@ -176,14 +196,21 @@ def apex_return_map(
         )
 
     y0 = np.array([params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0])
-    touchdown_state = stance_state(0.0, y0)
+    segments: _RampSegments | _SampledSegments
+    if isinstance(command, StanceCommand):
+        segments = _RampSegments(command, saturation, t_limit)
+    else:
+        limit = torque_limit(saturation, limits.max_torque)
+        segments = _SampledSegments(command, apex_time + t_td, limit, saturation, y0)
+    touchdown_state = stance_state(0.0, y0, segments.torque_at_touchdown)
     reversal = dynamics.touchdown_reversal(thetadot_td)
     if reversal is not None:
         return result(*reversal, touchdown_state, touchdown_state)
 
-    outcome = _integrate_stance(params, command, y0, t_limit, rtol, atol, saturation)
+    outcome = _integrate_stance(params, segments, y0, t_limit, rtol, atol)
     bottom = None if outcome.bottom is None else stance_state(*outcome.bottom)
-    end_state = stance_state(outcome.s_end, outcome.y_end)
+    end_state = stance_state(outcome.s_end, outcome.y_end, outcome.tau_end)
+    torques = segments.record if isinstance(segments, _SampledSegments) else ()
     if outcome.terminal == "failed":
         return result(
             FailureKind.STATE_LIMIT,
@@ -191,13 +218,15 @@ def apex_return_map(
             end_state,
             touchdown_state,
             bottom,
+            stance_torques=torques,
         )
     if outcome.terminal is None:
-        return result(*dynamics.no_liftoff(t_limit), end_state, touchdown_state, bottom)
-    if outcome.terminal != "liftoff":
         return result(
-            *dynamics.stance_failure(outcome.terminal, outcome.s_end), end_state, touchdown_state, bottom
+            *dynamics.no_liftoff(t_limit), end_state, touchdown_state, bottom, stance_torques=torques
         )
+    if outcome.terminal != "liftoff":
+        ended = dynamics.stance_failure(outcome.terminal, outcome.s_end)
+        return result(*ended, end_state, touchdown_state, bottom, stance_torques=torques)
 
     r_lo = float(outcome.y_end[0])
     energy = StrideEnergy(
@@ -208,7 +237,7 @@ def apex_return_map(
     liftoff = end_state
     failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
     if failure is not None:
-        return result(failure[0], failure[1], liftoff, touchdown_state, bottom, liftoff, energy)
+        return result(*failure, liftoff, touchdown_state, bottom, liftoff, energy, stance_torques=torques)
     t_rise = liftoff.ydot / params.g
     # The next apex above the stance's ground: from the liftoff height above the toe.
     y_liftoff = r_lo * math.cos(float(outcome.y_end[1]))
@@ -217,10 +246,20 @@ def apex_return_map(
     )
     failure = limits.apex_failure(y_next, liftoff.xdot)
     if failure is not None:
-        return result(failure[0], failure[1], liftoff, touchdown_state, bottom, liftoff, energy)
+        return result(*failure, liftoff, touchdown_state, bottom, liftoff, energy, stance_torques=torques)
     next_apex = ApexState(y=y_next, xdot=liftoff.xdot)
     return result(
-        None, "", None, touchdown_state, bottom, liftoff, energy, next_apex, liftoff.t + t_rise, apex_x
+        None,
+        "",
+        None,
+        touchdown_state,
+        bottom,
+        liftoff,
+        energy,
+        next_apex,
+        liftoff.t + t_rise,
+        apex_x,
+        torques,
     )
 
 
@@ -243,48 +282,95 @@ class _StanceOutcome:
     s_end: float
     y_end: np.ndarray
     terminal: str | None  # "liftoff", "reversal", "fall", "failed" (DOP853 gave up), None at the time limit
-    bottom: tuple[float, np.ndarray] | None
+    bottom: tuple[float, np.ndarray, float] | None  # s, state, torque
+    tau_end: float
     message: str = ""  # scipy's reason when the integration failed
+
+
+class _RampSegments:
+    """The ramp of eq. 18, saturated at tau_max (None: not): segments end at its kinks, fixed in advance."""
+
+    def __init__(self, command: StanceCommand, tau_max: float | None, t_limit: float) -> None:
+        tau0, t_f = command.tau0, command.t_f
+
+        def ramp(s: float) -> float:
+            return float(dynamics.hip_torque(tau0, t_f, s, tau_max))
+
+        self._torque: Torque = ramp
+        self.torque_at_touchdown = ramp(0.0)
+        # The ramp and the torque-free rest of the stance are separate segments, and so is a saturated
+        # start of the ramp: a kink would otherwise cost DOP853 its order there.
+        kinks = [t_f] if tau_max is None else [float(dynamics.saturation_end(tau0, t_f, tau_max)), t_f]
+        self._ends = [*sorted({kink for kink in kinks if 0.0 < kink < t_limit}), t_limit]
+
+    def next(self, s: float, y: np.ndarray) -> tuple[float, Torque]:
+        """The segment from s (a kink or touchdown): its end and its torque."""
+        return next(end for end in self._ends if end > s), self._torque
+
+
+class _SampledSegments:
+    """A stance under feedback (:mod:`.stance_laws`): zero torque from touchdown to the first sample,
+    then one segment per sample period, with the torque the law decides at its start."""
+
+    def __init__(
+        self, command: StanceFeedback, t_touchdown: float, limit: float, tau_max: float | None, y: np.ndarray
+    ) -> None:
+        self._hold = HeldTorque(command, t_touchdown, limit, tau_max, tuple(float(v) for v in y))
+        self.torque_at_touchdown = self._hold.held
+
+    @property
+    def record(self) -> tuple[tuple[float, float], ...]:
+        return tuple(self._hold.record)
+
+    def next(self, s: float, y: np.ndarray) -> tuple[float, Torque]:
+        """The segment from s (touchdown or a sample instant, sampled here): its end and held torque."""
+        if s > 0.0 and s == self._hold.next_sample():
+            self._hold.sample(tuple(float(v) for v in y))
+        held = self._hold.held
+        return self._hold.next_sample(), lambda _: held
 
 
 def _integrate_stance(
     params: HopperParams,
-    command: StanceCommand,
+    segments: _RampSegments | _SampledSegments,
     y0: np.ndarray,
     t_limit: float,
     rtol: float,
     atol: float,
-    tau_max: float | None,
 ) -> _StanceOutcome:
-    tau0, t_f = command.tau0, command.t_f
+    def rhs(torque: Torque) -> Callable[[float, np.ndarray], np.ndarray]:
+        def field(s: float, y: np.ndarray) -> np.ndarray:
+            r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
+            tau = torque(s)
+            rddot, thetaddot = dynamics.stance_accelerations(
+                params, r, math.sin(theta), math.cos(theta), rdot, thetadot, tau
+            )
+            hip_power, damper_power = dynamics.stance_powers(params, rdot, thetadot, tau)
+            return np.array([rdot, thetadot, rddot, thetaddot, hip_power, damper_power])
 
-    def rhs(s: float, y: np.ndarray) -> np.ndarray:
-        r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
-        tau = float(dynamics.hip_torque(tau0, t_f, s, tau_max))
-        rddot, thetaddot = dynamics.stance_accelerations(
-            params, r, math.sin(theta), math.cos(theta), rdot, thetadot, tau
-        )
-        hip_power, damper_power = dynamics.stance_powers(params, rdot, thetadot, tau)
-        return np.array([rdot, thetadot, rddot, thetaddot, hip_power, damper_power])
+        return field
 
     events = [
         _StanceEvent(params, index, terminal=name != "bottom")
         for index, name in enumerate(dynamics.STANCE_EVENT_NAMES)
     ]
-    bottom: tuple[float, np.ndarray] | None = None
-    # The ramp and the torque-free rest of the stance are separate segments, and so is a saturated start
-    # of the ramp: a kink would otherwise cost DOP853 its order there.
-    kinks = [t_f] if tau_max is None else [float(dynamics.saturation_end(tau0, t_f, tau_max)), t_f]
-    boundaries = [0.0, *sorted({kink for kink in kinks if 0.0 < kink < t_limit}), t_limit]
-    y = y0
-    for s_start, s_stop in zip(boundaries[:-1], boundaries[1:], strict=True):
-        sol = solve_ivp(rhs, (s_start, s_stop), y, method="DOP853", rtol=rtol, atol=atol, events=events)
+    bottom: tuple[float, np.ndarray, float] | None = None
+    s_start, y = 0.0, y0
+    while s_start < t_limit:
+        s_stop, torque = segments.next(s_start, y)
+        s_stop = min(s_stop, t_limit)
+        sol = solve_ivp(
+            rhs(torque), (s_start, s_stop), y, method="DOP853", rtol=rtol, atol=atol, events=events
+        )
         if bottom is None and sol.t_events[0].size:
-            bottom = (float(sol.t_events[0][0]), sol.y_events[0][0])
+            s_bottom = float(sol.t_events[0][0])
+            bottom = (s_bottom, sol.y_events[0][0], torque(s_bottom))
         if sol.status == -1:  # the last accepted state is where it gave up
-            return _StanceOutcome(float(sol.t[-1]), sol.y[:, -1], "failed", bottom, sol.message)
+            s_end = float(sol.t[-1])
+            return _StanceOutcome(s_end, sol.y[:, -1], "failed", bottom, torque(s_end), sol.message)
         for index, name in enumerate(dynamics.STANCE_EVENT_NAMES[1:], start=1):
             if sol.t_events[index].size:
-                return _StanceOutcome(float(sol.t_events[index][0]), sol.y_events[index][0], name, bottom)
-        y = sol.y[:, -1]
-    return _StanceOutcome(t_limit, y, None, bottom)
+                s_end = float(sol.t_events[index][0])
+                return _StanceOutcome(s_end, sol.y_events[index][0], name, bottom, torque(s_end))
+        s_start, y = s_stop, sol.y[:, -1]
+    return _StanceOutcome(t_limit, y, None, bottom, torque(t_limit))

@@ -21,6 +21,12 @@ under a torque beyond the actuator limit, or a liftoff towards an apex beyond th
 the motion's fastest rate (MAX_RATE_STEP): a stiff or heavily damped leg that 1 kHz RK4 cannot follow is
 refused at construction rather than integrated into nonsense.
 
+Stance feedback (:class:`.stance_laws.StanceFeedback`, its sample period the tick dt): the sample
+instants are the tick boundaries, so they are grid points of the sub-steps already. At the start of each
+tick in stance the stepper samples the law (a :class:`.stance_laws.TorqueStream` takes the torque last
+given to :meth:`FixedStepStepper.hold_torque`, the plant node's stream), and the hip holds that torque
+through the tick; from touchdown to the first tick boundary it holds zero (:mod:`.stance_laws`).
+
 Toe stubbing: the command for the next touchdown may be changed until touchdown (set_command),
 e.g. by a controller that answers the apex event. The stepper therefore declares toe_stubbing
 at the start of the first tick, after the apex, that begins with the body below the touchdown
@@ -48,6 +54,7 @@ from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, 
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.stance_laws import HeldTorque, StanceFeedback, torque_limit
 from tdslip_ros.model.terrain import Terrain, touchdown
 
 DEFAULT_SUBSTEPS = 4
@@ -86,7 +93,7 @@ class FixedStepStepper:
         self,
         params: HopperParams,
         apex: ApexState,
-        command: StanceCommand,
+        command: StanceCommand | StanceFeedback,
         dt: float = 1e-3,
         x0: float = 0.0,
         *,
@@ -116,8 +123,9 @@ class FixedStepStepper:
         if not math.isfinite(x0):
             raise ParameterError(f"x0 must be a finite number, got {x0!r}")
         self._params = params
-        self._command = command
         self._dt = dt
+        self._check_sample_period(command)
+        self._command = command
         self._substeps = substeps
         self._stance_limit = self._limits.max_stance_time
         self._tick = 0
@@ -134,9 +142,10 @@ class FixedStepStepper:
         self._t_touchdown = 0.0
         self._s = 0.0
         self._stance: _StanceVector = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        self._stance_tau0 = command.tau0
-        self._stance_t_f = command.t_f
-        self._stance_saturation_end = command.t_f
+        self._stance_tau0, self._stance_t_f, self._stance_saturation_end = 0.0, math.inf, math.inf
+        # Stance feedback: the hold of the current (or last) stance under a law, and the streamed torque.
+        self._hold: HeldTorque | None = None
+        self._streamed = 0.0
         # Perturbations: None where off (the flat-ground path, bit for bit).
         self._perturbations = perturbations if perturbations is not None and perturbations.active else None
         if self._perturbations is not None:
@@ -148,6 +157,7 @@ class FixedStepStepper:
             terrain = self._perturbations.terrain
             self._terrain = None if terrain.is_flat else terrain
             self._tau_max = None if not self._perturbations.saturates else float(self._perturbations.tau_max)
+        self._torque_limit = torque_limit(self._tau_max, self._limits.max_torque)
         self._ground = 0.0 if self._terrain is None else self._terrain.height_at(x0)
         self._toe_y = 0.0
         self._landing: _Landing | None = None  # planned once per flight and touchdown angle
@@ -174,7 +184,7 @@ class FixedStepStepper:
         return self._stride
 
     @property
-    def command(self) -> StanceCommand:
+    def command(self) -> StanceCommand | StanceFeedback:
         return self._command
 
     @property
@@ -214,8 +224,16 @@ class FixedStepStepper:
 
     @property
     def saturated_strides(self) -> int:
-        """Touchdowns whose |tau0| exceeded the torque limit tau_max (the hip saturated)."""
-        return self._saturated_strides
+        """Strides in which the hip saturated: touchdowns whose |tau0| exceeded the torque limit tau_max,
+        and stances under feedback one of whose samples it clipped."""
+        return self._saturated_strides + (self._hold is not None and self._hold.saturated)
+
+    @property
+    def stance_torques(self) -> tuple[tuple[float, float], ...]:
+        """The samples of the current or last stance under feedback, (time [s], held torque [N m]) as a
+        recording lists them (the zero hold from touchdown to the first sample is not listed); empty when
+        that stance had a ramp."""
+        return () if self._hold is None else tuple(self._hold.record)
 
     @property
     def last_stride_energy(self) -> StrideEnergy | None:
@@ -231,7 +249,7 @@ class FixedStepStepper:
             return self._stance_state(self._s, self._stance)
         return self._flight_state(self.t)
 
-    def set_command(self, command: StanceCommand) -> None:
+    def set_command(self, command: StanceCommand | StanceFeedback) -> None:
         """Use ``command`` for the next touchdown.
 
         Raises ParameterError in stance, when the angle fails the controllers' own admissibility test
@@ -239,10 +257,12 @@ class FixedStepStepper:
         PLACEMENT_LEAD_TIME after the apex, judged on the apex the controller was given: the measured one,
         above the ground of the last stance), and when the command comes too late: the body is already
         below the new touchdown height r0 cos(theta_td) (on uneven ground: the toe would already have met
-        the ground). A toe placed below the ground at the apex is not refused: it is toe stubbing.
+        the ground). A toe placed below the ground at the apex is not refused: it is toe stubbing. Stance
+        feedback must sample at the tick, dt.
         """
         if self._phase is Phase.STANCE:
             raise ParameterError("the stance command cannot change during stance")
+        self._check_sample_period(command)
         _, _, y_ref, _, ydot_ref = self._flight_ref
         apex = y_ref + ydot_ref**2 / (2.0 * self._params.g)  # descending, the reference is the apex
         if self._perturbations is not None and self._descending:
@@ -272,6 +292,21 @@ class FixedStepStepper:
         self._command = command
         self._place_leg()
 
+    def hold_torque(self, tau: float) -> None:
+        """The torque [N m] a :class:`.stance_laws.TorqueStream` stance holds from the next sample instant
+        (the next tick's start) on, until replaced or until liftoff: the plant node's stream, clipped like a
+        law's output. ParameterError for a torque that is not a finite number."""
+        if not math.isfinite(tau):
+            raise ParameterError(f"a held torque must be finite, got {tau!r}")
+        self._streamed = float(tau)
+
+    def _check_sample_period(self, command: StanceCommand | StanceFeedback) -> None:
+        if isinstance(command, StanceFeedback) and command.sample_period != self._dt:
+            raise ParameterError(
+                f"the stance feedback samples every {command.sample_period!r} s, but the stepper's tick is "
+                f"{self._dt!r} s: the sample instants must be its tick boundaries"
+            )
+
     def step(self) -> list[Event]:
         """Advance one tick; return the events inside it in time order."""
         if self._failed is not None:
@@ -286,6 +321,9 @@ class FixedStepStepper:
             if stubbing is not None:
                 self._fail(events, self._flight_state(t_start), *stubbing)
                 return events
+        hold = self._hold
+        if self._phase is Phase.STANCE and hold is not None and self._s == hold.next_sample():
+            hold.sample(self._stance, self._streamed)
         t = t_start
         while t < t_end and self._failed is None:
             if self._phase is Phase.FLIGHT:
@@ -406,7 +444,10 @@ class FixedStepStepper:
         t_touchdown = max(t, t_apex + fall)
         if t_touchdown > t_end:
             return t_end
-        beyond_limits = self._limits.torque_failure(self._command.tau0)
+        command = self._command
+        beyond_limits = (
+            None if isinstance(command, StanceFeedback) else self._limits.torque_failure(command.tau0)
+        )
         if beyond_limits is not None:
             self._fail(events, self._flight_state(t_touchdown), *beyond_limits)
             return t_touchdown
@@ -420,13 +461,23 @@ class FixedStepStepper:
         self._t_touchdown = t_touchdown
         self._s = 0.0
         self._stance = (params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0)
-        self._stance_tau0, self._stance_t_f = self._command.tau0, self._command.t_f
-        self._stance_saturation_end = self._stance_t_f
-        if self._tau_max is not None:
-            self._stance_saturation_end = float(
-                dynamics.saturation_end(self._stance_tau0, self._stance_t_f, self._tau_max)
+        if self._hold is not None:  # the last stance's, counted now that it is replaced
+            self._saturated_strides += self._hold.saturated
+            self._hold = None
+        if isinstance(command, StanceFeedback):
+            # No kinks but the tick boundaries, where the sub-step grid stops anyway.
+            self._stance_t_f = self._stance_saturation_end = math.inf
+            self._hold = HeldTorque(
+                command, t_touchdown, self._torque_limit, self._tau_max, self._stance, self._streamed
             )
-            self._saturated_strides += abs(self._stance_tau0) > self._tau_max
+        else:
+            self._stance_tau0, self._stance_t_f = command.tau0, command.t_f
+            self._stance_saturation_end = self._stance_t_f
+            if self._tau_max is not None:
+                self._stance_saturation_end = float(
+                    dynamics.saturation_end(self._stance_tau0, self._stance_t_f, self._tau_max)
+                )
+                self._saturated_strides += abs(self._stance_tau0) > self._tau_max
         touchdown_state = self._stance_state(0.0, self._stance)
         events.append(Event(EventKind.TOUCHDOWN, t_touchdown, self._stride, touchdown_state))
         reversal = dynamics.touchdown_reversal(thetadot_td)
@@ -437,6 +488,8 @@ class FixedStepStepper:
     # --- stance -----------------------------------------------------------------------------
 
     def _torque(self, s: float) -> float:
+        if self._hold is not None:
+            return self._hold.held
         if self._tau_max is None:
             return dynamics.ramp_torque(self._stance_tau0, self._stance_t_f, s)
         return float(dynamics.hip_torque(self._stance_tau0, self._stance_t_f, s, self._tau_max))
@@ -572,6 +625,7 @@ class FixedStepStepper:
             hip_work=y[4], damping_loss=y[5], spring_loss=dynamics.spring_energy(self._params, y[0])
         )
         self._phase = Phase.FLIGHT
+        self._streamed = 0.0  # a stance's streamed torque ends with it
         self._flight_ref = (liftoff.t, liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot)
         self._descending = False
         self._ground = self._toe_y
