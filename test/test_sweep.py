@@ -72,6 +72,35 @@ def test_the_command_writes_the_table_figure_and_summary_and_resumes(
     assert {path: path.stat().st_mtime_ns for path in (out / "table").iterdir()} == parts
 
 
+def test_map_paper_starts_fig07_on_the_paper_s_energy_fixed_point_and_hops_the_exact_plant_from_there(
+    tmp_path: Path, dask_scheduler: str
+) -> None:
+    """--map is the design's analytic_map: fig. 7's lanes start on E*(y0) of eq. 27 on the paper's map (not
+    ours), and their last apexes are the exact plant's open loop from there."""
+    out = tmp_path / "fig07"
+    command = ["sweep", "fig07", "--out", str(out), "--grid", "2x3", "--strides", "12"]
+    assert cli.main([*command, "--map", "paper", "--scheduler", dask_scheduler]) == 0
+    rows = pq.read_table(out / "table").sort_by("trajectory")
+    assert set(rows["analytic_map"].to_pylist()) == {"paper"}
+    assert json.loads((out / "summary.json").read_text())["analytic_map"] == "paper"
+    alpha = units.power_to_alpha(PARAMS, rows["touchdown_power"].to_numpy())
+    heights = rows["y0"].to_numpy()
+    paper, ours = (
+        stability.energy_fixed_point(PARAMS, math.radians(26.0), alpha, heights, speed=speed)
+        for speed in ("liftoff", "energy")
+    )
+    energy0 = rows["energy0"].to_numpy()
+    np.testing.assert_allclose(energy0, paper, rtol=1e-12)
+    assert np.all(np.abs(energy0 - ours) > 1.0)  # J: the map changed the start
+    expected = basins.open_loop_basin(PARAMS, math.radians(26.0), alpha, heights, paper, strides=12)
+    np.testing.assert_array_equal(
+        rows["outcome"].to_numpy(zero_copy_only=False), np.asarray(basins.OUTCOMES)[expected.outcome]
+    )
+    survived = rows["strides_survived"].to_numpy()  # the last apex reached, failed lanes among them
+    last = expected.history.y[survived, np.arange(survived.size)]
+    np.testing.assert_allclose(rows["y_end"].to_numpy(), last, rtol=1e-12)
+
+
 @pytest.mark.parametrize(
     ("arguments", "message"),
     [
