@@ -18,7 +18,7 @@ from tdslip_ros.commands import cli
 from tdslip_ros.model import basins, stability, units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.reporting.paper_grids import FIG11_STUDIES
-from tdslip_ros.studies import engine, sweep
+from tdslip_ros.studies import engine, sweep, table
 
 PARAMS = PAPER_PARAMS
 
@@ -99,6 +99,37 @@ def test_map_paper_starts_fig07_on_the_paper_s_energy_fixed_point_and_hops_the_e
     survived = rows["strides_survived"].to_numpy()  # the last apex reached, failed lanes among them
     last = expected.history.y[survived, np.arange(survived.size)]
     np.testing.assert_allclose(rows["y_end"].to_numpy(), last, rtol=1e-12)
+
+
+def test_resuming_a_study_begun_before_the_analytic_map_column_fills_it_with_ours(
+    tmp_path: Path, dask_scheduler: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "fig10"
+    command = ["sweep", "fig10", "--out", str(out), "--grid", "2x3", "--strides", "5", "--chunk-size", "2"]
+    command += ["--scheduler", dask_scheduler]
+    assert cli.main(command) == 0
+    whole = pq.read_table(out / "table")
+    # As a version without the column left it: part 0 written without it, part 2 not yet written.
+    first = pq.read_table(table.part_path(out, 0))
+    pq.write_table(first.drop_columns(["analytic_map"]), table.part_path(out, 0))
+    table.part_path(out, 2).unlink()
+    capsys.readouterr()
+    assert cli.main([*command, "--resume"]) == 0
+    assert "2 of 3 chunks were on disk, 1 computed" in capsys.readouterr().err  # part 0 was not recomputed
+    resumed = pq.read_table(out / "table")  # one schema: every part has the column, ours where it lacked it
+    assert resumed.schema == whole.schema and resumed["analytic_map"].to_pylist() == ["ours"] * 6
+    for name in whole.column_names:
+        np.testing.assert_array_equal(
+            resumed[name].to_numpy(zero_copy_only=False), whole[name].to_numpy(zero_copy_only=False)
+        )
+    # A part lacking any other column is not this version's: refused in one line naming the folder.
+    pq.write_table(first.drop_columns(["y_std"]), table.part_path(out, 0))
+    assert cli.main([*command, "--resume"]) == 2
+    error = capsys.readouterr().err
+    assert error == (
+        f"tdslip sweep: {out}: part-000000.parquet has no column y_std (written by another version of "
+        "tdslip_ros); choose another --out\n"
+    )
 
 
 @pytest.mark.parametrize(
