@@ -5,9 +5,11 @@ plant, the command that reproduces ours, and where they differ a pointer to the 
 docs/paper.md (which shows the exact-plant evidence). Our values are read from the figure documents of the
 same run (their JSON), so a row needs its figures computed; rows whose figures were not are listed with
 the command that computes them. Some rows compute their own small numbers from the model (the open-loop t_f
-at alpha = 1, the analytic map's prediction error on the accuracy grids and its accuracy domain, the
-convergence of its corrections, the solutions of eq. 27, the first strides of fig. 10's starts; a few
-seconds). FIGURE_PARAMETERS says which parameters each figure uses and which of them the paper gives.
+at alpha = 1, the first strides of fig. 10's starts: with their figures). The rows that read no figure are
+the model's alone (the analytic map's prediction error on the accuracy grids and its accuracy domain, the
+convergence of its corrections, the solutions of eq. 27, the speed scale; some five seconds): the full
+``tdslip figures`` computes them, a run of some figures (``--only``) does not. FIGURE_PARAMETERS says which
+parameters each figure uses and which of them the paper gives.
 """
 
 from __future__ import annotations
@@ -818,11 +820,12 @@ def parameters_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
-def rows(documents: Documents, params: HopperParams) -> list[Row]:
-    """The table's rows from the figure documents of one run (rows lacking a figure say so)."""
+def rows(documents: Documents, params: HopperParams, *, model_rows: bool) -> list[Row]:
+    """The table's rows from the figure documents of one run (rows lacking a figure say so); the rows that
+    read no figure only with ``model_rows`` (the full run, their command), else they say so too."""
     table = []
     for claim, paper, figures, explanation, compute in ROWS:
-        if all(name in documents for name in figures):
+        if all(name in documents for name in figures) if figures else model_rows:
             analytic, exact = compute(documents, params)
         else:
             analytic = exact = "not computed in this run"
