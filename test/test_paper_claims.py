@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import test_figures
 
-from tdslip_ros.analysis import paper_comparison
+from tdslip_ros.analysis import figure_parameters, paper_comparison
 from tdslip_ros.analysis.figures import exact_basins, open_loop, regulated, tracking
 from tdslip_ros.model import analytic_accuracy, stability, units
 from tdslip_ros.model.analytic import approximate_map
@@ -68,7 +68,7 @@ def test_every_claim_of_the_comparison_is_a_row_of_the_docs_table_with_the_same_
 
 def test_the_docs_quote_the_parameters_of_every_figure() -> None:
     text = DOCS.read_text()
-    for line in paper_comparison.parameters_markdown().splitlines():
+    for line in figure_parameters.parameters_markdown().splitlines():
         assert line in text
 
 

@@ -64,7 +64,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from tdslip_ros.analysis import paper_comparison
+from tdslip_ros.analysis import figure_parameters, paper_comparison
 from tdslip_ros.analysis.figures.catalogue import FIGURES, compute_shared, shared_work, write_figure
 from tdslip_ros.analysis.figures.common import DEFAULT, FINE, PARAMS, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED
@@ -121,7 +121,7 @@ def main(argv: list[str]) -> int:
         # The claims the model alone answers cost seconds: the full run's (their command), not each --only's.
         table = paper_comparison.rows(documents, PARAMS, model_rows=set(names) >= set(FIGURES))
         (args.out / "comparison.md").write_text(
-            paper_comparison.markdown(table) + "\n" + paper_comparison.parameters_markdown()
+            paper_comparison.markdown(table) + "\n" + figure_parameters.parameters_markdown()
         )
     except (OutputError, engine.EngineError) as error:
         print(f"tdslip figures: {error}", file=sys.stderr)
