@@ -146,6 +146,36 @@ def test_paper_liftoff_solves_the_frozen_envelope_equation(
         assert float(t_lo) == pytest.approx(reference, rel=1e-12)
 
 
+@pytest.mark.parametrize("case", CASES)
+def test_the_printed_phases_and_eq_16_against_ours(case: tuple[float, float, float, float, float]) -> None:
+    """The text as printed (docs/paper.md, the printed equations and ours): phi1 = arctan(-B/A) puts r(0)
+    at r0 only where A > 0; phi3 = arctan(c wh sin phi2/(c wh cos phi2 - k)) is ours while k > c^2/(2m);
+    eq. 16 with it, its Mbar and atan2's phi1 is our liftoff time."""
+    stance = _stance(case)
+    k, c, m, r0 = (
+        float(value) for value in (stance.params.k, stance.params.c, stance.params.m, stance.params.r0)
+    )
+    wh, zeta, wd = float(stance.omega_hat), float(stance.zeta), float(stance.omega_d)
+    a, amplitude, t_b = float(stance.amplitude_a), float(stance.amplitude), float(stance.bottom_time)
+    b = (float(stance.rdot_td) + zeta * wh * a) / wd  # eq. 11
+    r_start = amplitude * np.cos(np.arctan(-b / a)) + r0 - a  # eq. 12 at t = 0, F/wh^2 = r0 - A (eq. 10)
+    assert (abs(r_start - r0) < 1e-12) == (a > 0.0)
+    with np.errstate(divide="ignore"):
+        phi2 = float(np.arctan(np.divide(-np.sqrt(1.0 - zeta**2), zeta)))  # principal value: -pi/2 at zeta 0
+    phi3 = np.arctan(c * wh * np.sin(phi2) / (c * wh * np.cos(phi2) - k))
+    spring_wins = k > c**2 / (2.0 * m)
+    assert (abs(phi3 - float(stance.phi3)) < 1e-12) == spring_wins
+    if spring_wins:
+        force_amplitude = np.sqrt(k**2 - 2.0 * k * c * wh * np.cos(phi2) + c**2 * wh**2)
+        assert force_amplitude == pytest.approx(float(stance.force_amplitude), rel=1e-13)
+        q = k * a / (force_amplitude * amplitude * np.exp(-zeta * wh * 2.0 * t_b))
+        t_lo, exists = stance.liftoff_time("paper")
+        assert bool(exists) == (abs(q) <= 1.0)
+        if exists:
+            printed = (2.0 * np.pi - np.arccos(q) - float(stance.phi1) - phi3) / wd
+            assert float(t_lo) == pytest.approx(printed, rel=1e-12)
+
+
 def test_both_liftoff_methods_are_exact_without_damping() -> None:
     stance = _stance((36.0, 0.0, -2.0, -3.0, 0.3))
     paper, _ = stance.liftoff_time("paper")

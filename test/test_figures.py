@@ -53,9 +53,25 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     assert document["figure"] == "fig09" and document["params"]["kbar"] == pytest.approx(36.0)
     assert document["resolution"] == vars(TINY)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["comparison.md", "fig09.json", "fig09.png"]
-    # The comparison table: rows of figures not computed say so, the others have our numbers.
+    # The comparison table: rows of figures not computed say so, and so do the rows the model alone answers
+    # (the full run's); the others have our numbers.
     table = (tmp_path / "comparison.md").read_text()
-    assert table.count("not computed in this run") >= 10 and "4.70 m/s" in table
+    assert table.count("not computed in this run") >= 10 and "4.70 m/s" not in table
+    speed_row = next(line for line in table.splitlines() if line.startswith("| xdotbar = 1.5 (IV.B) |"))
+    assert "| not computed in this run |" in speed_row and "`tdslip figures`" in speed_row
+
+
+def test_a_run_of_every_figure_computes_the_rows_the_model_alone_answers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The full run (here of a catalogue without figures, so that it takes no time) computes the rows that
+    read no figure; only the cheapest of them is kept, the others take seconds."""
+    speed_row = next(row for row in paper_comparison.ROWS if row[0] == "xdotbar = 1.5 (IV.B)")
+    monkeypatch.setattr(paper_comparison, "ROWS", (speed_row,))
+    monkeypatch.setattr(figures_command, "FIGURES", {})
+    assert cli.main(["figures", "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "comparison.md").read_text()
+    assert "| xdotbar = 1.5 (IV.B) | about 4.7 m/s | xdotbar 1.5 = 4.70 m/s " in table  # 1.5 sqrt(g r0)
 
 
 def test_figures_with_the_paper_s_map_draw_that_map(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -145,7 +161,7 @@ def test_the_comparison_table_reads_our_numbers_from_the_figure_documents() -> N
             "energy_exact": {"20": [1.094, 3.344], "22": [1.3, 4.7], "26": [2.1, 9.2], "30": [3.24, 16.9]},
         }
     }
-    table = {row.claim: row for row in paper_comparison.rows(documents, PARAMS)}
+    table = {row.claim: row for row in paper_comparison.rows(documents, PARAMS, model_rows=False)}
     twenty = table["stable Ebar range, beta = 20 deg (IV.C)"]
     assert (twenty.paper, twenty.analytic) == ("[1.1, 3.4]", "[0.97, 3.32]")
     assert twenty.exact == "energy [1.55, 3.34]; energy_exact [1.09, 3.34]"

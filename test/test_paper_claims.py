@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import test_figures
 
-from tdslip_ros.analysis import paper_comparison
+from tdslip_ros.analysis import figure_parameters, paper_comparison
 from tdslip_ros.analysis.figures import exact_basins, open_loop, regulated, tracking
 from tdslip_ros.model import analytic_accuracy, stability, units
 from tdslip_ros.model.analytic import approximate_map
@@ -69,7 +69,7 @@ def test_every_claim_of_the_comparison_is_a_row_of_the_docs_table_with_the_same_
 
 def test_the_docs_quote_the_parameters_of_every_figure() -> None:
     text = DOCS.read_text()
-    for line in paper_comparison.parameters_markdown().splitlines():
+    for line in figure_parameters.parameters_markdown().splitlines():
         assert line in text
 
 
@@ -232,6 +232,37 @@ def test_fig13_deadbeat_tracks_more_targets_more_accurately_than_the_pd_baseline
     deadbeat, pd = exact.split("; pd: ")
     assert deadbeat.startswith("deadbeat: xdotbar* 0.5-3 (3 of 3), max error ")
     assert pd.startswith("xdotbar* 1.75 (1 of 3)")
+
+
+@pytest.mark.xdist_group("fig10")
+def test_the_figures_json_says_what_the_text_says() -> None:
+    """The text's numbers, read from the figures' JSON documents: fig. 10's protocol (beta 26 deg, Ebar in
+    [2, 6], 50 steps) and its convergence, "at most 8 steps for most initial conditions" (IV.B), which holds
+    where the exact fixed point's |lambda| is small (docs/paper.md#convergence); fig. 8 at 30 deg is stable
+    over the part of "[3.45, 11.9]" (IV.C) it draws."""
+    written = {name: json.loads(to_json(data)) for name, data in documents("fig08", "fig10").items()}
+    fig10 = written["fig10"]
+    assert (fig10["beta_deg"], fig10["strides"]) == (26.0, 50)
+    assert (min(fig10["Ebar0"]), max(fig10["Ebar0"])) == (2.0, 6.0)
+    converged = np.array(fig10["outcome"]) == "converged"
+    strides = np.array(fig10["convergence_stride"])
+    within = converged & (strides <= 8)
+    assert fig10["converged_within_8_strides"] == within.sum() > converged.sum() / 2
+    radius = np.array(fig10["exact_by_eigenvalue"]["spectral_radius"], dtype=float)[:, 0]
+    fast = radius < 0.25  # per goal energy, the rows of the basin
+    assert fast.any() and np.all(within[fast] == converged[fast]) and converged[fast].any()
+    panel = written["fig08"]["beta_30"]["fixed_points"]
+    energies = np.array(panel["parameter"])
+    inside = (energies >= 3.45) & (energies <= 11.9)
+    assert inside.sum() >= 3 and all(panel["stable"][i][0] for i in np.flatnonzero(inside))
+
+
+@pytest.mark.skipif(not PAPER_TEXT.exists(), reason="the paper's text is not here")
+def test_the_ranges_figure_draws_the_paper_s_ranges_as_the_text_prints_them() -> None:
+    printed = re.findall(
+        r"\\beta = (\d+)\^\{\\circ\}\$ ,\s*\$\\bar\{E\}_a \\in \[([\d.]+), ([\d.]+)\]", PAPER_TEXT.read_text()
+    )
+    assert {float(beta): (float(low), float(high)) for beta, low, high in printed} == regulated.PAPER_RANGES
 
 
 @pytest.mark.parametrize(

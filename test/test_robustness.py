@@ -16,7 +16,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from tdslip_ros.commands import cli
-from tdslip_ros.model import units
+from tdslip_ros.commands.robustness import DEFAULT_ENERGY_BAR
+from tdslip_ros.model import controllers, units
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams
 from tdslip_ros.model.policies import PolicySpec
@@ -113,6 +114,35 @@ def test_the_command_writes_survival_figures_and_tables(tmp_path: Path, dask_sch
     assert document["operating_point"]["touchdown_angle"] == pytest.approx(math.radians(20.0))  # the default
     table = (out / "robustness.md").read_text()
     assert table.count("\n| terrain |") == 2 and "| mismatch | energy |" in table
+
+
+def test_map_paper_plans_deadbeat_on_the_paper_s_map(tmp_path: Path, dask_scheduler: str) -> None:
+    """--map paper is the design's analytic_map. Energy regulation plans alike on both maps (E_tau = E_loss
+    does not involve the next speed), so the operating point is ours; deadbeat aims by the next speed, so
+    its first stride on flat ground is the exact map's under the command it plans on the paper's map."""
+    out = tmp_path / "robustness"
+    command = ["robustness", "--out", str(out), "--samples", "1", "--strides", "1", "--kinds", "step"]
+    command += ["--policies", "deadbeat", "--map", "paper", "--scheduler", dask_scheduler]
+    assert cli.main(command) == 0
+    rows = pq.read_table(out / "step" / "table").sort_by("trajectory")
+    assert set(rows["analytic_map"].to_pylist()) == {"paper"}
+    assert "Analytic map the policies plan on: paper." in (out / "robustness.md").read_text()
+    document = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)["operating_point"]
+    assert document["analytic_map"] == "paper"
+    energy = units.energy_from_bar(PARAMS, DEFAULT_ENERGY_BAR)  # the command's default operating point
+    ours = robustness.operating_point(PARAMS, math.radians(20.0), energy)
+    assert (document["y"], document["xdot"]) == (ours.y, ours.xdot)
+    apex = ApexState(ours.y, ours.xdot)
+    ends = {}
+    for speed in ("liftoff", "energy"):
+        planned = controllers.deadbeat(PARAMS, apex.y, apex.xdot, apex.y, apex.xdot, speed=speed)
+        after = apex_return_map(PARAMS, apex, planned.command(), rtol=1e-12, atol=1e-12).apex
+        assert after is not None
+        ends[speed] = np.array([after.y, after.xdot])
+    assert rows["step_height"][0].as_py() == 0.0  # the first size: flat ground
+    reached = np.array([rows["y_end"][0].as_py(), rows["xdot_end"][0].as_py()])
+    np.testing.assert_allclose(reached, ends["liftoff"], rtol=1e-9)
+    assert np.abs(reached - ends["energy"]).max() > 0.01  # m, m/s: ours would have gone elsewhere
 
 
 def test_a_bad_operating_point_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

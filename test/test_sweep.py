@@ -18,7 +18,7 @@ from tdslip_ros.commands import cli
 from tdslip_ros.model import basins, stability, units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.reporting.paper_grids import FIG11_STUDIES
-from tdslip_ros.studies import engine, sweep
+from tdslip_ros.studies import engine, sweep, table
 
 PARAMS = PAPER_PARAMS
 
@@ -70,6 +70,66 @@ def test_the_command_writes_the_table_figure_and_summary_and_resumes(
     assert cli.main(command) == 2  # the directory holds this study: --resume, or another --out
     assert cli.main([*command, "--resume"]) == 0  # nothing left to compute: the parts stay as they were
     assert {path: path.stat().st_mtime_ns for path in (out / "table").iterdir()} == parts
+
+
+def test_map_paper_starts_fig07_on_the_paper_s_energy_fixed_point_and_hops_the_exact_plant_from_there(
+    tmp_path: Path, dask_scheduler: str
+) -> None:
+    """--map is the design's analytic_map: fig. 7's lanes start on E*(y0) of eq. 27 on the paper's map (not
+    ours), and their last apexes are the exact plant's open loop from there."""
+    out = tmp_path / "fig07"
+    command = ["sweep", "fig07", "--out", str(out), "--grid", "2x3", "--strides", "12"]
+    assert cli.main([*command, "--map", "paper", "--scheduler", dask_scheduler]) == 0
+    rows = pq.read_table(out / "table").sort_by("trajectory")
+    assert set(rows["analytic_map"].to_pylist()) == {"paper"}
+    assert json.loads((out / "summary.json").read_text())["analytic_map"] == "paper"
+    alpha = units.power_to_alpha(PARAMS, rows["touchdown_power"].to_numpy())
+    heights = rows["y0"].to_numpy()
+    paper, ours = (
+        stability.energy_fixed_point(PARAMS, math.radians(26.0), alpha, heights, speed=speed)
+        for speed in ("liftoff", "energy")
+    )
+    energy0 = rows["energy0"].to_numpy()
+    np.testing.assert_allclose(energy0, paper, rtol=1e-12)
+    assert np.all(np.abs(energy0 - ours) > 1.0)  # J: the map changed the start
+    expected = basins.open_loop_basin(PARAMS, math.radians(26.0), alpha, heights, paper, strides=12)
+    np.testing.assert_array_equal(
+        rows["outcome"].to_numpy(zero_copy_only=False), np.asarray(basins.OUTCOMES)[expected.outcome]
+    )
+    survived = rows["strides_survived"].to_numpy()  # the last apex reached, failed lanes among them
+    last = expected.history.y[survived, np.arange(survived.size)]
+    np.testing.assert_allclose(rows["y_end"].to_numpy(), last, rtol=1e-12)
+
+
+def test_resuming_a_study_begun_before_the_analytic_map_column_fills_it_with_ours(
+    tmp_path: Path, dask_scheduler: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "fig10"
+    command = ["sweep", "fig10", "--out", str(out), "--grid", "2x3", "--strides", "5", "--chunk-size", "2"]
+    command += ["--scheduler", dask_scheduler]
+    assert cli.main(command) == 0
+    whole = pq.read_table(out / "table")
+    # As a version without the column left it: part 0 written without it, part 2 not yet written.
+    first = pq.read_table(table.part_path(out, 0))
+    pq.write_table(first.drop_columns(["analytic_map"]), table.part_path(out, 0))
+    table.part_path(out, 2).unlink()
+    capsys.readouterr()
+    assert cli.main([*command, "--resume"]) == 0
+    assert "2 of 3 chunks were on disk, 1 computed" in capsys.readouterr().err  # part 0 was not recomputed
+    resumed = pq.read_table(out / "table")  # one schema: every part has the column, ours where it lacked it
+    assert resumed.schema == whole.schema and resumed["analytic_map"].to_pylist() == ["ours"] * 6
+    for name in whole.column_names:
+        np.testing.assert_array_equal(
+            resumed[name].to_numpy(zero_copy_only=False), whole[name].to_numpy(zero_copy_only=False)
+        )
+    # A part lacking any other column is not this version's: refused in one line naming the folder.
+    pq.write_table(first.drop_columns(["y_std"]), table.part_path(out, 0))
+    assert cli.main([*command, "--resume"]) == 2
+    error = capsys.readouterr().err
+    assert error == (
+        f"tdslip sweep: {out}: part-000000.parquet has no column y_std (written by another version of "
+        "tdslip_ros); choose another --out\n"
+    )
 
 
 @pytest.mark.parametrize(

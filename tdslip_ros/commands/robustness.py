@@ -2,7 +2,7 @@
 
     tdslip robustness --out DIR [--samples 30] [--strides 50] [--policies open_loop energy ...]
                       [--kinds terrain noise mismatch step] [--touchdown-angle-deg 20] [--energy-bar 2.274]
-                      [--mismatch-field stiffness] [--seed 0] [--resume]
+                      [--mismatch-field stiffness] [--seed 0] [--map ours|paper] [--resume]
                       [--scheduler tcp://HOST:PORT | --workers N]
 
 Every policy starts at the same operating point and would hop there on flat ground: the exact plant's fixed
@@ -39,6 +39,7 @@ import math
 from pathlib import Path
 
 from tdslip_ros.commands.options import (
+    add_analytic_map,
     add_energy_bar,
     add_touchdown_angle,
     command_parser,
@@ -94,6 +95,7 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--seed", type=int, default=0, help="of every random draw (with the trajectory index)"
     )
+    add_analytic_map(parser, what=", the one the policies (and the operating point) plan on")
     add_engine_arguments(parser)
     return parser
 
@@ -119,6 +121,7 @@ def main(argv: list[str]) -> int:
             args.mismatch_field,
             where_of(args),
             args.resume,
+            args.map,
         )
 
     status = run_study_command("robustness", args.out, produce)

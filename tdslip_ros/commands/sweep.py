@@ -1,7 +1,7 @@
 """``tdslip sweep``: the exact plant's basins (figs. 7 and 10) and parameter dependence (fig. 11) at any
 resolution, on the study engine (a local Dask cluster, or ``--scheduler``).
 
-    tdslip sweep fig07|fig10|fig11 --out DIR [--grid AxB] [--strides N] [--chunk-size N]
+    tdslip sweep fig07|fig10|fig11 --out DIR [--grid AxB] [--strides N] [--chunk-size N] [--map ours|paper]
                  [--scheduler tcp://HOST:PORT | --workers N] [--resume]
 
 * fig07: open loop at beta = 26 deg, a grid of touchdown powers alpha in [0.5, 2.5] x initial heights ybar0
@@ -15,10 +15,12 @@ resolution, on the study engine (a local Dask cluster, or ``--scheduler``).
   each a grid of goal energies Ebar in [0.8, 14] x initial heights ybar0 in [1, 2] per value; 50 strides.
   ``--grid`` is energies x heights (default 57x3).
 
-Each study directory holds the table (``table/``, Parquet, one row per trajectory: see
-:mod:`tdslip_ros.studies.table`) and ``study.json``; DIR gets the figure (``fig07.png``, ...) and
-``summary.json`` (outcome counts, and the fixed points reached: per grid row, the median over the converged
-trajectories, dimensionless). ``--resume`` completes an interrupted sweep, computing only missing chunks.
+The policies (and fig. 7's start E*(y0)) plan on the analytic map ``--map``: ours, or the paper's as printed
+(the table's ``analytic_map`` column; the exact plant is the same). Each study directory holds the table
+(``table/``, Parquet, one row per trajectory: see :mod:`tdslip_ros.studies.table`) and ``study.json``; DIR
+gets the figure (``fig07.png``, ...) and ``summary.json`` (the map, outcome counts, and the fixed points
+reached: per grid row, the median over the converged trajectories, dimensionless). ``--resume`` completes
+an interrupted sweep, computing only missing chunks.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tdslip_ros.commands.options import command_parser
+from tdslip_ros.commands.options import add_analytic_map, command_parser
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.studies.sweep import SWEEPS, write_sweep
 
@@ -72,6 +74,7 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--chunk-size", type=positive_int, help="trajectories per chunk (default: from the size)"
     )
+    add_analytic_map(parser, what=", the one the policies plan on")
     add_engine_arguments(parser)
     return parser
 
@@ -81,7 +84,14 @@ def main(argv: list[str]) -> int:
 
     def produce() -> None:
         write_sweep(
-            args.sweep, args.out, args.grid, args.strides, args.chunk_size, where_of(args), args.resume
+            args.sweep,
+            args.out,
+            args.grid,
+            args.strides,
+            args.chunk_size,
+            where_of(args),
+            args.resume,
+            args.map,
         )
 
     status = run_study_command("sweep", args.out, produce)

@@ -96,6 +96,13 @@ DESIGN_STREAM = 0
 """spawn_key (index, DESIGN_STREAM): the stream of a trajectory's design draws (others: perturbations)."""
 
 
+def analytic_map_fixed(analytic_map: str) -> dict[str, str]:
+    """The fixed value that puts a study's policies on the analytic map ``analytic_map``: none for the
+    default, so that a study on it keeps the design and digest, and so the chunks on disk, that it had
+    before the setting existed (--resume)."""
+    return {} if analytic_map == DEFAULTS["analytic_map"] else {"analytic_map": analytic_map}
+
+
 class StudyError(ValueError):
     """The study design is inconsistent; the message says what to change."""
 

@@ -25,13 +25,14 @@ import pyarrow as pa
 from matplotlib.figure import Figure
 
 from tdslip_ros.model import dynamics, units
+from tdslip_ros.model.analytic import DEFAULT_ANALYTIC_MAP
 from tdslip_ros.model.events import FAILURE_KINDS
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.reporting.output import output_directory, to_json
 from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
 from tdslip_ros.studies import chunk, engine, table
-from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform
+from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform, analytic_map_fixed
 
 SETTLING_STRIDES = 30
 """Flat-ground strides of energy regulation to its fixed point, the operating point (|lambda| << 1)."""
@@ -76,17 +77,21 @@ KINDS = {
 
 @dataclass(frozen=True)
 class OperatingPoint:
-    """The apex (y [m], xdot [m/s]) every policy starts at and holds on flat ground, and the policies'
-    settings there (by design parameter)."""
+    """The apex (y [m], xdot [m/s]) every policy starts at and holds on flat ground, the policies' numeric
+    settings there (by design parameter), and the analytic map they plan on."""
 
     y: float
     xdot: float
     settings: dict[str, float]
+    analytic_map: str
 
 
-def operating_point(params: HopperParams, beta: float, energy: float) -> OperatingPoint:
-    """Energy regulation's flat-ground fixed point at touchdown angle beta [rad] and apex energy [J] (the
-    module docstring), reached in SETTLING_STRIDES strides from the apex of that energy at r0 + 10 %."""
+def operating_point(
+    params: HopperParams, beta: float, energy: float, analytic_map: str = DEFAULT_ANALYTIC_MAP
+) -> OperatingPoint:
+    """Energy regulation's flat-ground fixed point at touchdown angle beta [rad] and apex energy [J], planned
+    on ``analytic_map`` (the module docstring), reached in SETTLING_STRIDES strides from the apex of that
+    energy at r0 + 10 %."""
     start = Study.of(
         fixed={
             "policy": "energy",
@@ -94,6 +99,7 @@ def operating_point(params: HopperParams, beta: float, energy: float) -> Operati
             "target_energy": energy,
             "y0": 1.1 * params.r0,
             "energy0": energy,
+            **analytic_map_fixed(analytic_map),
         },
         strides=SETTLING_STRIDES,
     )
@@ -107,7 +113,9 @@ def operating_point(params: HopperParams, beta: float, energy: float) -> Operati
     y, xdot = rows["y_fixed"][0].as_py(), rows["xdot_fixed"][0].as_py()
     values = {name: DEFAULTS[name] for name in PolicySpec.settings() if name in DEFAULTS}
     spec = PolicySpec(
-        name="energy", corrections=1, **values | {"touchdown_angle": beta, "target_energy": energy}
+        name="energy",
+        corrections=1,
+        **values | {"touchdown_angle": beta, "target_energy": energy, "analytic_map": analytic_map},
     )
     tau0 = float(spec.commands(params, y, xdot, xdot).tau0)
     thetadot = dynamics.touchdown_leg_rate(params, y, xdot, beta)
@@ -118,7 +126,7 @@ def operating_point(params: HopperParams, beta: float, energy: float) -> Operati
         "target_height": y,
         "target_speed": xdot,
     }
-    return OperatingPoint(y, xdot, settings)
+    return OperatingPoint(y, xdot, settings, analytic_map)
 
 
 def studies(
@@ -140,7 +148,9 @@ def studies(
             grid={"policy": policies, axis: values},
             draws={"step_x": STEP_POSITIONS} if name == "step" else None,
             samples=samples,
-            fixed=point.settings | {"y0": point.y, "xdot0": point.xdot},
+            fixed=point.settings
+            | analytic_map_fixed(point.analytic_map)
+            | {"y0": point.y, "xdot0": point.xdot},
             start="speed",
             strides=strides,
             seed=seed,
@@ -252,10 +262,18 @@ def draw_failures(summary: list[dict[str, Any]], kinds: list[str], policies: lis
     return figure
 
 
-def markdown(summary: list[dict[str, Any]], kinds: list[str], policies: list[str], strides: int) -> str:
+def markdown(
+    summary: list[dict[str, Any]], kinds: list[str], policies: list[str], strides: int, analytic_map: str
+) -> str:
     lines = [
         f"# Robustness: the largest perturbation survived for {strides} strides",
         "",
+        # Said where it is not ours, the default, as the analysis report does.
+        *(
+            []
+            if analytic_map == DEFAULT_ANALYTIC_MAP
+            else [f"Analytic map the policies plan on: {analytic_map}.", ""]
+        ),
         "| kind | policy | sizes all survive | sizes half survive | failures (all sizes) |",
         "| --- | --- | --- | --- | --- |",
     ]
@@ -290,11 +308,12 @@ def write_robustness(
     mismatch_field: str,
     where: engine.Where,
     resume: bool,
+    analytic_map: str = DEFAULT_ANALYTIC_MAP,
 ) -> None:
-    """Run one study per kind from the operating point at touchdown angle beta [rad] and apex energy [J]
-    into ``out/<kind>`` on the engine ``where``, and write the figures, summary.csv, robustness.md and
-    summary.json to ``out`` (the module docstring)."""
-    point = operating_point(params, beta, energy)
+    """Run one study per kind from the operating point at touchdown angle beta [rad] and apex energy [J],
+    the policies planning on ``analytic_map``, into ``out/<kind>`` on the engine ``where``, and write the
+    figures, summary.csv, robustness.md and summary.json to ``out`` (the module docstring)."""
+    point = operating_point(params, beta, energy, analytic_map)
     made = studies(kinds, policies, point, params, samples, strides, seed, mismatch_field)
     output_directory(out)
     tables = engine.run_studies(made, out, where, resume, "robustness")
@@ -328,9 +347,14 @@ def write_robustness(
         writer = csv.DictWriter(stream, fieldnames=list(summary[0]))
         writer.writeheader()
         writer.writerows(summary)
-    (out / "robustness.md").write_text(markdown(summary, kinds, policies, strides))
+    (out / "robustness.md").write_text(markdown(summary, kinds, policies, strides, analytic_map))
     document = {
-        "operating_point": {"y": point.y, "xdot": point.xdot, **point.settings},
+        "operating_point": {
+            "y": point.y,
+            "xdot": point.xdot,
+            **point.settings,
+            "analytic_map": point.analytic_map,
+        },
         "samples": samples,
         "strides": strides,
         "sizes": {kind: {"label": KINDS[kind].label, "sizes": list(KINDS[kind].sizes)} for kind in kinds},

@@ -21,6 +21,7 @@ import pyarrow.compute as pc
 from matplotlib.figure import Figure
 
 from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.reporting.output import output_directory, to_json
 from tdslip_ros.reporting.paper_grids import (
@@ -33,7 +34,7 @@ from tdslip_ros.reporting.paper_grids import (
 )
 from tdslip_ros.reporting.style import DPI, EXACT, STABLE, basin_colour_map, basin_colours
 from tdslip_ros.studies import engine, table
-from tdslip_ros.studies.design import Study
+from tdslip_ros.studies.design import Study, analytic_map_fixed
 
 PARAMS = PAPER_PARAMS
 
@@ -44,7 +45,7 @@ class Sweep:
 
     grid: tuple[int, int]
     strides: int
-    studies: Callable[[tuple[int, int], int, int | None], dict[str, Study]]
+    studies: Callable[[tuple[int, int], int, int | None, str], dict[str, Study]]
     draw: Callable[[dict[str, Study], dict[str, pa.Table]], tuple[Figure, dict[str, Any]]]
 
 
@@ -61,11 +62,17 @@ def _chunked(chunk_size: int | None, size: int) -> int:
 # --- fig. 7: the open loop --------------------------------------------------------------------------
 
 
-def fig07_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
+def fig07_studies(
+    grid: tuple[int, int], strides: int, chunk_size: int | None, analytic_map: str = DEFAULT_ANALYTIC_MAP
+) -> dict[str, Study]:
     alphas, heights = fig07_grid(*grid)
     study = Study.of(
         grid={"touchdown_power": units.power_from_alpha(PARAMS, alphas), "y0": heights},
-        fixed={"policy": "open_loop", "touchdown_angle": math.radians(BASIN_BETA_DEG)},
+        fixed={
+            "policy": "open_loop",
+            "touchdown_angle": math.radians(BASIN_BETA_DEG),
+            **analytic_map_fixed(analytic_map),
+        },
         start="open_loop_fixed_point",
         strides=strides,
         chunk_size=_chunked(chunk_size, alphas.size * heights.size),
@@ -101,13 +108,15 @@ def fig07_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
 # --- fig. 10: the goal regulator ---------------------------------------------------------------------
 
 
-def fig10_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
+def fig10_studies(
+    grid: tuple[int, int], strides: int, chunk_size: int | None, analytic_map: str = DEFAULT_ANALYTIC_MAP
+) -> dict[str, Study]:
     beta = math.radians(BASIN_BETA_DEG)
     energies_bar, heights = fig10_grid(*grid)
     energies = units.energy_from_bar(PARAMS, energies_bar)
     study = Study.of(
         grid={"energy0": energies, "y0": heights},
-        fixed={"policy": "energy", "touchdown_angle": beta},
+        fixed={"policy": "energy", "touchdown_angle": beta, **analytic_map_fixed(analytic_map)},
         strides=strides,
         chunk_size=_chunked(chunk_size, energies.size * heights.size),
     )
@@ -125,13 +134,19 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     fixed = units.height_to_bar(PARAMS, row_median(table.column(rows, "y_fixed").reshape(shape)))
     axes.plot(energies_bar, fixed, "-", color=EXACT, lw=2, label="exact plant, fixed point reached (median)")
     fine = np.linspace(energies_bar[0], energies_bar[-1], 4 * energies_bar.size)
+    analytic_map = str(study.values_of("analytic_map")[0])
     analytic = stability.regulated_fixed_points(
-        PARAMS, math.radians(BASIN_BETA_DEG), units.energy_from_bar(PARAMS, fine)
+        PARAMS,
+        math.radians(BASIN_BETA_DEG),
+        units.energy_from_bar(PARAMS, fine),
+        speed=ANALYTIC_MAPS[analytic_map],
     )
     x, y, stable = np.broadcast_arrays(
         fine[:, None], units.height_to_bar(PARAMS, analytic.y), analytic.stable
     )
-    axes.plot(x[stable], y[stable], "o", color=STABLE, markersize=2, label="analytic, stable")
+    axes.plot(
+        x[stable], y[stable], "o", color=STABLE, markersize=2, label=f"analytic ({analytic_map}), stable"
+    )
     axes.set(
         xlabel="Ebar (initial energy = goal)",
         ylabel="ybar (basin: initial ybar0)",
@@ -149,7 +164,9 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
 # --- fig. 11: parameter dependence --------------------------------------------------------------------
 
 
-def fig11_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -> dict[str, Study]:
+def fig11_studies(
+    grid: tuple[int, int], strides: int, chunk_size: int | None, analytic_map: str = DEFAULT_ANALYTIC_MAP
+) -> dict[str, Study]:
     energies_bar = fig11_energies_bar(grid[0])
     heights = np.linspace(1.0, 2.0, grid[1]) * PARAMS.r0
     studies = {}
@@ -162,7 +179,7 @@ def fig11_studies(grid: tuple[int, int], strides: int, chunk_size: int | None) -
         size = len(values) * energies_bar.size * heights.size
         studies[name] = Study.of(
             grid={**axis, "energy0": units.energy_from_bar(PARAMS, energies_bar), "y0": heights},
-            fixed={"policy": "energy"},
+            fixed={"policy": "energy", **analytic_map_fixed(analytic_map)},
             strides=strides,
             chunk_size=_chunked(chunk_size, size),
         )
@@ -257,12 +274,13 @@ def write_sweep(
     chunk_size: int | None,
     where: engine.Where,
     resume: bool,
+    analytic_map: str = DEFAULT_ANALYTIC_MAP,
 ) -> None:
-    """Run the sweep ``name`` (:data:`SWEEPS`; its default grid and strides where None) into study
-    directories under ``out`` on the engine ``where``, then write its figure (``out/<name>.png``) and
-    ``out/summary.json``."""
+    """Run the sweep ``name`` (:data:`SWEEPS`; its default grid and strides where None), its policy planning
+    on ``analytic_map``, into study directories under ``out`` on the engine ``where``, then write its figure
+    (``out/<name>.png``) and ``out/summary.json``."""
     sweep = SWEEPS[name]
-    studies = sweep.studies(grid or sweep.grid, strides or sweep.strides, chunk_size)
+    studies = sweep.studies(grid or sweep.grid, strides or sweep.strides, chunk_size, analytic_map)
     output_directory(out)
     tables = engine.run_studies(studies, out, where, resume, f"sweep {name}")
     figure, data = sweep.draw(studies, tables)
@@ -271,6 +289,7 @@ def write_sweep(
     summary = {
         "sweep": name,
         "grid": list(grid or sweep.grid),
+        "analytic_map": analytic_map,
         "studies": {
             study_name or name: {
                 "directory": str(out / study_name),

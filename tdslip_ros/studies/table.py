@@ -4,7 +4,9 @@
     DIR/table/part-000000.parquet the rows of chunk 0, ...
 
 A part is written to a temporary name and renamed, so a part on disk is always whole; its schema metadata
-names the study's digest and the chunk, which :func:`complete_parts` checks on ``--resume``. The directory
+names the study's digest and the chunk, which :func:`complete_parts` checks on ``--resume``. A part of the
+study written before a text setting of the policies had its column (``analytic_map``) gets it there, at the
+setting's default (:func:`_fill_settings`), so that the table's parts share one schema. The directory
 ``DIR/table`` is the table (``pyarrow.parquet.read_table(DIR / "table")``, or :func:`read`, which sorts by
 trajectory). Columns, SI (units in each field's metadata):
 
@@ -31,7 +33,15 @@ import pyarrow.parquet as pq
 
 from tdslip_ros.model import basins
 from tdslip_ros.model.arrays import Array
-from tdslip_ros.studies.design import CHOICES, NUMERIC_PARAMETERS, UNITS, Lanes, Study
+from tdslip_ros.studies.design import (
+    CHOICE_SETTINGS,
+    CHOICES,
+    DEFAULTS,
+    NUMERIC_PARAMETERS,
+    UNITS,
+    Lanes,
+    Study,
+)
 
 MANIFEST = "study.json"
 PARTS = "table"
@@ -103,7 +113,8 @@ def write_part(directory: Path, index: int, rows: pa.Table) -> None:
 
 
 def complete_parts(directory: Path, study: Study) -> set[int]:
-    """The chunks whose parts are on disk, readable, of this study, with all their rows."""
+    """The chunks whose parts are on disk, readable, of this study, with all their rows; the columns of a
+    text setting they lack filled in (:func:`_fill_settings`)."""
     done = set()
     for index in range(study.chunks):
         path = part_path(directory, index)
@@ -120,8 +131,36 @@ def complete_parts(directory: Path, study: Study) -> set[int]:
             and stored.get(b"tdslip.study") == study.digest.encode()
             and stored.get(b"tdslip.first_trajectory") == str(start).encode()
         ):
+            _fill_settings(directory, index, metadata.schema.names)
             done.add(index)
     return done
+
+
+def _fill_settings(directory: Path, index: int, names: list[str]) -> None:
+    """Rewrite part ``index`` (its columns ``names``) with the columns of the policies' text settings
+    (CHOICE_SETTINGS) it lacks, at their defaults. A part without such a column was written before the
+    setting existed, so it ran what is now the default; and it is this study's (the digest), whose design
+    therefore names no such setting (one that does has another digest) and runs the default too.
+    StudyDirectoryError where it lacks any other column."""
+    missing = [name for name in SCHEMA.names if name not in names]
+    if not missing:
+        return
+    unknown = [name for name in missing if name not in CHOICE_SETTINGS]
+    if unknown:
+        raise StudyDirectoryError(
+            f"{directory}: {part_path(directory, index).name} has no column {', '.join(unknown)} (written by "
+            "another version of tdslip_ros); choose another --out"
+        )
+    rows = pq.read_table(part_path(directory, index))
+    arrays = [
+        rows[field.name]
+        if field.name in names
+        else pa.array([DEFAULTS[field.name]] * rows.num_rows, field.type)
+        for field in SCHEMA
+    ]
+    write_part(
+        directory, index, pa.Table.from_arrays(arrays, schema=SCHEMA.with_metadata(rows.schema.metadata))
+    )
 
 
 def prepare(directory: Path, study: Study, resume: bool) -> None:
