@@ -246,8 +246,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     latency.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
     latency.add_argument("--duration", type=float, default=20.0, help="s of wall time per policy")
     latency.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES))
-    latency.add_argument("--target-height", type=float, help="m (deadbeat, pd)")
-    latency.add_argument("--target-speed", type=float, help="m/s (deadbeat, pd)")
+    latency.add_argument("--target-height", type=float, help="m (deadbeat, apex_foot_placement)")
+    latency.add_argument("--target-speed", type=float, help="m/s (deadbeat, apex_foot_placement)")
     for command in (realtime, lockstep, latency):
         command.add_argument("--busy-core", type=int, help="run a busy loop pinned to this CPU meanwhile")
     for command in (realtime, latency):

@@ -299,8 +299,8 @@ def _spec(name: str, **values: float) -> PolicySpec:
         "target_energy": 1784.8,
         "target_height": 1.0,
         "target_speed": 5.0,
-        "pd_kp": 0.06,
-        "pd_kd": 0.03,
+        "foot_placement_kp": 0.06,
+        "foot_placement_kd": 0.03,
         "corrections": 1,
         "analytic_map": "ours",
     }
@@ -338,19 +338,19 @@ def test_the_deadbeat_fixed_point_is_its_target() -> None:
     assert abs(fixed.dominant) < 1e-4  # deadbeat: the analytic map reaches the target in one stride
 
 
-def test_the_pd_fixed_point_is_a_fixed_point_of_the_model_policy() -> None:
-    spec = _spec("pd")
+def test_the_foot_placement_fixed_point_is_a_fixed_point_of_the_model_policy() -> None:
+    spec = _spec("apex_foot_placement")
     fixed = analytic_fixed_point(PAPER_PARAMS, spec, (1.0, 5.0))
     assert fixed is not None
-    command = controllers.pd_speed_energy_height(
+    command = controllers.apex_foot_placement(
         PAPER_PARAMS,
         fixed.y,
         fixed.xdot,
         fixed.xdot,
         spec.target_height,
         spec.target_speed,
-        kp=spec.pd_kp,
-        kd=spec.pd_kd,
+        kp=spec.foot_placement_kp,
+        kd=spec.foot_placement_kd,
     ).command()
     after, failure = approximate_return_map(PAPER_PARAMS, ApexState(fixed.y, fixed.xdot), command)
     assert failure is None and after is not None

@@ -1,4 +1,5 @@
-"""``tdslip compare``: deadbeat vs PD from recorded lockstep runs, checked against the model's simulation."""
+"""``tdslip compare``: deadbeat vs apex foot placement from recorded lockstep runs, checked against the
+model's simulation."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from tdslip_ros.model.batch import simulate_strides
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
 
-SPEEDS = (0.75, 1.5)  # from the default apex, PD cannot plan for 0.75 (fig. 13's lost stability)
+SPEEDS = (0.75, 1.5)  # from the default apex, foot placement cannot plan for 0.75
 STRIDES = 8
 HEIGHT = 1.0
 
@@ -38,7 +39,7 @@ def _model_final_apex(controller: str, speed: float) -> tuple[float, float] | No
             command = controllers.deadbeat(PAPER_PARAMS, y, xdot, HEIGHT, speed)
         else:
             before = previous[-1] if previous else xdot
-            command = controllers.pd_speed_energy_height(PAPER_PARAMS, y, xdot, before, HEIGHT, speed)
+            command = controllers.apex_foot_placement(PAPER_PARAMS, y, xdot, before, HEIGHT, speed)
         previous.append(xdot)
         if not np.all(np.isfinite(command.tau0)):
             raise LookupError("no command")
@@ -72,28 +73,30 @@ def test_recorded_sweep_matches_the_model_and_marks_lost_stability(sweep: Path) 
     assert stable == {
         ("deadbeat", 0.75): True,
         ("deadbeat", 1.5): True,
-        ("pd", 0.75): False,
-        ("pd", 1.5): True,
+        ("apex_foot_placement", 0.75): False,
+        ("apex_foot_placement", 1.5): True,
     }
-    # Deadbeat tracks to a fraction of a percent (the analytic map's error), PD only to several percent.
+    # Deadbeat tracks to a fraction of a percent (the map's error), foot placement to several percent.
     by_key = {(r["controller"], r["target_speed_bar"]): r for r in results}
     assert abs(by_key["deadbeat", 1.5]["speed_error_percent"]) < 0.5
-    assert abs(by_key["pd", 1.5]["speed_error_percent"]) > 1.0
+    assert abs(by_key["apex_foot_placement", 1.5]["speed_error_percent"]) > 1.0
 
 
 def test_figure_marks_where_a_controller_loses_stability(sweep: Path, tmp_path: Path) -> None:
     results = [cc.analyse_run(sweep, entry) for entry in cc.load_sweep(sweep)]
     assert cc.stable_range(results, "deadbeat") == (0.75, 1.5)
-    assert cc.stable_range(results, "pd") == (1.5, 1.5)
+    assert cc.stable_range(results, "apex_foot_placement") == (1.5, 1.5)
     figure = cc.plot_tracking(results, tmp_path / "tracking.png")
     assert (tmp_path / "tracking.png").read_bytes()[:4] == b"\x89PNG"
     for axes in figure.axes:
         lines = {line.get_label(): line for line in axes.get_lines()}
-        assert set(lines) == {"deadbeat", "pd", "pd loses stability"}
-        assert list(lines["pd loses stability"].get_xdata()) == [0.75]
+        assert set(lines) == {"deadbeat", "apex_foot_placement", "apex_foot_placement loses stability"}
+        assert list(lines["apex_foot_placement loses stability"].get_xdata()) == [0.75]
         assert list(lines["deadbeat"].get_xdata()) == [0.75, 1.5]
-        pd_errors = np.asarray(lines["pd"].get_ydata())
-        assert np.isnan(pd_errors[0]) and pd_errors[1] > 0.0  # no error drawn where PD is lost
+        placement_errors = np.asarray(lines["apex_foot_placement"].get_ydata())
+        assert (
+            np.isnan(placement_errors[0]) and placement_errors[1] > 0.0
+        )  # no error drawn where foot placement is lost
 
 
 def test_analyse_only_redoes_the_analysis_from_the_manifest(

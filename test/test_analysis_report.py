@@ -90,7 +90,7 @@ def test_analyze_fails_cleanly(
         path.write_bytes(source.read_bytes()[:-1000])
         expected = "truncated or not finalised"
     else:
-        path, arguments = source, ["--policy", "deadbeat", "--pd-kp", "0.5"]
+        path, arguments = source, ["--policy", "deadbeat", "--foot-placement-kp", "0.5"]
         expected = ""
     code = main([str(path), "--out", str(tmp_path / "out"), *arguments])
     captured = capsys.readouterr()

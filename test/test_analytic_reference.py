@@ -27,10 +27,10 @@ from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, ParamArrays, no_command_code
 from tdslip_ros.model.closed_loop import map_jacobian
 from tdslip_ros.model.controllers import (
+    apex_foot_placement,
     deadbeat,
     energy_regulation,
     fixed_power,
-    pd_speed_energy_height,
     ramp_to_liftoff,
 )
 from tdslip_ros.model.params import HopperParams
@@ -88,7 +88,7 @@ def _policy_commands() -> dict[str, CommandArrays]:
         "open_loop": fixed_power(PARAMS, y, xdot, beta, RECORD["policy_alpha"]),
         "ramp": ramp_to_liftoff(PARAMS, y, xdot, beta, RECORD["policy_tau0"]),
         "deadbeat": deadbeat(PARAMS, ty, txdot, goal_y, goal_xdot),
-        "pd": pd_speed_energy_height(PARAMS, ty, txdot, previous, goal_y, goal_xdot),
+        "apex_foot_placement": apex_foot_placement(PARAMS, ty, txdot, previous, goal_y, goal_xdot),
     }
 
 

@@ -66,6 +66,8 @@ def test_one_touchdown_angle_default_everywhere(name: str) -> None:
         ("run", "--angle", "--touchdown-angle-deg", "26", "touchdown_angle_deg"),
         ("terrain", "--angle", "--touchdown-angle-deg", "26", "touchdown_angle_deg"),
         ("analyze", "--angle", "--touchdown-angle-deg", "26", "touchdown_angle_deg"),
+        ("analyze", "--pd-kp", "--foot-placement-kp", "0.1", "foot_placement_kp"),
+        ("analyze", "--pd-kd", "--foot-placement-kd", "0.1", "foot_placement_kd"),
         ("robustness", "--touchdown-angle", "--touchdown-angle-deg", "26", "touchdown_angle_deg"),
         ("robustness", "--energy", "--energy-bar", "3.5", "energy_bar"),
         ("compare", "--height", "--target-height", "0.9", "target_height"),

@@ -63,7 +63,7 @@ def test_an_unusable_output_directory_is_one_line(
         ("--touchdown-angle-deg", "90", "--touchdown-angle-deg must be in (0, 90) deg"),
         ("--target-energy", "-1", "--target-energy must be a finite energy > 0 J, not -1.0"),
         ("--target-height", "inf", "--target-height must be a finite height > 0 m"),
-        ("--pd-kd", "-0.1", "--pd-kd must be a finite gain >= 0"),
+        ("--foot-placement-kd", "-0.1", "--foot-placement-kd must be a finite gain >= 0"),
         ("--corrections", "-1", "--corrections must be a count >= 0"),
     ],
 )

@@ -1,5 +1,5 @@
-"""The paper's policies: their promises on the analytic map; deadbeat and PD control of the exact plant;
-the ideal regulator energy_exact on the exact plant; commands near the edges of the policies' ranges.
+"""The paper's policies: their promises on the analytic map; deadbeat and apex foot placement on the exact
+plant; the ideal regulator energy_exact on the exact plant; commands near the edges of the policies' ranges.
 
 Truth used: the analytic map itself (a command's stride, evaluated independently of the policy's solver),
 a brute-force scan of the torque (with t_f = t_lo by plain fixed-point iteration) for whether a valid
@@ -17,12 +17,12 @@ from tdslip_ros.model.analytic import ANALYTIC_MAPS, approximate_map, speed_from
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, NoCommandError, ParamArrays
 from tdslip_ros.model.controllers import (
     admissible_angles,
+    apex_foot_placement,
     deadbeat,
     energy_regulation,
     exact_energy_regulation,
     fixed_power,
     neutral_angle,
-    pd_speed_energy_height,
     ramp_to_liftoff,
 )
 from tdslip_ros.model.events import EventKind
@@ -136,9 +136,7 @@ def test_deadbeat_brings_the_exact_plant_to_the_target_within_one_percent_in_thr
 
 def test_pd_baseline_is_the_documented_foot_placement_rule() -> None:
     y, xdot, target = 1.2, np.array([4.0, 4.5, 5.0]), 4.5
-    command = pd_speed_energy_height(
-        PARAMS, y, xdot, np.array([4.2, 4.5, 4.6]), 1.1, target, kp=0.05, kd=0.02
-    )
+    command = apex_foot_placement(PARAMS, y, xdot, np.array([4.2, 4.5, 4.6]), 1.1, target, kp=0.05, kd=0.02)
     expected = (
         neutral_angle(PARAMS, xdot) + 0.05 * (xdot - target) + 0.02 * (xdot - np.array([4.2, 4.5, 4.6]))
     )
@@ -149,7 +147,7 @@ def test_pd_baseline_is_the_documented_foot_placement_rule() -> None:
     stance_time = np.pi * np.sqrt(PARAMS.m / PARAMS.k)
     np.testing.assert_allclose(np.sin(neutral_angle(PARAMS, xdot)), xdot * stance_time / 2.0, rtol=1e-15)
     # Too low to place the leg at the rule's angle: clipped into the admissible interval.
-    low = pd_speed_energy_height(PARAMS, 0.9, 2.0, 2.0, 1.1, 3.0)
+    low = apex_foot_placement(PARAMS, 0.9, 2.0, 2.0, 1.1, 3.0)
     assert float(low.touchdown_angle) == pytest.approx(float(admissible_angles(PARAMS, 0.9)[0]), rel=1e-15)
 
 
@@ -157,7 +155,7 @@ def test_pd_baseline_runs_the_exact_plant_towards_the_target() -> None:
     target_y, target_xdot = 1.05, 4.7
     apex, previous = ApexState(1.1, 4.0), 4.0
     for _ in range(20):
-        command = pd_speed_energy_height(
+        command = apex_foot_placement(
             PARAMS, apex.y, apex.xdot, previous, target_y, target_xdot, kp=0.15, kd=0.05
         )
         result = apex_return_map(PARAMS, apex, command.command())
@@ -215,7 +213,7 @@ def test_energy_regulation_takes_the_forward_root_near_the_top_of_its_range() ->
 def test_no_policy_returns_a_command_its_map_rejects_when_a_valid_one_exists() -> None:
     """Near y_max(E) for beta 20-30 deg: every returned command gives a stride the analytic map accepts
     (with the energy the policy aimed at); where a brute-force torque scan finds a valid command, energy
-    regulation and the PD baseline (energy regulation at the rule's angle) return one, and deadbeat does
+    regulation and apex foot placement (energy regulation at the rule's angle) return one, and deadbeat does
     wherever energy regulation has one at one of 6 admissible angles; lanes without a command are named."""
     y, xdot, energy, beta = _near_highest_forward_apex(
         [20.0, 23.0, 26.0, 30.0], [1.3, 2.1, 3.5, 6.0], np.array([1e-3, 1e-2, 0.04, 0.1, 0.25])
@@ -227,7 +225,10 @@ def test_no_policy_returns_a_command_its_map_rejects_when_a_valid_one_exists() -
         "energy": (energy_regulation(PARAMS, y, xdot, beta), energy),
         "energy to a target": (energy_regulation(PARAMS, y, xdot, beta, 1.1 * energy), 1.1 * energy),
         "open_loop": (fixed_power(PARAMS, y, xdot, beta, 1.5), None),
-        "pd": (pd_speed_energy_height(PARAMS, y, xdot, xdot, target_y, target_xdot), target_energy),
+        "apex_foot_placement": (
+            apex_foot_placement(PARAMS, y, xdot, xdot, target_y, target_xdot),
+            target_energy,
+        ),
         "deadbeat": (deadbeat(PARAMS, y, xdot, target_y, target_xdot), target_energy),
     }
     for name, (command, aimed) in commands.items():
@@ -241,7 +242,7 @@ def test_no_policy_returns_a_command_its_map_rejects_when_a_valid_one_exists() -
     for name, angle in (
         ("energy", beta),
         ("energy to a target", beta),
-        ("pd", commands["pd"][0].touchdown_angle),
+        ("apex_foot_placement", commands["apex_foot_placement"][0].touchdown_angle),
     ):
         command, aimed = commands[name]
         placed = np.isfinite(angle) & np.asarray(
@@ -332,8 +333,8 @@ def test_every_policy_is_served_by_its_spec() -> None:
         "target_energy": ApexState(1.1, 4.5).energy(PARAMS),
         "target_height": 1.05,
         "target_speed": 4.6,
-        "pd_kp": 0.06,
-        "pd_kd": 0.03,
+        "foot_placement_kp": 0.06,
+        "foot_placement_kd": 0.03,
     }
     for name in POLICIES:
         for analytic_map in ANALYTIC_MAPS:  # on either analytic map

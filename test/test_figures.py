@@ -131,7 +131,7 @@ def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() 
 def test_fig13_deadbeat_keeps_a_wider_stable_range_than_the_pd_baseline() -> None:
     _, data = tracking.fig13(TINY, quiet(), "energy")
     assert data["xdotbar_target"] == [0.5, 1.75, 3.0]
-    deadbeat, pd = data["deadbeat"], data["pd"]
+    deadbeat, pd = data["deadbeat"], data["apex_foot_placement"]
     assert all(deadbeat["stable"])
     assert np.max(np.abs(deadbeat["speed_error_percent"])) < 1.0
     assert np.max(np.abs(deadbeat["height_error_percent"])) < 1.0

@@ -78,10 +78,10 @@ def test_each_policy_answers_with_the_model_policy_command(ros: RosGraph) -> Non
         ],
         "energy": [controllers.energy_regulation(PARAMS, y, xdot, BETA, energy) for y, xdot in apexes],
         "deadbeat": [controllers.deadbeat(PARAMS, y, xdot, *TARGET) for y, xdot in apexes[:1]],
-        # The PD's derivative term uses the previous apex of the run (none at stride 0).
-        "pd": [
-            controllers.pd_speed_energy_height(PARAMS, *apexes[0], apexes[0][1], *TARGET),
-            controllers.pd_speed_energy_height(PARAMS, *apexes[1], apexes[0][1], *TARGET),
+        # Foot placement's derivative term uses the previous apex of the run (none at stride 0).
+        "apex_foot_placement": [
+            controllers.apex_foot_placement(PARAMS, *apexes[0], apexes[0][1], *TARGET),
+            controllers.apex_foot_placement(PARAMS, *apexes[1], apexes[0][1], *TARGET),
         ],
     }
     assert bench.set(touchdown_power=power, target_energy=energy)

@@ -229,7 +229,7 @@ def test_fig10_cavities_are_leg_placement_failures_and_the_basin_s_other_edges()
 @pytest.mark.xdist_group("fig13")
 def test_fig13_deadbeat_tracks_more_targets_more_accurately_than_the_pd_baseline() -> None:
     _, exact = paper_comparison._tracking(documents("fig13"))
-    deadbeat, pd = exact.split("; pd: ")
+    deadbeat, pd = exact.split("; apex_foot_placement: ")
     assert deadbeat.startswith("deadbeat: xdotbar* 0.5-3 (3 of 3), max error ")
     assert pd.startswith("xdotbar* 1.75 (1 of 3)")
 

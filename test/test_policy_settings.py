@@ -40,33 +40,53 @@ DEFAULT_VALUES = {setting.name: setting.default for setting in POLICY_SETTINGS}
 
 def test_a_declared_setting_is_consistent() -> None:
     with pytest.raises(ValueError, match="default"):
-        PolicySetting("x", float, "m", 0.0, 1.0, 2.0, "outside its range", ("pd",))
+        PolicySetting("x", float, "m", 0.0, 1.0, 2.0, "outside its range", ("apex_foot_placement",))
     with pytest.raises(ValueError, match="default"):
-        PolicySetting("x", int, "", 0, 10, 1.0, "of the wrong type", ("pd",))
+        PolicySetting("x", int, "", 0, 10, 1.0, "of the wrong type", ("apex_foot_placement",))
     with pytest.raises(ValueError, match="unknown policies"):
         PolicySetting("x", float, "m", 0.0, 1.0, 0.5, "of an unknown policy", ("pid",))
     # A setting of text choices: its default is one of them; it has no range, no unit; a number, no choices.
-    choice = PolicySetting("x", str, "", None, None, "b", "a choice", ("pd",), choices=("a", "b"))
-    assert choice.text == "pd: a choice"
+    choice = PolicySetting(
+        "x", str, "", None, None, "b", "a choice", ("apex_foot_placement",), choices=("a", "b")
+    )
+    assert choice.text == "apex_foot_placement: a choice"
     with pytest.raises(ValueError, match="default"):
-        PolicySetting("x", str, "", None, None, "c", "not among its choices", ("pd",), choices=("a", "b"))
+        PolicySetting(
+            "x",
+            str,
+            "",
+            None,
+            None,
+            "c",
+            "not among its choices",
+            ("apex_foot_placement",),
+            choices=("a", "b"),
+        )
     with pytest.raises(ValueError, match="default"):
-        PolicySetting("x", str, "", None, None, 1.0, "of the wrong type", ("pd",), choices=("a", "b"))
+        PolicySetting(
+            "x", str, "", None, None, 1.0, "of the wrong type", ("apex_foot_placement",), choices=("a", "b")
+        )
     with pytest.raises(ValueError, match="range"):
-        PolicySetting("x", str, "", 0.0, 1.0, "a", "with a range", ("pd",), choices=("a", "b"))
+        PolicySetting(
+            "x", str, "", 0.0, 1.0, "a", "with a range", ("apex_foot_placement",), choices=("a", "b")
+        )
     with pytest.raises(ValueError, match="unit"):
-        PolicySetting("x", str, "m", None, None, "a", "with a unit", ("pd",), choices=("a", "b"))
+        PolicySetting(
+            "x", str, "m", None, None, "a", "with a unit", ("apex_foot_placement",), choices=("a", "b")
+        )
     with pytest.raises(ValueError, match="choices"):
-        PolicySetting("x", float, "m", 0.0, 1.0, 0.5, "a number with choices", ("pd",), choices=("a",))
+        PolicySetting(
+            "x", float, "m", 0.0, 1.0, 0.5, "a number with choices", ("apex_foot_placement",), choices=("a",)
+        )
     with pytest.raises(ValueError, match="range"):
-        PolicySetting("x", float, "m", None, None, 0.5, "a number without a range", ("pd",))
+        PolicySetting("x", float, "m", None, None, 0.5, "a number without a range", ("apex_foot_placement",))
 
 
 def test_policy_spec_holds_a_value_of_each_declared_setting() -> None:
     held = [(field.name, field.type) for field in fields(PolicySpec) if field.name not in ("name", "source")]
     assert held == [(setting.name, setting.kind.__name__) for setting in POLICY_SETTINGS]
     # From text (or parameters), each value is converted to its setting's type.
-    spec = PolicySpec.of("pd", {name: str(value) for name, value in DEFAULT_VALUES.items()})
+    spec = PolicySpec.of("apex_foot_placement", {name: str(value) for name, value in DEFAULT_VALUES.items()})
     assert {name: (type(value), value) for name, value in vars(spec).items() if name in SETTINGS} == {
         setting.name: (setting.kind, setting.default) for setting in POLICY_SETTINGS
     }
@@ -95,10 +115,10 @@ CHOICE_PROBES: tuple[tuple[tuple[float, float, float], dict[str, float]], ...] =
     ((0.95, 2.95, 2.95), {"touchdown_angle": math.radians(40.0)}),
 )
 """Apexes (and settings) at which a setting of choices is looked at. The two analytic maps differ in the next
-apex speed alone: deadbeat steers by it (its command differs at APEX); open_loop, energy and pd plan the
-stance and the energy, alike on both maps, and differ only where one map foresees a reversal and the other
-does not (ours: the energy balance leaves the next apex no kinetic energy; the paper's speed, of eq. 7, is
-that of liftoff), as at the other two probes."""
+apex speed alone: deadbeat steers by it (its command differs at APEX); open_loop, energy and
+apex_foot_placement plan the stance and the energy, alike on both maps, and differ only where one map
+foresees a reversal and the other does not (ours: the energy balance leaves the next apex no kinetic energy;
+the paper's speed, of eq. 7, is that of liftoff), as at the other two probes."""
 
 
 def _responds(spec: PolicySpec, setting: PolicySetting) -> bool:
@@ -147,7 +167,7 @@ def test_the_analytic_map_setting_is_the_speed_the_policy_functions_plan_with(po
         "deadbeat": lambda y, xdot, previous, speed, spec: controllers.deadbeat(
             PAPER_PARAMS, y, xdot, spec.target_height, spec.target_speed, speed=speed
         ),
-        "pd": lambda y, xdot, previous, speed, spec: controllers.pd_speed_energy_height(
+        "apex_foot_placement": lambda y, xdot, previous, speed, spec: controllers.apex_foot_placement(
             PAPER_PARAMS, y, xdot, previous, spec.target_height, spec.target_speed, speed=speed
         ),
     }[policy]

@@ -50,12 +50,14 @@ def test_every_policy_holds_the_operating_point_on_flat_ground(point: robustness
     # Open loop applies energy regulation's hip power at touchdown: the same command there.
     open_loop = _spec("open_loop", point).commands(PARAMS, apex.y, apex.xdot, apex.xdot)
     np.testing.assert_allclose(list(open_loop), list(energy), rtol=1e-9)
-    # deadbeat and pd aim at the operating point itself.
+    # deadbeat and apex_foot_placement aim at the operating point itself.
     assert (point.settings["target_height"], point.settings["target_speed"]) == (point.y, point.xdot)
 
 
 def test_each_kind_is_a_grid_of_policy_and_size_with_its_own_draws(point: robustness.OperatingPoint) -> None:
-    made = robustness.studies(["noise", "step"], ["energy", "pd"], point, PARAMS, 3, 20, 4, "stiffness")
+    made = robustness.studies(
+        ["noise", "step"], ["energy", "apex_foot_placement"], point, PARAMS, 3, 20, 4, "stiffness"
+    )
     noise, step = made["noise"], made["step"]
     sizes = robustness.KINDS["noise"].sizes
     assert noise.size == 2 * len(sizes) * 3 and noise.hold_commands and noise.seed == 4
@@ -87,7 +89,10 @@ def test_the_command_writes_survival_figures_and_tables(tmp_path: Path, dask_sch
         "--scheduler",
         dask_scheduler,
     ]
-    assert cli.main([*command, "--kinds", "terrain", "mismatch", "--policies", "energy", "pd"]) == 0
+    assert (
+        cli.main([*command, "--kinds", "terrain", "mismatch", "--policies", "energy", "apex_foot_placement"])
+        == 0
+    )
     for name in ("robustness", "strides", "spread", "failures"):
         assert (out / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with (out / "summary.csv").open() as stream:
@@ -110,7 +115,7 @@ def test_the_command_writes_survival_figures_and_tables(tmp_path: Path, dask_sch
             counted = {name: int(entry[name]) for name in robustness.FAILURES if int(entry[name])}
             assert counted == {name: failures.count(name) for name in set(failures)}
     document = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)
-    assert document["sizes_survived"]["terrain"]["pd"]["all"][0] == 0.0
+    assert document["sizes_survived"]["terrain"]["apex_foot_placement"]["all"][0] == 0.0
     assert document["operating_point"]["touchdown_angle"] == pytest.approx(math.radians(20.0))  # the default
     table = (out / "robustness.md").read_text()
     assert table.count("\n| terrain |") == 2 and "| mismatch | energy |" in table

@@ -1,8 +1,9 @@
 """Study designs and chunks, in one process: what each trajectory runs, and its row.
 
 Truth used: the closed-loop runs of :mod:`tdslip_ros.model.basins` (the goal regulator of fig. 10, the
-open-loop basin of fig. 7) and the deadbeat/PD runs of fig. 13 (analysis.figures.tracking.track_targets),
-called directly on the same lanes; numpy's SeedSequence for the draws.
+open-loop basin of fig. 7) and the deadbeat and foot placement runs of
+analysis.figures.tracking.track_targets, called directly on the same lanes; numpy's SeedSequence for the
+draws.
 """
 
 from __future__ import annotations
@@ -200,16 +201,16 @@ def test_the_open_loop_starts_on_the_energy_fixed_point_of_its_own_analytic_map(
 
 
 def test_deadbeat_and_pd_lanes_run_as_fig13_runs_them() -> None:
-    """pd keeps each lane's previous apex speed: lanes of one call must not share it."""
+    """apex_foot_placement keeps each lane's previous apex speed: lanes of one call must not share it."""
     speeds = units.speed_from_bar(PARAMS, np.array([1.0, 1.75, 2.5]))
     study = Study.of(
-        grid={"policy": ["deadbeat", "pd"], "target_speed": speeds},
+        grid={"policy": ["deadbeat", "apex_foot_placement"], "target_speed": speeds},
         fixed={"y0": 1.0, "xdot0": 5.0, "target_height": 1.0},
         start="speed",
         strides=20,
     )
     rows = chunk.run_chunk(study, 0)
-    for position, controller in enumerate(("deadbeat", "pd")):
+    for position, controller in enumerate(("deadbeat", "apex_foot_placement")):
         run = tracking.track_targets(PARAMS, controller, 1.0, speeds, (1.0, 5.0), 20)
         lanes = slice(3 * position, 3 * position + 3)
         outcome = np.asarray(basins.OUTCOMES)[run.outcome]
@@ -268,7 +269,7 @@ def test_perturbations_need_the_closed_loop_that_holds_commands_and_one_terrain(
 def test_a_linked_axis_takes_its_parameters_together() -> None:
     study = Study.of(
         grid={
-            "policy": ["energy", "pd"],
+            "policy": ["energy", "apex_foot_placement"],
             "noise_height,noise_speed": [(0.0, 0.0), (0.01, 0.03), (0.02, 0.06)],
         },
         fixed={"y0": 1.0, "energy0": 3000.0},

@@ -1,4 +1,5 @@
-"""The deadbeat controller against the PD baseline over desired speeds (paper fig. 13), from recorded runs:
+"""The deadbeat controller against apex foot placement over desired speeds (fig. 13's tracking errors; the
+paper's baseline, ref. 36's, acts during stance and is the model's fig. 13), from recorded runs:
 the analysis side of ``tdslip compare``, which needs no ROS.
 
 The sweep's recorded runs (one per controller and desired apex speed, from the same initial apex, for a
@@ -26,7 +27,7 @@ from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.reporting.style import CONTROLLER_STYLE, DPI
 
-CONTROLLERS = ("deadbeat", "pd")
+CONTROLLERS = ("deadbeat", "apex_foot_placement")
 MANIFEST = "sweep.json"
 
 

@@ -541,7 +541,7 @@ def _tracking(documents: Documents) -> tuple[str, str]:
     """Fig. 13: the target speeds each controller converges to, and its largest tracking errors there."""
     data = documents["fig13"]
     parts = []
-    for name in ("deadbeat", "pd"):
+    for name in ("deadbeat", "apex_foot_placement"):
         run = data[name]
         stable = np.array(run["stable"], dtype=bool)
         span = run["stable_xdotbar_range"]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
-from tdslip_ros.commands.options import add_analytic_map, add_touchdown_angle, command_parser
+from tdslip_ros.commands.options import add_analytic_map, add_touchdown_angle, command_parser, deprecated
 from tdslip_ros.model.policies import POLICIES, PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
@@ -51,13 +51,22 @@ def parser() -> argparse.ArgumentParser:
         "--target-energy", type=float, help=f"goal energy [J] (energy, energy_exact; {recorded})"
     )
     policy.add_argument(
-        "--target-height", type=float, help=f"target apex height [m] (deadbeat, pd; {recorded})"
+        "--target-height",
+        type=float,
+        help=f"target apex height [m] (deadbeat, apex_foot_placement; {recorded})",
     )
     policy.add_argument(
-        "--target-speed", type=float, help=f"target apex speed [m/s] (deadbeat, pd; {recorded})"
+        "--target-speed",
+        type=float,
+        help=f"target apex speed [m/s] (deadbeat, apex_foot_placement; {recorded})",
     )
-    policy.add_argument("--pd-kp", type=float, help=f"PD gain [rad/(m/s)] (pd; {recorded})")
-    policy.add_argument("--pd-kd", type=float, help=f"PD gain [rad/(m/s)] (pd; {recorded})")
+    for gain, what in (("kp", "on the speed error"), ("kd", "on the speed change per stride")):
+        action = policy.add_argument(
+            f"--foot-placement-{gain}",
+            type=float,
+            help=f"foot placement gain {what} [rad/(m/s)] (apex_foot_placement; {recorded})",
+        )
+        deprecated(policy, action, f"--pd-{gain}")  # the policy's name was pd
     policy.add_argument(
         "--corrections", type=int, help=f"analytic-map corrections the controller planned with ({recorded})"
     )
@@ -75,8 +84,8 @@ POLICY_OPTION_DOMAINS: dict[str, tuple[str, Callable[[float], bool]]] = {
     "target_energy": ("a finite energy > 0 J", lambda value: 0.0 < value < math.inf),
     "target_height": ("a finite height > 0 m", lambda value: 0.0 < value < math.inf),
     "target_speed": ("a finite speed >= 0 m/s", lambda value: 0.0 <= value < math.inf),
-    "pd_kp": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
-    "pd_kd": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
+    "foot_placement_kp": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
+    "foot_placement_kd": ("a finite gain >= 0", lambda value: 0.0 <= value < math.inf),
     "corrections": ("a count >= 0", lambda value: value >= 0),
 }
 """What each policy option of ``tdslip analyze`` accepts: a value outside its domain has no
@@ -103,8 +112,8 @@ def main(argv: list[str]) -> int:
         "target_energy": args.target_energy,
         "target_height": args.target_height,
         "target_speed": args.target_speed,
-        "pd_kp": args.pd_kp,
-        "pd_kd": args.pd_kd,
+        "foot_placement_kp": args.foot_placement_kp,
+        "foot_placement_kd": args.foot_placement_kd,
         "corrections": args.corrections,
         "analytic_map": args.map,
     }

@@ -1,5 +1,6 @@
-"""``tdslip compare``: the deadbeat controller against the PD baseline over desired speeds (paper fig. 13),
-from recorded runs.
+"""``tdslip compare``: the deadbeat controller against apex foot placement over desired speeds (the tracking
+errors of the paper's fig. 13, against the apex-level policy ``apex_foot_placement`` rather than the paper's
+baseline), from recorded runs.
 
 For every controller and desired apex speed the node suite runs in lockstep (``tdslip run``'s
 :func:`tdslip_ros.nodes.runner.run`, every run recorded into ``OUT/runs/<controller>-<xdotbar*>``) from the
@@ -89,7 +90,7 @@ def record_sweep(
 
 
 DESCRIPTION = """\
-Deadbeat against the PD baseline over desired apex speeds (paper fig. 13), from recorded runs.
+Deadbeat against apex foot placement over desired apex speeds (fig. 13's errors), from recorded runs.
 Every controller and desired speed is run by the node suite in lockstep and recorded into OUT/runs;
 each recording is then analysed into OUT/comparison.json and OUT/tracking_error.png.
 --analyse-only redoes the analysis of the runs listed in OUT/sweep.json without ROS."""

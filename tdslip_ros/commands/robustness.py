@@ -10,10 +10,10 @@ point under energy regulation at the touchdown angle beta (``--touchdown-angle-d
 Ebar (``--energy-bar``, E/(m g r0)). energy and energy_exact aim at that energy (planned on the analytic map,
 energy's fixed point is within 1 % of it; energy_exact, which holds it exactly, settles from there within a
 few strides), open_loop applies the hip power at touchdown that energy regulation applies there, deadbeat
-and pd aim at the fixed point's apex (pd with its default gains). Each kind of perturbation is one study
-(DIR/terrain, ...): a grid of policy x size with ``--samples`` trajectories per cell, each with its own
-random draws (seeds from the trajectory index); the closed loop keeps the command in force where a policy
-has none, as the plant node does (:mod:`tdslip_ros.studies.perturbed`):
+and apex_foot_placement aim at the fixed point's apex (with its default gains). Each kind of perturbation
+is one study (DIR/terrain, ...): a grid of policy x size with ``--samples`` trajectories per cell, each with
+its own random draws (seeds from the trajectory index); the closed loop keeps the command in force where a
+policy has none, as the plant node does (:mod:`tdslip_ros.studies.perturbed`):
 
 * terrain: random blocks 0.5 m long from x = 1 m, heights with standard deviation sigma (the size, m);
 * noise: the apex the controller sees, with standard deviations s r0 in height and s sqrt(g r0) in speed

@@ -434,7 +434,7 @@ def regulated_lanes(
 
 
 @kernel
-def pd_lanes(
+def foot_placement_lanes(
     params: Array,
     y: Array,
     xdot: Array,

@@ -60,9 +60,9 @@ from tdslip_ros.model.controller_kernels import (
     NO_SOLUTION_REASON,
     POWER_RULE,
     TORQUE_RULE,
+    foot_placement_lanes,
     lane_admissible_angles,
     neutral_angle_of,
-    pd_lanes,
     planned_lanes,
     regulated_lanes,
     solve2,
@@ -83,10 +83,10 @@ EXACT_JACOBIAN_STEP = 1e-6
 map's integration error (~1e-12), small against the curvature."""
 EXACT_MAP_TOLERANCE = 1e-12
 """rtol = atol of the exact map energy_exact plans on (the batched engine's default)."""
-PD_KP = 0.06
-"""rad/(m/s): the PD baseline's gain on the speed error (fig. 13's)."""
-PD_KD = 0.03
-"""rad/(m/s): the PD baseline's gain on the speed change over a stride (fig. 13's)."""
+FOOT_PLACEMENT_KP = 0.06
+"""rad/(m/s): :func:`apex_foot_placement`'s gain on the speed error."""
+FOOT_PLACEMENT_KD = 0.03
+"""rad/(m/s): :func:`apex_foot_placement`'s gain on the speed change over a stride."""
 
 
 def _require_at_least(name: str, value: int, least: int) -> None:
@@ -379,21 +379,24 @@ def neutral_angle(params: HopperParams | ParamArrays, xdot: ArrayLike) -> Array:
     return elementwise(neutral_angle_of, [complex], params.m, params.k, params.r0, xdot)[0]
 
 
-def pd_speed_energy_height(
+def apex_foot_placement(
     params: HopperParams | ParamArrays,
     y: ArrayLike,
     xdot: ArrayLike,
     previous_xdot: ArrayLike,
     target_y: ArrayLike,
     target_xdot: ArrayLike,
-    kp: ArrayLike = PD_KP,
-    kd: ArrayLike = PD_KD,
+    kp: ArrayLike = FOOT_PLACEMENT_KP,
+    kd: ArrayLike = FOOT_PLACEMENT_KD,
     corrections: int = 1,
     liftoff: LiftoffMethod = "paper",
     *,
     speed: SpeedSource = "energy",
 ) -> CommandArrays:
-    """PD baseline in the spirit of the paper's ref. 36 (energy control of height, PD control of speed).
+    """Apex-level foot placement: the touchdown angle steers the speed, the ramp torque the energy, both
+    decided once per stride at the apex (no feedback in stance). It is not the baseline of the paper's
+    ref. 36, which acts on speed through the hip torque during stance
+    (:class:`~tdslip_ros.model.stance_laws.StancePDSpeedEnergy`).
 
     * Speed, through the touchdown angle (Raibert-style foot placement, discrete PD over strides)::
 
@@ -413,7 +416,7 @@ def pd_speed_energy_height(
     params = ParamArrays.of(params)
     lanes = Lanes.of(params, y, xdot, previous_xdot, target_y, target_xdot, kp, kd)
     block = lanes.rows(COMMAND_ROWS)
-    lanes.run(pd_lanes, corrections, code, block)
+    lanes.run(foot_placement_lanes, corrections, code, block)
     return _commands(lanes, block)
 
 
@@ -433,7 +436,7 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True) -> No
     fixed_power(params, y, xdot, beta, 1.5)
     ramp_to_liftoff(params, y, xdot, beta, -500.0)
     deadbeat(params, y, xdot, y, xdot)
-    pd_speed_energy_height(params, y, xdot, xdot, y, xdot)
+    apex_foot_placement(params, y, xdot, xdot, y, xdot)
     if complex_step:
         for policy in (
             lambda p, y_, x_: energy_regulation(p, y_, x_, beta),

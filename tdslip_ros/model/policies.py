@@ -22,30 +22,31 @@ from tdslip_ros.model import units
 from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.controllers import (
-    PD_KD,
-    PD_KP,
+    FOOT_PLACEMENT_KD,
+    FOOT_PLACEMENT_KP,
+    apex_foot_placement,
     deadbeat,
     energy_regulation,
     exact_energy_regulation,
     fixed_power,
-    pd_speed_energy_height,
 )
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
 
-POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "pd")
+POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "apex_foot_placement")
 FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
 """Policies that touch down at the fixed ``touchdown_angle``."""
-TARGET_APEX_POLICIES = ("deadbeat", "pd")
+TARGET_APEX_POLICIES = ("deadbeat", "apex_foot_placement")
 """Policies that steer towards the target apex (``target_height``, ``target_speed``)."""
-ANALYTIC_MAP_POLICIES = ("open_loop", "energy", "deadbeat", "pd")
+ANALYTIC_MAP_POLICIES = ("open_loop", "energy", "deadbeat", "apex_foot_placement")
 """Policies that plan on the analytic map (``analytic_map``); energy_exact plans on the exact plant's."""
 DEFAULT_POLICY = "energy"
 """The policy of the controller node and of a study where none is chosen."""
 
 DEFAULT_APEX_HEIGHT = 1.0
 """m; with DEFAULT_APEX_SPEED [m/s], the apex the default settings are made for (the node suite's runs
-start there): energy regulation holds its energy on the paper's hopper, deadbeat and pd steer towards it."""
+start there): energy regulation holds its energy on the paper's hopper, deadbeat and apex_foot_placement
+steer towards it."""
 DEFAULT_APEX_SPEED = 5.0
 DEFAULT_TOUCHDOWN_ANGLE = math.radians(20.0)
 """rad; under energy regulation the default apex (1 m, 5 m/s) converges fast (exact |lambda| = 0.08)."""
@@ -128,16 +129,25 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
     PolicySetting(
         "target_speed", float, "m/s", 0.0, 1e2, DEFAULT_APEX_SPEED, "target apex speed", TARGET_APEX_POLICIES
     ),
-    PolicySetting("pd_kp", float, "rad/(m/s)", 0.0, 10.0, PD_KP, "proportional gain on speed error", ("pd",)),
     PolicySetting(
-        "pd_kd",
+        "foot_placement_kp",
         float,
         "rad/(m/s)",
         0.0,
         10.0,
-        PD_KD,
+        FOOT_PLACEMENT_KP,
+        "proportional gain on speed error",
+        ("apex_foot_placement",),
+    ),
+    PolicySetting(
+        "foot_placement_kd",
+        float,
+        "rad/(m/s)",
+        0.0,
+        10.0,
+        FOOT_PLACEMENT_KD,
         "derivative gain on speed change per stride",
-        ("pd",),
+        ("apex_foot_placement",),
     ),
     PolicySetting(
         "corrections",
@@ -185,8 +195,8 @@ class PolicySpec:
     target_energy: float
     target_height: float
     target_speed: float
-    pd_kp: float
-    pd_kd: float
+    foot_placement_kp: float
+    foot_placement_kd: float
     corrections: int
     analytic_map: str
     source: str = ""
@@ -205,7 +215,8 @@ class PolicySpec:
     def commands(
         self, params: HopperParams, y: npt.ArrayLike, xdot: npt.ArrayLike, previous_xdot: npt.ArrayLike
     ) -> CommandArrays:
-        """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by ``pd`` only."""
+        """The policy's commands at apexes (y, xdot), vectorised; previous_xdot is used by
+        ``apex_foot_placement`` only."""
         if self.name == "open_loop":
             alpha = units.power_to_alpha(params, self.touchdown_power)
             return fixed_power(
@@ -223,16 +234,16 @@ class PolicySpec:
             return deadbeat(
                 params, y, xdot, self.target_height, self.target_speed, self.corrections, speed=self.speed
             )
-        if self.name == "pd":
-            return pd_speed_energy_height(
+        if self.name == "apex_foot_placement":
+            return apex_foot_placement(
                 params,
                 y,
                 xdot,
                 previous_xdot,
                 self.target_height,
                 self.target_speed,
-                kp=self.pd_kp,
-                kd=self.pd_kd,
+                kp=self.foot_placement_kp,
+                kd=self.foot_placement_kd,
                 corrections=self.corrections,
                 speed=self.speed,
             )

@@ -15,14 +15,14 @@ DPI = 120
 
 STABLE, UNSTABLE, EXACT, START = "black", "0.45", "tab:red", "tab:green"
 """The paper's figures: analytic fixed points (stable, unstable), the exact plant's, and start markers."""
-CONTROLLER_STYLE = {"deadbeat": ("tab:blue", "-"), "pd": ("tab:green", "--")}
+CONTROLLER_STYLE = {"deadbeat": ("tab:blue", "-"), "apex_foot_placement": ("tab:green", "--")}
 """Colour and line style of the deadbeat controller and the PD baseline (fig. 13, ``tdslip compare``)."""
 POLICY_COLOURS = {
     "open_loop": "tab:orange",
     "energy": "tab:blue",
     "energy_exact": "tab:purple",
     "deadbeat": "tab:red",
-    "pd": "tab:green",
+    "apex_foot_placement": "tab:green",
 }
 """Colour of each policy where policies are compared over perturbations (robustness, rough terrain)."""
 

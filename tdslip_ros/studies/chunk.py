@@ -96,8 +96,8 @@ def lane_policy(
 ) -> basins.StancePolicy:
     """The named policy with per-lane settings (arrays over the group's lanes) and ``shared`` ones (one
     value for all: ``corrections``, and the settings of text choices, ``analytic_map``): PolicySpec's
-    policies are vectorised, so its settings are the alive lanes' values at each stride. pd's previous apex
-    speed is kept per lane (xdot0 before the first stride)."""
+    policies are vectorised, so its settings are the alive lanes' values at each stride.
+    apex_foot_placement's previous apex speed is kept per lane (xdot0 before the first stride)."""
     previous = np.array(xdot0, dtype=float)
 
     def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> CommandArrays:

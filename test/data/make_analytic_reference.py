@@ -19,10 +19,10 @@ from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.model.arrays import CommandArrays, ParamArrays
 from tdslip_ros.model.closed_loop import map_jacobian
 from tdslip_ros.model.controllers import (
+    apex_foot_placement,
     deadbeat,
     energy_regulation,
     fixed_power,
-    pd_speed_energy_height,
     ramp_to_liftoff,
 )
 from tdslip_ros.model.params import HopperParams
@@ -98,7 +98,7 @@ def main() -> int:
     data |= {"target_y": y, "target_xdot": xdot, "target_previous_xdot": previous}
     data |= {"target_target_y": target_y, "target_target_xdot": target_xdot}
     commands["deadbeat"] = deadbeat(PARAMS, y, xdot, target_y, target_xdot)
-    commands["pd"] = pd_speed_energy_height(PARAMS, y, xdot, previous, target_y, target_xdot)
+    commands["apex_foot_placement"] = apex_foot_placement(PARAMS, y, xdot, previous, target_y, target_xdot)
     for name, fields in commands.items():
         assert fields.no_command is not None
         data |= {

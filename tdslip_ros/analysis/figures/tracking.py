@@ -12,7 +12,7 @@ from tdslip_ros.analysis.figures.common import PARAMS, FigureData, Reporter, Res
 from tdslip_ros.model import basins, units
 from tdslip_ros.model.analytic import SpeedSource
 from tdslip_ros.model.arrays import Array, CommandArrays
-from tdslip_ros.model.controllers import deadbeat, pd_speed_energy_height
+from tdslip_ros.model.controllers import apex_foot_placement, deadbeat
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.reporting.style import CONTROLLER_STYLE
 
@@ -28,17 +28,15 @@ def track_targets(
     speed: SpeedSource = "energy",
 ) -> basins.Basin:
     """Exact-plant runs from ``start`` (y [m], xdot [m/s]) towards (target_y, each target speed) [m, m/s]
-    under ``controller`` ("deadbeat" or "pd", its default gains, planning on the analytic map with the
-    next-apex ``speed``), one lane per target speed."""
+    under ``controller`` ("deadbeat" or "apex_foot_placement", its default gains, planning on the analytic map
+    with the next-apex ``speed``), one lane per target speed."""
     speeds = np.asarray(target_speeds, dtype=float)
     previous = np.full(speeds.shape, start[1])
 
     def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> CommandArrays:
         if controller == "deadbeat":
             return deadbeat(params, y, xdot, target_y, speeds[lanes], speed=speed)
-        command = pd_speed_energy_height(
-            params, y, xdot, previous[lanes], target_y, speeds[lanes], speed=speed
-        )
+        command = apex_foot_placement(params, y, xdot, previous[lanes], target_y, speeds[lanes], speed=speed)
         previous[lanes] = xdot
         return command
 
