@@ -20,6 +20,11 @@ and, for the exact plant, energy regulation that takes the energy of the first s
 (section IV.B): each stride's torque aims the analytic map's next apex energy at that goal rather than at
 the current apex energy, so that the map's errors do not accumulate from stride to stride.
 
+Under stance feedback (:mod:`~tdslip_ros.model.stance_laws`: a hip torque a sampled law decides during
+stance, as ref. 36's baseline of fig. 13 does) the lanes hop on
+:func:`~tdslip_ros.model.batch.simulate_strides` at a fixed touchdown angle per lane
+(:func:`feedback_basin`), classified alike; :func:`speed_matching_angle` is a rule for that angle.
+
 A horizon says what happens within its strides: a slow but stable fixed point (|lambda| near 1) looks
 ``sustained``. Stability verdicts come from the fixed points and their eigenvalues
 (:mod:`tdslip_ros.model.exact_stability`); the basins are figures and the cross-check.
@@ -31,14 +36,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic import speed_from_energy
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays, NoCommand, no_command_code
-from tdslip_ros.model.batch import batch_apex_return_map
+from tdslip_ros.model.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides
 from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw
 
 CONVERGENCE_TOLERANCE = 1e-4
 """Apex change (max of |d ybar|, |d xdotbar|) below which a lane counts as settled (the paper's 1e-4)."""
@@ -65,6 +72,17 @@ StancePolicy = Callable[[int, Array, Array, Array], CommandArrays]
 into the grid); NaN fields where the policy has no command."""
 Progress = Callable[[int, int], None]
 """progress(strides done, strides in all), called after every stride."""
+LawOf = Callable[[npt.NDArray[np.int64]], StanceLaw]
+"""law_of(index) -> the stance law of the lanes ``index`` (flat indices), its per-lane fields over them."""
+
+SPEED_ANGLE_SCAN = np.radians(np.arange(1.0, 60.0, 1.0))
+"""rad: the touchdown angles :func:`speed_matching_angle` brackets its angle with (1 to 59 deg by 1 deg)."""
+SPEED_ANGLE_BISECTIONS = 12
+"""Bisections of that 1 deg bracket: to 2.4e-4 deg, which moves the next speed by some 1e-6 relative."""
+SPEED_MATCH_TOLERANCE = 1e-3
+"""Relative error of the next speed at the angle found. The next speed jumps where the touchdown's phase in
+the 1 ms tick moves with the angle (the law's apexes jitter by some 5e-5 m, :mod:`.stance_laws`), so the
+bisection may end on such a jump rather than a root; a failure inside the bracket would leave it far off."""
 
 
 def failure_outcome(kind: FailureKind) -> int:
@@ -82,6 +100,8 @@ class StrideHistory:
     xdot: Array
     outcome: Array
     failure_stride: Array
+    t: Array | None = None
+    """Apex times [s] on the sample clock of stance feedback, like y (None for ramps, which need none)."""
 
 
 def run_strides(
@@ -194,6 +214,11 @@ def basin(
     history = run_strides(
         params, y_start, speed_from_energy(params, y_start, energy_start), policy, strides, progress
     )
+    return _classified(params, y_start, energy_start, history)
+
+
+def _classified(params: HopperParams, y_start: Array, energy_start: Array, history: StrideHistory) -> Basin:
+    """The Basin of the runs ``history`` from (y_start [m], energy_start [J])."""
     converged, start = settle(params, history)
     outcome = np.where(converged, CONVERGED, history.outcome)
     last_y, last_xdot = history.y[-1], history.xdot[-1]
@@ -209,6 +234,106 @@ def basin(
         energy=params.m * (params.g * y + 0.5 * xdot**2),
         history=history,
     )
+
+
+def speed_matching_angle(
+    params: HopperParams,
+    target_y: ArrayLike,
+    target_xdot: ArrayLike,
+    law_of: LawOf,
+    sample_period: float = DEFAULT_SAMPLE_PERIOD,
+) -> Array:
+    """Per target apex (target_y [m], target_xdot [m/s], 1-D arrays): the touchdown angle [rad] at which one
+    stride from the target apex itself, its hip under stance feedback by ``law_of``, ends at the target
+    speed; NaN where there is none.
+
+    A stance law that regulates energy and speed through the hip torque (ref. 36's baseline,
+    :class:`~.stance_laws.StancePDSpeedEnergy`) leaves the touchdown angle to its designer, and the angle
+    decides how the law's energy splits between height and speed. This one makes the target apex a fixed
+    point of one stride in speed, a calibration from the target alone, not from the closed loop. The next
+    speed falls as the angle grows (the leg brakes over a longer sweep), so each target's bracket is the first
+    pair of neighbouring angles of SPEED_ANGLE_SCAN whose strides both lift off, one ending faster than the
+    target and the next slower; it is bisected SPEED_ANGLE_BISECTIONS times. The angle is kept only where its
+    own stride ends within SPEED_MATCH_TOLERANCE of the target speed, so a failure inside a bracket (counted
+    there as too fast) cannot pass for an angle.
+    """
+    y, xdot = np.broadcast_arrays(np.asarray(target_y, dtype=float), np.asarray(target_xdot, dtype=float))
+    targets = np.arange(y.size)
+
+    def excess(index: Array, angle: Array) -> Array:
+        """The next speed less the target's, one stride from targets ``index`` at ``angle``; NaN: failed."""
+        step = batch_feedback_return_map(
+            params,
+            y[index],
+            xdot[index],
+            angle,
+            law_of(index),
+            sample_period=sample_period,
+            rtol=EXACT_TOLERANCE,
+            atol=EXACT_TOLERANCE,
+        )
+        return np.where(step.failure == NO_FAILURE_CODE, step.xdot - xdot[index], np.nan)
+
+    scan = SPEED_ANGLE_SCAN
+    grid = excess(np.repeat(targets, scan.size), np.tile(scan, y.size)).reshape(y.size, scan.size)
+    with np.errstate(invalid="ignore"):
+        crossing = (grid[:, :-1] > 0.0) & (grid[:, 1:] <= 0.0)
+    bracketed = np.flatnonzero(crossing.any(axis=1))
+    first = np.argmax(crossing[bracketed], axis=1)
+    low, high = scan[first], scan[first + 1]
+    for _ in range(SPEED_ANGLE_BISECTIONS):
+        middle = 0.5 * (low + high)
+        slow = excess(bracketed, middle) <= 0.0  # NaN (failed): too fast
+        low, high = np.where(slow, low, middle), np.where(slow, middle, high)
+    middle = 0.5 * (low + high)
+    matched = np.abs(excess(bracketed, middle)) <= SPEED_MATCH_TOLERANCE * np.abs(xdot[bracketed])
+    angle = np.full(y.size, np.nan)
+    angle[bracketed[matched]] = middle[matched]
+    return angle
+
+
+def feedback_basin(
+    params: HopperParams,
+    y0: ArrayLike,
+    xdot0: ArrayLike,
+    touchdown_angle: ArrayLike,
+    law_of: LawOf,
+    strides: int,
+    sample_period: float = DEFAULT_SAMPLE_PERIOD,
+) -> Basin:
+    """Hop lanes from (y0 [m], xdot0 [m/s], 1-D arrays) for ``strides`` strides under stance feedback, and
+    classify them as :func:`basin` does: each lane lands at its fixed touchdown_angle [rad] (NaN: it has
+    none and is ``no_command``) and its hip follows ``law_of``, sampled every sample_period [s] on the clock
+    where the first apexes are at t = 0 (:func:`~.batch.simulate_strides` at EXACT_TOLERANCE). The history
+    keeps the apex times."""
+    y_start, xdot_start, angle = np.broadcast_arrays(
+        np.asarray(y0, dtype=float), np.asarray(xdot0, dtype=float), np.asarray(touchdown_angle, dtype=float)
+    )
+    planned = np.flatnonzero(np.isfinite(angle))
+
+    def policy(stride: int, y: Array, xdot: Array, lanes: Array) -> tuple[Array, StanceLaw]:
+        return angle[planned[lanes]], law_of(planned[lanes])
+
+    run = simulate_strides(
+        params,
+        y_start[planned],
+        xdot_start[planned],
+        policy,
+        strides,
+        pass_lanes=True,
+        rtol=EXACT_TOLERANCE,
+        atol=EXACT_TOLERANCE,
+        sample_period=sample_period,
+    )
+    y, xdot, t = (np.full((strides + 1, y_start.size), np.nan) for _ in range(3))
+    y[0], xdot[0] = y_start, xdot_start
+    y[:, planned], xdot[:, planned], t[:, planned] = run.y, run.xdot, run.t
+    outcome = np.full(y_start.size, NO_COMMAND)
+    outcome[planned] = np.where(run.failure == NO_FAILURE_CODE, SUSTAINED, _FAILURE_OFFSET + run.failure)
+    failure_stride = np.zeros(y_start.size, dtype=np.int64)  # no command: fails at its first stride
+    failure_stride[planned] = run.failure_stride
+    history = StrideHistory(y=y, xdot=xdot, outcome=outcome, failure_stride=failure_stride, t=t)
+    return _classified(params, y_start, params.m * (params.g * y_start + 0.5 * xdot_start**2), history)
 
 
 def goal_energy_regulator(params: HopperParams, beta: float, goal_energy: ArrayLike) -> StancePolicy:
