@@ -1,9 +1,8 @@
 """Study designs and chunks, in one process: what each trajectory runs, and its row.
 
 Truth used: the closed-loop runs of :mod:`tdslip_ros.model.basins` (the goal regulator of fig. 10, the
-open-loop basin of fig. 7) and the deadbeat and foot placement runs of
-analysis.figures.tracking.track_targets, called directly on the same lanes; numpy's SeedSequence for the
-draws.
+open-loop basin of fig. 7), fig. 13's deadbeat runs (analysis.figures.tracking.deadbeat_runs) and apex foot
+placement's on basins.basin, called directly on the same lanes; numpy's SeedSequence for the draws.
 """
 
 from __future__ import annotations
@@ -16,6 +15,7 @@ import pytest
 
 from tdslip_ros.analysis.figures import tracking
 from tdslip_ros.model import basins, controllers, stability, units
+from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
@@ -200,7 +200,7 @@ def test_the_open_loop_starts_on_the_energy_fixed_point_of_its_own_analytic_map(
     assert np.all(np.abs(paper - ours) > 1.0)  # J: the maps' fixed points differ
 
 
-def test_deadbeat_and_pd_lanes_run_as_fig13_runs_them() -> None:
+def test_deadbeat_and_foot_placement_lanes_run_as_the_basins_run_them() -> None:
     """apex_foot_placement keeps each lane's previous apex speed: lanes of one call must not share it."""
     speeds = units.speed_from_bar(PARAMS, np.array([1.0, 1.75, 2.5]))
     study = Study.of(
@@ -210,8 +210,18 @@ def test_deadbeat_and_pd_lanes_run_as_fig13_runs_them() -> None:
         strides=20,
     )
     rows = chunk.run_chunk(study, 0)
-    for position, controller in enumerate(("deadbeat", "apex_foot_placement")):
-        run = tracking.track_targets(PARAMS, controller, 1.0, speeds, (1.0, 5.0), 20)
+    previous = np.full(speeds.shape, 5.0)
+
+    def foot_placement(stride: int, y: np.ndarray, xdot: np.ndarray, lanes: np.ndarray) -> CommandArrays:
+        command = controllers.apex_foot_placement(PARAMS, y, xdot, previous[lanes], 1.0, speeds[lanes])
+        previous[lanes] = xdot
+        return command
+
+    runs = (
+        tracking.deadbeat_runs(PARAMS, 1.0, speeds, (1.0, 5.0), 20),
+        basins.basin(PARAMS, np.ones(3), PARAMS.m * (PARAMS.g + 0.5 * 5.0**2), foot_placement, 20),
+    )
+    for position, run in enumerate(runs):
         lanes = slice(3 * position, 3 * position + 3)
         outcome = np.asarray(basins.OUTCOMES)[run.outcome]
         np.testing.assert_array_equal(_column(rows, "outcome")[lanes], outcome)

@@ -45,9 +45,11 @@ answers (some seconds); docs/paper.md explains the differences.
   the centre of mass with the GRF lines down to the virtual footfalls, F_x, F_y and the footfall relative to
   the toe over stance time. The paper's human-data panel cannot be reproduced. Computed in the process
   (about two seconds), not on the study engine.
-* fig13: deadbeat against the PD baseline on the exact plant, 50 strides per desired speed from the apex
+* fig13: deadbeat against the baseline of ref. 36 (a stance law: energy term and PD on speed, 1 kHz, its
+  touchdown angle matched per target speed) on the exact plant, 50 strides per desired speed from the apex
   (1 m, 5 m/s) towards (1 m, xdot*): final speed and height errors in percent; crosses where a controller
-  loses stability (fails, or does not converge to 1e-4). The JSON adds deadbeat towards y* = 0.95 m.
+  loses stability (fails, does not converge to 1e-4, or, the baseline, has no angle). The JSON adds deadbeat
+  towards y* = 0.95 m.
 
 The sweeps that take the time (the exact plant's stable ranges, fixed points and basins: the @shared
 computations of :func:`shared_work`) run first, as tasks on the study engine

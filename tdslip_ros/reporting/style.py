@@ -15,8 +15,13 @@ DPI = 120
 
 STABLE, UNSTABLE, EXACT, START = "black", "0.45", "tab:red", "tab:green"
 """The paper's figures: analytic fixed points (stable, unstable), the exact plant's, and start markers."""
-CONTROLLER_STYLE = {"deadbeat": ("tab:blue", "-"), "apex_foot_placement": ("tab:green", "--")}
-"""Colour and line style of the deadbeat controller and the PD baseline (fig. 13, ``tdslip compare``)."""
+CONTROLLER_STYLE = {
+    "deadbeat": ("tab:blue", "-"),
+    "stance_pd_speed_energy": ("tab:green", "--"),
+    "apex_foot_placement": ("tab:orange", ":"),
+}
+"""Colour and line style of the controllers compared over target speeds: deadbeat and ref. 36's baseline as
+the paper draws them in fig. 13 (solid blue, dashed green), and apex foot placement (``tdslip compare``)."""
 POLICY_COLOURS = {
     "open_loop": "tab:orange",
     "energy": "tab:blue",
