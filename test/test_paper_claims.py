@@ -242,9 +242,9 @@ def test_fig13_deadbeat_tracks_more_targets_than_the_stance_pd_baseline_and_the_
     assert baseline["stable"] == [False, True, True] and baseline["outcome"][0] == "no_command"
     _, exact = paper_comparison._tracking(documents("fig13"))
     deadbeat_part, baseline_part, smaller = exact.split("; ")
-    assert deadbeat_part.startswith("deadbeat: xdotbar* 0.25-2.75 (3 of 3), max error ")
-    assert baseline_part.startswith("stance_pd_speed_energy: xdotbar* 1.5-2.75 (2 of 3), max error ")
-    assert smaller == "deadbeat's error smaller at 0 in speed, 1 in height of the 2 both reach"
+    assert deadbeat_part.startswith("deadbeat: 0.25-2.75 (3 of 3), max ")
+    assert baseline_part.startswith("baseline: 1.5-2.75 (2 of 3), max ")
+    assert smaller == "deadbeat's smaller: 0, 1 of 2"
 
 
 @pytest.mark.xdist_group("fig13")

@@ -49,10 +49,10 @@ FIGURE_PARAMETERS: tuple[tuple[str, str, str], ...] = (
     ),
     (
         "fig. 13",
-        "kbar 36, zeta0 0.08; from ybar 1 at 5 m/s to ybar* 1, xdotbar* 0.25-3.5; 50 strides; ref. 36's "
-        "baseline as our stance law (its default gains, 1 kHz), the touchdown angle matched per target speed",
-        "50 steps; the parameters of IV.B (so kbar 36, zeta0 0.08 by reference); not the start, the target "
-        "height, the speeds, ref. 36's gains, its equations or its touchdown angle",
+        "kbar 36, zeta0 0.08; ybar 1 at 5 m/s to ybar* 1, xdotbar* 0.25-3.5; 50 strides; ref. 36 as our "
+        "stance law at 1 kHz, its angle matched per speed",
+        "50 steps; IV.B's parameters (kbar 36, zeta0 0.08 by reference); not the start, target height, "
+        "speeds, or ref. 36's equations, gains, angle",
     ),
 )
 """Per figure: the parameters it uses here, and which of them the paper gives."""
