@@ -1,7 +1,8 @@
 """Exact-plant studies with the batched engine: convergence, fixed points reached, failures, deadbeat.
 
 Truth used: the scalar exact return map (exact_map.apex_return_map, solve_ivp with event location) for
-the fixed points reached and the failures named; the analytic fixed points; the paper's numbers.
+the fixed points reached and the failures named (under a stance law too); the analytic fixed points; the
+paper's numbers.
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.controllers import deadbeat, energy_regulation
 from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.stance_laws import StanceFeedback, StancePDSpeedEnergy
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 BETA = math.radians(26.0)
@@ -124,3 +127,29 @@ def test_deadbeat_reaches_a_range_of_targets_within_one_percent_in_three_strides
     assert np.all(history.outcome == basins.SUSTAINED)
     np.testing.assert_allclose(history.y[-1], target_y, rtol=0.01)
     np.testing.assert_allclose(history.xdot[-1], target_xdot, rtol=0.01)
+
+
+def test_a_stance_law_s_lanes_are_marked_where_the_exact_map_fails_them_or_they_have_no_angle() -> None:
+    """ref. 36's law at a fixed 22 deg, from (1 m, 5 m/s) towards 1 m at xdotbar* 0.5 and 1.75, and a lane
+    without an angle: the first reverses (the exact map, replaying its last stride from the apex and apex time
+    the run kept, names the same failure), the second settles, the third is ``no_command``."""
+    speeds = units.speed_from_bar(PAPER_PARAMS, np.array([0.5, 1.75, 1.75]))
+    angle = np.array([math.radians(22.0), math.radians(22.0), math.nan])
+
+    def law_of(index: np.ndarray) -> StancePDSpeedEnergy:
+        return StancePDSpeedEnergy(PAPER_PARAMS, 1.0, speeds[index])
+
+    run = basins.feedback_basin(PAPER_PARAMS, 1.0, 5.0, angle, law_of, 12)
+    assert [basins.OUTCOMES[o] for o in run.outcome] == ["reversal", "converged", "no_command"]
+    history = run.history
+    assert history.t is not None
+    stride = int(history.failure_stride[0])
+    command = StanceFeedback(float(angle[0]), StancePDSpeedEnergy(PAPER_PARAMS, 1.0, float(speeds[0])))
+    replay = apex_return_map(
+        PAPER_PARAMS,
+        ApexState(history.y[stride, 0], history.xdot[stride, 0]),
+        command,
+        apex_time=history.t[stride, 0],
+    )
+    assert replay.failure is FailureKind.REVERSAL and np.isnan(history.y[stride + 1, 0])
+    assert np.all(np.isnan(history.y[1:, 2])) and history.failure_stride[2] == 0
