@@ -1,0 +1,131 @@
+"""The learning environments (tdslip_ros.envs): Gymnasium's checks, reproducible episodes, the vector env
+lane by lane against the single env, named failures, and the rewards against the exact map."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from tdslip_ros.envs import ENV_ID, ApexHopEnv, ApexHopVectorEnv, Task
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.terrain import Blocks
+
+PERTURBED = Perturbations(
+    terrain=Blocks(sigma=0.04, length=0.5, start=1.0),
+    sensing=SensingNoise(height=0.01, speed=0.05),
+    placement=PlacementNoise(sigma=math.radians(0.5)),
+    tau_max=400.0,
+    pushes=Pushes(size=0.2, rate=0.2),
+)
+RESIDUAL = {"policy": PolicySpec.default("energy"), "task": "energy"}
+
+
+def episode(env: gym.Env, seed: int, actions: np.ndarray) -> list[tuple]:
+    """(observation, reward, terminated, truncated, info) of each step until the episode ends."""
+    observation, _ = env.reset(seed=seed)
+    steps = [(observation, 0.0, False, False, {})]
+    for action in actions:
+        steps.append(env.step(action))
+        if steps[-1][2] or steps[-1][3]:
+            break
+    return steps
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [{}, {"perturbations": PERTURBED, "lookahead": (0.5, 1.0)}, {**RESIDUAL, "perturbations": PERTURBED}],
+    ids=["plain", "perturbed", "residual"],
+)
+def test_check_env_passes_without_warnings(settings: dict) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env = gym.make(ENV_ID, render_mode="rgb_array", **settings)
+        check_env(env.unwrapped)
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+
+
+def test_same_seed_same_episode_and_another_seed_another() -> None:
+    env = ApexHopEnv(perturbations=PERTURBED, **RESIDUAL)
+    actions = np.random.default_rng(0).uniform(-0.3, 0.3, (20, 3))
+    first, again, other = (episode(env, seed, actions) for seed in (7, 7, 8))
+    assert len(first) == len(again)
+    for one, two in zip(first, again, strict=True):
+        np.testing.assert_array_equal(one[0], two[0])
+        assert one[1:] == two[1:] or all(  # NaN flows of a failed stride compare unequal
+            a == b or (isinstance(a, float) and math.isnan(a) and math.isnan(b))
+            for a, b in zip(one[4].values(), two[4].values(), strict=True)
+        )
+    assert not np.array_equal(first[1][0], other[1][0])
+
+
+def test_vector_env_is_the_single_env_lane_by_lane() -> None:
+    """Residual (the policy plans on all lanes at once) and every perturbation, through autoresets."""
+    settings = {**RESIDUAL, "perturbations": PERTURBED}
+    lanes, steps = 64, 7
+    vector = ApexHopVectorEnv(lanes, max_strides=5, **settings)
+    single = gym.vector.SyncVectorEnv([lambda: ApexHopEnv(max_strides=5, **settings)] * lanes)
+    actions = np.random.default_rng(3).uniform(-1.0, 1.0, (steps, lanes, 3))
+    ours, theirs = vector.reset(seed=11), single.reset(seed=11)
+    np.testing.assert_array_equal(ours[0], theirs[0])
+    ended = 0
+    for action in actions:
+        ours, theirs = vector.step(action), single.step(action)
+        for mine, reference in zip(ours[:4], theirs[:4], strict=True):
+            np.testing.assert_array_equal(mine, reference)
+        assert ours[4].keys() == theirs[4].keys()
+        for key in ours[4]:
+            np.testing.assert_array_equal(ours[4][key], theirs[4][key], err_msg=key)
+        ended += int(np.sum(ours[2] | ours[3]))
+    assert ended > lanes // 2  # autoresets were exercised
+
+
+def test_a_failure_terminates_with_its_kind_in_info() -> None:
+    env = ApexHopEnv(task="survive")
+    env.reset(seed=1)
+    no_hip = np.array([0.0, 0.0, 0.0])  # 25 deg, no hip torque: the hopper slows down and turns back
+    for _ in range(20):
+        observation, reward, terminated, truncated, info = env.step(no_hip)
+        if terminated:
+            break
+    assert terminated and not truncated and reward == 0.0
+    assert info["failure"] == "reversal" and math.isnan(info["apex_height"])
+
+
+def test_truncation_at_the_stride_budget() -> None:
+    env = ApexHopEnv(policy=PolicySpec.default("energy"), max_strides=3)
+    env.reset(seed=2)
+    ends = [env.step(np.zeros(3))[2:4] for _ in range(3)]
+    assert ends == [(False, False), (False, False), (False, True)]
+
+
+@pytest.mark.parametrize("task", [Task("speed"), Task("height", 1.0, 0.1), Task("energy"), Task("survive")])
+def test_rewards_follow_their_formulas_on_the_exact_map(task: Task) -> None:
+    env = ApexHopEnv(policy=PolicySpec.default("energy"), task=task)
+    observation, _ = env.reset(seed=5)
+    y, xdot = observation[:2]  # no sensing noise: the measured apex is the true one
+    p = PAPER_PARAMS
+    for action in np.random.default_rng(1).uniform(-0.2, 0.2, (6, 3)):
+        _, reward, terminated, _, info = env.step(action)
+        exact = apex_return_map(
+            p, ApexState(y, xdot), StanceCommand(info["touchdown_angle"], info["tau0"], info["t_f"])
+        )
+        assert not terminated and exact.apex is not None
+        y, xdot = exact.apex.y, exact.apex.xdot
+        energy = p.m * (p.g * y + 0.5 * xdot**2)
+        tracked = {"speed": xdot, "height": y, "energy": energy}.get(task.name)
+        expected = 1.0 if tracked is None else math.exp(-(((tracked - task.target) / task.scale) ** 2))
+        assert reward == pytest.approx(expected, rel=1e-6, abs=1e-9)
+        assert info["apex_height"] == pytest.approx(y, rel=1e-8)
+        assert info["hip_work"] == pytest.approx(exact.energy.hip_work, rel=1e-6, abs=1e-6)
