@@ -45,7 +45,7 @@ class ApexHopEnv(gym.Env[FloatArray, FloatArray]):
     def __init__(self, render_mode: str | None = None, **settings: Any) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or rgb_array, got {render_mode!r}")
-        self.config = HopConfig(**settings)
+        self.config = HopConfig.of(**settings)
         self.render_mode = render_mode
         self.observation_space = self.config.observation_space()
         self.action_space = self.config.action_space()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -57,7 +58,7 @@ class HopConfig:
     """An apex-hop environment (module docstring); every field SI."""
 
     params: HopperParams = PAPER_PARAMS
-    task: Task | str = field(default_factory=Task)
+    task: Task = field(default_factory=Task)
     policy: PolicySpec | None = None
     perturbations: Perturbations = field(default_factory=Perturbations)
     max_strides: int = DEFAULT_MAX_STRIDES
@@ -71,9 +72,14 @@ class HopConfig:
     tolerance: float = EXACT_TOLERANCE
     """DOP853's rtol and atol on the stance (the studies' tolerance)."""
 
+    @classmethod
+    def of(cls, **settings: Any) -> HopConfig:
+        """From the environments' keyword arguments: the fields, ``task`` also by name (its defaults)."""
+        if isinstance(settings.get("task"), str):
+            settings["task"] = Task(settings["task"])
+        return cls(**settings)
+
     def __post_init__(self) -> None:
-        if isinstance(self.task, str):
-            object.__setattr__(self, "task", Task(self.task))
         limits = self.limits
         self.perturbations.check_limits(limits)
         if not (isinstance(self.max_strides, int) and self.max_strides > 0):

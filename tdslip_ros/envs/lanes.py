@@ -24,6 +24,7 @@ from tdslip_ros.envs.config import COMMAND_FIELDS, HopConfig
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
+from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import DRAW_BLOCK, Perturbations
 from tdslip_ros.model.terrain import Blocks, IntArray, Terrain
 
@@ -73,7 +74,10 @@ class HopperLanes:
         self.count = count
         template = config.perturbations
         self._drawn = template.random or template.pushes.active
-        self._controller = template.mismatch.controller_params(config.params)
+        controller = template.mismatch.controller_params(config.params)
+        if not isinstance(controller, HopperParams):
+            raise ParameterError("the environments take one mismatch for all lanes (scalar factors)")
+        self._controller = controller
         low, high = np.asarray(config.command_low), np.asarray(config.command_high)
         self._low, self._high = low[:, None], high[:, None]
         self._middle = (low + high) / 2.0
@@ -165,8 +169,8 @@ class HopperLanes:
         if self.config.lookahead:
             terrain = self.terrain(lanes)
             columns += [terrain.height(self.x[lanes] + d) - self.ground[lanes] for d in self.config.lookahead]
-        rows = np.stack(columns, axis=1)
-        return np.clip(rows, self._observation_low, self._observation_high)
+        rows: FloatArray = np.clip(np.stack(columns, axis=1), self._observation_low, self._observation_high)
+        return rows
 
     # --- strides -------------------------------------------------------------------------------
 
@@ -187,7 +191,7 @@ class HopperLanes:
             answered = np.all(np.isfinite(planned_rows), axis=0)
             self.base[:, lanes[answered]] = planned_rows[:, answered]
             centre, half_width = self.base[:, lanes], self._residual_half_width
-        command = np.clip(centre + half_width * acted, self._low, self._high)
+        command: FloatArray = np.clip(centre + half_width * acted, self._low, self._high)
         if config.ramp_duration is not None:
             command[2] = config.ramp_duration
         return command

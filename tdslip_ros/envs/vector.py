@@ -34,13 +34,14 @@ class ApexHopVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
     def __init__(self, num_envs: int, **settings: Any) -> None:
         if not (isinstance(num_envs, int) and num_envs > 0):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        self.config = HopConfig(**settings)
+        self.config = HopConfig.of(**settings)
         self.num_envs = num_envs
         self.single_observation_space = self.config.observation_space()
         self.single_action_space = self.config.action_space()
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self._lanes = HopperLanes(self.config, num_envs)
+        self._observation_size = self.config.observation_bounds()[0].size
         self._generators: list[np.random.Generator | None] = [None] * num_envs
         self._autoreset = np.zeros(num_envs, dtype=bool)
 
@@ -80,7 +81,7 @@ class ApexHopVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         actions = np.reshape(np.asarray(actions, dtype=np.float64), (count, self.config.acted))
         resetting = np.flatnonzero(self._autoreset)
         stepping = np.flatnonzero(~self._autoreset)
-        observation = np.empty((count, self.single_observation_space.shape[0]))
+        observation = np.empty((count, self._observation_size))
         reward = np.zeros(count)
         terminated = np.zeros(count, dtype=bool)
         truncated = np.zeros(count, dtype=bool)
