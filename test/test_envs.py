@@ -3,8 +3,11 @@ lane by lane against the single env, named failures, and the rewards against the
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import sys
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -28,6 +31,7 @@ PERTURBED = Perturbations(
     pushes=Pushes(size=0.2, rate=0.2),
 )
 RESIDUAL = {"policy": PolicySpec.default("energy"), "task": "energy"}
+REPO = Path(__file__).parents[1]
 
 
 def episode(env: gym.Env, seed: int, actions: np.ndarray) -> list[tuple]:
@@ -144,3 +148,20 @@ def test_the_ground_ahead_is_the_episodes_blocks() -> None:
     expected = blocks.height(info["x"] + np.array(ahead)) - info["ground"]
     np.testing.assert_allclose(observation[3:], expected, rtol=0.0, atol=1e-15)
     assert np.any(expected != 0.0)
+
+
+def test_the_cem_example_trains_and_saves(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """examples/learn_cem.py, one small generation: it prints its progress and saves the policy."""
+    spec = importlib.util.spec_from_file_location("learn_cem", REPO / "examples" / "learn_cem.py")
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    out = tmp_path / "policy.npz"
+    arguments = "--generations 1 --population 4 --episodes 2 --strides 3"
+    monkeypatch.setattr(sys, "argv", ["learn_cem.py", *arguments.split(), "--out", str(out)])
+    example.main()
+    printed = capsys.readouterr().out
+    assert "generation   1" in printed and "learned residual" in printed
+    assert np.load(out)["weights"].shape == (3, 5)
