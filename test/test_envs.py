@@ -102,11 +102,13 @@ def test_a_failure_terminates_with_its_kind_in_info() -> None:
     assert info["failure"] == "reversal" and math.isnan(info["apex_height"])
 
 
-def test_truncation_at_the_stride_budget() -> None:
+def test_truncation_at_the_stride_budget_then_reset_needed() -> None:
     env = ApexHopEnv(policy=PolicySpec.default("energy"), max_strides=3)
     env.reset(seed=2)
     ends = [env.step(np.zeros(3))[2:4] for _ in range(3)]
     assert ends == [(False, False), (False, False), (False, True)]
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(3))
 
 
 @pytest.mark.parametrize("task", [Task("speed"), Task("height", 1.0, 0.1), Task("energy"), Task("survive")])
@@ -131,7 +133,7 @@ def test_rewards_follow_their_formulas_on_the_exact_map(task: Task) -> None:
 
 
 def test_make_vec_gives_the_vector_env() -> None:
-    envs = gym.make_vec(ENV_ID, num_envs=3, vectorization_mode="vector_entry_point", task="height")
+    envs = gym.make_vec(ENV_ID, num_envs=3, task="height")
     assert isinstance(envs, ApexHopVectorEnv)
     observation, _ = envs.reset(seed=0)
     assert observation.shape == (3, 3) and np.all(observation[:, 2] == 1.0)  # the height task's target

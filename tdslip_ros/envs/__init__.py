@@ -1,7 +1,7 @@
 """Learning environments (Gymnasium) on the exact TD-SLIP plant: ``tdslip_ros/ApexHop-v0`` (docs/envs.md).
 
-Importing this package registers the environment, so that ``gymnasium.make("tdslip_ros/ApexHop-v0")`` and
-``gymnasium.make_vec("tdslip_ros/ApexHop-v0", num_envs=N, vectorization_mode="vector_entry_point")`` work.
+Importing this package registers the environment, so that ``gymnasium.make("tdslip_ros/ApexHop-v0")`` makes
+the single env and ``gymnasium.make_vec("tdslip_ros/ApexHop-v0", num_envs=N)`` the vector env.
 """
 
 from __future__ import annotations

@@ -11,7 +11,8 @@ last apex measured (the failed stride reached none). ``info`` of a step: ``failu
 flows ``hip_work``, ``damping_loss``, ``spring_loss`` [J] (NaN where the leg did not lift off), the applied
 command ``touchdown_angle`` [rad], ``tau0`` [N m], ``t_f`` [s], the true next apex ``apex_height`` [m
 above the stance's ground], ``apex_speed`` [m/s], ``x`` [m], the stance's ``ground`` [m] (NaN where not
-reached), the ``push`` at the apex [m/s] and whether the hip ``saturated``.
+reached), the ``push`` at the apex [m/s] and whether the hip ``saturated``. A step after the end, before a
+reset, raises ResetNeeded.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.error import ResetNeeded
 
 from tdslip_ros.envs.config import HopConfig
 from tdslip_ros.envs.lanes import HopperLanes
@@ -51,6 +53,7 @@ class ApexHopEnv(gym.Env[FloatArray, FloatArray]):
         self.action_space = self.config.action_space()
         self._lanes = HopperLanes(self.config, 1)
         self._stepped = False
+        self._ended = True
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -58,17 +61,20 @@ class ApexHopEnv(gym.Env[FloatArray, FloatArray]):
         if options:
             raise ValueError(f"ApexHop takes no reset options, got {sorted(options)}")
         super().reset(seed=seed)
-        self._stepped = False
+        self._stepped = self._ended = False
         return self._lanes.reset(LANE, [seed], [self.np_random])[0], {}
 
     def step(self, action: FloatArray) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:
+        if self._ended:
+            raise ResetNeeded("the episode has ended (or not begun): call reset")
         strides = self._lanes.step(LANE, np.reshape(action, (1, -1)))
-        self._stepped = True
+        terminated, truncated = bool(strides.terminated[0]), bool(strides.truncated[0])
+        self._stepped, self._ended = True, terminated or truncated
         return (
             strides.observation[0],
             float(strides.reward[0]),
-            bool(strides.terminated[0]),
-            bool(strides.truncated[0]),
+            terminated,
+            truncated,
             scalar_info(strides.info, 0),
         )
 

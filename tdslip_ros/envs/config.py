@@ -81,6 +81,7 @@ class HopConfig:
 
     def __post_init__(self) -> None:
         limits = self.limits
+        self.perturbations.scalars()  # ParameterError for per-lane values: an env's lanes share perturbations
         self.perturbations.check_limits(limits)
         if not (isinstance(self.max_strides, int) and self.max_strides > 0):
             raise ParameterError(f"max_strides must be a positive integer, got {self.max_strides!r}")
