@@ -42,7 +42,8 @@ class ApexHopVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self._lanes = HopperLanes(self.config, num_envs)
         self._observation_size = self.config.observation_bounds()[0].size
-        self._generators: list[np.random.Generator | None] = [None] * num_envs
+        self._generators: list[np.random.Generator] = []
+        """Each lane's np_random (Gymnasium's: seeded at a seeded reset, else at the first), none before."""
         self._autoreset = np.zeros(num_envs, dtype=bool)
 
     def reset(
@@ -57,26 +58,19 @@ class ApexHopVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
             seeds = list(seed)
         if len(seeds) != self.num_envs:
             raise ValueError(f"{len(seeds)} seeds for {self.num_envs} lanes")
-        if seed is not None:
-            self._np_random, self._np_random_seed = seeding.np_random(seeds[0])
+        if not self._generators:
+            self._generators = [seeding.np_random(lane_seed)[0] for lane_seed in seeds]
         for lane, lane_seed in enumerate(seeds):
-            if lane_seed is not None or self._generators[lane] is None:
+            if lane_seed is not None:
                 self._generators[lane] = seeding.np_random(lane_seed)[0]
         self._autoreset[:] = False
-        return self._lanes.reset(
-            np.arange(self.num_envs), seeds, self._lane_generators(range(self.num_envs))
-        ), {}
-
-    def _lane_generators(self, lanes: Any) -> list[np.random.Generator]:
-        generators = [self._generators[lane] for lane in lanes]
-        known = [generator for generator in generators if generator is not None]
-        if len(known) != len(generators):
-            raise ResetNeeded("call reset before step")
-        return known
+        return self._lanes.reset(np.arange(self.num_envs), seeds, self._generators), {}
 
     def step(
         self, actions: FloatArray
     ) -> tuple[FloatArray, FloatArray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if not self._generators:
+            raise ResetNeeded("call reset before step")
         count = self.num_envs
         actions = np.reshape(np.asarray(actions, dtype=np.float64), (count, self.config.acted))
         resetting = np.flatnonzero(self._autoreset)
@@ -88,7 +82,7 @@ class ApexHopVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         info: dict[str, Any] = {}
         if resetting.size:
             observation[resetting] = self._lanes.reset(
-                resetting, [None] * resetting.size, self._lane_generators(resetting)
+                resetting, [None] * resetting.size, [self._generators[lane] for lane in resetting]
             )
         if stepping.size:
             strides = self._lanes.step(stepping, actions[stepping])
