@@ -90,7 +90,8 @@ class HopConfig:
             raise ParameterError(
                 f"command_low {self.command_low} must be finite and below {self.command_high}"
             )
-        if not (0.0 < low[0] and high[0] < math.pi / 2 and low[2] > 0.0 and high[1] <= limits.max_torque):
+        torque = max(abs(low[1]), abs(high[1]))
+        if not (0.0 < low[0] and high[0] < math.pi / 2 and low[2] > 0.0 and torque <= limits.max_torque):
             raise ParameterError(
                 "the command range must keep the touchdown angle in (0, pi/2) rad, t_f > 0 s and |tau0| "
                 f"within the actuator limit {limits.max_torque:.6g} N m"

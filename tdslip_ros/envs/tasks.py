@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.params import HopperParams, ParameterError
@@ -72,7 +73,9 @@ class Task:
             return y
         return params.m * (params.g * y + 0.5 * xdot**2)
 
-    def reward(self, params: HopperParams, y: FloatArray, xdot: FloatArray, failed: FloatArray) -> FloatArray:
+    def reward(
+        self, params: HopperParams, y: FloatArray, xdot: FloatArray, failed: npt.NDArray[np.bool_]
+    ) -> FloatArray:
         """The reward of strides that reached the apexes (y, xdot) (NaN where ``failed``)."""
         if self.name == "survive":
             return np.where(failed, 0.0, 1.0)
