@@ -14,8 +14,10 @@ blocks with every lane on its own ground:
 3. the batched engine called directly (:func:`~tdslip_ros.model.batch.simulate_strides` with the policy), no
    environment around it.
 
-Rates are env steps (strides) per second of wall time, the best of ``--rounds`` interleaved rounds; the ratios
-are to the vector env. The machine's load average is printed beside them (other processes share the cores).
+Rates are per second of wall time, the best of ``--rounds`` interleaved rounds, ratios to the vector env: env
+steps, and strides (an env's step that starts the next episode takes none; the engine's lanes stop at their
+failures, so it hops fewer lanes per call as they fail). The machine's load average is printed beside them
+(other processes share the cores).
 """
 
 from __future__ import annotations
@@ -46,25 +48,35 @@ POLICY = PolicySpec.default("energy")
 SEED = 0
 
 
-def rate(run: Callable[[], int]) -> float:
-    """Strides per second of ``run``, which returns how many it took."""
+Run = Callable[[], tuple[int, int]]
+"""A timed run: it returns the env steps and the strides it took."""
+
+
+def rates(run: Run) -> np.ndarray:
+    """Env steps and strides per second of ``run``."""
     start = time.perf_counter()
-    strides = run()
-    return strides / (time.perf_counter() - start)
+    counts = run()
+    return np.array(counts) / (time.perf_counter() - start)
 
 
-def vector_steps(env: gym.vector.VectorEnv, steps: int) -> Callable[[], int]:
-    def run() -> int:
+def vector_steps(env: gym.vector.VectorEnv, steps: int) -> Run:
+    """``steps`` steps of every lane; a lane's step after its episode ended resets it and takes no stride."""
+
+    def run() -> tuple[int, int]:
         env.reset(seed=SEED)
         action = np.zeros(env.action_space.shape)
+        resetting = np.zeros(env.num_envs, dtype=bool)
+        strides = 0
         for _ in range(steps):
-            env.step(action)
-        return steps * env.num_envs
+            strides += int(np.sum(~resetting))
+            _, _, terminated, truncated, _ = env.step(action)
+            resetting = terminated | truncated
+        return steps * env.num_envs, strides
 
     return run
 
 
-def engine_strides(settings: dict, lanes: int, steps: int) -> Callable[[], int]:
+def engine_strides(settings: dict, lanes: int, steps: int) -> Run:
     """The batched engine with the env's initial apexes (lane i: the single env reset with SEED + i)."""
     initial = [ApexHopEnv(**settings).reset(seed=SEED + lane)[0][:2] for lane in range(lanes)]
     y0, xdot0 = np.array(initial).T
@@ -76,7 +88,7 @@ def engine_strides(settings: dict, lanes: int, steps: int) -> Callable[[], int]:
     def policy(stride: int, y: np.ndarray, xdot: np.ndarray) -> tuple[np.ndarray, ...]:
         return tuple(POLICY.commands(PAPER_PARAMS, y, xdot, xdot))
 
-    def run() -> int:
+    def run() -> tuple[int, int]:
         result = simulate_strides(
             PAPER_PARAMS,
             y0,
@@ -88,7 +100,8 @@ def engine_strides(settings: dict, lanes: int, steps: int) -> Callable[[], int]:
             perturbations=perturbations,
         )
         failed = result.failure_stride >= 0
-        return int(np.sum(np.where(failed, result.failure_stride + 1, steps)))
+        strides = int(np.sum(np.where(failed, result.failure_stride + 1, steps)))
+        return strides, strides  # a lane stops at its failure: its strides are its steps
 
     return run
 
@@ -116,13 +129,15 @@ def main() -> None:
     ground = f"blocks sigma {args.blocks:g} m" if args.blocks > 0.0 else "flat ground"
     print(f"{args.lanes} lanes, energy regulation, zero residual, {ground}")
     print(f"load average before: {os.getloadavg()}")
-    rates = dict.fromkeys(runs, 0.0)
+    best = {name: np.zeros(2) for name in runs}
     for _ in range(args.rounds):  # interleaved, the best of each: the least disturbed by other processes
         for name, run in runs.items():
-            rates[name] = max(rates[name], rate(run))
-    reference = rates["ApexHopVectorEnv"]
-    for name, value in rates.items():
-        print(f"{name:36s} {value:10.0f} steps/s   {value / reference:6.3f} x the vector env")
+            best[name] = np.maximum(best[name], rates(run))
+    reference = best["ApexHopVectorEnv"]
+    print(f"{'':36s} {'env steps/s':>12s} {'ratio':>7s} {'strides/s':>12s} {'ratio':>7s}")
+    for name, (steps, strides) in best.items():
+        step_ratio, stride_ratio = steps / reference[0], strides / reference[1]
+        print(f"{name:36s} {steps:12.0f} {step_ratio:7.3f} {strides:12.0f} {stride_ratio:7.3f}")
     print(f"load average after: {os.getloadavg()}")
 
 
