@@ -14,10 +14,10 @@ blocks with every lane on its own ground:
 3. the batched engine called directly (:func:`~tdslip_ros.model.batch.simulate_strides` with the policy), no
    environment around it.
 
-Rates are per second of wall time, the best of ``--rounds`` interleaved rounds, ratios to the vector env: env
-steps, and strides (an env's step that starts the next episode takes none; the engine's lanes stop at their
-failures, so it hops fewer lanes per call as they fail). The machine's load average is printed beside them
-(other processes share the cores).
+Rates are per second of the process's CPU time (one thread: what the core spent on it, whatever else shares
+the machine), the best of ``--rounds`` interleaved rounds, ratios to the vector env. Two rates: env steps, and
+strides (an env's step that starts the next episode takes none; the engine's lanes stop at their failures, so
+it hops fewer lanes per call as they fail). The machine's load average is printed beside them.
 """
 
 from __future__ import annotations
@@ -53,10 +53,10 @@ Run = Callable[[], tuple[int, int]]
 
 
 def rates(run: Run) -> np.ndarray:
-    """Env steps and strides per second of ``run``."""
-    start = time.perf_counter()
+    """Env steps and strides per second of ``run``'s CPU time (one thread: the time of the core it ran on)."""
+    start = time.process_time()
     counts = run()
-    return np.array(counts) / (time.perf_counter() - start)
+    return np.array(counts) / (time.process_time() - start)
 
 
 def vector_steps(env: gym.vector.VectorEnv, steps: int) -> Run:
@@ -134,7 +134,10 @@ def main() -> None:
         for name, run in runs.items():
             best[name] = np.maximum(best[name], rates(run))
     reference = best["ApexHopVectorEnv"]
-    print(f"{'':36s} {'env steps/s':>12s} {'ratio':>7s} {'strides/s':>12s} {'ratio':>7s}")
+    header = ("env steps/s", "ratio", "strides/s", "ratio")
+    print(
+        f"{'per second of CPU time:':36s} {header[0]:>12s} {header[1]:>7s} {header[2]:>12s} {header[3]:>7s}"
+    )
     for name, (steps, strides) in best.items():
         step_ratio, stride_ratio = steps / reference[0], strides / reference[1]
         print(f"{name:36s} {steps:12.0f} {step_ratio:7.3f} {strides:12.0f} {stride_ratio:7.3f}")
