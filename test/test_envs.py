@@ -16,6 +16,7 @@ from gymnasium.utils.env_checker import check_env
 
 from tdslip_ros.envs import ENV_ID, ApexHopEnv, ApexHopVectorEnv, Task
 from tdslip_ros.envs.lanes import terrain_seed
+from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
@@ -167,3 +168,14 @@ def test_the_cem_example_trains_and_saves(
     printed = capsys.readouterr().out
     assert "generation   1" in printed and "learned residual" in printed
     assert np.load(out)["weights"].shape == (3, 5)
+
+
+def test_the_liftoff_rule_ends_the_ramp_at_the_predicted_liftoff() -> None:
+    env = ApexHopEnv(ramp_duration="liftoff")
+    assert env.action_space.shape == (2,)
+    observation, _ = env.reset(seed=6)
+    _, _, _, _, info = env.step(np.array([0.0, -0.3]))
+    predicted = ramp_to_liftoff(
+        PAPER_PARAMS, observation[0], observation[1], info["touchdown_angle"], info["tau0"]
+    )
+    assert info["t_f"] == pytest.approx(float(predicted.t_f), rel=1e-12)

@@ -10,7 +10,10 @@ command, SI: command = centre + half_width * action, clipped to [command_low, co
   at the measured apex (planned with the controller's model, the mismatch of the perturbations), the
   half-width ``residual_half_width``. Where the policy has no command, its last one is kept (at the first
   stride: the middle of the command range).
-* ``ramp_duration`` [s]: t_f held at this value (the action has no t_f component); None: t_f is acted on.
+* ``ramp_duration``: None, t_f is acted on; a number [s], t_f held at it; ``"liftoff"``, the paper's rule: t_f
+  the liftoff time the analytic map predicts for the command's angle and tau0 at the measured apex
+  (:func:`~tdslip_ros.model.controllers.ramp_to_liftoff`, the controller's model), the middle of the t_f range
+  where it predicts none. Either way clipped to the t_f range, and the action has no t_f component.
 
 The action is normalised (a linear rescaling of SI bounds, not the paper's nondimensionalisation); the
 observation stays SI.
@@ -39,6 +42,8 @@ from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, PolicySpec
 
 COMMAND_FIELDS = ("touchdown_angle", "tau0", "t_f")
+LIFTOFF_RULE = "liftoff"
+"""``ramp_duration`` of the paper's rule: the ramp ends at the predicted liftoff."""
 DEFAULT_COMMAND_LOW = (math.radians(5.0), -800.0, 0.02)
 """rad, N m, s: the paper's hopper (m g r0 = 785 N m, stance about 0.13 s at 5 m/s)."""
 DEFAULT_COMMAND_HIGH = (math.radians(45.0), 800.0, 0.3)
@@ -68,7 +73,7 @@ class HopConfig:
     command_low: tuple[float, float, float] = DEFAULT_COMMAND_LOW
     command_high: tuple[float, float, float] = DEFAULT_COMMAND_HIGH
     residual_half_width: tuple[float, float, float] = DEFAULT_RESIDUAL_HALF_WIDTH
-    ramp_duration: float | None = None
+    ramp_duration: float | str | None = None
     tolerance: float = EXACT_TOLERANCE
     """DOP853's rtol and atol on the stance (the studies' tolerance)."""
 
@@ -96,7 +101,10 @@ class HopConfig:
                 "the command range must keep the touchdown angle in (0, pi/2) rad, t_f > 0 s and |tau0| "
                 f"within the actuator limit {limits.max_torque:.6g} N m"
             )
-        if self.ramp_duration is not None and not low[2] <= self.ramp_duration <= high[2]:
+        if isinstance(self.ramp_duration, str):
+            if self.ramp_duration != LIFTOFF_RULE:
+                raise ParameterError(f"ramp_duration must be a number, {LIFTOFF_RULE!r} or None")
+        elif self.ramp_duration is not None and not low[2] <= self.ramp_duration <= high[2]:
             raise ParameterError(f"ramp_duration {self.ramp_duration!r} s is outside the t_f range")
         for name, (lo, hi), bound in (
             ("initial_height", self.initial_height, limits.max_apex_height),

@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.envs.config import COMMAND_FIELDS, HopConfig
+from tdslip_ros.envs.config import COMMAND_FIELDS, LIFTOFF_RULE, HopConfig
 from tdslip_ros.model.batch import batch_apex_return_map
+from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams, ParameterError
@@ -192,7 +193,13 @@ class HopperLanes:
             self.base[:, lanes[answered]] = planned_rows[:, answered]
             centre, half_width = self.base[:, lanes], self._residual_half_width
         command: FloatArray = np.clip(centre + half_width * acted, self._low, self._high)
-        if config.ramp_duration is not None:
+        if config.ramp_duration == LIFTOFF_RULE:
+            liftoff = ramp_to_liftoff(
+                self._controller, self.measured[0, lanes], self.measured[1, lanes], command[0], command[1]
+            ).t_f
+            ramp = np.where(np.isfinite(liftoff), liftoff, self._middle[2])
+            command[2] = np.clip(ramp, self._low[2], self._high[2])
+        elif config.ramp_duration is not None:
             command[2] = config.ramp_duration
         return command
 
