@@ -179,3 +179,13 @@ def test_the_liftoff_rule_ends_the_ramp_at_the_predicted_liftoff() -> None:
         PAPER_PARAMS, observation[0], observation[1], info["touchdown_angle"], info["tau0"]
     )
     assert info["t_f"] == pytest.approx(float(predicted.t_f), rel=1e-12)
+
+
+def test_a_zero_residual_is_the_policys_command() -> None:
+    policy = PolicySpec.default("energy")
+    env = ApexHopEnv(policy=policy)
+    observation, _ = env.reset(seed=2)
+    _, _, _, _, info = env.step(np.zeros(3))
+    planned = policy.commands(PAPER_PARAMS, observation[0], observation[1], observation[1])
+    applied = [info[name] for name in ("touchdown_angle", "tau0", "t_f")]
+    assert applied == pytest.approx([float(field) for field in planned], rel=1e-12)
