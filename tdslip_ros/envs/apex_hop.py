@@ -28,7 +28,7 @@ from tdslip_ros.envs.lanes import HopperLanes
 from tdslip_ros.envs.render import draw_stride
 from tdslip_ros.model.dynamics import FloatArray
 
-LANE = np.zeros(1, dtype=np.int64)
+ONLY_LANE = np.zeros(1, dtype=np.int64)
 
 
 def scalar_info(info: dict[str, Any], lane: int) -> dict[str, Any]:
@@ -62,12 +62,12 @@ class ApexHopEnv(gym.Env[FloatArray, FloatArray]):
             raise ValueError(f"ApexHop takes no reset options, got {sorted(options)}")
         super().reset(seed=seed)
         self._stepped = self._ended = False
-        return self._lanes.reset(LANE, [seed], [self.np_random])[0], {}
+        return self._lanes.reset(ONLY_LANE, [seed], [self.np_random])[0], {}
 
     def step(self, action: FloatArray) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:
         if self._ended:
             raise ResetNeeded("the episode has ended (or not begun): call reset")
-        strides = self._lanes.step(LANE, np.reshape(action, (1, -1)))
+        strides = self._lanes.step(ONLY_LANE, np.reshape(action, (1, -1)))
         terminated, truncated = bool(strides.terminated[0]), bool(strides.truncated[0])
         self._stepped, self._ended = True, terminated or truncated
         return (
@@ -86,4 +86,4 @@ class ApexHopEnv(gym.Env[FloatArray, FloatArray]):
             {key: float(values[0]) for key, values in lanes.last_inputs.items()} if self._stepped else None
         )
         apex = (float(lanes.x[0]), float(lanes.y[0]), float(lanes.ground[0]))
-        return draw_stride(self.config, inputs, apex, lanes.terrain(LANE).take(0))
+        return draw_stride(self.config, inputs, apex, lanes.terrain(ONLY_LANE).take(0))

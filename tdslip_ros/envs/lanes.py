@@ -56,7 +56,7 @@ def episode_perturbations(template: Perturbations, stream_seed: int, episode: in
 
 
 @dataclass(frozen=True)
-class Strides:
+class StrideOutcomes:
     """The outcome of one stride of some lanes: observation rows, reward, terminated, truncated, and the
     info arrays (:mod:`.apex_hop` lists them)."""
 
@@ -91,7 +91,8 @@ class HopperLanes:
         self.stream_seed = np.full(count, -1, dtype=np.int64)
         self.episode = np.zeros(count, dtype=np.int64)
         self.terrain_seed = np.zeros(count, dtype=np.int64)
-        self.base = np.zeros((3, count))
+        self.policy_command = np.zeros((3, count))
+        """The residual's centre: the policy's last command per lane (rad, N m, s)."""
         self.previous_speed = np.zeros(count)
         self.last_inputs: dict[str, FloatArray] = {}
         """The inputs of the last stride of the lanes stepped (apex y, xdot, x, ground; command; angle
@@ -119,7 +120,7 @@ class HopperLanes:
         self.x[index] = 0.0
         self.ground[index] = self.terrain(index).height(self.x[index])
         self.stride[index] = 0
-        self.base[:, index] = self._middle[:, None]
+        self.policy_command[:, index] = self._middle[:, None]
         self._draw_block[index] = -1
         self._measure(index)
         self.previous_speed[index] = self.measured[1, index]
@@ -190,8 +191,8 @@ class HopperLanes:
                 [np.broadcast_to(np.asarray(f, dtype=np.float64), lanes.shape) for f in planned]
             )
             answered = np.all(np.isfinite(planned_rows), axis=0)
-            self.base[:, lanes[answered]] = planned_rows[:, answered]
-            centre, half_width = self.base[:, lanes], self._residual_half_width
+            self.policy_command[:, lanes[answered]] = planned_rows[:, answered]
+            centre, half_width = self.policy_command[:, lanes], self._residual_half_width
         command: FloatArray = np.clip(centre + half_width * acted, self._low, self._high)
         if config.ramp_duration == LIFTOFF_RULE:
             liftoff = ramp_to_liftoff(
@@ -203,7 +204,7 @@ class HopperLanes:
             command[2] = config.ramp_duration
         return command
 
-    def step(self, lanes: npt.ArrayLike, action: npt.ArrayLike) -> Strides:
+    def step(self, lanes: npt.ArrayLike, action: npt.ArrayLike) -> StrideOutcomes:
         """One stride of each of ``lanes`` under ``action`` (lanes, acted): one call of the batched engine."""
         index = np.asarray(lanes, dtype=np.int64)
         config = self.config
@@ -254,7 +255,7 @@ class HopperLanes:
             "push": errors[3],
             "saturated": result.saturated,
         }
-        return Strides(
+        return StrideOutcomes(
             observation=self.observe(index),
             reward=config.task.reward(config.params, result.y, result.xdot, failed),
             terminated=failed,
