@@ -9,6 +9,7 @@ controller of the user's own would leave them.
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import os
@@ -91,17 +92,19 @@ def record(name: str, directory: Path) -> tuple[RunReport, list[str]]:
 
 @dataclass
 class Background:
-    """Runs recorded, then ``tdslip run`` processes run, by a child process (``python analysis_runs.py
-    DIRECTORY JOBS``), started when collection ended (conftest.py): the node runs the tests need are made
-    while the fast tests run, mostly on the core those leave idle. The child pickles each run's report as
-    it is done (a run it could not record leaves the error) and each ``tdslip run`` process's result
-    (:meth:`tdslip_run`)."""
+    """Figure documents drawn, runs recorded, then ``tdslip run`` processes run, by a child process
+    (``python analysis_runs.py DIRECTORY JOBS``), started when collection ended (conftest.py): what the
+    tests need is made while the fast tests run, mostly on the core those leave idle. The child pickles
+    each document and each run's report as it is done (one it could not make leaves the error) and each
+    ``tdslip run`` process's result (:meth:`tdslip_run`)."""
 
     directory: Path
     names: tuple[str, ...]
     tdslip_runs: dict[str, tuple[list[str], str]]
     """By key: the arguments of a ``tdslip run`` process (without ``--out``) and its output directory
     relative to the test's tmp_path."""
+    drawings: list[tuple[str, str]]
+    """(test module, name): the child's ``module.draw(name)``, a figure's document (test_paper_claims)."""
     process: subprocess.Popen[bytes]
 
     @classmethod
@@ -110,21 +113,22 @@ class Background:
         directory: Path,
         names: tuple[str, ...],
         tdslip_runs: dict[str, tuple[list[str], str]],
+        drawings: list[tuple[str, str]],
     ) -> Background:
-        """Record the runs ``names`` (of RUNS) in the child, then run each of ``tdslip_runs`` as a process
-        of its own."""
+        """Draw ``drawings`` in the child first (the fast tests that read them run before any node test),
+        then record the runs ``names`` (of RUNS), then run each of ``tdslip_runs`` as a process of its own."""
         directory.mkdir(parents=True, exist_ok=True)
         # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
         path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
         with (directory / "background.log").open("wb") as log:
             process = subprocess.Popen(
-                [sys.executable, __file__, str(directory), json.dumps([names, tdslip_runs])],
+                [sys.executable, __file__, str(directory), json.dumps([names, tdslip_runs, drawings])],
                 env={**os.environ, "PYTHONPATH": path.rstrip(os.pathsep)},
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,  # stop() ends its node processes with it
             )
-        return cls(directory, names, tdslip_runs, process)
+        return cls(directory, names, tdslip_runs, drawings, process)
 
     def _wait_for(self, result: Path, job: str) -> bytes:
         failed = result.with_suffix(".error")
@@ -142,6 +146,14 @@ class Background:
         for warning in retried:
             warnings.warn(warning, stacklevel=1)
         return cast(RunReport, report)
+
+    def drawn(self, module: str, name: str) -> Any:
+        """``module.draw(name)`` as the child drew it, or None if it does not draw it."""
+        if (module, name) not in self.drawings:
+            return None
+        return pickle.loads(
+            self._wait_for(self.directory / f"{module}.{name}.pickle", f"{module}.draw({name!r})")
+        )
 
     def tdslip_run(self, arguments: list[str], out: Path) -> subprocess.CompletedProcess[str] | None:
         """The result of ``tdslip run ARGUMENTS --out OUT`` if the child ran it (with its output moved
@@ -251,9 +263,16 @@ def _background(
     directory: Path,
     names: list[str],
     tdslip_runs: dict[str, tuple[list[str], str]],
+    drawings: list[tuple[str, str]],
 ) -> None:
-    """The child of :class:`Background`: each run's (report, retry warnings) pickled as it is done, then
-    each ``tdslip run`` process's result."""
+    """The child of :class:`Background`: each drawing pickled as it is done, then each run's (report, retry
+    warnings), then each ``tdslip run`` process's result."""
+    for module, name in drawings:
+        result = directory / f"{module}.{name}.pickle"
+        try:
+            _write(result, pickle.dumps(importlib.import_module(module).draw(name)))
+        except BaseException:
+            result.with_suffix(".error").write_text(traceback.format_exc())
     for name in names:
         try:
             _write(directory / f"{name}.pickle", pickle.dumps(record(name, directory)))

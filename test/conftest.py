@@ -35,6 +35,8 @@ if TYPE_CHECKING:
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
+IN_XDIST_WORKER = "PYTEST_XDIST_WORKER" in os.environ
+"""Whether this process is a worker of pytest-xdist (the fast tier's ``-n 2``)."""
 RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall", "energy_again")
 """Session fixtures, one per run of analysis_runs.RUNS and AGAIN: its RunReport, recorded by the node suite
 once per test process (by the background child, or here on first use)."""
@@ -51,11 +53,12 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         if "dask_scheduler" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.xdist_group("dask"))  # one cluster, not one per worker
     # Stable, so file order is kept within each part. Tests in an xdist group share a costly fixture (a
-    # figure's document, the Dask cluster): the fast tier's workers take those first, the longest work first.
+    # figure's document, the Dask cluster): the fast tier's workers take those first, the longest work
+    # first. In one process they keep their place: the background child draws the documents meanwhile.
     items.sort(
         key=lambda item: (
             item.get_closest_marker("nodes") is not None,
-            item.get_closest_marker("xdist_group") is None,
+            IN_XDIST_WORKER and item.get_closest_marker("xdist_group") is None,
         )
     )
 
@@ -64,8 +67,9 @@ _colcon_build: ColconBuild | None = None
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
-    """Start in the background what the selected tests will need: the recorded runs they use, in the
-    order they use them (analysis_runs.Background), and the README's colcon build (colcon_workspace.py)."""
+    """Start in the background what the selected tests will need: the figure documents they read and the
+    recorded runs they use, in the order they use them (analysis_runs.Background), and the README's colcon
+    build (colcon_workspace.py)."""
     global _colcon_build
     if session.config.option.collectonly:
         return
@@ -82,11 +86,22 @@ def pytest_collection_finish(session: pytest.Session) -> None:
             if isinstance(item, pytest.Function) and item.name in getattr(item.module, "IN_BACKGROUND", {})
         )
     }
-    if runs or tdslip_runs:
+    # A module's draw(name) of the figure document its tests in xdist group ``name`` read
+    # (test_paper_claims.py), drawn by the child on the core the fast tests leave idle: not under xdist,
+    # whose two workers keep both cores busy.
+    drawings = list(
+        dict.fromkeys(
+            (item.module.__name__, marker.args[0])
+            for item in session.items
+            if isinstance(item, pytest.Function) and hasattr(item.module, "draw") and not IN_XDIST_WORKER
+            for marker in item.iter_markers("xdist_group")
+        )
+    )
+    if runs or tdslip_runs or drawings:
         import analysis_runs
 
         analysis_runs.BACKGROUND = analysis_runs.Background.start(
-            factory.getbasetemp() / "analysis_runs", runs, tdslip_runs
+            factory.getbasetemp() / "analysis_runs", runs, tdslip_runs, drawings
         )
     if "readme_colcon_build" in used:
         from colcon_workspace import ColconBuild

@@ -1,0 +1,191 @@
+"""The learning environments (tdslip_ros.envs): Gymnasium's checks, reproducible episodes, the vector env
+lane by lane against the single env, named failures, and the rewards against the exact map."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from tdslip_ros.envs import ENV_ID, ApexHopEnv, ApexHopVectorEnv, Task
+from tdslip_ros.envs.lanes import terrain_seed
+from tdslip_ros.model.controllers import ramp_to_liftoff
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.terrain import Blocks
+
+PERTURBED = Perturbations(
+    terrain=Blocks(sigma=0.04, length=0.5, start=1.0),
+    sensing=SensingNoise(height=0.01, speed=0.05),
+    placement=PlacementNoise(sigma=math.radians(0.5)),
+    tau_max=400.0,
+    pushes=Pushes(size=0.2, rate=0.2),
+)
+RESIDUAL = {"policy": PolicySpec.default("energy"), "task": "energy"}
+REPO = Path(__file__).parents[1]
+
+
+def episode(env: gym.Env, seed: int, actions: np.ndarray) -> list[tuple]:
+    """(observation, reward, terminated, truncated, info) of each step until the episode ends."""
+    observation, _ = env.reset(seed=seed)
+    steps = [(observation, 0.0, False, False, {})]
+    for action in actions:
+        steps.append(env.step(action))
+        if steps[-1][2] or steps[-1][3]:
+            break
+    return steps
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [{}, {"perturbations": PERTURBED, "lookahead": (0.5, 1.0)}, {**RESIDUAL, "perturbations": PERTURBED}],
+    ids=["plain", "perturbed", "residual"],
+)
+def test_check_env_passes_without_warnings(settings: dict) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env = gym.make(ENV_ID, render_mode="rgb_array", **settings)
+        check_env(env.unwrapped)
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+
+
+def test_same_seed_same_episode_and_another_seed_another() -> None:
+    env = ApexHopEnv(perturbations=PERTURBED, **RESIDUAL)
+    actions = np.random.default_rng(0).uniform(-0.3, 0.3, (20, 3))
+    first, again, other = (episode(env, seed, actions) for seed in (7, 7, 8))
+    np.testing.assert_equal(first, again)  # NaN equal to NaN (the flows of a failed stride)
+    assert not np.array_equal(first[1][0], other[1][0])
+
+
+def test_vector_env_is_the_single_env_lane_by_lane() -> None:
+    """Residual (the policy plans on all lanes at once) and every perturbation, through autoresets."""
+    settings = {**RESIDUAL, "perturbations": PERTURBED}
+    lanes, steps = 64, 7
+    vector = ApexHopVectorEnv(lanes, max_strides=5, **settings)
+    single = gym.vector.SyncVectorEnv([lambda: ApexHopEnv(max_strides=5, **settings)] * lanes)
+    actions = np.random.default_rng(3).uniform(-1.0, 1.0, (steps, lanes, 3))
+    ours, theirs = vector.reset(seed=11), single.reset(seed=11)
+    np.testing.assert_array_equal(ours[0], theirs[0])
+    ended = 0
+    for action in actions:
+        ours, theirs = vector.step(action), single.step(action)
+        for mine, reference in zip(ours[:4], theirs[:4], strict=True):
+            np.testing.assert_array_equal(mine, reference)
+        assert ours[4].keys() == theirs[4].keys()
+        for key in ours[4]:
+            np.testing.assert_array_equal(ours[4][key], theirs[4][key], err_msg=key)
+        ended += int(np.sum(ours[2] | ours[3]))
+    assert ended > lanes // 2  # autoresets were exercised
+
+
+def test_a_failure_terminates_with_its_kind_in_info() -> None:
+    env = ApexHopEnv(task="survive")
+    env.reset(seed=1)
+    no_hip = np.array([0.0, 0.0, 0.0])  # 25 deg, no hip torque: the hopper slows down and turns back
+    for _ in range(20):
+        observation, reward, terminated, truncated, info = env.step(no_hip)
+        if terminated:
+            break
+    assert terminated and not truncated and reward == 0.0
+    assert info["failure"] == "reversal" and math.isnan(info["apex_height"])
+
+
+def test_truncation_at_the_stride_budget_then_reset_needed() -> None:
+    env = ApexHopEnv(policy=PolicySpec.default("energy"), max_strides=3)
+    env.reset(seed=2)
+    ends = [env.step(np.zeros(3))[2:4] for _ in range(3)]
+    assert ends == [(False, False), (False, False), (False, True)]
+    with pytest.raises(gym.error.ResetNeeded):
+        env.step(np.zeros(3))
+
+
+@pytest.mark.parametrize("task", [Task("speed"), Task("height", 1.0, 0.1), Task("energy"), Task("survive")])
+def test_rewards_follow_their_formulas_on_the_exact_map(task: Task) -> None:
+    env = ApexHopEnv(policy=PolicySpec.default("energy"), task=task)
+    observation, _ = env.reset(seed=5)
+    y, xdot = observation[:2]  # no sensing noise: the measured apex is the true one
+    p = PAPER_PARAMS
+    for action in np.random.default_rng(1).uniform(-0.2, 0.2, (6, 3)):
+        _, reward, terminated, _, info = env.step(action)
+        exact = apex_return_map(
+            p, ApexState(y, xdot), StanceCommand(info["touchdown_angle"], info["tau0"], info["t_f"])
+        )
+        assert not terminated and exact.apex is not None
+        y, xdot = exact.apex.y, exact.apex.xdot
+        energy = p.m * (p.g * y + 0.5 * xdot**2)
+        tracked = {"speed": xdot, "height": y, "energy": energy}.get(task.name)
+        expected = 1.0 if tracked is None else math.exp(-(((tracked - task.target) / task.scale) ** 2))
+        assert reward == pytest.approx(expected, rel=1e-6, abs=1e-9)
+        assert info["apex_height"] == pytest.approx(y, rel=1e-8)
+        assert info["hip_work"] == pytest.approx(exact.energy.hip_work, rel=1e-6, abs=1e-6)
+
+
+def test_make_vec_gives_the_vector_env() -> None:
+    envs = gym.make_vec(ENV_ID, num_envs=3, task="height")
+    assert isinstance(envs, ApexHopVectorEnv)
+    observation, _ = envs.reset(seed=0)
+    assert observation.shape == (3, 3) and np.all(observation[:, 2] == 1.0)  # the height task's target
+
+
+def test_the_ground_ahead_is_the_episodes_blocks() -> None:
+    """Episode e of seed s hops on blocks of seed terrain_seed(s, e) (docs/envs.md)."""
+    ahead = (0.5, 1.0, 2.0)
+    env = ApexHopEnv(policy=PolicySpec.default("energy"), perturbations=PERTURBED, lookahead=ahead)
+    env.reset(seed=4)
+    env.reset()  # episode 1
+    observation, _, _, _, info = env.step(np.zeros(3))
+    blocks = Blocks(sigma=0.04, length=0.5, start=1.0, seed=terrain_seed(4, 1))
+    expected = blocks.height(info["x"] + np.array(ahead)) - info["ground"]
+    np.testing.assert_allclose(observation[3:], expected, rtol=0.0, atol=1e-15)
+    assert np.any(expected != 0.0)
+
+
+def test_the_cem_example_trains_and_saves(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """examples/learn_cem.py, one small generation: it prints its progress and saves the policy."""
+    spec = importlib.util.spec_from_file_location("learn_cem", REPO / "examples" / "learn_cem.py")
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    out = tmp_path / "policy.npz"
+    arguments = "--generations 1 --population 4 --episodes 2 --strides 3"
+    monkeypatch.setattr(sys, "argv", ["learn_cem.py", *arguments.split(), "--out", str(out)])
+    example.main()
+    printed = capsys.readouterr().out
+    assert "generation   1" in printed and "learned residual" in printed
+    assert np.load(out)["weights"].shape == (3, 5)
+
+
+def test_the_liftoff_rule_ends_the_ramp_at_the_predicted_liftoff() -> None:
+    env = ApexHopEnv(ramp_duration="liftoff")
+    assert env.action_space.shape == (2,)
+    observation, _ = env.reset(seed=6)
+    _, _, _, _, info = env.step(np.array([0.0, -0.3]))
+    predicted = ramp_to_liftoff(
+        PAPER_PARAMS, observation[0], observation[1], info["touchdown_angle"], info["tau0"]
+    )
+    assert info["t_f"] == pytest.approx(float(predicted.t_f), rel=1e-12)
+
+
+def test_a_zero_residual_is_the_policys_command() -> None:
+    policy = PolicySpec.default("energy")
+    env = ApexHopEnv(policy=policy)
+    observation, _ = env.reset(seed=2)
+    _, _, _, _, info = env.step(np.zeros(3))
+    planned = policy.commands(PAPER_PARAMS, observation[0], observation[1], observation[1])
+    applied = [info[name] for name in ("touchdown_angle", "tau0", "t_f")]
+    assert applied == pytest.approx([float(field) for field in planned], rel=1e-12)
