@@ -14,7 +14,7 @@ from failure_cases import FAILURE_CASES
 from tdslip_ros.model import units
 from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, failure_from_code
-from tdslip_ros.model.exact_kernels import compiled_apex_return_map
+from tdslip_ros.model.exact_kernels import apex_stride, compiled_apex_return_map
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
@@ -143,3 +143,41 @@ def test_invalid_lanes_raise_the_batch_s_parameter_error(
     with pytest.raises(ParameterError) as compiled_error:
         compiled_apex_return_map(PARAMS, *inputs, tau_max=tau_max)
     assert str(compiled_error.value) == str(batch_error.value)
+
+
+def test_one_apex_is_its_lane_of_the_lanes() -> None:
+    """apex_stride, the one-apex API, is the lane of compiled_apex_return_map, bit for bit."""
+    y, xdot, angle, tau0, t_f, tau_max = _random_lanes(60, 7)
+    lanes = compiled_apex_return_map(PARAMS, y, xdot, angle, tau0, t_f, tau_max=tau_max)
+    for lane in range(y.size):
+        one = apex_stride(
+            PARAMS,
+            ApexState(y[lane], xdot[lane]),
+            StanceCommand(angle[lane], tau0[lane], t_f[lane]),
+            tau_max=tau_max[lane],
+        )
+        assert failure_code(one.failure) == lanes.failure[lane]
+        assert (one.apex is None) == np.isnan(lanes.y[lane])
+        if one.apex is not None:
+            assert (one.apex.y, one.apex.xdot) == (lanes.y[lane], lanes.xdot[lane])
+        for name in (
+            "hip_work",
+            "damping_loss",
+            "spring_loss",
+            "stance_time",
+            "stride_time",
+            "x",
+            "saturated",
+        ):
+            np.testing.assert_array_equal(getattr(one, name), getattr(lanes, name)[lane], err_msg=name)
+
+
+def test_one_apex_beyond_the_limits_raises_the_exact_map_s_parameter_error() -> None:
+    apex, command = ApexState(11.0, 4.0), StanceCommand(0.3, -500.0, 0.2)
+    with pytest.raises(ParameterError) as exact_error:
+        apex_return_map(PARAMS, apex, command)
+    with pytest.raises(ParameterError) as compiled_error:
+        apex_stride(PARAMS, apex, command)
+    assert str(compiled_error.value) == str(exact_error.value)
+    with pytest.raises(ParameterError, match="tau_max"):
+        apex_stride(PARAMS, ApexState(1.2, 4.0), command, tau_max=0.0)

@@ -65,7 +65,6 @@ from tdslip_ros.model.controller_kernels import (
     regulated_lanes,
 )
 from tdslip_ros.model.deadbeat_kernels import deadbeat_lanes
-from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
@@ -227,7 +226,7 @@ def exact_energy_regulation(
     # Imported here: the exact kernels import scipy.integrate (0.6 s), which only this policy needs; a
     # controller node of the others starts as fast as before (its DDS discovery races the recorder's).
     from tdslip_ros.model.batch import validate_lanes
-    from tdslip_ros.model.exact_kernels import Newton, exact_regulation_lanes, kernel_rows
+    from tdslip_ros.model.exact_kernels import Newton, default_limits, exact_regulation_lanes, kernel_rows
 
     arrays = ParamArrays.of(params)
     y_, xdot_, beta_ = (np.asarray(value) for value in (y, xdot, beta))
@@ -243,7 +242,7 @@ def exact_energy_regulation(
     assert start.no_command is not None
     reason = np.array(np.broadcast_to(start.no_command, shape), dtype=np.int64).ravel()
     planned = reason == HAS_COMMAND
-    limits = PlausibilityLimits.for_hopper(params)
+    limits = default_limits(params)
     validate_lanes(limits, y_l[planned], xdot_l[planned], angle[planned], ())
     hopper, bounds = kernel_rows(limits)
     newton = Newton(EXACT_ENERGY_TOLERANCE, EXACT_STANCE_TOLERANCE, EXACT_ITERATIONS, EXACT_JACOBIAN_STEP)
