@@ -1,5 +1,7 @@
 """The exact stride of one lane under a torque ramp, compiled: the batched engine's algorithm without numpy's
-cost per step, for callers that hop a few apexes at a time (``energy_exact`` plans on it).
+cost per step, for callers that hop a few apexes at a time. :func:`apex_stride` hops one apex (the exact
+map's arguments), :func:`compiled_apex_return_map` a few lanes (the batched engine's), and
+:func:`exact_regulation_lanes` is ``energy_exact``'s whole Newton iteration on it.
 
 The stride is the one of :func:`.batch.batch_apex_return_map` on flat ground: descent and ascent in closed
 form; stance (eq. 2, the ramp of eq. 18 saturated at tau_max) by DOP853 with scipy's coefficients, error
@@ -58,6 +60,8 @@ from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, 
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
+# dynamics' functions (and the limits' rules) made callable from kernels as they are: numba compiles their
+# Python source where a kernel calls them, while Python callers keep the plain functions (numpy, floats).
 for _shared in (
     dynamics.fall_time,
     dynamics.ballistic,
@@ -133,6 +137,7 @@ class LaneRamp(NamedTuple):
     tau_max: float
 
 
+# The small kernels of the stage loop are inlined (a third off a stride), the rest are not (compile time).
 @inlined_kernel
 def stance_field(hopper: LaneHopper, ramp: LaneRamp, s: float, y: Array, out: Array) -> None:
     """The stance right-hand side at (s, y) into ``out`` (:func:`.dynamics.stance_derivatives`)."""
