@@ -66,7 +66,7 @@ from tdslip_ros.model.controller_kernels import (
 )
 from tdslip_ros.model.deadbeat_kernels import deadbeat_lanes
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
 EXACT_ENERGY_TOLERANCE = 1e-11
 """Dimensionless energy E/(m g r0) to which energy_exact meets its target on the exact map."""
@@ -371,9 +371,10 @@ def pd_speed_energy_height(
     return _commands(lanes, block)
 
 
-def warm_up(params: HopperParams | None = None, complex_step: bool = True) -> None:
+def warm_up(params: HopperParams | None = None, complex_step: bool = True, exact_plant: bool = True) -> None:
     """Load the compiled kernels of the analytic map and of every analytic policy, for one apex at a time
-    as the controller node plans (and with ``complex_step`` for the complex step of map_jacobian too),
+    as the controller node plans (and with ``complex_step`` for the complex step of map_jacobian too; with
+    ``exact_plant`` the compiled exact stride and energy_exact's plan on it, :mod:`.exact_kernels`),
     compiling those not yet in the cache (:mod:`tdslip_ros.model.compiled`; about a minute for all of
     them, once). The controller node calls it before it subscribes to the apex, so that its first answer
     is not late; ``./run.sh setup`` calls it so that the first node or test does not compile."""
@@ -388,6 +389,13 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True) -> No
     ramp_to_liftoff(params, y, xdot, beta, -500.0)
     deadbeat(params, y, xdot, y, xdot)
     pd_speed_energy_height(params, y, xdot, xdot, y, xdot)
+    if exact_plant:
+        from tdslip_ros.model.exact_kernels import (
+            apex_stride,
+        )  # scipy.integrate: only here (see energy_exact)
+
+        exact_energy_regulation(params, y, xdot, beta)
+        apex_stride(params, ApexState(y, xdot), StanceCommand(beta, -500.0, 0.15))
     if complex_step:
         for policy in (
             lambda p, y_, x_: energy_regulation(p, y_, x_, beta),
