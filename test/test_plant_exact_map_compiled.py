@@ -96,6 +96,7 @@ def test_each_failure_per_lane(
     params: HopperParams, apex: ApexState, command: StanceCommand, kind: FailureKind
 ) -> None:
     """Each named failure in a lane of its own, next to a lane that hops on."""
+    assert apex_return_map(params, apex, command).failure is kind
     good_apex, good_command = ApexState(1.2, 4.0), StanceCommand(math.radians(20.0), -600.0, 0.15)
     compiled = compiled_apex_return_map(
         params,
