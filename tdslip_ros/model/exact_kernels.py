@@ -8,7 +8,8 @@ form; stance (eq. 2, the ramp of eq. 18 saturated at tau_max) by DOP853 with sci
 norm and step-size rule, split at the kinks of the torque; a step that crosses a terminal event (liftoff,
 reversal, fall) is cut back to the event by safeguarded Newton iteration on trial steps from the step's
 start, to 1e-14 s. The constants are :mod:`.batch_stance`'s and the rules and their order those of
-:mod:`.batch`, so the failure kinds are the same and the states agree to rounding (about 1e-15 relative).
+:mod:`.batch`, so the failure kinds are the same and the states agree to rounding (1e-14 relative:
+numpy's pow and libm's differ in the last bit, and so do the step sizes).
 
 One source. The stance's right-hand side, torque, event functions and rates, and the flight's closed forms
 are :mod:`.dynamics`' own functions, compiled here for one lane (numba compiles the Python source of each
