@@ -22,11 +22,8 @@ import numpy.typing as npt
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.batch_stance import (
-    STANCE_FALL,
+    STANCE_FAILURES,
     STANCE_LIFTOFF,
-    STANCE_REVERSAL,
-    STANCE_STEP_COLLAPSE,
-    STANCE_TIME_LIMIT,
     STATE_SIZE,
     IntArray,
     LaneField,
@@ -205,7 +202,7 @@ def _return_map(
             np.broadcast_to(np.asarray(ground, dtype=np.float64), shape), dtype=np.float64
         ).ravel()
     stance = _Ramp(*stance_a) if feedback is None else _Feedback(feedback[0], feedback[1], stance_a[0])
-    _validate(limits, y_a, xdot_a, angle, _stance_checks(stance))
+    validate_lanes(limits, y_a, xdot_a, angle, _stance_checks(stance))
     _validate_perturbations(x_a, ground_a, tau_max_a, push_a, error_a)
     result = _stride(
         limits,
@@ -222,7 +219,7 @@ def _return_map(
 
 def _stance_checks(stance: _Ramp | _Feedback) -> Checks:
     if isinstance(stance, _Ramp):
-        return _ramp_checks(stance.tau0, stance.t_f)
+        return ramp_checks(stance.tau0, stance.t_f)
     return (("apex_time", stance.apex_time, np.isfinite(stance.apex_time), "finite"),)
 
 
@@ -388,7 +385,7 @@ def simulate_strides(
                     for c in command[1:]
                 )
             )
-        _validate(limits, y_k, xdot_k, angle, _stance_checks(stance))
+        validate_lanes(limits, y_k, xdot_k, angle, _stance_checks(stance))
         lanes = perturbed.take(alive) if perturbed is not None else None
         push = np.zeros(alive.size) if draws is None else draws.push[stride, alive]
         tau_max = (
@@ -444,7 +441,7 @@ Checks = tuple[tuple[str, FloatArray, npt.NDArray[np.bool_], str], ...]
 """(field name, values, valid per lane, requirement)."""
 
 
-def _check_lanes(checks: Checks) -> None:
+def check_lanes(checks: Checks) -> None:
     """ParameterError naming the field and the first lane of the first check that fails."""
     for name, values, valid, requirement in checks:
         if not np.all(valid):
@@ -452,12 +449,12 @@ def _check_lanes(checks: Checks) -> None:
             raise ParameterError(f"{name} must be {requirement}, got {values[lane]!r} in lane {lane}")
 
 
-def _validate(
+def validate_lanes(
     limits: PlausibilityLimits, y: FloatArray, xdot: FloatArray, angle: FloatArray, stance: Checks
 ) -> None:
     """The checks of ApexState, of the stance (``stance``: those of StanceCommand for ramps) and
     limits.check_apex, per lane; the message names the field and a lane."""
-    _check_lanes(
+    check_lanes(
         (
             ("apex height y", y, np.isfinite(y) & (y > 0.0), "a positive finite number"),
             ("apex speed xdot", xdot, np.isfinite(xdot), "finite"),
@@ -471,7 +468,7 @@ def _validate(
         raise ParameterError(f"{limits.apex_violation(float(y[lane]), float(xdot[lane]))} in lane {lane}")
 
 
-def _ramp_checks(tau0: FloatArray, t_f: FloatArray) -> Checks:
+def ramp_checks(tau0: FloatArray, t_f: FloatArray) -> Checks:
     return (
         ("tau0", tau0, np.isfinite(tau0), "finite"),
         ("t_f", t_f, np.isfinite(t_f) & (t_f > 0.0), "a positive finite number"),
@@ -482,7 +479,7 @@ def _validate_perturbations(
     x: FloatArray, ground: FloatArray, tau_max: FloatArray, push: FloatArray, angle_error: FloatArray
 ) -> None:
     """The perturbation inputs per lane, as :func:`_validate` checks the states and commands."""
-    _check_lanes(
+    check_lanes(
         (
             ("x", x, np.isfinite(x), "finite"),
             ("ground", ground, np.isfinite(ground), "finite"),
@@ -563,13 +560,7 @@ def _stride(
             saturated,
         )
     outcome, s_end, y_end = integrate_stance(params, y0, field, limits.max_stance_time, rtol, atol)
-    stance_failures = {
-        STANCE_REVERSAL: FailureKind.REVERSAL,
-        STANCE_FALL: FailureKind.FALL,
-        STANCE_TIME_LIMIT: FailureKind.NO_LIFTOFF,
-        STANCE_STEP_COLLAPSE: FailureKind.STATE_LIMIT,
-    }
-    for code, kind in stance_failures.items():
+    for code, kind in STANCE_FAILURES.items():
         failure[in_stance[outcome == code]] = failure_code(kind)
 
     lifted = outcome == STANCE_LIFTOFF

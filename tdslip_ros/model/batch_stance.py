@@ -24,27 +24,36 @@ from scipy.integrate._ivp import dop853_coefficients as _dop853
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.dynamics import FloatArray
+from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.stance_laws import StanceLaw, StanceSample, clip_torque, first_sample
 
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
-# DOP853 (Hairer, Norsett & Wanner), the tableau scipy's solve_ivp uses; stage 12 is the FSAL stage.
-_STAGES = _dop853.N_STAGES
-_A: FloatArray = _dop853.A[:_STAGES, :_STAGES]
-_B: FloatArray = _dop853.B
-_C: FloatArray = _dop853.C[:_STAGES]
-_E3: FloatArray = _dop853.E3
-_E5: FloatArray = _dop853.E5
-_SAFETY, _MIN_FACTOR, _MAX_FACTOR = 0.9, 0.2, 10.0  # scipy's step-size rule
-_ERROR_EXPONENT = -1.0 / 8.0
-_INITIAL_STEP_PERIODS = 0.01  # first step, in natural periods of the leg spring
-_EVENT_TIME_TOLERANCE = 1e-14  # s
-_MAX_ROOT_ITERATIONS = 100
+# DOP853 (Hairer, Norsett & Wanner), the tableau scipy's solve_ivp uses; stage 12 is the FSAL stage. Held
+# C-contiguous: compiled kernels (exact_kernels) take them as constants, which numba caches only then.
+STAGES = _dop853.N_STAGES
+A: FloatArray = np.ascontiguousarray(_dop853.A[:STAGES, :STAGES])
+B: FloatArray = np.ascontiguousarray(_dop853.B)
+C: FloatArray = np.ascontiguousarray(_dop853.C[:STAGES])
+E3: FloatArray = _dop853.E3
+E5: FloatArray = _dop853.E5
+SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0  # scipy's step-size rule
+ERROR_EXPONENT = -1.0 / 8.0
+INITIAL_STEP_PERIODS = 0.01  # first step, in natural periods of the leg spring
+EVENT_TIME_TOLERANCE = 1e-14  # s
+MAX_ROOT_ITERATIONS = 100
 
 # How a lane's stance ends (integrate_stance's outcome per lane).
 STANCE_LIFTOFF, STANCE_REVERSAL, STANCE_FALL, STANCE_TIME_LIMIT, STANCE_STEP_COLLAPSE = 0, 1, 2, 3, 4
+STANCE_FAILURES = {
+    STANCE_REVERSAL: FailureKind.REVERSAL,
+    STANCE_FALL: FailureKind.FALL,
+    STANCE_TIME_LIMIT: FailureKind.NO_LIFTOFF,
+    STANCE_STEP_COLLAPSE: FailureKind.STATE_LIMIT,
+}
+"""The failure each outcome of a stance other than liftoff is (a collapsed step size: state_limit)."""
 _TERMINAL_EVENTS = (
     dynamics.STANCE_EVENT_NAMES.index("liftoff"),
     dynamics.STANCE_EVENT_NAMES.index("reversal"),
@@ -127,11 +136,9 @@ class StanceField(_PerLane):
     def __call__(self, s: FloatArray, y: FloatArray, out: FloatArray) -> None:
         r, theta, rdot, thetadot = y[0], y[1], y[2], y[3]
         tau = dynamics.hip_torque(self.tau0, self.t_f, s, self.tau_max)
-        out[2], out[3] = dynamics.stance_accelerations(
+        out[:] = dynamics.stance_derivatives(
             self.params, r, np.sin(theta), np.cos(theta), rdot, thetadot, tau
         )
-        out[4], out[5] = dynamics.stance_powers(self.params, rdot, thetadot, tau)
-        out[0], out[1] = rdot, thetadot
 
 
 class SampledField(_PerLane):
@@ -182,18 +189,16 @@ class SampledField(_PerLane):
 
     def __call__(self, s: FloatArray, y: FloatArray, out: FloatArray) -> None:
         r, theta, rdot, thetadot = y[0], y[1], y[2], y[3]
-        out[2], out[3] = dynamics.stance_accelerations(
+        out[:] = dynamics.stance_derivatives(
             self.params, r, np.sin(theta), np.cos(theta), rdot, thetadot, self.held
         )
-        out[4], out[5] = dynamics.stance_powers(self.params, rdot, thetadot, self.held)
-        out[0], out[1] = rdot, thetadot
 
 
 def _dop853_step(field: LaneField, s: FloatArray, y: FloatArray, h: FloatArray, k: FloatArray) -> FloatArray:
     """One DOP853 step of lengths h; k[0] must hold the field at (s, y); fills k[1:12]."""
-    for stage in range(1, _STAGES):
-        field(s + _C[stage] * h, y + h * _combine(_A[stage, :stage], k), k[stage])
-    return y + h * _combine(_B, k)
+    for stage in range(1, STAGES):
+        field(s + C[stage] * h, y + h * _combine(A[stage, :stage], k), k[stage])
+    return y + h * _combine(B, k)
 
 
 def _combine(weights: FloatArray, k: FloatArray) -> FloatArray:
@@ -239,10 +244,10 @@ def integrate_stance(
     lane = np.arange(lanes)
     s = np.zeros(lanes)
     y = y0.copy()
-    k = np.empty((_STAGES + 1, STATE_SIZE, lanes))
+    k = np.empty((STAGES + 1, STATE_SIZE, lanes))
     field(s, y, k[0])
     g_before = _terminal_values(params, y)
-    h = np.full(lanes, _INITIAL_STEP_PERIODS * 2.0 * math.pi / params.omega0)
+    h = np.full(lanes, INITIAL_STEP_PERIODS * 2.0 * math.pi / params.omega0)
     rejected = np.zeros(lanes, dtype=bool)
     while lane.size:
         kink = field.kink(s)
@@ -252,21 +257,21 @@ def integrate_stance(
         # A trial step may overflow (a stiff leg, a too long first step); it then fails its error test.
         with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
             y_new = _dop853_step(field, s, y, h, k)
-            field(s + h, y_new, k[_STAGES])
+            field(s + h, y_new, k[STAGES])
             scale = atol + np.maximum(np.abs(y), np.abs(y_new)) * rtol
-            err5 = np.sum((_combine(_E5, k) / scale) ** 2, axis=0)
-            err3 = np.sum((_combine(_E3, k) / scale) ** 2, axis=0)
+            err5 = np.sum((_combine(E5, k) / scale) ** 2, axis=0)
+            err3 = np.sum((_combine(E3, k) / scale) ** 2, axis=0)
             denominator = err5 + 0.01 * err3
             error = np.where(denominator > 0.0, h * err5 / np.sqrt(denominator * STATE_SIZE), 0.0)
-            # A step that left the floats (overflow, NaN) fails its error test and shrinks by _MIN_FACTOR.
+            # A step that left the floats (overflow, NaN) fails its error test and shrinks by MIN_FACTOR.
             left_floats = np.isnan(denominator) | np.isnan(error) | ~np.isfinite(y_new).all(axis=0)
             error = np.where(left_floats, np.inf, error)
-            growth = _SAFETY * error**_ERROR_EXPONENT
+            growth = SAFETY * error**ERROR_EXPONENT
         accepted = error < 1.0
         factor = np.where(
             accepted,
-            np.where(rejected, np.minimum(1.0, growth), np.minimum(_MAX_FACTOR, growth)),
-            np.maximum(_MIN_FACTOR, growth),
+            np.where(rejected, np.minimum(1.0, growth), np.minimum(MAX_FACTOR, growth)),
+            np.maximum(MIN_FACTOR, growth),
         )
         g_after = _terminal_values(params, y_new)
         crossed = (g_before > 0.0) & (g_after <= 0.0) & accepted
@@ -291,7 +296,7 @@ def integrate_stance(
         s_next = np.where(on_kink, kink, s + h)
         s = np.where(advance, s_next, s)
         y = np.where(advance, y_new, y)
-        k[0] = np.where(advance, k[_STAGES], k[0])
+        k[0] = np.where(advance, k[STAGES], k[0])
         jumped = field.sample(advance & on_kink, s, y)
         if jumped is not None and jumped.any():  # the step's last stage saw the torque held before
             fresh = np.empty_like(k[0])
@@ -345,14 +350,14 @@ def _locate(
     bisection. Converges in 2-3 steps from the regula falsi start (the time a step costs).
     """
     lanes = np.arange(s0.size)
-    k = np.empty((_STAGES + 1, STATE_SIZE, s0.size))
+    k = np.empty((STAGES + 1, STATE_SIZE, s0.size))
     k[0] = k0
     velocity = np.empty((STATE_SIZE, s0.size))
     a, b = np.zeros_like(s0), h.copy()
     g_a = np.where(crossed, g_start, np.inf).min(axis=0)
     g_b = np.where(crossed, g_end, np.inf).min(axis=0)
     sigma = np.clip(g_a * h / (g_a - g_b), 0.0, h)
-    for _ in range(_MAX_ROOT_ITERATIONS):
+    for _ in range(MAX_ROOT_ITERATIONS):
         y_sigma = _dop853_step(field, s0, y0, sigma, k)
         values = np.where(crossed, _terminal_values(params, y_sigma), np.inf)
         active = np.argmin(values, axis=0)
@@ -362,7 +367,7 @@ def _locate(
         a, b = np.where(g > 0.0, sigma, a), np.where(g <= 0.0, sigma, b)
         with np.errstate(divide="ignore", invalid="ignore"):
             newton_step = g / rate
-        converged = (np.abs(newton_step) <= _EVENT_TIME_TOLERANCE) | (g == 0.0)
+        converged = (np.abs(newton_step) <= EVENT_TIME_TOLERANCE) | (g == 0.0)
         if converged.all():
             break
         newton = sigma - newton_step

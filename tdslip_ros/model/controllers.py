@@ -51,13 +51,11 @@ from tdslip_ros.model.arrays import (
     Lanes,
     ParamArrays,
     elementwise,
-    no_command_of_failure,
 )
 from tdslip_ros.model.closed_loop import fixed_command, map_jacobian
 from tdslip_ros.model.controller_kernels import (
     COMMAND_ROWS,
     FIXED_POINT_ITERATIONS,
-    NO_SOLUTION_REASON,
     POWER_RULE,
     TORQUE_RULE,
     foot_placement_lanes,
@@ -65,12 +63,10 @@ from tdslip_ros.model.controller_kernels import (
     neutral_angle_of,
     planned_lanes,
     regulated_lanes,
-    solve2,
 )
 from tdslip_ros.model.deadbeat_kernels import deadbeat_lanes
-from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
 EXACT_ENERGY_TOLERANCE = 1e-11
 """Dimensionless energy E/(m g r0) to which energy_exact meets its target on the exact map."""
@@ -216,87 +212,45 @@ def exact_energy_regulation(
     next apex has the energy E* [J] (E* = E_a without a target) to EXACT_ENERGY_TOLERANCE, t_f being the
     stance duration the plant itself produces with that command (the ramp ends at the exact liftoff).
 
-    Newton's method on the exact map (the batched engine, DOP853 at EXACT_MAP_TOLERANCE) for
-    x = (tau0, t_f) scaled as in :func:`~.controller_kernels.lane_plan` and the residuals ((E' - E*)/(m g r0),
-    T_stance/sqrt(m/k) - x_1); its Jacobian by forward differences, the three points being lanes of one
-    batched call. It starts from :func:`energy_regulation`'s forward root (``corrections`` of its map) and
-    returns a command only where the exact map, evaluated with that very command, succeeds and meets both
-    tolerances. Lanes where the analytic plan has no command keep its reason, lanes where the exact map
-    fails at an iterate get that failure's, and lanes not converged in EXACT_ITERATIONS get no_solution.
-    A plan costs about 3 x 4 exact strides: fine in lockstep and in studies. The gap between ``energy``
-    and ``energy_exact`` is what the analytic approximation costs.
+    Newton's method on the exact map (DOP853 at EXACT_MAP_TOLERANCE, one lane at a time in compiled code:
+    :func:`~.exact_kernels.exact_regulation_lanes`) for x = (tau0, t_f) scaled as in
+    :func:`~.controller_kernels.lane_plan` and the residuals ((E' - E*)/(m g r0), T_stance/sqrt(m/k) - x_1);
+    its Jacobian by forward differences. It starts from :func:`energy_regulation`'s forward root
+    (``corrections`` of its map) and returns a command only where the exact map, evaluated with that very
+    command, succeeds and meets both tolerances. Lanes where the analytic plan has no command keep its
+    reason, lanes where the exact map fails at an iterate get that failure's, and lanes not converged in
+    EXACT_ITERATIONS get no_solution. A plan costs about 3 x 4 exact strides (a few tenths of a millisecond).
+    ParameterError as :func:`~.batch.batch_apex_return_map` for an apex beyond the hopper's limits. The gap
+    between ``energy`` and ``energy_exact`` is what the analytic approximation costs.
     """
-    # Imported here: the batched engine imports scipy.integrate (0.6 s), which only this policy needs; a
+    # Imported here: the exact kernels import scipy.integrate (0.6 s), which only this policy needs; a
     # controller node of the others starts as fast as before (its DDS discovery races the recorder's).
-    from tdslip_ros.model.batch import batch_apex_return_map
+    from tdslip_ros.model.batch import validate_lanes
+    from tdslip_ros.model.exact_kernels import Newton, default_limits, exact_regulation_lanes, kernel_rows
 
     arrays = ParamArrays.of(params)
     y_, xdot_, beta_ = (np.asarray(value) for value in (y, xdot, beta))
     start = energy_regulation(arrays, y_, xdot_, beta_, target_energy, corrections)
     shape = np.shape(start.tau0)
-    energy_scale = units.energy_scale(params)
     goal = (
         _apex_energy(arrays, y_, xdot_) if target_energy is None else np.asarray(target_energy, dtype=float)
     )
-    goal_bar = np.broadcast_to(goal / energy_scale, shape).ravel()
-    y_l, xdot_l, angle = (np.broadcast_to(np.real(v), shape).ravel() for v in (y_, xdot_, beta_))
-    scales = np.array([units.torque_from_bar(params, 1.0), np.sqrt(params.m / params.k)])[:, None]
-    x = np.stack([np.ravel(np.real(start.tau0)), np.ravel(np.real(start.t_f))]) / scales
+    y_l, xdot_l, angle, goal_bar, tau0, t_f = (
+        np.array(np.broadcast_to(np.real(value), shape), dtype=float).ravel()
+        for value in (y_, xdot_, beta_, goal / units.energy_scale(params), start.tau0, start.t_f)
+    )
     assert start.no_command is not None
-    reason = np.array(np.broadcast_to(start.no_command, shape)).ravel()
-    active = np.flatnonzero(reason == HAS_COMMAND)
-    solved = np.zeros(reason.shape, dtype=bool)
-    probes = _probes(2, EXACT_JACOBIAN_STEP)  # (3, 2, 1)
-    for _ in range(EXACT_ITERATIONS):
-        wild = ~np.all(np.isfinite(x[:, active]) & (x[1, active] > 0.0), axis=0)
-        reason[active[wild]] = NO_SOLUTION_REASON
-        active = active[~wild]
-        if active.size == 0:
-            break
-        points = x[:, active] + probes  # (3, 2, n): the point and its two shifts
-        stride = batch_apex_return_map(
-            params,
-            y_l[active],
-            xdot_l[active],
-            angle[active],
-            points[:, 0] * scales[0],
-            points[:, 1] * scales[1],
-            rtol=EXACT_MAP_TOLERANCE,
-            atol=EXACT_MAP_TOLERANCE,
-        )
-        energy_bar = units.energy_to_bar(params, params.m * (params.g * stride.y + 0.5 * stride.xdot**2))
-        residual = np.stack(
-            [energy_bar - goal_bar[active], stride.stance_time / scales[1] - points[:, 1]]
-        )  # (2, 3, n)
-        failed = stride.failure[0] != NO_FAILURE_CODE
-        reason[active[failed]] = no_command_of_failure(stride.failure[0][failed])
-        done = ~failed & (np.abs(residual[0, 0]) <= EXACT_ENERGY_TOLERANCE)
-        done &= np.abs(residual[1, 0]) <= EXACT_STANCE_TOLERANCE
-        solved[active[done]] = True
-        with np.errstate(invalid="ignore", divide="ignore"):
-            step = -_solve2((residual[:, 1:] - residual[:, :1]) / EXACT_JACOBIAN_STEP, residual[:, 0])
-        moving = ~failed & ~done
-        x[:, active[moving]] += step[:, moving]
-        active = active[moving]
-    reason[active] = NO_SOLUTION_REASON  # still iterating: not converged
-    reason[~solved & (reason == HAS_COMMAND)] = NO_SOLUTION_REASON
-    tau0, t_f = (
-        np.where(reason == HAS_COMMAND, row * scale, np.nan).reshape(shape)
-        for row, scale in zip(x, scales, strict=True)
+    reason = np.array(np.broadcast_to(start.no_command, shape), dtype=np.int64).ravel()
+    planned = reason == HAS_COMMAND
+    limits = default_limits(params)
+    validate_lanes(limits, y_l[planned], xdot_l[planned], angle[planned], ())
+    hopper, bounds = kernel_rows(limits)
+    newton = Newton(EXACT_ENERGY_TOLERANCE, EXACT_STANCE_TOLERANCE, EXACT_ITERATIONS, EXACT_JACOBIAN_STEP)
+    exact_regulation_lanes(
+        hopper, bounds, y_l, xdot_l, angle, goal_bar, tau0, t_f, EXACT_MAP_TOLERANCE, newton, reason
     )
     angle_out = np.where(reason == HAS_COMMAND, angle, np.nan).reshape(shape)
-    return CommandArrays(angle_out, tau0, t_f, no_command=reason.reshape(shape))
-
-
-def _probes(count: int, step: float) -> Array:
-    """A point and its ``step`` shifts along each of ``count`` coordinates: (count + 1, count, 1)."""
-    directions = np.vstack([np.zeros(count), np.eye(count)])
-    return step * directions.reshape(count + 1, count, 1)
-
-
-def _solve2(matrix: Array, vector: Array) -> Array:
-    """matrix^-1 vector per lane for (2, 2, n) matrices and (2, n) vectors (controller_kernels.solve2)."""
-    return np.stack(elementwise(solve2, [complex, complex], *matrix.reshape(4, -1), *vector))
+    return CommandArrays(angle_out, tau0.reshape(shape), t_f.reshape(shape), no_command=reason.reshape(shape))
 
 
 def admissible_angles(params: HopperParams | ParamArrays, y: ArrayLike) -> tuple[Array, Array]:
@@ -420,9 +374,10 @@ def apex_foot_placement(
     return _commands(lanes, block)
 
 
-def warm_up(params: HopperParams | None = None, complex_step: bool = True) -> None:
+def warm_up(params: HopperParams | None = None, complex_step: bool = True, exact_plant: bool = True) -> None:
     """Load the compiled kernels of the analytic map and of every analytic policy, for one apex at a time
-    as the controller node plans (and with ``complex_step`` for the complex step of map_jacobian too),
+    as the controller node plans (and with ``complex_step`` for the complex step of map_jacobian too; with
+    ``exact_plant`` the compiled exact stride and energy_exact's plan on it, :mod:`.exact_kernels`),
     compiling those not yet in the cache (:mod:`tdslip_ros.model.compiled`; about a minute for all of
     them, once). The controller node calls it before it subscribes to the apex, so that its first answer
     is not late; ``./run.sh setup`` calls it so that the first node or test does not compile."""
@@ -437,6 +392,13 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True) -> No
     ramp_to_liftoff(params, y, xdot, beta, -500.0)
     deadbeat(params, y, xdot, y, xdot)
     apex_foot_placement(params, y, xdot, xdot, y, xdot)
+    if exact_plant:
+        from tdslip_ros.model.exact_kernels import (
+            apex_stride,
+        )  # scipy.integrate: only here (see energy_exact)
+
+        exact_energy_regulation(params, y, xdot, beta)
+        apex_stride(params, ApexState(y, xdot), StanceCommand(beta, -500.0, 0.15))
     if complex_step:
         for policy in (
             lambda p, y_, x_: energy_regulation(p, y_, x_, beta),

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +32,23 @@ from tdslip_ros.model.params import HopperParams, ParameterError
 
 FloatArray = npt.NDArray[np.float64]
 Real = TypeVar("Real", float, FloatArray)
+
+
+class Hopper(Protocol):
+    """What the stance's arithmetic reads of a hopper: :class:`.params.HopperParams`, or the named tuple
+    of the same fields that the compiled kernels pass (:class:`.exact_kernels.LaneHopper`)."""
+
+    @property
+    def m(self) -> float: ...
+    @property
+    def k(self) -> float: ...
+    @property
+    def r0(self) -> float: ...
+    @property
+    def c(self) -> float: ...
+    @property
+    def g(self) -> float: ...
+
 
 NO_LIFTOFF_SPRING_PERIODS = 10.0
 """A stance longer than this many natural periods 2 pi sqrt(m/k) of the leg spring is a failure
@@ -44,7 +61,7 @@ def max_stance_duration(params: HopperParams) -> float:
     return NO_LIFTOFF_SPRING_PERIODS * 2.0 * math.pi / params.omega0
 
 
-def touchdown_height(params: HopperParams, cos_touchdown: Real) -> Real:
+def touchdown_height(params: Hopper, cos_touchdown: Real) -> Real:
     """Body height [m] at which the leg, placed at rest length, touches the ground."""
     return params.r0 * cos_touchdown
 
@@ -152,17 +169,23 @@ def saturation_end(tau0: npt.ArrayLike, t_f: npt.ArrayLike, tau_max: npt.ArrayLi
     saturation: t_f (1 - tau_max/|tau0|); t_f (no kink before the ramp's end) where |tau0| <= tau_max."""
     tau0, t_f, tau_max = (np.asarray(value, dtype=np.float64) for value in (tau0, t_f, tau_max))
     with np.errstate(divide="ignore"):
-        end: FloatArray = np.where(np.abs(tau0) > tau_max, t_f * (1.0 - tau_max / np.abs(tau0)), t_f)
+        end: FloatArray = np.where(np.abs(tau0) > tau_max, saturation_time(tau0, t_f, tau_max), t_f)
     return end
 
 
-def leg_force(params: HopperParams, r: Real, rdot: Real) -> Real:
+def saturation_time(tau0: Real, t_f: Real, tau_max: Real) -> Real:
+    """t_f (1 - tau_max/|tau0|) [s]: where the ramp from tau0 falls to +-tau_max (for |tau0| > tau_max)."""
+    end: Real = t_f * (1.0 - tau_max / abs(tau0))
+    return end
+
+
+def leg_force(params: Hopper, r: Real, rdot: Real) -> Real:
     """Axial force [N] of the spring-damper leg, positive when it pushes the body away from the toe."""
     return params.k * (params.r0 - r) - params.c * rdot
 
 
 def stance_accelerations(
-    params: HopperParams, r: Real, sin_t: Real, cos_t: Real, rdot: Real, thetadot: Real, tau: Real
+    params: Hopper, r: Real, sin_t: Real, cos_t: Real, rdot: Real, thetadot: Real, tau: Real
 ) -> tuple[Real, Real]:
     """(rddot, thetaddot) of eq. 2 with hip torque tau [N m]."""
     rddot = r * thetadot * thetadot - params.g * cos_t + leg_force(params, r, rdot) / params.m
@@ -170,9 +193,20 @@ def stance_accelerations(
     return rddot, thetaddot
 
 
-def stance_powers(params: HopperParams, rdot: Real, thetadot: Real, tau: Real) -> tuple[Real, Real]:
+def stance_powers(params: Hopper, rdot: Real, thetadot: Real, tau: Real) -> tuple[Real, Real]:
     """(hip power tau thetadot, damper power c rdot^2) [W]; their integrals are the stride's energy flows."""
     return tau * thetadot, params.c * rdot * rdot
+
+
+def stance_derivatives(
+    params: Hopper, r: Real, sin_t: Real, cos_t: Real, rdot: Real, thetadot: Real, tau: Real
+) -> tuple[Real, Real, Real, Real, Real, Real]:
+    """The stance right-hand side: d/ds of (r, theta, rdot, thetadot, hip work, damper loss) under hip
+    torque tau [N m]. The one source of every DOP853 engine's field: the batched engine calls it on arrays,
+    the compiled one (:mod:`.exact_kernels`) compiles it for one lane."""
+    rddot, thetaddot = stance_accelerations(params, r, sin_t, cos_t, rdot, thetadot, tau)
+    hip_power, damper_power = stance_powers(params, rdot, thetadot, tau)
+    return rdot, thetadot, rddot, thetaddot, hip_power, damper_power
 
 
 STANCE_EVENT_NAMES = ("bottom", "liftoff", "reversal", "fall")
@@ -180,7 +214,7 @@ STANCE_EVENT_NAMES = ("bottom", "liftoff", "reversal", "fall")
 
 
 def stance_event_values(
-    params: HopperParams, r: Real, cos_t: Real, rdot: Real, thetadot: Real
+    params: Hopper, r: Real, cos_t: Real, rdot: Real, thetadot: Real
 ) -> tuple[Real, Real, Real, Real]:
     """Event functions; each event happens when its value crosses from > 0 to <= 0.
 
@@ -191,7 +225,7 @@ def stance_event_values(
 
 
 def stance_event_rates(
-    params: HopperParams,
+    params: Hopper,
     r: Real,
     sin_t: Real,
     cos_t: Real,
@@ -204,7 +238,7 @@ def stance_event_rates(
     return -rddot, -params.k * rdot - params.c * rddot, -thetaddot, rdot * cos_t - r * thetadot * sin_t
 
 
-def spring_energy(params: HopperParams, r: Real) -> Real:
+def spring_energy(params: Hopper, r: Real) -> Real:
     return 0.5 * params.k * (r - params.r0) ** 2
 
 

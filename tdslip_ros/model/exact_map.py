@@ -341,12 +341,10 @@ def _integrate_stance(
     def rhs(torque: Torque) -> Callable[[float, np.ndarray], np.ndarray]:
         def field(s: float, y: np.ndarray) -> np.ndarray:
             r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
-            tau = torque(s)
-            rddot, thetaddot = dynamics.stance_accelerations(
-                params, r, math.sin(theta), math.cos(theta), rdot, thetadot, tau
+            derivatives = dynamics.stance_derivatives(
+                params, r, math.sin(theta), math.cos(theta), rdot, thetadot, torque(s)
             )
-            hip_power, damper_power = dynamics.stance_powers(params, rdot, thetadot, tau)
-            return np.array([rdot, thetadot, rddot, thetaddot, hip_power, damper_power])
+            return np.array(derivatives)
 
         return field
 

@@ -2,8 +2,9 @@
 
 The analytic map's fixed points (:mod:`tdslip_ros.model.stability`) say what the paper's approximation
 predicts; this module says what the exact plant does, by the same construction on the exact map (the
-batched DOP853 engine, :func:`~tdslip_ros.model.batch.batch_apex_return_map`), so that every stability
-verdict on the exact plant comes from a fixed point and its eigenvalue, not from a stride horizon:
+batched engine's DOP853 stride, compiled lane by lane:
+:func:`~tdslip_ros.model.exact_kernels.compiled_apex_return_map`), so that every stability verdict on the
+exact plant comes from a fixed point and its eigenvalue, not from a stride horizon:
 
 * the closed loop (:class:`ExactLoop`): a stance policy at the fixed touchdown angle beta answers each apex
   (y, E) and the exact plant hops the stride, P(y, E) = (y', E'). A loop is a family of such maps, one per
@@ -35,10 +36,11 @@ import numpy as np
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic import speed_from_energy
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays
-from tdslip_ros.model.batch import BatchStrideResult, batch_apex_return_map
+from tdslip_ros.model.batch import BatchStrideResult
 from tdslip_ros.model.closed_loop import eigenvalues
 from tdslip_ros.model.controllers import energy_regulation, exact_energy_regulation, fixed_power
 from tdslip_ros.model.events import NO_FAILURE_CODE
+from tdslip_ros.model.exact_kernels import compiled_apex_return_map
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.stability import (
     EDGE_BISECTIONS,
@@ -114,7 +116,7 @@ class ExactLoop:
         return np.where(moving | ~np.isfinite(previous_gap), np.nan, t_f)
 
     def _exact(self, y: Array, xdot: Array, angle: Array, tau0: Array, t_f: Array) -> BatchStrideResult:
-        return batch_apex_return_map(
+        return compiled_apex_return_map(
             self.params, y, xdot, angle, tau0, t_f, rtol=EXACT_TOLERANCE, atol=EXACT_TOLERANCE
         )
 
