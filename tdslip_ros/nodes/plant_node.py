@@ -83,7 +83,15 @@ from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
-from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
+from tdslip_msgs.msg import (
+    ApexEvent,
+    ContactEvent,
+    HipTorque,
+    HopperState,
+    RecorderStatus,
+    StanceCommand,
+    Status,
+)
 from tdslip_msgs.srv import Reset
 
 from tdslip_ros.interfaces import (
@@ -97,6 +105,7 @@ from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.stance_laws import StanceFeedback
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
@@ -105,6 +114,7 @@ from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
 from tdslip_ros.nodes.markers import HopperMarkers
 from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
+from tdslip_ros.nodes.torque_stream import LateTorque, TorqueInput, torque_fields
 from tdslip_ros.nodes.wire import (
     SAMPLE_FIELDS,
     fill_state,
@@ -194,6 +204,12 @@ class PlantNode(Node):
         self.late_commands = 0
         """Realtime: answers that arrived after the touchdown of their stride (never applied)."""
         self.tick_timing = None if self.lockstep else TickTiming(round(TICK_PERIOD * _NS_PER_S))
+        self.torques = TorqueInput(
+            lockstep=self.lockstep,
+            max_age_ticks=round(float(values["torque_max_age"]) / TICK_PERIOD),
+            max_torque=self.limits.max_torque,
+        )
+        """Stance feedback: the streamed hip torques (tdslip/hip_torque), their late and stale counts."""
         self.recorders = RecorderProgress()
         self.outcome: RunOutcome | None = None
         self.done: Future[RunOutcome] = Future()
@@ -220,10 +236,18 @@ class PlantNode(Node):
         self._state_encoder = fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
         self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*STAMP_FIELDS, *GRF_FIELDS))
         self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
+        self._applied_torque_pub = self._topic_publishers[topics.APPLIED_TORQUE]
+        self._applied_torque_encoder = fixed_layout_encoder(
+            HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
+        )
         # Raw: an answer to an earlier apex is recognised from its bytes (command_key), unparsed.
         self._command_subscription = self.create_subscription(
             StanceCommand, topics.COMMAND, self._on_command, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
         )
+        self._torque_subscription = self.create_subscription(
+            HipTorque, topics.HIP_TORQUE, self._on_hip_torque, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
+        )
+        self.torque_topic = self._torque_subscription.topic_name
         self.create_subscription(
             RecorderStatus, topics.RECORDER_STATUS, self._on_recorder_status, topics.RECORDER_STATUS_QOS
         )
@@ -333,15 +357,17 @@ class PlantNode(Node):
 
     def _controller_connected(self) -> bool:
         """A node publishes commands and subscribes to the apex, every apex subscription of the graph
-        has matched the plant's publisher (the first apex reaches the controller) and every command
-        publisher the plant's subscription (the answer reaches the plant)."""
+        has matched the plant's publisher (the first apex reaches the controller) and every command and
+        hip torque publisher the plant's subscription (the answer reaches the plant)."""
         command_publishers = self.get_publishers_info_by_topic(self.command_topic)
         commanders = {(i.node_namespace, i.node_name) for i in command_publishers}
         apex_subscriptions = self.get_subscriptions_info_by_topic(self.topic_names[topics.APEX])
         listeners = {(i.node_namespace, i.node_name) for i in apex_subscriptions}
-        matched = self.matched_subscribers(topics.APEX) >= len(
-            apex_subscriptions
-        ) and self._command_subscription.get_publisher_count() >= len(command_publishers)
+        matched = (
+            self.matched_subscribers(topics.APEX) >= len(apex_subscriptions)
+            and self._command_subscription.get_publisher_count() >= len(command_publishers)
+            and self._torque_subscription.get_publisher_count() >= self.count_publishers(self.torque_topic)
+        )
         return bool(commanders & listeners) and matched
 
     def start(self) -> None:
@@ -402,6 +428,9 @@ class PlantNode(Node):
             trajectory=self._epoch,
         )
         self._offset = time_offset_ticks * TICK_PERIOD
+        self._offset_ticks = time_offset_ticks
+        self._applied_published = 0  # samples of the current stance published on tdslip/applied_torque
+        self.torques.restart()
         self._awaiting: int | None = None
         self._answered = -1  # the latest stride whose command was applied
         self._late_stride = -1  # the latest stride counted in late_commands
@@ -521,8 +550,12 @@ class PlantNode(Node):
             return True
 
     def _tick(self) -> bool:
-        """Step one tick and publish it; True when stepping must pause (awaited command, end of run)."""
-        events = self._stepper.step()
+        """Step one tick and publish it; True when stepping must pause (awaited command or torque, end of
+        run)."""
+        stepper = self._stepper
+        if not self.lockstep and stepper.torque_due:  # lockstep: the awaited torque is held already
+            stepper.hold_torque(self.torques.held(stepper.stride, self._ticks))
+        events = stepper.step()
         self._ticks += 1
         if self._ticks % GRAPH_CHECK_TICKS == 0:
             self._check_graph()
@@ -536,12 +569,19 @@ class PlantNode(Node):
                 self._finish(event.failure.value, event.reason, self._offset + event.t)
                 return True
             else:
+                if event.kind is EventKind.TOUCHDOWN:
+                    self._applied_published = 0
                 self._publish_contact(event)
         state = self._stepper.state
         self._publish_sample(state)
+        if isinstance(stepper.command, StanceFeedback):
+            self._publish_applied_torques()
         if self._markers_out and self._ticks % self._marker_period_ticks == 0:
             self._publish_markers(state)
         if apex is None:
+            if self.lockstep and stepper.torque_due:
+                self._await_torque()
+                return True
             return False
         if apex.stride == self._max_strides:
             reason = f"reached max_strides = {self._max_strides}"
@@ -569,21 +609,31 @@ class PlantNode(Node):
         self._awaiting = self._stepper.stride
         self._timeout_timer.reset()
 
+    def _await_torque(self) -> None:
+        self.torques.await_tick(self._epoch, self._stepper.stride, self._ticks)
+        self._timeout_timer.reset()
+
     def _on_command_timeout(self) -> None:
         self._timeout_timer.cancel()
         with self._lock:
             self._time_out()
 
     def _time_out(self) -> None:
-        if self._awaiting is not None and self._running:
-            rejected = self.rejections.total
-            rejected_so_far = f"; {rejected} command(s) rejected so far" if rejected else ""
-            self._finish(
-                Status.KIND_COMMAND_TIMEOUT,
-                f"no valid command for epoch {self._epoch}, stride {self._awaiting} within "
-                f"command_timeout = {self._command_timeout:g} s{rejected_so_far}",
-                self._offset + self._stepper.t,
-            )
+        awaited = self.torques.awaited
+        if (self._awaiting is None and awaited is None) or not self._running:
+            return
+        rejected = self.rejections.total
+        rejected_so_far = f"; {rejected} command(s) or torque(s) rejected so far" if rejected else ""
+        what = (
+            f"command for epoch {self._epoch}, stride {self._awaiting}"
+            if awaited is None
+            else f"hip torque for epoch {awaited[0]}, stride {awaited[1]}, tick {awaited[2]}"
+        )
+        self._finish(
+            Status.KIND_COMMAND_TIMEOUT,
+            f"no valid {what} within command_timeout = {self._command_timeout:g} s{rejected_so_far}",
+            self._offset + self._stepper.t,
+        )
 
     # --- commands and reset ---------------------------------------------------------------------
 
@@ -612,14 +662,12 @@ class PlantNode(Node):
             self._late_stride = stride
             self.late_commands += 1
 
-    def _report_rejection(self, reason: str) -> None:
+    def _report_rejection(self, reason: str, kind: str = Status.KIND_COMMAND_REJECTED) -> None:
         """Log and report a rejection (at most REJECTION_REPORTS per period, the rest summed)."""
         prefix = self.rejections.admit(time.monotonic_ns())
         if prefix is not None:
             self.get_logger().warning(prefix + reason)
-            self._publish_status(
-                Status.KIND_COMMAND_REJECTED, prefix + reason, self._offset + self._stepper.t, fatal=False
-            )
+            self._publish_status(kind, prefix + reason, self._offset + self._stepper.t, fatal=False)
 
     def _take_command(self, msg: StanceCommand) -> None:
         if not self._running:
@@ -658,6 +706,38 @@ class PlantNode(Node):
             self._count_late(stride)
             raise
         self._stepper.set_command(command)
+
+    def _on_hip_torque(self, data: bytes) -> None:
+        fields = torque_fields(data)
+        with self._lock:
+            if not self._running:
+                return
+            if fields is None:
+                self._report_rejection("hip torque rejected: not a HipTorque", Status.KIND_TORQUE_REJECTED)
+                return
+            stepper = self._stepper
+            try:
+                self.torques.take(
+                    fields,
+                    epoch=self._epoch,
+                    stride=stepper.stride,
+                    tick=self._ticks,
+                    streaming=isinstance(stepper.command, StanceFeedback),
+                    stance_over=stepper.past_touchdown and not stepper.torque_due,
+                )
+            except LateTorque:
+                return
+            except ParameterError as error:
+                self._report_rejection(
+                    f"hip torque for epoch {fields.epoch}, stride {fields.stride}, tick {fields.tick} "
+                    f"rejected: {error}",
+                    Status.KIND_TORQUE_REJECTED,
+                )
+                return
+            if self.lockstep:  # the awaited torque: hold it and step on
+                stepper.hold_torque(fields.torque)
+                self._timeout_timer.cancel()
+                self._lockstep_timer.reset()
 
     def _on_reset(self, request: Reset.Request, response: Reset.Response) -> Reset.Response:
         try:
@@ -715,6 +795,18 @@ class PlantNode(Node):
         if self._clock_out is not None:
             self._clock_out.publish(self._clock_encoder.encode((sec, nanosec)))
             published[topics.CLOCK] += 1
+
+    def _publish_applied_torques(self) -> None:
+        """The stance's torques sampled since the last call, as held (tdslip/applied_torque): the record
+        from which the analysis replays the stance."""
+        samples = self._stepper.stance_torques
+        for t, torque in samples[self._applied_published :]:
+            tick = self._offset_ticks + round(t / TICK_PERIOD)
+            sec, nanosec = divmod(tick * (_NS_PER_S // 1000), _NS_PER_S)
+            values = (sec, nanosec, self._epoch, self._stepper.stride, tick, torque)
+            self._applied_torque_pub.publish(self._applied_torque_encoder.encode(values))
+            self.published[topics.APPLIED_TORQUE] += 1
+        self._applied_published = len(samples)
 
     def _publish_markers(self, state: ModelState) -> None:
         stamp = Time()
