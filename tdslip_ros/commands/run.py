@@ -26,7 +26,7 @@ from tdslip_ros.interfaces import resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import POLICIES
+from tdslip_ros.model.policies import POLICIES, STANCE_FEEDBACK_POLICIES
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import stop_on_signals
@@ -84,7 +84,13 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--strides", type=int, default=50, help="the run ends at this apex (0: no limit, needs --duration)"
     )
-    parser.add_argument("--policy", choices=POLICIES, default="energy", help="the controller's policy")
+    parser.add_argument(
+        "--policy",
+        choices=(*POLICIES, *STANCE_FEEDBACK_POLICIES),
+        default="energy",
+        help=f"the controller's policy ({', '.join(STANCE_FEEDBACK_POLICIES)}: stance feedback at 1 kHz, "
+        "by stance_controller_node)",
+    )
     parser.add_argument(
         "--mode",
         choices=CLOCK_MODES,

@@ -198,6 +198,7 @@ class PlantNode(Node):
         self.published: Counter[str] = Counter()
         """Messages published per topic, by relative name (topics.STATE, ...)."""
         self.received_commands = 0
+        self.received_torques = 0
         self.rejections = RejectionLog()
         self.command_latencies_ns: list[int] = []
         """Wall time from each apex's publication to the valid command answering it."""
@@ -351,9 +352,11 @@ class PlantNode(Node):
         return now - self._ready_since_ns >= START_SETTLE * _NS_PER_S
 
     def recorder_ready(self) -> bool:
-        """A recorder has matched this plant's publishers and every command publisher of the graph."""
+        """A recorder has matched this plant's publishers and every command and hip torque publisher of the
+        graph."""
         published = [self.topic_names[topic] for topic in topics.PLANT_TOPICS]
-        return self.recorders.ready(published, self.command_topic, self.count_publishers(self.command_topic))
+        answers = {topic: self.count_publishers(topic) for topic in (self.command_topic, self.torque_topic)}
+        return self.recorders.ready(published, answers)
 
     def _controller_connected(self) -> bool:
         """A node publishes commands and subscribes to the apex, every apex subscription of the graph
@@ -708,6 +711,7 @@ class PlantNode(Node):
         self._stepper.set_command(command)
 
     def _on_hip_torque(self, data: bytes) -> None:
+        self.received_torques += 1
         fields = torque_fields(data)
         with self._lock:
             if not self._running:
