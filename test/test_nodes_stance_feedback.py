@@ -4,9 +4,11 @@ ref. 36) and hand-made torque streams, in a private in-process graph (lockstep u
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import pytest
-from ros_harness import RosGraph, overrides
+from ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, Status
 
 from tdslip_ros.model.events import EventKind
@@ -27,6 +29,7 @@ from tdslip_ros.nodes.torque_stream import tick_of
 pytestmark = pytest.mark.nodes
 
 START = ApexState(DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED)
+REPO = Path(__file__).parents[1]
 
 
 def model_apexes(strides: int) -> tuple[list[tuple[float, float, float]], list[tuple[float, float]]]:
@@ -143,3 +146,30 @@ def test_realtime_holds_the_stream_and_counts_stale_ticks(ros: RosGraph) -> None
     ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
     stale = sum(1 for a in applied if a.torque == 0.0)
     assert plant.torques.stale <= stale
+
+
+def test_a_torque_controller_of_ones_own_with_default_qos_drives_the_plant(
+    ros: RosGraph, tmp_path: Path
+) -> None:
+    """examples/my_torque_controller.py, a stranger's 1 kHz node (default QoS), in a process of its own:
+    the lockstep plant holds every torque it sends, none late or refused, and the hopper settles where
+    its docstring says."""
+    strides = 6
+    plant = ros.add(
+        PlantNode(
+            context=ros.context, parameter_overrides=overrides(max_strides=strides, command_timeout=60.0)
+        )
+    )
+    apexes = ros.collect(ApexEvent, topics.APEX)
+    applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
+    log = tmp_path / "controller.log"
+    controller = ros.start_process([sys.executable, str(REPO / "examples" / "my_torque_controller.py")], log)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run", timeout=90.0)
+    assert stop_process(controller) == 0, log.read_text()
+    assert plant.outcome is not None and plant.outcome.ok, (plant.outcome, log.read_text())
+    ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
+    ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
+    assert plant.received_torques == len(applied) > 100 and plant.rejections.total == 0
+    assert plant.torques.late == 0 and all(abs(a.torque) <= 400.0 for a in applied)
+    assert apexes[-1].height == pytest.approx(1.01, abs=0.01)
+    assert apexes[-1].forward_speed == pytest.approx(5.02, abs=0.01)
