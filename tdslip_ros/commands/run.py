@@ -304,6 +304,11 @@ def main(argv: list[str]) -> int:
         print(f"the hip saturated in {report.saturated_strides} stride(s)")
     if report.late_commands:
         print(f"{report.late_commands} command(s) arrived after their touchdown; the previous command held")
+    if report.published.get(resolve(topics.APPLIED_TORQUE, options.namespace)):
+        print(
+            f"stance feedback: {report.late_torques} torque(s) came after their tick (realtime: held at the "
+            f"next ticks while fresh), {report.stale_torques} stance tick(s) stale (no fresh torque: held 0)"
+        )
     controlled_by = "your own controller" if options.own_controller else f"policy {options.policy}"
     print(
         f"{options.mode} run, {controlled_by}: {outcome.stride} strides, "

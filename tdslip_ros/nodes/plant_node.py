@@ -457,6 +457,11 @@ class PlantNode(Node):
         if self.tick_timing is not None:
             self.tick_timing.close_window()
             self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
+            if self.published[topics.APPLIED_TORQUE]:
+                self.get_logger().info(
+                    f"realtime: {self.torques.late} hip torque(s) came after their tick, "
+                    f"{self.torques.stale} stance tick(s) held zero (no torque within torque_max_age)"
+                )
             if self.late_commands:
                 self.get_logger().warning(
                     f"realtime: {self.late_commands} command(s) arrived after their touchdown (the command "

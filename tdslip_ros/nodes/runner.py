@@ -165,6 +165,10 @@ class RunReport:
     saturated_strides: int = 0
     """Touchdowns at which the commanded |tau0| exceeded tau_max (the hip saturated)."""
     late_commands: int = 0
+    stale_torques: int = 0
+    """Realtime, stance feedback: stance ticks that held zero, no torque within torque_max_age."""
+    late_torques: int = 0
+    """Stance feedback: torques that came after their tick was stepped or after their stance."""
     """Realtime: commands that arrived after the touchdown of their stride (the previous command held)."""
     problems: list[str] = field(default_factory=list)
 
@@ -543,6 +547,8 @@ def run(
             controller_log="" if controller is None else controller.output(),
             saturated_strides=plant.saturated_strides,
             late_commands=plant.late_commands,
+            stale_torques=plant.torques.stale,
+            late_torques=plant.torques.late,
             problems=problems,
         )
     return report
