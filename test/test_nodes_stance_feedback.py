@@ -140,9 +140,10 @@ def test_realtime_holds_the_stream_and_counts_stale_ticks(ros: RosGraph) -> None
     )
     controller = ros.add(StanceControllerNode(context=ros.context))
     applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
+    statuses = ros.collect(Status, topics.STATUS)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and plant.outcome.ok, plant.outcome
-    assert controller.torques > 0 and plant.rejections.total == 0
+    assert controller.torques > 0 and plant.rejections.total == 0, [s.reason for s in statuses]
     ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
     stale = sum(1 for a in applied if a.torque == 0.0)
     assert plant.torques.stale <= stale

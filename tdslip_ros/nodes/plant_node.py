@@ -68,26 +68,18 @@ import dataclasses
 import sys
 import threading
 import time
-from collections import Counter
 from dataclasses import dataclass
-from typing import Any
 
-from builtin_interfaces.msg import Time
-from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.executors import Executor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
-from rosgraph_msgs.msg import Clock as ClockMsg
 from tdslip_msgs.msg import (
-    ApexEvent,
     ContactEvent,
     HipTorque,
-    HopperState,
     RecorderStatus,
     StanceCommand,
     Status,
@@ -95,8 +87,6 @@ from tdslip_msgs.msg import (
 from tdslip_msgs.srv import Reset
 
 from tdslip_ros.interfaces import (
-    GRF_FIELDS,
-    STAMP_FIELDS,
     hopper_from_parameters,
     perturbations_from_parameters,
 )
@@ -111,18 +101,10 @@ from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
-from tdslip_ros.nodes.markers import HopperMarkers
+from tdslip_ros.nodes.plant_output import PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
 from tdslip_ros.nodes.torque_stream import LateTorque, TorqueInput, torque_fields
-from tdslip_ros.nodes.wire import (
-    SAMPLE_FIELDS,
-    fill_state,
-    fixed_layout_encoder,
-    serialized,
-    set_stamp,
-    state_values,
-)
 
 RCLError = rclpy_implementation.RCLError  # what a failed publish raises (as rclpy.subscription names it)
 
@@ -195,8 +177,6 @@ class PlantNode(Node):
         self._max_stale_strides = int(values["max_stale_strides"])
         self._wait_for_recorder = bool(values["wait_for_recorder"])
 
-        self.published: Counter[str] = Counter()
-        """Messages published per topic, by relative name (topics.STATE, ...)."""
         self.received_commands = 0
         self.received_torques = 0
         self.rejections = RejectionLog()
@@ -215,32 +195,17 @@ class PlantNode(Node):
         self.outcome: RunOutcome | None = None
         self.done: Future[RunOutcome] = Future()
 
-        published_topics = [*topics.PLANT_TOPICS, *((topics.CLOCK,) if values["publish_clock"] else ())]
-        self._topic_publishers: dict[str, Publisher[Any]] = {
-            topic: self.create_publisher(topics.MESSAGE_TYPES[topic], topic, topics.STREAM_QOS)
-            for topic in published_topics
-        }
-        self.topic_names = {topic: pub.topic_name for topic, pub in self._topic_publishers.items()}
+        marker_rate = float(values["marker_rate"])
+        self._out = PlantOutput(
+            self,
+            publish_clock=bool(values["publish_clock"]),
+            marker_period_ticks=max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0,
+        )
+        self.published = self._out.published
+        """Messages published per topic, by relative name (topics.STATE, ...)."""
+        self.topic_names = self._out.topic_names
         """Fully qualified name of each published topic, by its relative name."""
         self.command_topic = self.resolve_topic_name(topics.COMMAND)
-        self._state_pub = self._topic_publishers[topics.STATE]
-        self._grf_pub = self._topic_publishers[topics.GRF]
-        self._clock_pub = self._topic_publishers.get(topics.CLOCK)
-        self._clock_out: Publisher[Any] | None = None  # _clock_pub while it has subscribers
-        self._markers_pub = self._topic_publishers[topics.MARKERS]
-        marker_rate = float(values["marker_rate"])
-        self._marker_period_ticks = max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0
-        self._markers_out = False  # markers are drawn while someone subscribes to them
-        self._markers = HopperMarkers(topics.FRAME_ID)
-        # The 1 kHz messages are serialised straight from their values: building message objects
-        # cost the tick more than the bytes do.
-        self._state_encoder = fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
-        self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*STAMP_FIELDS, *GRF_FIELDS))
-        self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
-        self._applied_torque_pub = self._topic_publishers[topics.APPLIED_TORQUE]
-        self._applied_torque_encoder = fixed_layout_encoder(
-            HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
-        )
         # Raw: an answer to an earlier apex is recognised from its bytes (command_key), unparsed.
         self._command_subscription = self.create_subscription(
             StanceCommand, topics.COMMAND, self._on_command, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
@@ -325,7 +290,7 @@ class PlantNode(Node):
 
     def matched_subscribers(self, topic: str) -> int:
         """Subscriptions matched with the plant's publisher on ``topic`` (relative name)."""
-        return self._topic_publishers[topic].get_subscription_count()
+        return self._out.subscribers(topic)
 
     def _start_when_ready(self) -> None:
         """autostart: start once :meth:`ready_to_start`, or once command_timeout has passed."""
@@ -385,9 +350,10 @@ class PlantNode(Node):
         self._running = True
         self.start_wall_ns = time.monotonic_ns()
         self._tick0 = self._ticks
-        self._check_graph()
+        self._out.check_graph()
         self._publish_apex(0, self._stepper.apex_state)
-        self._publish_sample(self._stepper.state)
+        state = self._stepper.state
+        self._out.sample(state, self._offset + state.t)
         if self.lockstep:
             self._await_command()
         else:
@@ -533,12 +499,6 @@ class PlantNode(Node):
                     self.sim_time,
                 )
 
-    def _check_graph(self) -> None:
-        # /clock and the markers cost a publish even when nobody listens: they go out while someone does.
-        listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
-        self._clock_out = self._clock_pub if listened else None
-        self._markers_out = bool(self._marker_period_ticks) and self._markers_pub.get_subscription_count() > 0
-
     def _advance_realtime(self, now_ns: int) -> None:
         """Tick thread: step up to the tick due at ``now_ns`` of the steady clock."""
         with self._lock:
@@ -566,7 +526,7 @@ class PlantNode(Node):
         events = stepper.step()
         self._ticks += 1
         if self._ticks % GRAPH_CHECK_TICKS == 0:
-            self._check_graph()
+            self._out.check_graph()
         apex: Event | None = None
         for event in events:
             if event.kind is EventKind.APEX:
@@ -579,13 +539,13 @@ class PlantNode(Node):
             else:
                 if event.kind is EventKind.TOUCHDOWN:
                     self._applied_published = 0
-                self._publish_contact(event)
-        state = self._stepper.state
-        self._publish_sample(state)
+                self._out.contact(self._epoch, event, self._offset + event.t)
+        state = stepper.state
+        t = self._offset + state.t
+        self._out.sample(state, t)
         if isinstance(stepper.command, StanceFeedback):
             self._publish_applied_torques()
-        if self._markers_out and self._ticks % self._marker_period_ticks == 0:
-            self._publish_markers(state)
+        self._out.markers(state, t, self._ticks)
         if apex is None:
             if self.lockstep and stepper.torque_due:
                 self._await_torque()
@@ -788,22 +748,13 @@ class PlantNode(Node):
 
     # --- publishing -----------------------------------------------------------------------------
 
-    def _publish(self, topic: str, msg: object) -> None:
-        self._topic_publishers[topic].publish(serialized(msg))
-        self.published[topic] += 1
-
-    def _publish_sample(self, state: ModelState) -> None:
-        values = state_values(state, self._offset + state.t)
-        published = self.published
-        # Each count right after its publish: a failing publish leaves the counts exact.
-        self._state_pub.publish(self._state_encoder.encode(values))
-        published[topics.STATE] += 1
-        sec, nanosec = values[:2]
-        self._grf_pub.publish(self._grf_encoder.encode((sec, nanosec, state.grf_x, state.grf_y)))
-        published[topics.GRF] += 1
-        if self._clock_out is not None:
-            self._clock_out.publish(self._clock_encoder.encode((sec, nanosec)))
-            published[topics.CLOCK] += 1
+    def _publish_apex(self, stride: int, state: ModelState) -> None:
+        stepper = self._stepper
+        flows = stepper.last_stride_energy if stride > 0 else None
+        self._apex_wall_ns = time.monotonic_ns()
+        self._out.apex(
+            self._epoch, stride, self._offset + state.t, state, stepper.measured_apex, stepper.ground, flows
+        )
 
     def _publish_applied_torques(self) -> None:
         """The stance's torques sampled since the last call, as held (tdslip/applied_torque): the record
@@ -811,56 +762,11 @@ class PlantNode(Node):
         samples = self._stepper.stance_torques
         for t, torque in samples[self._applied_published :]:
             tick = self._offset_ticks + round(t / TICK_PERIOD)
-            sec, nanosec = divmod(tick * (_NS_PER_S // 1000), _NS_PER_S)
-            values = (sec, nanosec, self._epoch, self._stepper.stride, tick, torque)
-            self._applied_torque_pub.publish(self._applied_torque_encoder.encode(values))
-            self.published[topics.APPLIED_TORQUE] += 1
+            self._out.applied_torque(self._epoch, self._stepper.stride, tick, torque)
         self._applied_published = len(samples)
 
-    def _publish_markers(self, state: ModelState) -> None:
-        stamp = Time()
-        set_stamp(stamp, self._offset + state.t)
-        markers = self._markers.update(state, stamp, state.ground_height)
-        self._publish(topics.MARKERS, markers)
-
-    def _publish_apex(self, stride: int, state: ModelState) -> None:
-        msg = ApexEvent(
-            epoch=self._epoch, stride=stride, sim_time=self._offset + state.t, x=state.x, height=state.y
-        )
-        msg.header.frame_id = topics.FRAME_ID
-        set_stamp(msg.header.stamp, msg.sim_time)
-        msg.forward_speed = state.xdot
-        msg.measured_height, msg.measured_forward_speed = self._stepper.measured_apex
-        msg.ground_height = self._stepper.ground
-        msg.energy = state.energy
-        flows = self._stepper.last_stride_energy if stride > 0 else None
-        if flows is not None:
-            msg.hip_work, msg.damping_loss, msg.spring_loss = (
-                flows.hip_work,
-                flows.damping_loss,
-                flows.spring_loss,
-            )
-        self._apex_wall_ns = time.monotonic_ns()
-        self._publish(topics.APEX, msg)
-
-    def _publish_contact(self, event: Event) -> None:
-        t = self._offset + event.t
-        kind = _CONTACT_KINDS[event.kind]
-        msg = ContactEvent(
-            kind=kind, epoch=self._epoch, stride=event.stride, sim_time=t, ground_height=event.state.toe_y
-        )
-        msg.header.frame_id = msg.state.header.frame_id = topics.FRAME_ID
-        set_stamp(msg.header.stamp, t)
-        fill_state(msg.state, event.state, t)
-        self._publish(topics.CONTACT, msg)
-
     def _publish_status(self, kind: str, reason: str, t: float, *, fatal: bool) -> None:
-        msg = Status(
-            epoch=self._epoch, stride=self._stepper.stride, sim_time=t, kind=kind, reason=reason, fatal=fatal
-        )
-        msg.header.frame_id = topics.FRAME_ID
-        set_stamp(msg.header.stamp, t)
-        self._publish(topics.STATUS, msg)
+        self._out.status(self._epoch, self._stepper.stride, kind, reason, t, fatal=fatal)
 
 
 def main(argv: list[str] | None = None) -> int:
