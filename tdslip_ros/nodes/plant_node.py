@@ -46,7 +46,10 @@ other apexes are recognised from their bytes and cost next to nothing (a flood o
 the valid one); late answers are only counted, other rejections are logged and reported, at most
 :data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORTS` per
 :data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORT_PERIOD`, the rest summed
-(:mod:`tdslip_ros.nodes.command_admission`). The parameters are :mod:`tdslip_ros.nodes.plant_parameters`.
+(:mod:`tdslip_ros.nodes.command_admission`). A command may ask for stance feedback instead of the ramp:
+the hip then holds the torques a controller streams on ``tdslip/hip_torque``, one per stance tick, judged
+by :mod:`tdslip_ros.nodes.torque_stream`; each torque held goes out on ``tdslip/applied_torque``.
+The parameters are :mod:`tdslip_ros.nodes.plant_parameters`.
 
 With ``wait_for_recorder`` the plant treats a recorder_node (``tdslip/recorder_status``) as part
 of the run (:mod:`tdslip_ros.nodes.flow_control`): it starts once the recorder hears every

@@ -68,7 +68,7 @@ class StanceControllerNode(Node):
     def feedback(self) -> StanceFeedback:
         """The policy's stance feedback with the current parameters."""
         values = {setting.name: setting.default for setting in POLICY_SETTINGS}
-        values |= {spec.name: self.get_parameter(spec.name).value for spec in SPECS[len(parameters.HOPPER) :]}
+        values |= {setting.name: self.get_parameter(setting.name).value for setting in settings_of(POLICY)}
         return PolicySpec.of(POLICY, values).stance_feedback(self.hopper)
 
     def _on_apex(self, apex: ApexEvent) -> None:
