@@ -87,7 +87,7 @@ def feedback_summary(predictions: FeedbackPredictions) -> dict[str, Any]:
     error = predictions.error
     return {
         "strides": len(predictions.stride),
-        "failures_foreseen": sum(f is not None for f in predictions.failures),
+        "failures": sum(f is not None for f in predictions.failures),
         "max_height_error_m": float(np.max(error[:, 0])) if len(error) else None,
         "max_speed_error_m_per_s": float(np.max(error[:, 1])) if len(error) else None,
     }
