@@ -80,13 +80,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
-from tdslip_msgs.msg import (
-    ContactEvent,
-    HipTorque,
-    RecorderStatus,
-    StanceCommand,
-    Status,
-)
+from tdslip_msgs.msg import HipTorque, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
 from tdslip_ros.interfaces import (
@@ -123,11 +117,6 @@ DELIVERY_TIMEOUT = 10.0
 most :data:`ACK_TIMEOUT` for subscribers' acknowledgements)."""
 ACK_TIMEOUT = 1.0  # s
 
-_CONTACT_KINDS = {
-    EventKind.TOUCHDOWN: ContactEvent.TOUCHDOWN,
-    EventKind.BOTTOM: ContactEvent.BOTTOM,
-    EventKind.LIFTOFF: ContactEvent.LIFTOFF,
-}
 _NS_PER_S = 1_000_000_000
 
 
