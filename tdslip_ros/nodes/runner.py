@@ -492,7 +492,13 @@ def run(
                 topics.COMMAND: plant.received_commands,
                 topics.HIP_TORQUE: plant.received_torques,
             }
-            return {resolve(topic, options.namespace): counts.get(topic, 0) for topic in recorded_topics}
+            # A ramp controller has no hip torque publisher: the bag has no such channel to count.
+            streamed = plant.received_torques or options.policy in STANCE_FEEDBACK_POLICIES
+            return {
+                resolve(topic, options.namespace): counts.get(topic, 0)
+                for topic in recorded_topics
+                if topic != topics.HIP_TORQUE or streamed
+            }
 
         try:
             _wait_for_graph(
