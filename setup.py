@@ -23,6 +23,7 @@ CONSOLE_SCRIPTS = {
     "tdslip": "tdslip_ros.commands.cli:main",
     "plant_node": "tdslip_ros.nodes.plant_node:main",
     "controller_node": "tdslip_ros.nodes.controller_node:main",
+    "stance_controller_node": "tdslip_ros.nodes.stance_controller_node:main",
     "recorder_node": "tdslip_ros.nodes.recorder_node:main",
 }
 

@@ -26,6 +26,8 @@ APEX = "tdslip/apex"
 CONTACT = "tdslip/contact"
 STATUS = "tdslip/status"
 COMMAND = "tdslip/command"
+HIP_TORQUE = "tdslip/hip_torque"
+APPLIED_TORQUE = "tdslip/applied_torque"
 RECORDER_STATUS = "tdslip/recorder_status"
 MARKERS = "tdslip/markers"
 CLOCK = "/clock"
@@ -38,6 +40,7 @@ TOPIC_TYPES: dict[str, str] = {
     CONTACT: "tdslip_msgs/msg/ContactEvent",
     STATUS: "tdslip_msgs/msg/Status",
     COMMAND: "tdslip_msgs/msg/StanceCommand",
+    APPLIED_TORQUE: "tdslip_msgs/msg/HipTorque",
 }
 """The suite's topics that a run's analysis needs, by relative name, with the type name rosbag2
 records for them."""

@@ -63,6 +63,8 @@ RUNS: dict[str, dict[str, Any]] = {
             mismatch=Mismatch(mass=1.05, damping=0.9),
         ),
     },
+    # The baseline of ref. 36: stance_controller_node streams a hip torque per stance tick.
+    "stance_pd": {"strides": 8, "policy": "stance_pd_speed_energy"},
     # A 30 cm wall 8 m ahead: the toe cannot clear it.
     "wall": {"strides": 8, "perturbations": Perturbations(terrain=Step(0.3, 8.0))},
 }

@@ -37,7 +37,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 
 IN_XDIST_WORKER = "PYTEST_XDIST_WORKER" in os.environ
 """Whether this process is a worker of pytest-xdist (the fast tier's ``-n 2``)."""
-RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall", "energy_again")
+RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall", "energy_again", "stance_pd")
 """Session fixtures, one per run of analysis_runs.RUNS and AGAIN: its RunReport, recorded by the node suite
 once per test process (by the background child, or here on first use)."""
 NODE_FIXTURES = frozenset({"ros", "readme_colcon_build", "compare_sweep", *RECORDED_RUNS})
@@ -255,9 +255,15 @@ def wall(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
     return _recorded("wall", tmp_path_factory)
 
 
+@pytest.fixture(scope="session")
+def stance_pd(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    """The baseline of ref. 36 streaming hip torques at 1 kHz, 8 strides (analysis_runs.RUNS)."""
+    return _recorded("stance_pd", tmp_path_factory)
+
+
 # --- the guard of the fast tier -----------------------------------------------------------------
 
-NODE_EXECUTABLES = ("plant_node", "controller_node", "recorder_node")
+NODE_EXECUTABLES = ("plant_node", "controller_node", "stance_controller_node", "recorder_node")
 NODE_SUBCOMMANDS = ("run", "replay", "compare")
 """``tdslip`` sub-commands that start nodes (``compare`` records runs)."""
 _STARTS_ROS = re.compile(

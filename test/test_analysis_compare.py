@@ -28,7 +28,7 @@ from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams
-from tdslip_ros.model.policies import PolicyError, PolicySpec
+from tdslip_ros.model.policies import STANCE_PD_SPEED_ENERGY, PolicyError, PolicySpec, settings_of
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes.runner import RunReport
 
@@ -303,6 +303,8 @@ def _spec(name: str, **values: float) -> PolicySpec:
         "foot_placement_kd": 0.03,
         "corrections": 1,
         "analytic_map": "ours",
+        # The stance-feedback policy's, which no ramp policy reads.
+        **{setting.name: setting.default for setting in settings_of(STANCE_PD_SPEED_ENERGY)},
     }
     return PolicySpec(name=name, **{**defaults, **values})  # type: ignore[arg-type]
 

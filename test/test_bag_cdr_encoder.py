@@ -13,14 +13,14 @@ from geometry_msgs.msg import WrenchStamped
 from mcap.records import Schema
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
-from tdslip_msgs.msg import HopperState
+from tdslip_msgs.msg import HipTorque, HopperState
 from visualization_msgs.msg import MarkerArray
 
 from tdslip_ros.bag.cdr import FixedLayoutEncoder
 from tdslip_ros.bag.schema import message_definition
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.events import Phase
-from tdslip_ros.nodes.wire import SAMPLE_FIELDS, fill_state, fixed_layout_encoder, state_values
+from tdslip_ros.nodes.wire import SAMPLE_FIELDS, fill_state, fixed_layout_encoder, serialized, state_values
 
 NUMBERS = (
     "x y xdot ydot toe_x toe_y r theta rdot thetadot hip_torque energy grf_x grf_y ground_height".split()
@@ -78,6 +78,21 @@ def test_grf_and_clock_encode_to_the_bytes_of_serialize_message(
         data = encoder.encode((sec, nanosec, *numbers))
         assert deserialize_message(data, message_class) == msg
         assert len(data) == len(serialize_message(msg))
+
+
+def test_hip_torques_encode_their_64_bit_tick_to_the_bytes_of_serialize_message() -> None:
+    encoder = fixed_layout_encoder(
+        HipTorque, ("header.stamp.sec", "header.stamp.nanosec", "epoch", "stride", "tick", "torque")
+    )
+    rng = random.Random(5)
+    for _ in range(200):
+        values = (rng.randrange(2**31), rng.randrange(10**9), rng.randrange(2**32), rng.randrange(2**32))
+        tick, torque = rng.randrange(2**64), rng.uniform(-1e3, 1e3)
+        msg = HipTorque(epoch=values[2], stride=values[3], tick=tick, torque=torque)
+        msg.header.frame_id = "world"
+        msg.header.stamp.sec, msg.header.stamp.nanosec = values[:2]
+        data = encoder.encode((*values, tick, torque))
+        assert deserialize_message(data, HipTorque) == msg and data == serialized(msg)
 
 
 def schema_of(type_name: str) -> Schema:

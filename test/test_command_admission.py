@@ -13,6 +13,7 @@ from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.stance_laws import StanceFeedback, TorqueStream
 from tdslip_ros.nodes.command_admission import (
     REJECTION_REPORT_PERIOD,
     REJECTION_REPORTS,
@@ -34,7 +35,7 @@ def command(epoch: int = 2, stride: int = 5, **values: Any) -> StanceCommand:
     return msg
 
 
-def admitted(msg: StanceCommand, **at: Any) -> ModelCommand:
+def admitted(msg: StanceCommand, **at: Any) -> ModelCommand | StanceFeedback:
     where = {"epoch": 2, "stride": 5, "lockstep": True, "awaiting": 5, "past_touchdown": False} | at
     return admit(msg, limits=LIMITS, **where)
 
@@ -59,6 +60,11 @@ def test_a_command_for_the_awaited_apex_is_the_model_s_command() -> None:
     assert admitted(command(), lockstep=False, awaiting=None) == ModelCommand(0.4, -273.0, 0.13)
 
 
+def test_a_stance_feedback_command_is_a_torque_stream_sampled_at_the_tick() -> None:
+    msg = command(stance=StanceCommand.STANCE_FEEDBACK, tau0=0.0, t_f=0.0)
+    assert admitted(msg) == StanceFeedback(0.4, TorqueStream(), sample_period=1e-3)
+
+
 @pytest.mark.parametrize(
     ("msg", "at", "reason"),
     [
@@ -68,6 +74,13 @@ def test_a_command_for_the_awaited_apex_is_the_model_s_command() -> None:
         (command(tau0=-1e6), {}, "exceeds the actuator limit"),
         (command(t_f=math.nan), {}, "t_f"),
         (command(touchdown_angle=2.0), {}, "touchdown_angle must lie in (0, pi/2)"),
+        (command(stance=2), {}, "stance = 2 is neither STANCE_RAMP (0) nor STANCE_FEEDBACK (1)"),
+        (command(stance=StanceCommand.STANCE_FEEDBACK), {}, "stance feedback with a ramp"),
+        (
+            command(stance=StanceCommand.STANCE_FEEDBACK, tau0=0.0, t_f=0.0, touchdown_angle=math.nan),
+            {},
+            "touchdown_angle must be finite",
+        ),
     ],
 )
 def test_a_command_the_plant_cannot_apply_is_refused_with_its_reason(

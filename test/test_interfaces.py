@@ -62,6 +62,14 @@ MESSAGE_FIELDS: dict[str, list[FieldSpec]] = {
         ("tau0", "double", "N m"),
         ("t_f", "double", "s"),
         ("policy", "string", "-"),
+        ("stance", "uint8", "-"),
+    ],
+    "HipTorque": [
+        HEADER,
+        ("epoch", "uint32", "-"),
+        ("stride", "uint32", "-"),
+        ("tick", "uint64", "-"),
+        ("torque", "double", "N m"),
     ],
     "ContactEvent": [
         HEADER,
@@ -92,6 +100,7 @@ RESET_RESPONSE: list[FieldSpec] = [
 CONSTANTS: dict[str, dict[str, int | str]] = {
     "HopperState": {"PHASE_FLIGHT": 0, "PHASE_STANCE": 1},
     "ContactEvent": {"TOUCHDOWN": 0, "BOTTOM": 1, "LIFTOFF": 2},
+    "StanceCommand": {"STANCE_RAMP": 0, "STANCE_FEEDBACK": 1},
     "Status": {
         "KIND_TOE_STUBBING": "toe_stubbing",
         "KIND_NO_LIFTOFF": "no_liftoff",
@@ -100,6 +109,7 @@ CONSTANTS: dict[str, dict[str, int | str]] = {
         "KIND_STATE_LIMIT": "state_limit",
         "KIND_COMMAND_TIMEOUT": "command_timeout",
         "KIND_COMMAND_REJECTED": "command_rejected",
+        "KIND_TORQUE_REJECTED": "torque_rejected",
         "KIND_PUBLISH_FAILED": "publish_failed",
         "KIND_RUN_COMPLETE": "run_complete",
         "KIND_RESET": "reset",
@@ -188,8 +198,8 @@ def fill(message: Any, rng: random.Random) -> Any:
     for field, kind in message.get_fields_and_field_types().items():
         if kind == "double":
             value: Any = rng.uniform(-1e3, 1e3)
-        elif kind in ("uint8", "uint32"):
-            value = rng.randint(1, 255 if kind == "uint8" else 2**32 - 1)
+        elif kind in ("uint8", "uint32", "uint64"):
+            value = rng.randint(1, {"uint8": 2**8, "uint32": 2**32, "uint64": 2**64}[kind] - 1)
         elif kind == "int32":
             value = rng.randint(-(2**31), 2**31 - 1)
         elif kind == "string":

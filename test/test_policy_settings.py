@@ -26,12 +26,14 @@ from tdslip_ros.model.policies import (
     DEFAULT_POLICY,
     POLICIES,
     POLICY_SETTINGS,
+    STANCE_PD_SPEED_ENERGY,
     PolicyError,
     PolicySetting,
     PolicySpec,
     settings_of,
 )
-from tdslip_ros.nodes import controller_node, parameters
+from tdslip_ros.model.stance_laws import StanceFeedback, StancePDSpeedEnergy
+from tdslip_ros.nodes import controller_node, parameters, stance_controller_node
 from tdslip_ros.studies import design, table
 
 SETTINGS = {setting.name: setting for setting in POLICY_SETTINGS}
@@ -232,6 +234,27 @@ def test_the_controller_node_has_a_parameter_per_setting() -> None:
             (bounds,) = descriptor.integer_range if setting.kind is int else descriptor.floating_point_range
             assert (bounds.from_value, bounds.to_value) == (setting.lower, setting.upper), setting.name
         assert not descriptor.read_only, setting.name  # tunable at runtime
+
+
+def test_the_stance_controller_node_has_a_parameter_per_setting_of_its_policy() -> None:
+    """The baseline of ref. 36 runs in a node of its own: the hopper, then its policy's settings."""
+    tunable = stance_controller_node.SPECS[len(parameters.HOPPER) :]
+    assert [spec.name for spec in tunable] == [s.name for s in settings_of(STANCE_PD_SPEED_ENERGY)]
+    for spec, setting in zip(tunable, settings_of(STANCE_PD_SPEED_ENERGY), strict=True):
+        assert (spec.default, spec.descriptor().description) == (setting.default, setting.text)
+
+
+def test_the_stance_feedback_policy_is_its_law_with_its_settings() -> None:
+    spec = replace(PolicySpec.default(STANCE_PD_SPEED_ENERGY), stance_speed_gain=1234.0, target_speed=4.5)
+    feedback = spec.stance_feedback(PAPER_PARAMS)
+    assert isinstance(feedback, StanceFeedback) and feedback.touchdown_angle == math.radians(22.0)
+    law = feedback.law
+    assert isinstance(law, StancePDSpeedEnergy) and (law.speed_gain, law.target_xdot) == (1234.0, 4.5)
+    assert (law.target_y, law.energy_gain) == (DEFAULT_VALUES["target_height"], 3.0)
+    with pytest.raises(PolicyError, match="answers with stance feedback, not a ramp"):
+        spec.commands(PAPER_PARAMS, *APEX)
+    with pytest.raises(PolicyError, match="answers with a ramp, not stance feedback"):
+        PolicySpec.default("energy").stance_feedback(PAPER_PARAMS)
 
 
 YAML_ENTRY = re.compile(r"^ {4}(?P<key>\w+): \S+ +# (?P<comment>.+)$")

@@ -205,7 +205,8 @@ def test_the_torque_limits_clip_the_law_in_every_engine() -> None:
 
 def test_a_torque_stream_fed_each_tick_is_the_law() -> None:
     """A controller outside the stepper, as the plant node's would be: after each tick it reads the state
-    and holds its law's torque for the next tick (hold_torque). The stepper runs exactly the law."""
+    and holds its law's torque for the next tick (hold_torque) at each tick whose torque is due
+    (torque_due: every tick in stance). The stepper runs exactly the law."""
     inside = FixedStepStepper(PARAMS, START, FEEDBACK)
     outside = FixedStepStepper(PARAMS, START, StanceFeedback(BETA, TorqueStream()))
     touchdown = 0.0
@@ -214,6 +215,7 @@ def test_a_torque_stream_fed_each_tick_is_the_law() -> None:
         assert [(e.kind, e.t, e.state) for e in events] == [(e.kind, e.t, e.state) for e in expected]
         touchdown = next((e.t for e in events if e.kind is EventKind.TOUCHDOWN), touchdown)
         state = outside.state
+        assert outside.torque_due == (state.phase is Phase.STANCE) and not inside.torque_due
         if state.phase is Phase.STANCE:
             seen = StanceSample(
                 outside.t,

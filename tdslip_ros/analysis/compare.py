@@ -10,6 +10,8 @@
   map (flat ground by construction) from the apex's height above the recorded ground of the stance, with
   the push, the placed angle and the ramp's tau0 cut to tau_max (the saturated ramp's peak: an
   approximation of the saturated ramp). Predicted and recorded apexes are compared in the world frame.
+* **Stance feedback.** A stride whose hip took torques streamed per tick has no ramp for the maps: the
+  exact map replays its recorded torques instead (:mod:`.stance_feedback`), and reports the error.
 * **Convergence** at the paper's tolerance: the run has converged at stride n when every apex-to-apex
   change from apex n on is below 1e-4 in the dimensionless apex coordinates (ybar, xdotbar).
 * **Fixed point and dominant eigenvalue from the recording.** The apex changes D_k = s_{k+1} - s_k
@@ -57,6 +59,7 @@ import numpy.typing as npt
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis.reader import Run, StrideRecord
+from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary, predict_stance_feedback
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
@@ -205,6 +208,8 @@ class Comparison:
     """None without a policy, or where Newton finds no fixed point of the closed-loop analytic map."""
     energy_balance_residual: float
     """Largest |E_{k+1} - E_k - (W_hip - E_c - E_k)| over strides, relative to E_k."""
+    stance_feedback: FeedbackPredictions
+    """The strides under stance feedback, replayed on the exact map from their recorded torques."""
 
     @property
     def policy_name(self) -> str:
@@ -249,6 +254,7 @@ def compare_run(run: Run, policy: PolicySpec | None = None, analytic_map: str | 
         recorded_fixed_point=recorded,
         analytic_fixed_point=analytic,
         energy_balance_residual=energy_balance_residual(run),
+        stance_feedback=predict_stance_feedback(run),
     )
 
 
@@ -584,4 +590,5 @@ def comparison_summary(comparison: Comparison) -> dict[str, Any]:
         "recorded_fixed_point": point(comparison.recorded_fixed_point),
         "analytic_fixed_point": point(comparison.analytic_fixed_point),
         "energy_balance_residual_ratio": comparison.energy_balance_residual,
+        "stance_feedback_replay": feedback_summary(comparison.stance_feedback),
     }

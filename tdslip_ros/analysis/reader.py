@@ -10,6 +10,11 @@ command applied in the stance that follows, that stance's energy flows, the fail
 run in it), the contact events, every command and status message, and the 1 kHz samples as
 arrays. Heights are in the world frame, as recorded; each record carries its ground height.
 
+A stride under stance feedback (a command with ``stance`` STANCE_FEEDBACK) has no ramp: its record holds
+the stance feedback as applied instead (:attr:`StrideRecord.stance_feedback`), the touchdown angle and the
+torques the plant held, from ``tdslip/applied_torque``, replayable by the model's engines
+(:class:`~tdslip_ros.model.stance_laws.RecordedTorques`).
+
 The perturbations of the run (:class:`~tdslip_ros.model.perturbations.Perturbations`: terrain, sensing
 noise, placement error, torque limit, pushes) come from the plant parameters ``tdslip run`` stores in
 custom_data, and the model the controller planned with from its stored hopper parameters (the plant's
@@ -47,6 +52,7 @@ from tdslip_ros.bag.cdr import decoded_columns, decoder
 from tdslip_ros.bag.reader import Bag, BagReadError, iter_messages, open_bag
 from tdslip_ros.interfaces import (
     APEX,
+    APPLIED_TORQUE,
     COMMAND,
     CONTACT,
     GRF,
@@ -65,6 +71,7 @@ from tdslip_ros.interfaces import (
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.stance_laws import DEFAULT_SAMPLE_PERIOD, RecordedTorques, StanceFeedback
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -84,6 +91,8 @@ PARAMETER_CONSISTENCY = 1e-9
 """Largest relative energy mismatch of the recorded events accepted for one set of hopper parameters."""
 DAMPING_CONSISTENCY = 1e-6
 """Largest mismatch of the damping ratio zeta0 = c / (2 sqrt(m k)) with the recorded liftoffs."""
+STANCE_FEEDBACK = 1
+"""StanceCommand.stance of a command answering with stance feedback (0: the ramp)."""
 REQUIRED_TOPICS = (APEX,)
 """The suite topics a run cannot be analysed without; the others may be missing (no messages)."""
 
@@ -227,6 +236,18 @@ class CommandRecord:
     t_f: float
     policy: str
     log_time_ns: int
+    stance: int = 0
+    """0: the ramp tau0, t_f; STANCE_FEEDBACK: torques streamed per tick (recordings before it: 0)."""
+
+
+@dataclass(frozen=True)
+class TorqueRecord:
+    """A hip torque the plant applied (tdslip/applied_torque): held from plant tick ``tick`` on in the
+    stance of ``stride``."""
+
+    stride: int
+    tick: int
+    torque: float
 
 
 @dataclass(frozen=True)
@@ -253,6 +274,10 @@ class StrideRecord:
     angle_error [rad]: the placement error drawn for the stride; placed_angle [rad]: where the leg landed
     (the command's angle plus the placement error, NaN without a command); push [m/s]:
     applied right after the apex; saturated: |tau0| exceeded tau_max.
+
+    Stance feedback: ``command`` is None and ``stance_feedback`` the stance as applied, its touchdown angle
+    and the torques held (sample times on the plant's clock, :class:`RecordedTorques`); saturated: one of
+    them is at tau_max.
     """
 
     stride: int
@@ -278,6 +303,7 @@ class StrideRecord:
     placed_angle: float = math.nan
     push: float = 0.0
     saturated: bool = False
+    stance_feedback: StanceFeedback | None = None
 
     @property
     def height(self) -> float:
@@ -347,7 +373,8 @@ class Run:
     @property
     def policies(self) -> tuple[str, ...]:
         """Names of the policies whose commands were applied, in order of first use."""
-        return tuple(dict.fromkeys(s.policy for s in self.strides if s.command is not None))
+        applied = (s for s in self.strides if s.command is not None or s.stance_feedback is not None)
+        return tuple(dict.fromkeys(s.policy for s in applied))
 
     def apex_array(self) -> FloatArray:
         """(n, 2) apex heights above the ground of the last stance [m] and speeds [m/s] of the recorded
@@ -361,7 +388,7 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
     recording = open_recording(path, namespace=namespace)
     bag = recording.bag
     suite_topics = {recording.name(topic): topic for topic in TOPIC_TYPES}
-    events: dict[str, list[bytes]] = {topic: [] for topic in (APEX, CONTACT, STATUS, COMMAND)}
+    events: dict[str, list[bytes]] = {topic: [] for topic in (APEX, CONTACT, STATUS, COMMAND, APPLIED_TORQUE)}
     log_times: list[int] = []
     stream_batches: dict[str, list[bytes]] = {STATE: [], GRF: []}
     columns: dict[str, list[dict[str, np.ndarray]]] = {STATE: [], GRF: []}
@@ -400,6 +427,10 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
     contacts = sorted((_contact(m) for m in decoded[CONTACT]), key=lambda c: c.t)
     commands = [_command(m, log_time) for m, log_time in zip(decoded[COMMAND], log_times, strict=True)]
     statuses = sorted((_status(m) for m in decoded[STATUS]), key=lambda s: s.t)
+    torques = sorted(
+        (TorqueRecord(int(m.stride), int(m.tick), float(m.torque)) for m in decoded[APPLIED_TORQUE]),
+        key=lambda r: r.tick,
+    )
     resets = [s for s in statuses if s.kind == "reset"]
     if resets:
         raise RunReadError(
@@ -423,7 +454,7 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
         path=Path(path),
         params=params,
         params_source=source,
-        strides=_strides(apexes, contacts, commands, outcome, perturbations),
+        strides=_strides(apexes, contacts, commands, outcome, perturbations, torques),
         apexes=tuple(apexes),
         contacts=tuple(contacts),
         commands=tuple(commands),
@@ -574,6 +605,7 @@ def _command(msg: Any, log_time_ns: int) -> CommandRecord:
         float(msg.t_f),
         str(msg.policy),
         log_time_ns,
+        int(getattr(msg, "stance", 0)),
     )
 
 
@@ -640,8 +672,12 @@ def _strides(
     commands: Sequence[CommandRecord],
     outcome: StatusRecord | None,
     perturbations: Perturbations,
+    torques: Sequence[TorqueRecord] = (),
 ) -> tuple[StrideRecord, ...]:
     applied = applied_commands(contacts, commands, perturbations)
+    held: dict[int, list[TorqueRecord]] = {}
+    for torque in torques:
+        held.setdefault(torque.stride, []).append(torque)
     event_times = {(c.kind, c.stride): c.t for c in contacts}
     stance_grounds = {c.stride: c.ground for c in contacts if c.kind == "touchdown"}
     next_apex = {a.stride - 1: a for a in apexes}
@@ -650,7 +686,14 @@ def _strides(
     records = []
     for apex in apexes:
         record = applied.get(apex.stride)
-        command = None if record is None else StanceCommand(record.touchdown_angle, record.tau0, record.t_f)
+        feedback, command, saturated = None, None, False
+        if record is not None and record.stance == STANCE_FEEDBACK:
+            stance_torques = held.get(apex.stride, [])
+            feedback = _feedback(record, stance_torques)
+            saturated = any(abs(r.torque) >= tau_max for r in stance_torques)
+        elif record is not None:
+            command = StanceCommand(record.touchdown_angle, record.tau0, record.t_f)
+            saturated = abs(command.tau0) > tau_max
         after = next_apex.get(apex.stride)
         failed = outcome is not None and outcome.kind in FAILURE_KINDS and outcome.stride == apex.stride
         error = float(draws.angle_error[apex.stride, 0])
@@ -676,12 +719,21 @@ def _strides(
                 measured_y=apex.measured_y,
                 measured_xdot=apex.measured_xdot,
                 angle_error=error,
-                placed_angle=math.nan if command is None else placed_angle(command.touchdown_angle, error),
+                placed_angle=math.nan if record is None else placed_angle(record.touchdown_angle, error),
                 push=float(draws.push[apex.stride, 0]),
-                saturated=command is not None and abs(command.tau0) > tau_max,
+                saturated=saturated,
+                stance_feedback=feedback,
             )
         )
     return tuple(records)
+
+
+def _feedback(command: CommandRecord, torques: Sequence[TorqueRecord]) -> StanceFeedback:
+    """The stance feedback of a stride as applied: the command's touchdown angle, and each torque held from
+    its tick's instant on the plant's clock (tick * the sample period, the stepper's own arithmetic)."""
+    times = np.array([r.tick for r in torques], dtype=float) * DEFAULT_SAMPLE_PERIOD
+    law = RecordedTorques(times, np.array([r.torque for r in torques], dtype=float))
+    return StanceFeedback(command.touchdown_angle, law)
 
 
 # --- hopper parameters --------------------------------------------------------------------------

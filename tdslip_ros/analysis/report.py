@@ -456,6 +456,13 @@ def headline(comparison: Comparison) -> str:
             f"  {label:<30} {stats.max_height:>10.2e} {stats.mean_height:>9.2e} "
             f"{stats.max_speed:>10.2e} {stats.mean_speed:>9.2e}{failures}"
         )
+    replay = comparison.stance_feedback
+    if len(replay.stride):
+        error = replay.error
+        lines.append(
+            f"stance feedback, its recorded torques replayed on the exact map over {len(replay.stride)} "
+            f"strides: next-apex error max {np.max(error[:, 0]):.2e} m, {np.max(error[:, 1]):.2e} m/s"
+        )
     failed = next((s.stride for s in run.strides if s.failure is not None), None)
     predictions = comparison.predictions
     if failed is not None and failed in predictions.stride:

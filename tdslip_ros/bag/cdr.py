@@ -38,6 +38,21 @@ _PRIMITIVES: dict[str, str] = {
     "float32": "<f4",
     "float64": "<f8",
 }
+_STRUCT_CODES = {
+    "?": "?",
+    "u1": "B",
+    "i1": "b",
+    "i2": "h",
+    "u2": "H",
+    "i4": "i",
+    "u4": "I",
+    "i8": "q",
+    "u8": "Q",
+    "f4": "f",
+    "f8": "d",
+}
+"""struct's code of each primitive's numpy type (without byte order): numpy's own ``dtype.char`` is the C
+type's (``L`` for uint64 on Linux), which struct's standard sizes read as 4 bytes."""
 _CDR_LITTLE_ENDIAN = b"\x00\x01"
 
 
@@ -157,7 +172,7 @@ class FixedLayoutEncoder:
                 position = start
                 for name in run:
                     field_offset, field_kind = layout[name]
-                    format_ += "x" * (field_offset - position) + np.dtype(field_kind).char
+                    format_ += "x" * (field_offset - position) + _STRUCT_CODES[field_kind.lstrip("<")]
                     position = field_offset + np.dtype(field_kind).itemsize
                 self._runs.append((struct.Struct(format_), 4 + start, first, index + 1))
                 first = index + 1

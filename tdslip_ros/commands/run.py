@@ -26,7 +26,7 @@ from tdslip_ros.interfaces import resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import POLICIES
+from tdslip_ros.model.policies import POLICIES, STANCE_FEEDBACK_POLICIES
 from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import stop_on_signals
@@ -84,7 +84,13 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--strides", type=int, default=50, help="the run ends at this apex (0: no limit, needs --duration)"
     )
-    parser.add_argument("--policy", choices=POLICIES, default="energy", help="the controller's policy")
+    parser.add_argument(
+        "--policy",
+        choices=(*POLICIES, *STANCE_FEEDBACK_POLICIES),
+        default="energy",
+        help=f"the controller's policy ({', '.join(STANCE_FEEDBACK_POLICIES)}: stance feedback at 1 kHz, "
+        "by stance_controller_node)",
+    )
     parser.add_argument(
         "--mode",
         choices=CLOCK_MODES,
@@ -116,12 +122,18 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--target-height",
         type=float,
-        help="deadbeat/pd target apex height [m] (default: config/controller.yaml's, 1)",
+        help=(
+            "target apex height [m] of deadbeat, apex_foot_placement and stance_pd_speed_energy "
+            "(default: config/controller.yaml's, 1)"
+        ),
     )
     parser.add_argument(
         "--target-speed",
         type=float,
-        help="deadbeat/pd target apex speed [m/s] (default: config/controller.yaml's, 5)",
+        help=(
+            "target apex speed [m/s] of deadbeat, apex_foot_placement and stance_pd_speed_energy "
+            "(default: config/controller.yaml's, 5)"
+        ),
     )
     add_analytic_map(
         parser, what=", the one the policy plans on", unset="config/controller.yaml's analytic_map, ours"
@@ -298,6 +310,11 @@ def main(argv: list[str]) -> int:
         print(f"the hip saturated in {report.saturated_strides} stride(s)")
     if report.late_commands:
         print(f"{report.late_commands} command(s) arrived after their touchdown; the previous command held")
+    if report.published.get(resolve(topics.APPLIED_TORQUE, options.namespace)):
+        print(
+            f"stance feedback: {report.late_torques} torque(s) came after their tick (realtime: held at the "
+            f"next ticks while fresh), {report.stale_torques} stance tick(s) stale (no fresh torque: held 0)"
+        )
     controlled_by = "your own controller" if options.own_controller else f"policy {options.policy}"
     print(
         f"{options.mode} run, {controlled_by}: {outcome.stride} strides, "

@@ -7,6 +7,11 @@ the study designs' policy columns (:mod:`tdslip_ros.studies.design`), the analys
 policy; config/controller.yaml, which users edit, is checked against it (test/test_policy_settings.py). A
 :class:`PolicySpec` names one of :data:`POLICIES` with a value for each setting and answers apexes with the
 policy's commands (:mod:`tdslip_ros.model.controllers`).
+
+The policies of :data:`POLICIES` answer an apex with a ramp (a touchdown angle, tau0 and t_f). Those of
+:data:`STANCE_FEEDBACK_POLICIES` answer it with stance feedback instead (:mod:`.stance_laws`): a touchdown
+angle and a law that decides the hip torque at every tick of the stance (:meth:`PolicySpec.stance_feedback`).
+In the node suite a controller of its own serves them (``nodes/stance_controller_node.py``).
 """
 
 from __future__ import annotations
@@ -32,8 +37,21 @@ from tdslip_ros.model.controllers import (
 )
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.stance_laws import (
+    DEFAULT_ENERGY_GAIN,
+    DEFAULT_SPEED_GAIN,
+    DEFAULT_SPEED_RATE_GAIN,
+    StanceFeedback,
+    StancePDSpeedEnergy,
+)
 
 POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "apex_foot_placement")
+"""The policies that answer an apex with a ramp command (:meth:`PolicySpec.commands`)."""
+STANCE_PD_SPEED_ENERGY = "stance_pd_speed_energy"
+"""The baseline of the paper's ref. 36: an energy term for height and PD on forward speed, fed back at every
+tick of the stance (:class:`.stance_laws.StancePDSpeedEnergy`), at a fixed touchdown angle."""
+STANCE_FEEDBACK_POLICIES = (STANCE_PD_SPEED_ENERGY,)
+"""The policies that answer an apex with stance feedback (:meth:`PolicySpec.stance_feedback`)."""
 FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
 """Policies that touch down at the fixed ``touchdown_angle``."""
 TARGET_APEX_POLICIES = ("deadbeat", "apex_foot_placement")
@@ -50,6 +68,9 @@ steer towards it."""
 DEFAULT_APEX_SPEED = 5.0
 DEFAULT_TOUCHDOWN_ANGLE = math.radians(20.0)
 """rad; under energy regulation the default apex (1 m, 5 m/s) converges fast (exact |lambda| = 0.08)."""
+DEFAULT_STANCE_TOUCHDOWN_ANGLE = math.radians(22.0)
+"""rad; the baseline's touchdown angle: with the default gains, targets of 1.2 m and 4 to 7 m/s settle
+within 2.1 % of their speed on the paper's hopper (:mod:`.stance_laws`; the angle nearly pins the height)."""
 DEFAULT_TARGET_ENERGY = PAPER_PARAMS.m * (PAPER_PARAMS.g * DEFAULT_APEX_HEIGHT + 0.5 * DEFAULT_APEX_SPEED**2)
 """J, the energy of the default apex: energy regulation then keeps the hopper's energy."""
 
@@ -83,7 +104,7 @@ class PolicySetting:
                 raise ValueError(f"{self.name}: a number setting has a range, not choices")
             if not self.lower <= float(self.default) <= self.upper:
                 raise ValueError(f"{self.name}: default {self.default!r} is not in range")
-        if not set(self.policies) <= set(POLICIES):
+        if not set(self.policies) <= {*POLICIES, *STANCE_FEEDBACK_POLICIES}:
             raise ValueError(f"{self.name}: unknown policies in {self.policies}")
 
     @property
@@ -124,10 +145,17 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         1e2,
         DEFAULT_APEX_HEIGHT,
         "target apex height",
-        TARGET_APEX_POLICIES,
+        (*TARGET_APEX_POLICIES, STANCE_PD_SPEED_ENERGY),
     ),
     PolicySetting(
-        "target_speed", float, "m/s", 0.0, 1e2, DEFAULT_APEX_SPEED, "target apex speed", TARGET_APEX_POLICIES
+        "target_speed",
+        float,
+        "m/s",
+        0.0,
+        1e2,
+        DEFAULT_APEX_SPEED,
+        "target apex speed",
+        (*TARGET_APEX_POLICIES, STANCE_PD_SPEED_ENERGY),
     ),
     PolicySetting(
         "foot_placement_kp",
@@ -170,6 +198,46 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         ANALYTIC_MAP_POLICIES,
         choices=tuple(ANALYTIC_MAPS),
     ),
+    PolicySetting(
+        "stance_touchdown_angle",
+        float,
+        "rad",
+        1e-6,
+        1.5707953,
+        DEFAULT_STANCE_TOUCHDOWN_ANGLE,
+        "fixed touchdown angle of the stance feedback",
+        (STANCE_PD_SPEED_ENERGY,),
+    ),
+    PolicySetting(
+        "stance_energy_gain",
+        float,
+        "N m/J",
+        0.0,
+        1e3,
+        DEFAULT_ENERGY_GAIN,
+        "k_E: torque per joule of stance energy above the target apex's",
+        (STANCE_PD_SPEED_ENERGY,),
+    ),
+    PolicySetting(
+        "stance_speed_gain",
+        float,
+        "N s",
+        0.0,
+        1e6,
+        DEFAULT_SPEED_GAIN,
+        "k_p: torque per m/s of forward speed above the target",
+        (STANCE_PD_SPEED_ENERGY,),
+    ),
+    PolicySetting(
+        "stance_speed_rate_gain",
+        float,
+        "N s^2",
+        0.0,
+        1e4,
+        DEFAULT_SPEED_RATE_GAIN,
+        "k_d: torque per m/s^2 of forward acceleration",
+        (STANCE_PD_SPEED_ENERGY,),
+    ),
 )
 """Every setting of the policies, in the order the controller's parameters and a study's columns take."""
 
@@ -199,6 +267,10 @@ class PolicySpec:
     foot_placement_kd: float
     corrections: int
     analytic_map: str
+    stance_touchdown_angle: float
+    stance_energy_gain: float
+    stance_speed_gain: float
+    stance_speed_rate_gain: float
     source: str = ""
 
     def __post_init__(self) -> None:
@@ -247,7 +319,24 @@ class PolicySpec:
                 corrections=self.corrections,
                 speed=self.speed,
             )
+        if self.name in STANCE_FEEDBACK_POLICIES:
+            raise PolicyError(f"{self.name} answers with stance feedback, not a ramp (stance_feedback)")
         raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
+
+    def stance_feedback(self, params: HopperParams) -> StanceFeedback:
+        """The stance feedback a policy of :data:`STANCE_FEEDBACK_POLICIES` answers every apex with, the law
+        computing with ``params`` (the controller's hopper); sampled at the plant node's tick."""
+        if self.name != STANCE_PD_SPEED_ENERGY:
+            raise PolicyError(f"{self.name} answers with a ramp, not stance feedback (commands)")
+        law = StancePDSpeedEnergy(
+            params,
+            self.target_height,
+            self.target_speed,
+            self.stance_energy_gain,
+            self.stance_speed_gain,
+            self.stance_speed_rate_gain,
+        )
+        return StanceFeedback(self.stance_touchdown_angle, law)
 
     @classmethod
     def settings(cls) -> tuple[str, ...]:

@@ -54,7 +54,7 @@ from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, 
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import Perturbations, placed_angle
-from tdslip_ros.model.stance_laws import HeldTorque, StanceFeedback, torque_limit
+from tdslip_ros.model.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
 from tdslip_ros.model.terrain import Terrain, touchdown
 
 DEFAULT_SUBSTEPS = 4
@@ -234,6 +234,20 @@ class FixedStepStepper:
         recording lists them (the zero hold from touchdown to the first sample is not listed); empty when
         that stance had a ramp."""
         return () if self._hold is None else tuple(self._hold.record)
+
+    @property
+    def torque_due(self) -> bool:
+        """True when the next step starts at a sample instant of a :class:`.stance_laws.TorqueStream` stance:
+        the torque to hold from there must be given (:meth:`hold_torque`) before that step."""
+        hold = self._hold
+        return (
+            self._phase is Phase.STANCE
+            and self._failed is None
+            and hold is not None
+            and self._s == hold.next_sample()
+            and isinstance(self._command, StanceFeedback)
+            and isinstance(self._command.law, TorqueStream)
+        )
 
     @property
     def last_stride_energy(self) -> StrideEnergy | None:

@@ -5,6 +5,8 @@ and ``stride``. :func:`command_key` reads those two from the serialised bytes, s
 apex is told apart without deserialising it (a flood of them costs next to nothing); :func:`admit` checks
 the rest of a command for the apex the plant is at and gives the model's command to step with, or raises
 ParameterError with the reason to reject it (:class:`LateCommand` when it arrived after its touchdown).
+A command's ``stance`` says what the hip does in the stance: the ramp (tau0, t_f), or stance feedback,
+the torques a controller streams on tdslip/hip_torque (:mod:`tdslip_ros.nodes.torque_stream`).
 :class:`RejectionLog` rate-limits the rejections that are reported.
 """
 
@@ -17,6 +19,7 @@ from tdslip_msgs.msg import StanceCommand
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.stance_laws import StanceFeedback, TorqueStream
 
 REJECTION_REPORTS = 10
 REJECTION_REPORT_PERIOD = 1.0
@@ -63,11 +66,12 @@ def admit(
     awaiting: int | None,
     past_touchdown: bool,
     limits: PlausibilityLimits,
-) -> ModelCommand:
-    """The model's command of ``msg`` for the apex of ``epoch`` and ``stride``; ParameterError with the
-    reason to reject it if it answers another apex, repeats an answered stride in lockstep (``awaiting``:
-    the stride waiting for its command), comes after the touchdown (``past_touchdown``: LateCommand) or
-    holds values the model or ``limits`` refuse."""
+) -> ModelCommand | StanceFeedback:
+    """The model's command of ``msg`` for the apex of ``epoch`` and ``stride``: a ramp, or stance feedback
+    on a :class:`~tdslip_ros.model.stance_laws.TorqueStream`. ParameterError with the reason to reject it if
+    it answers another apex, repeats an answered stride in lockstep (``awaiting``: the stride waiting for
+    its command), comes after the touchdown (``past_touchdown``: LateCommand) or holds values the model or
+    ``limits`` refuse (stance feedback with a ramp's tau0 or t_f: which one was meant?)."""
     if msg.epoch != epoch:
         raise ParameterError(
             f"it answers epoch {msg.epoch}, but the run is in epoch {epoch} (copy the apex's epoch)"
@@ -78,6 +82,14 @@ def admit(
         raise ParameterError(f"stride {stride} already has its command (lockstep)")
     if past_touchdown:  # in its stance, or rising after it
         raise LateCommand(f"it arrived after the touchdown of stride {stride}")
+    if msg.stance == StanceCommand.STANCE_FEEDBACK:
+        if msg.tau0 != 0.0 or msg.t_f != 0.0:
+            raise ParameterError(
+                f"stance feedback with a ramp (tau0 = {msg.tau0!r}, t_f = {msg.t_f!r}): set both 0"
+            )
+        return StanceFeedback(msg.touchdown_angle, TorqueStream())
+    if msg.stance != StanceCommand.STANCE_RAMP:
+        raise ParameterError(f"stance = {msg.stance} is neither STANCE_RAMP (0) nor STANCE_FEEDBACK (1)")
     command = ModelCommand(msg.touchdown_angle, msg.tau0, msg.t_f)
     limits.check_command(command)
     return command

@@ -51,13 +51,14 @@ class RecorderProgress:
     def _recording(self, topic: str) -> list[_Report]:
         return [report for report in self._reports.values() if topic in report.recorded and not report.closed]
 
-    def ready(self, published_topics: Iterable[str], command_topic: str, command_publishers: int) -> bool:
-        """A recorder has matched this plant on every topic it records and every command publisher."""
+    def ready(self, published_topics: Iterable[str], answer_publishers: Mapping[str, int]) -> bool:
+        """A recorder has matched this plant on every topic it records and every publisher of the
+        controllers' topics (``answer_publishers``: the commands', the hip torques', by topic)."""
         for report in self._reports.values():
             if report.closed:
                 continue
             matched = all(report.publishers.get(topic, 1) >= 1 for topic in published_topics)
-            if matched and report.publishers.get(command_topic, 0) >= command_publishers:
+            if matched and all(report.publishers.get(t, 0) >= n for t, n in answer_publishers.items()):
                 return True
         return False
 

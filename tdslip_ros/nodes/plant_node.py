@@ -46,7 +46,10 @@ other apexes are recognised from their bytes and cost next to nothing (a flood o
 the valid one); late answers are only counted, other rejections are logged and reported, at most
 :data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORTS` per
 :data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORT_PERIOD`, the rest summed
-(:mod:`tdslip_ros.nodes.command_admission`). The parameters are :mod:`tdslip_ros.nodes.plant_parameters`.
+(:mod:`tdslip_ros.nodes.command_admission`). A command may ask for stance feedback instead of the ramp:
+the hip then holds the torques a controller streams on ``tdslip/hip_torque``, one per stance tick, judged
+by :mod:`tdslip_ros.nodes.torque_stream`; each torque held goes out on ``tdslip/applied_torque``.
+The parameters are :mod:`tdslip_ros.nodes.plant_parameters`.
 
 With ``wait_for_recorder`` the plant treats a recorder_node (``tdslip/recorder_status``) as part
 of the run (:mod:`tdslip_ros.nodes.flow_control`): it starts once the recorder hears every
@@ -68,27 +71,19 @@ import dataclasses
 import sys
 import threading
 import time
-from collections import Counter
 from dataclasses import dataclass
-from typing import Any
 
-from builtin_interfaces.msg import Time
-from geometry_msgs.msg import WrenchStamped
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.executors import Executor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
-from rclpy.publisher import Publisher
 from rclpy.serialization import deserialize_message
 from rclpy.task import Future
-from rosgraph_msgs.msg import Clock as ClockMsg
-from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
+from tdslip_msgs.msg import HipTorque, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
 from tdslip_ros.interfaces import (
-    GRF_FIELDS,
-    STAMP_FIELDS,
     hopper_from_parameters,
     perturbations_from_parameters,
 )
@@ -97,22 +92,16 @@ from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.stance_laws import StanceFeedback
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
-from tdslip_ros.nodes.markers import HopperMarkers
+from tdslip_ros.nodes.plant_output import PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.realtime import Ticker, TickTiming
-from tdslip_ros.nodes.wire import (
-    SAMPLE_FIELDS,
-    fill_state,
-    fixed_layout_encoder,
-    serialized,
-    set_stamp,
-    state_values,
-)
+from tdslip_ros.nodes.torque_stream import LateTorque, TorqueInput, torque_fields
 
 RCLError = rclpy_implementation.RCLError  # what a failed publish raises (as rclpy.subscription names it)
 
@@ -128,11 +117,6 @@ DELIVERY_TIMEOUT = 10.0
 most :data:`ACK_TIMEOUT` for subscribers' acknowledgements)."""
 ACK_TIMEOUT = 1.0  # s
 
-_CONTACT_KINDS = {
-    EventKind.TOUCHDOWN: ContactEvent.TOUCHDOWN,
-    EventKind.BOTTOM: ContactEvent.BOTTOM,
-    EventKind.LIFTOFF: ContactEvent.LIFTOFF,
-}
 _NS_PER_S = 1_000_000_000
 
 
@@ -185,45 +169,43 @@ class PlantNode(Node):
         self._max_stale_strides = int(values["max_stale_strides"])
         self._wait_for_recorder = bool(values["wait_for_recorder"])
 
-        self.published: Counter[str] = Counter()
-        """Messages published per topic, by relative name (topics.STATE, ...)."""
         self.received_commands = 0
+        self.received_torques = 0
         self.rejections = RejectionLog()
         self.command_latencies_ns: list[int] = []
         """Wall time from each apex's publication to the valid command answering it."""
         self.late_commands = 0
         """Realtime: answers that arrived after the touchdown of their stride (never applied)."""
         self.tick_timing = None if self.lockstep else TickTiming(round(TICK_PERIOD * _NS_PER_S))
+        self.torques = TorqueInput(
+            lockstep=self.lockstep,
+            max_age_ticks=round(float(values["torque_max_age"]) / TICK_PERIOD),
+            max_torque=self.limits.max_torque,
+        )
+        """Stance feedback: the streamed hip torques (tdslip/hip_torque), their late and stale counts."""
         self.recorders = RecorderProgress()
         self.outcome: RunOutcome | None = None
         self.done: Future[RunOutcome] = Future()
 
-        published_topics = [*topics.PLANT_TOPICS, *((topics.CLOCK,) if values["publish_clock"] else ())]
-        self._topic_publishers: dict[str, Publisher[Any]] = {
-            topic: self.create_publisher(topics.MESSAGE_TYPES[topic], topic, topics.STREAM_QOS)
-            for topic in published_topics
-        }
-        self.topic_names = {topic: pub.topic_name for topic, pub in self._topic_publishers.items()}
+        marker_rate = float(values["marker_rate"])
+        self._out = PlantOutput(
+            self,
+            publish_clock=bool(values["publish_clock"]),
+            marker_period_ticks=max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0,
+        )
+        self.published = self._out.published
+        """Messages published per topic, by relative name (topics.STATE, ...)."""
+        self.topic_names = self._out.topic_names
         """Fully qualified name of each published topic, by its relative name."""
         self.command_topic = self.resolve_topic_name(topics.COMMAND)
-        self._state_pub = self._topic_publishers[topics.STATE]
-        self._grf_pub = self._topic_publishers[topics.GRF]
-        self._clock_pub = self._topic_publishers.get(topics.CLOCK)
-        self._clock_out: Publisher[Any] | None = None  # _clock_pub while it has subscribers
-        self._markers_pub = self._topic_publishers[topics.MARKERS]
-        marker_rate = float(values["marker_rate"])
-        self._marker_period_ticks = max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0
-        self._markers_out = False  # markers are drawn while someone subscribes to them
-        self._markers = HopperMarkers(topics.FRAME_ID)
-        # The 1 kHz messages are serialised straight from their values: building message objects
-        # cost the tick more than the bytes do.
-        self._state_encoder = fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
-        self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*STAMP_FIELDS, *GRF_FIELDS))
-        self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
         # Raw: an answer to an earlier apex is recognised from its bytes (command_key), unparsed.
         self._command_subscription = self.create_subscription(
             StanceCommand, topics.COMMAND, self._on_command, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
         )
+        self._torque_subscription = self.create_subscription(
+            HipTorque, topics.HIP_TORQUE, self._on_hip_torque, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
+        )
+        self.torque_topic = self._torque_subscription.topic_name
         self.create_subscription(
             RecorderStatus, topics.RECORDER_STATUS, self._on_recorder_status, topics.RECORDER_STATUS_QOS
         )
@@ -300,7 +282,7 @@ class PlantNode(Node):
 
     def matched_subscribers(self, topic: str) -> int:
         """Subscriptions matched with the plant's publisher on ``topic`` (relative name)."""
-        return self._topic_publishers[topic].get_subscription_count()
+        return self._out.subscribers(topic)
 
     def _start_when_ready(self) -> None:
         """autostart: start once :meth:`ready_to_start`, or once command_timeout has passed."""
@@ -327,21 +309,25 @@ class PlantNode(Node):
         return now - self._ready_since_ns >= START_SETTLE * _NS_PER_S
 
     def recorder_ready(self) -> bool:
-        """A recorder has matched this plant's publishers and every command publisher of the graph."""
+        """A recorder has matched this plant's publishers and every command and hip torque publisher of the
+        graph."""
         published = [self.topic_names[topic] for topic in topics.PLANT_TOPICS]
-        return self.recorders.ready(published, self.command_topic, self.count_publishers(self.command_topic))
+        answers = {topic: self.count_publishers(topic) for topic in (self.command_topic, self.torque_topic)}
+        return self.recorders.ready(published, answers)
 
     def _controller_connected(self) -> bool:
         """A node publishes commands and subscribes to the apex, every apex subscription of the graph
-        has matched the plant's publisher (the first apex reaches the controller) and every command
-        publisher the plant's subscription (the answer reaches the plant)."""
+        has matched the plant's publisher (the first apex reaches the controller) and every command and
+        hip torque publisher the plant's subscription (the answer reaches the plant)."""
         command_publishers = self.get_publishers_info_by_topic(self.command_topic)
         commanders = {(i.node_namespace, i.node_name) for i in command_publishers}
         apex_subscriptions = self.get_subscriptions_info_by_topic(self.topic_names[topics.APEX])
         listeners = {(i.node_namespace, i.node_name) for i in apex_subscriptions}
-        matched = self.matched_subscribers(topics.APEX) >= len(
-            apex_subscriptions
-        ) and self._command_subscription.get_publisher_count() >= len(command_publishers)
+        matched = (
+            self.matched_subscribers(topics.APEX) >= len(apex_subscriptions)
+            and self._command_subscription.get_publisher_count() >= len(command_publishers)
+            and self._torque_subscription.get_publisher_count() >= self.count_publishers(self.torque_topic)
+        )
         return bool(commanders & listeners) and matched
 
     def start(self) -> None:
@@ -356,9 +342,10 @@ class PlantNode(Node):
         self._running = True
         self.start_wall_ns = time.monotonic_ns()
         self._tick0 = self._ticks
-        self._check_graph()
+        self._out.check_graph()
         self._publish_apex(0, self._stepper.apex_state)
-        self._publish_sample(self._stepper.state)
+        state = self._stepper.state
+        self._out.sample(state, self._offset + state.t)
         if self.lockstep:
             self._await_command()
         else:
@@ -402,6 +389,9 @@ class PlantNode(Node):
             trajectory=self._epoch,
         )
         self._offset = time_offset_ticks * TICK_PERIOD
+        self._offset_ticks = time_offset_ticks
+        self._applied_published = 0  # samples of the current stance published on tdslip/applied_torque
+        self.torques.restart()
         self._awaiting: int | None = None
         self._answered = -1  # the latest stride whose command was applied
         self._late_stride = -1  # the latest stride counted in late_commands
@@ -425,6 +415,11 @@ class PlantNode(Node):
         if self.tick_timing is not None:
             self.tick_timing.close_window()
             self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
+            if self.published[topics.APPLIED_TORQUE]:
+                self.get_logger().info(
+                    f"realtime: {self.torques.late} hip torque(s) came after their tick, "
+                    f"{self.torques.stale} stance tick(s) held zero (no torque within torque_max_age)"
+                )
             if self.late_commands:
                 self.get_logger().warning(
                     f"realtime: {self.late_commands} command(s) arrived after their touchdown (the command "
@@ -496,12 +491,6 @@ class PlantNode(Node):
                     self.sim_time,
                 )
 
-    def _check_graph(self) -> None:
-        # /clock and the markers cost a publish even when nobody listens: they go out while someone does.
-        listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
-        self._clock_out = self._clock_pub if listened else None
-        self._markers_out = bool(self._marker_period_ticks) and self._markers_pub.get_subscription_count() > 0
-
     def _advance_realtime(self, now_ns: int) -> None:
         """Tick thread: step up to the tick due at ``now_ns`` of the steady clock."""
         with self._lock:
@@ -521,11 +510,15 @@ class PlantNode(Node):
             return True
 
     def _tick(self) -> bool:
-        """Step one tick and publish it; True when stepping must pause (awaited command, end of run)."""
-        events = self._stepper.step()
+        """Step one tick and publish it; True when stepping must pause (awaited command or torque, end of
+        run)."""
+        stepper = self._stepper
+        if not self.lockstep and stepper.torque_due:  # lockstep: the awaited torque is held already
+            stepper.hold_torque(self.torques.held(stepper.stride, self._ticks))
+        events = stepper.step()
         self._ticks += 1
         if self._ticks % GRAPH_CHECK_TICKS == 0:
-            self._check_graph()
+            self._out.check_graph()
         apex: Event | None = None
         for event in events:
             if event.kind is EventKind.APEX:
@@ -536,12 +529,19 @@ class PlantNode(Node):
                 self._finish(event.failure.value, event.reason, self._offset + event.t)
                 return True
             else:
-                self._publish_contact(event)
-        state = self._stepper.state
-        self._publish_sample(state)
-        if self._markers_out and self._ticks % self._marker_period_ticks == 0:
-            self._publish_markers(state)
+                if event.kind is EventKind.TOUCHDOWN:
+                    self._applied_published = 0
+                self._out.contact(self._epoch, event, self._offset + event.t)
+        state = stepper.state
+        t = self._offset + state.t
+        self._out.sample(state, t)
+        if isinstance(stepper.command, StanceFeedback):
+            self._publish_applied_torques()
+        self._out.markers(state, t, self._ticks)
         if apex is None:
+            if self.lockstep and stepper.torque_due:
+                self._await_torque()
+                return True
             return False
         if apex.stride == self._max_strides:
             reason = f"reached max_strides = {self._max_strides}"
@@ -569,21 +569,31 @@ class PlantNode(Node):
         self._awaiting = self._stepper.stride
         self._timeout_timer.reset()
 
+    def _await_torque(self) -> None:
+        self.torques.await_tick(self._epoch, self._stepper.stride, self._ticks)
+        self._timeout_timer.reset()
+
     def _on_command_timeout(self) -> None:
         self._timeout_timer.cancel()
         with self._lock:
             self._time_out()
 
     def _time_out(self) -> None:
-        if self._awaiting is not None and self._running:
-            rejected = self.rejections.total
-            rejected_so_far = f"; {rejected} command(s) rejected so far" if rejected else ""
-            self._finish(
-                Status.KIND_COMMAND_TIMEOUT,
-                f"no valid command for epoch {self._epoch}, stride {self._awaiting} within "
-                f"command_timeout = {self._command_timeout:g} s{rejected_so_far}",
-                self._offset + self._stepper.t,
-            )
+        awaited = self.torques.awaited
+        if (self._awaiting is None and awaited is None) or not self._running:
+            return
+        rejected = self.rejections.total
+        rejected_so_far = f"; {rejected} command(s) or torque(s) rejected so far" if rejected else ""
+        what = (
+            f"command for epoch {self._epoch}, stride {self._awaiting}"
+            if awaited is None
+            else f"hip torque for epoch {awaited[0]}, stride {awaited[1]}, tick {awaited[2]}"
+        )
+        self._finish(
+            Status.KIND_COMMAND_TIMEOUT,
+            f"no valid {what} within command_timeout = {self._command_timeout:g} s{rejected_so_far}",
+            self._offset + self._stepper.t,
+        )
 
     # --- commands and reset ---------------------------------------------------------------------
 
@@ -612,14 +622,12 @@ class PlantNode(Node):
             self._late_stride = stride
             self.late_commands += 1
 
-    def _report_rejection(self, reason: str) -> None:
+    def _report_rejection(self, reason: str, kind: str = Status.KIND_COMMAND_REJECTED) -> None:
         """Log and report a rejection (at most REJECTION_REPORTS per period, the rest summed)."""
         prefix = self.rejections.admit(time.monotonic_ns())
         if prefix is not None:
             self.get_logger().warning(prefix + reason)
-            self._publish_status(
-                Status.KIND_COMMAND_REJECTED, prefix + reason, self._offset + self._stepper.t, fatal=False
-            )
+            self._publish_status(kind, prefix + reason, self._offset + self._stepper.t, fatal=False)
 
     def _take_command(self, msg: StanceCommand) -> None:
         if not self._running:
@@ -658,6 +666,39 @@ class PlantNode(Node):
             self._count_late(stride)
             raise
         self._stepper.set_command(command)
+
+    def _on_hip_torque(self, data: bytes) -> None:
+        self.received_torques += 1
+        fields = torque_fields(data)
+        with self._lock:
+            if not self._running:
+                return
+            if fields is None:
+                self._report_rejection("hip torque rejected: not a HipTorque", Status.KIND_TORQUE_REJECTED)
+                return
+            stepper = self._stepper
+            try:
+                self.torques.take(
+                    fields,
+                    epoch=self._epoch,
+                    stride=stepper.stride,
+                    tick=self._ticks,
+                    streaming=isinstance(stepper.command, StanceFeedback),
+                    stance_over=stepper.past_touchdown and not stepper.torque_due,
+                )
+            except LateTorque:
+                return
+            except ParameterError as error:
+                self._report_rejection(
+                    f"hip torque for epoch {fields.epoch}, stride {fields.stride}, tick {fields.tick} "
+                    f"rejected: {error}",
+                    Status.KIND_TORQUE_REJECTED,
+                )
+                return
+            if self.lockstep:  # the awaited torque: hold it and step on
+                stepper.hold_torque(fields.torque)
+                self._timeout_timer.cancel()
+                self._lockstep_timer.reset()
 
     def _on_reset(self, request: Reset.Request, response: Reset.Response) -> Reset.Response:
         try:
@@ -699,67 +740,25 @@ class PlantNode(Node):
 
     # --- publishing -----------------------------------------------------------------------------
 
-    def _publish(self, topic: str, msg: object) -> None:
-        self._topic_publishers[topic].publish(serialized(msg))
-        self.published[topic] += 1
-
-    def _publish_sample(self, state: ModelState) -> None:
-        values = state_values(state, self._offset + state.t)
-        published = self.published
-        # Each count right after its publish: a failing publish leaves the counts exact.
-        self._state_pub.publish(self._state_encoder.encode(values))
-        published[topics.STATE] += 1
-        sec, nanosec = values[:2]
-        self._grf_pub.publish(self._grf_encoder.encode((sec, nanosec, state.grf_x, state.grf_y)))
-        published[topics.GRF] += 1
-        if self._clock_out is not None:
-            self._clock_out.publish(self._clock_encoder.encode((sec, nanosec)))
-            published[topics.CLOCK] += 1
-
-    def _publish_markers(self, state: ModelState) -> None:
-        stamp = Time()
-        set_stamp(stamp, self._offset + state.t)
-        markers = self._markers.update(state, stamp, state.ground_height)
-        self._publish(topics.MARKERS, markers)
-
     def _publish_apex(self, stride: int, state: ModelState) -> None:
-        msg = ApexEvent(
-            epoch=self._epoch, stride=stride, sim_time=self._offset + state.t, x=state.x, height=state.y
-        )
-        msg.header.frame_id = topics.FRAME_ID
-        set_stamp(msg.header.stamp, msg.sim_time)
-        msg.forward_speed = state.xdot
-        msg.measured_height, msg.measured_forward_speed = self._stepper.measured_apex
-        msg.ground_height = self._stepper.ground
-        msg.energy = state.energy
-        flows = self._stepper.last_stride_energy if stride > 0 else None
-        if flows is not None:
-            msg.hip_work, msg.damping_loss, msg.spring_loss = (
-                flows.hip_work,
-                flows.damping_loss,
-                flows.spring_loss,
-            )
+        stepper = self._stepper
+        flows = stepper.last_stride_energy if stride > 0 else None
         self._apex_wall_ns = time.monotonic_ns()
-        self._publish(topics.APEX, msg)
-
-    def _publish_contact(self, event: Event) -> None:
-        t = self._offset + event.t
-        kind = _CONTACT_KINDS[event.kind]
-        msg = ContactEvent(
-            kind=kind, epoch=self._epoch, stride=event.stride, sim_time=t, ground_height=event.state.toe_y
+        self._out.apex(
+            self._epoch, stride, self._offset + state.t, state, stepper.measured_apex, stepper.ground, flows
         )
-        msg.header.frame_id = msg.state.header.frame_id = topics.FRAME_ID
-        set_stamp(msg.header.stamp, t)
-        fill_state(msg.state, event.state, t)
-        self._publish(topics.CONTACT, msg)
+
+    def _publish_applied_torques(self) -> None:
+        """The stance's torques sampled since the last call, as held (tdslip/applied_torque): the record
+        from which the analysis replays the stance."""
+        samples = self._stepper.stance_torques
+        for t, torque in samples[self._applied_published :]:
+            tick = self._offset_ticks + round(t / TICK_PERIOD)
+            self._out.applied_torque(self._epoch, self._stepper.stride, tick, torque)
+        self._applied_published = len(samples)
 
     def _publish_status(self, kind: str, reason: str, t: float, *, fatal: bool) -> None:
-        msg = Status(
-            epoch=self._epoch, stride=self._stepper.stride, sim_time=t, kind=kind, reason=reason, fatal=fatal
-        )
-        msg.header.frame_id = topics.FRAME_ID
-        set_stamp(msg.header.stamp, t)
-        self._publish(topics.STATUS, msg)
+        self._out.status(self._epoch, self._stepper.stride, kind, reason, t, fatal=fatal)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -86,6 +86,16 @@ SPECS: tuple[ParameterSpec, ...] = (
         read_only=True,
     ),
     ParameterSpec(
+        "torque_max_age",
+        0.003,
+        "realtime, stance feedback: the plant holds a streamed hip torque for at most this long [s] of "
+        "simulated time after the tick it was sent for; then, or without one, the hip holds zero "
+        "(a stale tick)",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParameterSpec(
         "max_strides", 50, "the run ends at this apex (0: never)", 0, 2_000_000_000, read_only=True
     ),
     ParameterSpec(

@@ -9,7 +9,9 @@ and a Fast DDS profile with prompt acknowledgements):
 * ``controller_node`` in a child process: its planning (milliseconds of numpy per apex) would
   hold the GIL against the plant's 1 kHz tick thread (in one process: thousands of missed ticks
   in 15 s and a slower answer, measured); apart, an answer costs a DDS round trip (~1-2 ms on the
-  development VM) on top of the planning;
+  development VM) on top of the planning; a stance-feedback policy
+  (:data:`~tdslip_ros.model.policies.STANCE_FEEDBACK_POLICIES`) runs in ``stance_controller_node`` instead,
+  which answers the apexes and streams a hip torque per stance tick;
 * ``recorder_node`` in a child process: a Python callback per message would otherwise share one
   interpreter with the plant; on two cores the plant and the recorder each get one.
 
@@ -18,7 +20,7 @@ starts once the recorder and the controller have matched its topics. When the ru
 messages are acknowledged by every subscriber, the controller is stopped (it delivers its last
 command), then the recorder (it records what reached it and finalises the bag). Last, the message
 counts of the bag are compared with what was published: the plant's own counts, and for
-/tdslip/command the commands the plant received. The bag directory
+/tdslip/command and /tdslip/hip_torque the commands and torques the plant received. The bag directory
 (:attr:`RunOptions.out`) holds ``metadata.yaml`` and ``<name>_0.mcap``; :attr:`RunReport.ok` says whether
 the run completed and its recording is complete.
 """
@@ -68,9 +70,11 @@ from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.policies import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
+    DEFAULT_STANCE_TOUCHDOWN_ANGLE,
     DEFAULT_TOUCHDOWN_ANGLE,
     FIXED_ANGLE_POLICIES,
     POLICIES,
+    STANCE_FEEDBACK_POLICIES,
 )
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.entry import (
@@ -161,6 +165,10 @@ class RunReport:
     saturated_strides: int = 0
     """Touchdowns at which the commanded |tau0| exceeded tau_max (the hip saturated)."""
     late_commands: int = 0
+    stale_torques: int = 0
+    """Realtime, stance feedback: stance ticks that held zero, no torque within torque_max_age."""
+    late_torques: int = 0
+    """Stance feedback: torques that came after their tick was stepped or after their stance."""
     """Realtime: commands that arrived after the touchdown of their stride (the previous command held)."""
     problems: list[str] = field(default_factory=list)
 
@@ -287,6 +295,13 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
         assert isinstance(planned, HopperParams)  # scalar factors
         check_hopper(planned)
         model = {name: getattr(planned, key) for key, name in HOPPER_PARAMETERS.items()}
+    if options.policy in STANCE_FEEDBACK_POLICIES:
+        return {
+            **model,
+            "policy": options.policy,
+            "target_height": options.target_height,
+            "target_speed": options.target_speed,
+        }
     return {
         **model,
         "policy": options.policy,
@@ -336,8 +351,9 @@ def check_options(options: RunOptions) -> None:
     """RunOptionError naming the first option ``run`` cannot use (nothing is created here)."""
     if options.mode not in CLOCK_MODES:
         raise RunOptionError(f"mode must be one of {', '.join(CLOCK_MODES)}, not {options.mode!r}")
-    if options.policy not in POLICIES:
-        raise RunOptionError(f"policy must be one of {', '.join(POLICIES)}, not {options.policy!r}")
+    if options.policy not in (*POLICIES, *STANCE_FEEDBACK_POLICIES):
+        choices = ", ".join((*POLICIES, *STANCE_FEEDBACK_POLICIES))
+        raise RunOptionError(f"policy must be one of {choices}, not {options.policy!r}")
     if options.analytic_map is not None and options.analytic_map not in ANALYTIC_MAPS:
         raise RunOptionError(
             f"analytic map must be one of {', '.join(ANALYTIC_MAPS)}, not {options.analytic_map!r}"
@@ -379,6 +395,9 @@ def check_placement(options: RunOptions, params: HopperParams) -> None:
     angle = None
     if options.policy in FIXED_ANGLE_POLICIES:
         angle = DEFAULT_TOUCHDOWN_ANGLE if options.touchdown_angle is None else options.touchdown_angle
+    elif options.policy in STANCE_FEEDBACK_POLICIES:  # its angle is config/controller.yaml's
+        installed = installed_parameters("controller.yaml")
+        angle = float(installed.get("stance_touchdown_angle", DEFAULT_STANCE_TOUCHDOWN_ANGLE))
     try:
         dynamics.check_placement(params, options.height, angle)
     except ParameterError as error:
@@ -452,8 +471,12 @@ def run(
         stack.callback(recorder.close)
         controller = None
         if not options.own_controller:
+            module = "tdslip_ros.nodes.controller_node"
+            if options.policy in STANCE_FEEDBACK_POLICIES:  # the policy is the node's own
+                module = "tdslip_ros.nodes.stance_controller_node"
+                controller_parameters.pop("policy")
             controller = ChildNode.start(
-                "tdslip_ros.nodes.controller_node",
+                module,
                 ["--params-file", str(config_file("controller.yaml"))] + _overrides(controller_parameters),
                 environment,
                 options.namespace,
@@ -464,8 +487,18 @@ def run(
         recorded_topics = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if options.record_clock else ())]
 
         def published_counts() -> dict[str, int]:
-            counts = {**plant.published, topics.COMMAND: plant.received_commands}
-            return {resolve(topic, options.namespace): counts.get(topic, 0) for topic in recorded_topics}
+            counts = {
+                **plant.published,
+                topics.COMMAND: plant.received_commands,
+                topics.HIP_TORQUE: plant.received_torques,
+            }
+            # A ramp controller has no hip torque publisher: the bag has no such channel to count.
+            streamed = plant.received_torques or options.policy in STANCE_FEEDBACK_POLICIES
+            return {
+                resolve(topic, options.namespace): counts.get(topic, 0)
+                for topic in recorded_topics
+                if topic != topics.HIP_TORQUE or streamed
+            }
 
         try:
             _wait_for_graph(
@@ -501,7 +534,7 @@ def run(
         delivery_time = (time.monotonic_ns() - plant.start_wall_ns) * 1e-9
         if controller is not None:
             controller.stop()
-        _spin_until_quiet(executor, lambda: plant.received_commands)
+        _spin_until_quiet(executor, lambda: plant.received_commands + plant.received_torques)
         spin_until(executor, lambda: len(monitor.apexes) == plant.published[topics.APEX], timeout=5.0)
         recorder.stop()
         published = published_counts()
@@ -520,6 +553,8 @@ def run(
             controller_log="" if controller is None else controller.output(),
             saturated_strides=plant.saturated_strides,
             late_commands=plant.late_commands,
+            stale_torques=plant.torques.stale,
+            late_torques=plant.torques.late,
             problems=problems,
         )
     return report

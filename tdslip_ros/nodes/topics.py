@@ -14,6 +14,9 @@ The QoS contract (docs/nodes.md states it for users' own nodes):
   controller publishes volatile with a deep history (:data:`COMMAND_QOS`): a subscriber that
   missed an answer in transport (a recorder starved of CPU) gets it repaired from that history,
   while one that starts late sees the next answer, not an old one (``ros2 topic echo --once``).
+* Hip torques (``tdslip/hip_torque``, stance feedback): the plant subscribes as to commands (reliable,
+  volatile, KEEP_ALL), so a default-QoS ``create_publisher(HipTorque, 'tdslip/hip_torque', 10)`` drives
+  it; the suite's stance controller publishes them with :data:`STREAM_QOS`.
 * The recorder adapts its subscriptions to what the publishers offer, as rosbag2 does
   (:func:`adapted_qos`).
 
@@ -33,7 +36,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 from rosgraph_msgs.msg import Clock
-from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, StanceCommand, Status
+from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, StanceCommand, Status
 from visualization_msgs.msg import MarkerArray
 
 from tdslip_ros.bag import OfferedQos
@@ -41,10 +44,12 @@ from tdslip_ros.bag import OfferedQos
 # Re-exported: the nodes spell every topic topics.NAME.
 from tdslip_ros.interfaces import (  # noqa: F401
     APEX,
+    APPLIED_TORQUE,
     CLOCK,
     COMMAND,
     CONTACT,
     GRF,
+    HIP_TORQUE,
     MARKERS,
     RECORDER_STATUS,
     RESET_SERVICE,
@@ -115,14 +120,16 @@ MESSAGE_TYPES: dict[str, type] = {
     CONTACT: ContactEvent,
     STATUS: Status,
     COMMAND: StanceCommand,
+    HIP_TORQUE: HipTorque,
+    APPLIED_TORQUE: HipTorque,
     MARKERS: MarkerArray,
     CLOCK: Clock,
 }
 """Every topic the plant publishes or subscribes, with its message class."""
 
-PLANT_TOPICS = (STATE, GRF, APEX, CONTACT, STATUS, MARKERS)
+PLANT_TOPICS = (STATE, GRF, APEX, CONTACT, STATUS, MARKERS, APPLIED_TORQUE)
 """What the plant publishes besides /clock."""
-RECORDED_TOPICS = (*PLANT_TOPICS, COMMAND)
+RECORDED_TOPICS = (*PLANT_TOPICS, COMMAND, HIP_TORQUE)
 """What the recorder records (and /clock if asked)."""
 
 

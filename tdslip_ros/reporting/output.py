@@ -24,6 +24,9 @@ UNIT_SUFFIXES = {
     "N/m": "_N_per_m",
     "N s/m": "_N_s_per_m",
     "rad/(m/s)": "_rad_s_per_m",
+    "N m/J": "_N_m_per_J",
+    "N s": "_N_s",
+    "N s^2": "_N_s2",
 }
 """The key suffix of a JSON value in each SI unit: a key says its value's unit (``touchdown_angle_rad``)."""
 DIMENSIONLESS_SUFFIXES = {

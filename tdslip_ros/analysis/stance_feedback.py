@@ -1,0 +1,93 @@
+"""The stance-feedback strides of a recorded run, predicted on the exact map from their recorded torques.
+
+A stride under stance feedback has no ramp for the maps of :mod:`.compare` to replay. Its hip held the
+torques the plant recorded on ``tdslip/applied_torque``, each from its tick on (zero-order hold, as applied,
+zero from touchdown to the first tick: :mod:`tdslip_ros.model.stance_laws`). The exact map
+(:func:`tdslip_ros.model.exact_map.apex_return_map`, DOP853 with event location) replays them
+(:class:`~tdslip_ros.model.stance_laws.RecordedTorques`, the stride's ``stance_feedback``) from the recorded
+apex at its time on the plant's clock, which puts the replay on the plant's tick grid, with the run's
+perturbations as :mod:`.compare` applies them. The prediction then differs from the recorded next apex by
+the 1 kHz plant's own integration error alone (RK4, 4 sub-steps per tick: :mod:`tdslip_ros.model.stepper`).
+Recordings of several epochs (resets) are refused by the reader, so the plant's clock is the epoch's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from tdslip_ros.analysis.reader import Run
+from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.params import ApexState
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FeedbackPredictions:
+    """Next apexes of the strides under stance feedback with a recorded next apex: recorded and replayed
+    on the exact map, (n, 2) of (y [m, world frame], xdot [m/s]); NaN where the map foresaw a failure
+    (``failures``: its kind, else None)."""
+
+    stride: npt.NDArray[np.int64]
+    recorded: FloatArray
+    exact: FloatArray
+    failures: list[str | None]
+
+    @property
+    def error(self) -> FloatArray:
+        """|exact - recorded| per stride, (n, 2) [m, m/s]."""
+        return np.abs(self.exact - self.recorded)
+
+
+def predict_stance_feedback(run: Run) -> FeedbackPredictions:
+    """Replay each stance-feedback stride of ``run`` on the exact map (module docstring)."""
+    by_stride = {s.stride: s for s in run.strides}
+    perturbations = run.perturbations
+    tau_max = float(perturbations.tau_max)
+    rows, recorded, exact, failures = [], [], [], []
+    for stride in run.strides:
+        after = by_stride.get(stride.stride + 1)
+        if stride.stance_feedback is None or after is None:
+            continue
+        result = apex_return_map(
+            run.params,
+            ApexState(stride.height, stride.xdot),
+            stride.stance_feedback,
+            x=stride.x,
+            ground=stride.ground,
+            terrain=perturbations.terrain,
+            tau_max=tau_max,
+            push=stride.push,
+            angle_error=stride.angle_error,
+            apex_time=stride.t,
+        )
+        rows.append(stride.stride)
+        recorded.append((after.y, after.xdot))
+        if result.apex is None:
+            exact.append((np.nan, np.nan))
+            failures.append(None if result.failure is None else str(result.failure.value))
+        else:
+            assert result.ground is not None  # a stride that reached its next apex touched down
+            exact.append((result.ground + result.apex.y, result.apex.xdot))
+            failures.append(None)
+    return FeedbackPredictions(
+        stride=np.array(rows, dtype=np.int64),
+        recorded=np.array(recorded, dtype=float).reshape(-1, 2),
+        exact=np.array(exact, dtype=float).reshape(-1, 2),
+        failures=failures,
+    )
+
+
+def feedback_summary(predictions: FeedbackPredictions) -> dict[str, Any]:
+    """The replay's errors for the summary: strides, largest height and speed errors (SI)."""
+    error = predictions.error
+    return {
+        "strides": len(predictions.stride),
+        "failures": sum(f is not None for f in predictions.failures),
+        "max_height_error_m": float(np.max(error[:, 0])) if len(error) else None,
+        "max_speed_error_m_per_s": float(np.max(error[:, 1])) if len(error) else None,
+    }

@@ -1,0 +1,165 @@
+"""What the plant node publishes: its publishers, the messages it makes of the model's states and events, and
+the count of what went out per topic (the recorder's flow control and the run's checks compare with it).
+
+Every message goes out as bytes with no undefined byte (:mod:`tdslip_ros.nodes.wire`): the 1 kHz ones
+(state, ground reaction force, /clock, applied torques) from fixed-layout encoders, since building message
+objects cost the tick more than the bytes do; the event-rate ones serialised with their padding zeroed.
+/clock and the markers cost a publish even when nobody listens, so they go out only while someone subscribes
+(:meth:`PlantOutput.check_graph`).
+Each count is taken right after its publish, so that a failing publish (rclpy's RCLError) leaves them exact.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import WrenchStamped
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rosgraph_msgs.msg import Clock as ClockMsg
+from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, Status
+
+from tdslip_ros.interfaces import GRF_FIELDS, STAMP_FIELDS
+from tdslip_ros.model.events import Event, EventKind, StrideEnergy
+from tdslip_ros.model.events import HopperState as ModelState
+from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.markers import HopperMarkers
+from tdslip_ros.nodes.wire import (
+    SAMPLE_FIELDS,
+    fill_state,
+    fixed_layout_encoder,
+    serialized,
+    set_stamp,
+    state_values,
+)
+
+_CONTACT_KINDS = {
+    EventKind.TOUCHDOWN: ContactEvent.TOUCHDOWN,
+    EventKind.BOTTOM: ContactEvent.BOTTOM,
+    EventKind.LIFTOFF: ContactEvent.LIFTOFF,
+}
+_NS_PER_S = 1_000_000_000
+_NS_PER_TICK = 1_000_000  # the plant's 1 ms tick
+
+
+class PlantOutput:
+    """The plant's publishers on ``node`` (topics.PLANT_TOPICS, and /clock with ``publish_clock``) and what
+    goes out on them; markers every ``marker_period_ticks`` ticks (0: never)."""
+
+    def __init__(self, node: Node, *, publish_clock: bool, marker_period_ticks: int) -> None:
+        published_topics = [*topics.PLANT_TOPICS, *((topics.CLOCK,) if publish_clock else ())]
+        self._publishers: dict[str, Publisher[Any]] = {
+            topic: node.create_publisher(topics.MESSAGE_TYPES[topic], topic, topics.STREAM_QOS)
+            for topic in published_topics
+        }
+        self.topic_names = {topic: pub.topic_name for topic, pub in self._publishers.items()}
+        """Fully qualified name of each published topic, by its relative name."""
+        self.published: Counter[str] = Counter()
+        """Messages published per topic, by relative name (topics.STATE, ...)."""
+        self._state_pub = self._publishers[topics.STATE]
+        self._grf_pub = self._publishers[topics.GRF]
+        self._applied_torque_pub = self._publishers[topics.APPLIED_TORQUE]
+        self._clock_pub = self._publishers.get(topics.CLOCK)
+        self._clock_out: Publisher[Any] | None = None  # _clock_pub while it has subscribers
+        self._markers_pub = self._publishers[topics.MARKERS]
+        self._marker_period_ticks = marker_period_ticks
+        self._markers_out = False  # markers are drawn while someone subscribes to them
+        self._markers = HopperMarkers(topics.FRAME_ID)
+        self._state_encoder = fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
+        self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*STAMP_FIELDS, *GRF_FIELDS))
+        self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
+        self._applied_torque_encoder = fixed_layout_encoder(
+            HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
+        )
+
+    def subscribers(self, topic: str) -> int:
+        """Subscriptions matched with the publisher of ``topic`` (relative name)."""
+        return self._publishers[topic].get_subscription_count()
+
+    def check_graph(self) -> None:
+        """Publish /clock and the markers from now on while someone subscribes to them (a graph query costs
+        ~20 us: the plant calls this every few dozen ticks)."""
+        listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
+        self._clock_out = self._clock_pub if listened else None
+        self._markers_out = bool(self._marker_period_ticks) and self._markers_pub.get_subscription_count() > 0
+
+    def _publish(self, topic: str, msg: object) -> None:
+        self._publishers[topic].publish(serialized(msg))
+        self.published[topic] += 1
+
+    def sample(self, state: ModelState, t: float) -> None:
+        """The 1 kHz state and ground reaction force (and /clock) of ``state`` stamped t [s]."""
+        values = state_values(state, t)
+        published = self.published
+        self._state_pub.publish(self._state_encoder.encode(values))
+        published[topics.STATE] += 1
+        sec, nanosec = values[:2]
+        self._grf_pub.publish(self._grf_encoder.encode((sec, nanosec, state.grf_x, state.grf_y)))
+        published[topics.GRF] += 1
+        if self._clock_out is not None:
+            self._clock_out.publish(self._clock_encoder.encode((sec, nanosec)))
+            published[topics.CLOCK] += 1
+
+    def markers(self, state: ModelState, t: float, tick: int) -> None:
+        """The hopper drawn at ``state`` stamped t [s], if plant ``tick`` is one of the markers' and someone
+        subscribes to them."""
+        if self._markers_out and tick % self._marker_period_ticks == 0:
+            stamp = Time()
+            set_stamp(stamp, t)
+            self._publish(topics.MARKERS, self._markers.update(state, stamp, state.ground_height))
+
+    def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None:
+        """A hip torque as held from plant ``tick`` on (stamped with the tick's time)."""
+        sec, nanosec = divmod(tick * _NS_PER_TICK, _NS_PER_S)
+        values = (sec, nanosec, epoch, stride, tick, torque)
+        self._applied_torque_pub.publish(self._applied_torque_encoder.encode(values))
+        self.published[topics.APPLIED_TORQUE] += 1
+
+    def apex(
+        self,
+        epoch: int,
+        stride: int,
+        t: float,
+        state: ModelState,
+        measured: tuple[float, float],
+        ground: float,
+        flows: StrideEnergy | None,
+    ) -> None:
+        """Apex ``stride`` at t [s]: the true state, the ``measured`` (height, speed), the ground of the
+        stance before it and that stance's energy ``flows`` (None: zero, the initial apex)."""
+        msg = ApexEvent(epoch=epoch, stride=stride, sim_time=t, x=state.x, height=state.y)
+        msg.header.frame_id = topics.FRAME_ID
+        set_stamp(msg.header.stamp, t)
+        msg.forward_speed = state.xdot
+        msg.measured_height, msg.measured_forward_speed = measured
+        msg.ground_height = ground
+        msg.energy = state.energy
+        if flows is not None:
+            msg.hip_work, msg.damping_loss, msg.spring_loss = (
+                flows.hip_work,
+                flows.damping_loss,
+                flows.spring_loss,
+            )
+        self._publish(topics.APEX, msg)
+
+    def contact(self, epoch: int, event: Event, t: float) -> None:
+        """A touchdown, bottom or liftoff at t [s], with its state."""
+        msg = ContactEvent(
+            kind=_CONTACT_KINDS[event.kind],
+            epoch=epoch,
+            stride=event.stride,
+            sim_time=t,
+            ground_height=event.state.toe_y,
+        )
+        msg.header.frame_id = msg.state.header.frame_id = topics.FRAME_ID
+        set_stamp(msg.header.stamp, t)
+        fill_state(msg.state, event.state, t)
+        self._publish(topics.CONTACT, msg)
+
+    def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None:
+        msg = Status(epoch=epoch, stride=stride, sim_time=t, kind=kind, reason=reason, fatal=fatal)
+        msg.header.frame_id = topics.FRAME_ID
+        set_stamp(msg.header.stamp, t)
+        self._publish(topics.STATUS, msg)

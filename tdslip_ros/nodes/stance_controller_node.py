@@ -1,0 +1,129 @@
+"""The stance controller node: a stance-feedback policy at 1 kHz on the plant's torque interface.
+
+Its policy is :data:`~tdslip_ros.model.policies.STANCE_PD_SPEED_ENERGY`, the baseline of the paper's ref. 36
+(:class:`~tdslip_ros.model.stance_laws.StancePDSpeedEnergy`: an energy term toward the target apex, PD on
+forward speed). It answers every apex with stance feedback (StanceCommand ``stance`` STANCE_FEEDBACK) at the
+policy's fixed touchdown angle ``stance_touchdown_angle``, and every state sample in stance
+(``tdslip/state``, phase STANCE) with the law's torque for that sample's tick on ``tdslip/hip_torque``
+(:mod:`tdslip_ros.nodes.torque_stream`). All maths is the model's; this node only converts messages.
+
+What the law sees is what the model's engines give it: the sampled leg state and the torque held until the
+sample (the sample's ``hip_torque``); the sample's time t is the plant's simulated time, and s the time
+since the touchdown event of the stride (``tdslip/contact``; NaN until it is heard, which the baseline
+does not read). The torque is clipped at this hopper's plausible torque, as the engines clip a law's
+output (the plant refuses a torque beyond it).
+
+Parameters: the hopper the law computes with (``mass``, ...: the plant's, or others for model mismatch) and
+the policy's settings (:data:`~tdslip_ros.model.policies.POLICY_SETTINGS`, those of the policy), read at
+every apex, so ``ros2 param set`` changes them at runtime. Defaults: config/controller.yaml.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from rclpy.node import Node
+from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, StanceCommand
+
+from tdslip_ros.interfaces import STAMP_FIELDS, hopper_from_parameters
+from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
+from tdslip_ros.model.policies import POLICY_SETTINGS, STANCE_PD_SPEED_ENERGY, PolicySpec, settings_of
+from tdslip_ros.model.stance_laws import StanceFeedback, StanceSample, clip_torque
+from tdslip_ros.nodes import parameters, topics
+from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
+from tdslip_ros.nodes.entry import run_node, wait_for_matching
+from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.torque_stream import tick_of
+from tdslip_ros.nodes.wire import fixed_layout_encoder, serialized
+
+POLICY = STANCE_PD_SPEED_ENERGY
+SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *map(setting_parameter, settings_of(POLICY)))
+
+
+class StanceControllerNode(Node):
+    """Subscribes tdslip/apex, tdslip/contact and tdslip/state; publishes a tdslip/command per apex and a
+    tdslip/hip_torque per stance sample."""
+
+    def __init__(self, **node_options: object) -> None:
+        super().__init__("stance_controller", **node_options)  # type: ignore[arg-type]
+        self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
+        self.hopper = hopper_from_parameters(parameters.declare(self, SPECS))
+        check_hopper(self.hopper)
+        self._max_torque = PlausibilityLimits.for_hopper(self.hopper).max_torque
+        self.commands = 0
+        self.torques = 0
+        self._epoch = 0
+        self._feedback: StanceFeedback | None = None  # the answer to the latest apex
+        self._touchdown = (-1, math.nan)  # (stride, simulated time [s]) of the latest touchdown heard
+        self._command_publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
+        self._torque_publisher = self.create_publisher(HipTorque, topics.HIP_TORQUE, topics.STREAM_QOS)
+        self._torque_encoder = fixed_layout_encoder(
+            HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
+        )
+        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
+        self.create_subscription(ContactEvent, topics.CONTACT, self._on_contact, topics.STREAM_QOS)
+        self.create_subscription(HopperState, topics.STATE, self._on_state, topics.STREAM_QOS)
+
+    def feedback(self) -> StanceFeedback:
+        """The policy's stance feedback with the current parameters."""
+        values = {setting.name: setting.default for setting in POLICY_SETTINGS}
+        values |= {setting.name: self.get_parameter(setting.name).value for setting in settings_of(POLICY)}
+        return PolicySpec.of(POLICY, values).stance_feedback(self.hopper)
+
+    def _on_apex(self, apex: ApexEvent) -> None:
+        self._epoch, self._feedback = apex.epoch, self.feedback()
+        msg = StanceCommand(
+            epoch=apex.epoch,
+            stride=apex.stride,
+            touchdown_angle=self._feedback.touchdown_angle,
+            policy=POLICY,
+            stance=StanceCommand.STANCE_FEEDBACK,
+        )
+        msg.header = apex.header
+        if not wait_for_matching(self, [self._command_publisher], MATCH_TIMEOUT):
+            self.get_logger().warning(
+                f"{self._command_publisher.topic_name}: not every subscriber matched in time"
+            )
+        self._command_publisher.publish(serialized(msg))
+        self.commands += 1
+
+    def _on_contact(self, contact: ContactEvent) -> None:
+        if contact.kind == ContactEvent.TOUCHDOWN:
+            self._touchdown = (contact.stride, contact.sim_time)
+
+    def _on_state(self, state: HopperState) -> None:
+        if state.phase != HopperState.PHASE_STANCE or self._feedback is None:
+            return
+        sec, nanosec = state.header.stamp.sec, state.header.stamp.nanosec
+        t = sec + nanosec * 1e-9
+        stride, touchdown = self._touchdown
+        sample = StanceSample(
+            t,
+            t - touchdown if stride == state.stride else math.nan,
+            state.leg_length,
+            state.leg_angle,
+            state.leg_length_rate,
+            state.leg_angle_rate,
+            state.hip_torque,
+        )
+        torque = clip_torque(float(self._feedback.law.torque(sample)), self._max_torque)
+        values = (sec, nanosec, self._epoch, state.stride, tick_of(sec, nanosec), torque)
+        self._torque_publisher.publish(self._torque_encoder.encode(values))
+        self.torques += 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``stance_controller_node [--ros-args ...]``: serve until SIGINT/SIGTERM, config/controller.yaml by
+    default."""
+    return run_node(
+        StanceControllerNode,
+        "controller.yaml",
+        sys.argv if argv is None else argv,
+        lambda node: False,
+        specs=SPECS,
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

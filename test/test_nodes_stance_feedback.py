@@ -1,0 +1,176 @@
+"""Stance feedback through the plant's 1 kHz torque interface: the stance controller node (the baseline of
+ref. 36) and hand-made torque streams, in a private in-process graph (lockstep unless said otherwise)."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+from ros_harness import RosGraph, overrides, stop_process
+from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, Status
+
+from tdslip_ros.model.events import EventKind
+from tdslip_ros.model.params import ApexState
+from tdslip_ros.model.policies import (
+    DEFAULT_APEX_HEIGHT,
+    DEFAULT_APEX_SPEED,
+    STANCE_PD_SPEED_ENERGY,
+    PolicySpec,
+)
+from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS
+from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
+from tdslip_ros.nodes.stance_controller_node import StanceControllerNode
+from tdslip_ros.nodes.torque_stream import tick_of
+
+pytestmark = pytest.mark.nodes
+
+START = ApexState(DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED)
+REPO = Path(__file__).parents[1]
+
+
+def model_apexes(strides: int) -> tuple[list[tuple[float, float, float]], list[tuple[float, float]]]:
+    """(t, y, xdot) of apexes 0..strides and every torque held, of the baseline run inside the stepper."""
+    stepper = FixedStepStepper(
+        PARAMS, START, PolicySpec.default(STANCE_PD_SPEED_ENERGY).stance_feedback(PARAMS), dt=TICK_PERIOD
+    )
+    apexes, torques = [(0.0, START.y, START.xdot)], []
+    while len(apexes) <= strides:
+        for event in stepper.step():
+            assert event.kind is not EventKind.FAILURE, event.reason
+            if event.kind is EventKind.LIFTOFF:
+                torques += stepper.stance_torques
+            if event.kind is EventKind.APEX:
+                apexes.append((event.t, event.state.y, event.state.xdot))
+    return apexes, torques
+
+
+def test_the_baseline_node_drives_the_plant_as_the_law_drives_the_stepper(ros: RosGraph) -> None:
+    """Lockstep: the plant waits for each stance tick's torque, so the run is the model's own, bit for bit:
+    the same apexes, and the torques applied (tdslip/applied_torque) are the law's."""
+    strides = 4
+    plant = ros.add(PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=strides)))
+    controller = ros.add(StanceControllerNode(context=ros.context))
+    apexes = ros.collect(ApexEvent, topics.APEX)
+    applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome is not None and plant.outcome.ok, plant.outcome
+    ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
+    expected, torques = model_apexes(strides)
+    assert [(a.sim_time, a.height, a.forward_speed) for a in apexes] == expected
+    ros.spin_until(lambda: len(applied) == len(torques), "every applied torque")
+    assert [(a.tick, a.torque) for a in applied] == [(round(t / TICK_PERIOD), tau) for t, tau in torques]
+    assert controller.torques == len(torques) and plant.torques.late == plant.torques.stale == 0
+    assert plant.rejections.total == 0
+
+
+def test_bad_torques_are_refused_and_the_plant_waits_for_the_right_one(ros: RosGraph) -> None:
+    """A hand-made stream: NaN, implausible, ahead of the plant and for another epoch are refused (a Status
+    each) or counted late, and the plant holds the first valid one for the awaited tick."""
+    plant = ros.add(PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=2)))
+    node = ros.node("hand")
+    commands = node.create_publisher(StanceCommand, topics.COMMAND, 10)
+    torques = node.create_publisher(HipTorque, topics.HIP_TORQUE, 10)
+    statuses = ros.collect(Status, topics.STATUS)
+    stance_states: list[HopperState] = []
+    sent: list[int] = []
+
+    def answer(apex: ApexEvent) -> None:
+        angle = math.radians(22.0)
+        msg = StanceCommand(epoch=apex.epoch, stride=apex.stride, touchdown_angle=angle)
+        msg.stance = StanceCommand.STANCE_FEEDBACK
+        commands.publish(msg)
+
+    def stream(state: HopperState) -> None:
+        if state.phase != HopperState.PHASE_STANCE:
+            return
+        tick = tick_of(state.header.stamp.sec, state.header.stamp.nanosec)
+        if not stance_states:  # the first stance tick: everything wrong first
+            for bad in (
+                HipTorque(epoch=0, stride=state.stride, tick=tick, torque=math.nan),
+                HipTorque(epoch=0, stride=state.stride, tick=tick, torque=1e9),
+                HipTorque(epoch=0, stride=state.stride, tick=tick + 1, torque=-10.0),
+                HipTorque(epoch=1, stride=state.stride, tick=tick, torque=-10.0),
+                HipTorque(epoch=0, stride=state.stride + 1, tick=tick, torque=-10.0),
+            ):
+                torques.publish(bad)
+        stance_states.append(state)
+        sent.append(tick)
+        torques.publish(HipTorque(epoch=0, stride=state.stride, tick=tick, torque=-50.0))
+
+    node.create_subscription(ApexEvent, topics.APEX, answer, 10)
+    node.create_subscription(HopperState, topics.STATE, stream, 10)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome is not None and plant.outcome.ok, plant.outcome
+    refused = [s.reason for s in statuses if s.kind == Status.KIND_TORQUE_REJECTED]
+    assert len(refused) == 5 and not any(s.fatal for s in statuses if s.kind == Status.KIND_TORQUE_REJECTED)
+    for reason in ("not a plausible hip torque", "ahead of the plant", "the plant's latest state is tick"):
+        assert any(reason in r for r in refused), (reason, refused)
+    # Every stance tick held the valid -50 N m (the first samples of both stances included).
+    assert all(s.hip_torque in (0.0, -50.0) for s in stance_states)
+    assert plant.torques.late == 0
+
+
+def test_a_silent_torque_stream_ends_a_lockstep_run_with_command_timeout(ros: RosGraph) -> None:
+    plant = ros.add(
+        PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=3, command_timeout=0.5))
+    )
+    node = ros.node("silent")
+    commands = node.create_publisher(StanceCommand, topics.COMMAND, 10)
+
+    def answer(apex: ApexEvent) -> None:
+        msg = StanceCommand(epoch=apex.epoch, stride=apex.stride, touchdown_angle=math.radians(22.0))
+        msg.stance = StanceCommand.STANCE_FEEDBACK
+        commands.publish(msg)
+
+    node.create_subscription(ApexEvent, topics.APEX, answer, 10)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome is not None and plant.outcome.kind == Status.KIND_COMMAND_TIMEOUT
+    assert "no valid hip torque for epoch 0, stride 0, tick" in plant.outcome.reason
+
+
+def test_realtime_holds_the_stream_and_counts_stale_ticks(ros: RosGraph) -> None:
+    """Realtime with the baseline node: the run completes; the stale ticks are counted (on an idle machine
+    there are few or none; the count is what matters here)."""
+    plant = ros.add(
+        PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=4, clock_mode="realtime"))
+    )
+    controller = ros.add(StanceControllerNode(context=ros.context))
+    applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
+    statuses = ros.collect(Status, topics.STATUS)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome is not None and plant.outcome.ok, plant.outcome
+    assert controller.torques > 0 and plant.rejections.total == 0, [s.reason for s in statuses]
+    ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
+    stale = sum(1 for a in applied if a.torque == 0.0)
+    assert plant.torques.stale <= stale
+
+
+def test_a_torque_controller_of_ones_own_with_default_qos_drives_the_plant(
+    ros: RosGraph, tmp_path: Path
+) -> None:
+    """examples/my_torque_controller.py, a stranger's 1 kHz node (default QoS), in a process of its own:
+    the lockstep plant holds every torque it sends, none late or refused, and the hopper settles where
+    its docstring says."""
+    strides = 6
+    plant = ros.add(
+        PlantNode(
+            context=ros.context, parameter_overrides=overrides(max_strides=strides, command_timeout=60.0)
+        )
+    )
+    apexes = ros.collect(ApexEvent, topics.APEX)
+    applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
+    log = tmp_path / "controller.log"
+    controller = ros.start_process([sys.executable, str(REPO / "examples" / "my_torque_controller.py")], log)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run", timeout=90.0)
+    assert stop_process(controller) == 0, log.read_text()
+    assert plant.outcome is not None and plant.outcome.ok, (plant.outcome, log.read_text())
+    ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
+    ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
+    assert plant.received_torques == len(applied) > 100 and plant.rejections.total == 0
+    assert plant.torques.late == 0 and all(abs(a.torque) <= 400.0 for a in applied)
+    assert apexes[-1].height == pytest.approx(1.01, abs=0.01)
+    assert apexes[-1].forward_speed == pytest.approx(5.02, abs=0.01)
