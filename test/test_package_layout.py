@@ -31,6 +31,7 @@ EXECUTABLES = {
     "plant_node": "tdslip_ros.nodes.plant_node:main",
     "controller_node": "tdslip_ros.nodes.controller_node:main",
     "recorder_node": "tdslip_ros.nodes.recorder_node:main",
+    "stance_controller_node": "tdslip_ros.nodes.stance_controller_node:main",
 }
 INTERFACES = [
     "msg/HopperState.msg",
@@ -39,6 +40,7 @@ INTERFACES = [
     "msg/ContactEvent.msg",
     "msg/Status.msg",
     "msg/RecorderStatus.msg",
+    "msg/HipTorque.msg",
     "srv/Reset.srv",
 ]
 
