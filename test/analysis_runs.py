@@ -94,17 +94,17 @@ def record(name: str, directory: Path) -> tuple[RunReport, list[str]]:
 
 @dataclass
 class Background:
-    """Figure documents drawn, runs recorded, then ``tdslip run`` processes run, by a child process
+    """Figure documents drawn, runs recorded, then ``tdslip`` processes run, by a child process
     (``python analysis_runs.py DIRECTORY JOBS``), started when collection ended (conftest.py): what the
     tests need is made while the fast tests run, mostly on the core those leave idle. The child pickles
     each document and each run's report as it is done (one it could not make leaves the error) and each
-    ``tdslip run`` process's result (:meth:`tdslip_run`)."""
+    ``tdslip`` process's result (:meth:`command`)."""
 
     directory: Path
     names: tuple[str, ...]
-    tdslip_runs: dict[str, tuple[list[str], str]]
-    """By key: the arguments of a ``tdslip run`` process (without ``--out``) and its output directory
-    relative to the test's tmp_path."""
+    commands: dict[str, tuple[list[str], str]]
+    """By key: the arguments of a ``tdslip`` process (the subcommand and its options, without ``--out``) and
+    its output directory relative to the test's tmp_path."""
     drawings: list[tuple[str, str]]
     """(test module, name): the child's ``module.draw(name)``, a figure's document (test_paper_claims)."""
     process: subprocess.Popen[bytes]
@@ -114,23 +114,23 @@ class Background:
         cls,
         directory: Path,
         names: tuple[str, ...],
-        tdslip_runs: dict[str, tuple[list[str], str]],
+        commands: dict[str, tuple[list[str], str]],
         drawings: list[tuple[str, str]],
     ) -> Background:
         """Draw ``drawings`` in the child first (the fast tests that read them run before any node test),
-        then record the runs ``names`` (of RUNS), then run each of ``tdslip_runs`` as a process of its own."""
+        then record the runs ``names`` (of RUNS), then run each of ``commands`` as a process of its own."""
         directory.mkdir(parents=True, exist_ok=True)
         # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
         path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
         with (directory / "background.log").open("wb") as log:
             process = subprocess.Popen(
-                [sys.executable, __file__, str(directory), json.dumps([names, tdslip_runs, drawings])],
+                [sys.executable, __file__, str(directory), json.dumps([names, commands, drawings])],
                 env={**os.environ, "PYTHONPATH": path.rstrip(os.pathsep)},
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,  # stop() ends its node processes with it
             )
-        return cls(directory, names, tdslip_runs, drawings, process)
+        return cls(directory, names, commands, drawings, process)
 
     def _wait_for(self, result: Path, job: str) -> bytes:
         failed = result.with_suffix(".error")
@@ -157,16 +157,16 @@ class Background:
             self._wait_for(self.directory / f"{module}.{name}.pickle", f"{module}.draw({name!r})")
         )
 
-    def tdslip_run(self, arguments: list[str], out: Path) -> subprocess.CompletedProcess[str] | None:
-        """The result of ``tdslip run ARGUMENTS --out OUT`` if the child ran it (with its output moved
-        to ``out``), else None. The child ran it into the same path below its directory as ``out`` is
-        below the test's tmp_path (e.g. runs/hop: a parent that does not exist yet)."""
-        for key, (background_arguments, relative) in self.tdslip_runs.items():
+    def command(self, arguments: list[str], out: Path) -> subprocess.CompletedProcess[str] | None:
+        """The result of ``tdslip ARGUMENTS --out OUT`` if the child ran it (with its output moved to
+        ``out``), else None. The child ran it into the same path below its directory as ``out`` is below
+        the test's tmp_path (e.g. runs/hop: a parent that does not exist yet)."""
+        for key, (background_arguments, relative) in self.commands.items():
             if (
                 background_arguments == arguments
                 and out.parts[-len(Path(relative).parts) :] == Path(relative).parts
             ):
-                result = pickle.loads(self._wait_for(self.directory / f"{key}.result", f"tdslip run {key}"))
+                result = pickle.loads(self._wait_for(self.directory / f"{key}.result", f"tdslip {key}"))
                 ran = self.directory / key / relative
                 if ran.exists():
                     out.parent.mkdir(parents=True, exist_ok=True)
@@ -264,11 +264,11 @@ def _write(path: Path, data: bytes) -> None:
 def _background(
     directory: Path,
     names: list[str],
-    tdslip_runs: dict[str, tuple[list[str], str]],
+    commands: dict[str, tuple[list[str], str]],
     drawings: list[tuple[str, str]],
 ) -> None:
     """The child of :class:`Background`: each drawing pickled as it is done, then each run's (report, retry
-    warnings), then each ``tdslip run`` process's result."""
+    warnings), then each ``tdslip`` process's result."""
     for module, name in drawings:
         result = directory / f"{module}.{name}.pickle"
         try:
@@ -280,11 +280,11 @@ def _background(
             _write(directory / f"{name}.pickle", pickle.dumps(record(name, directory)))
         except BaseException:
             (directory / f"{name}.error").write_text(traceback.format_exc())
-    for key, (arguments, relative) in tdslip_runs.items():
+    for key, (arguments, relative) in commands.items():
         out = directory / key / relative
         try:
             result = subprocess.run(
-                [sys.executable, "-m", "tdslip_ros.commands.cli", "run", *arguments, "--out", str(out)],
+                [sys.executable, "-m", "tdslip_ros.commands.cli", *arguments, "--out", str(out)],
                 capture_output=True,
                 text=True,
                 timeout=180,

@@ -77,15 +77,18 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     runs = tuple(dict.fromkeys(name for name in used if name in RECORDED_RUNS))
     # The session's tmp_path_factory (pytest's tmpdir plugin keeps it there; fixtures are not up yet).
     factory: pytest.TempPathFactory = session.config._tmp_path_factory  # type: ignore[attr-defined]
-    # A module's IN_BACKGROUND: tdslip run processes of its tests, by test name (test_nodes_run.py).
-    tdslip_runs = {
-        f"tdslip_run_{index}": (list(arguments), relative)
+    # A module's IN_BACKGROUND: tdslip run processes of its tests, by test name (test_nodes_run.py); then
+    # the compare_sweep fixture's tdslip compare.
+    commands = {
+        f"tdslip_run_{index}": (["run", *arguments], relative)
         for index, (arguments, relative) in enumerate(
             getattr(item.module, "IN_BACKGROUND", {})[item.name]
             for item in session.items
             if isinstance(item, pytest.Function) and item.name in getattr(item.module, "IN_BACKGROUND", {})
         )
     }
+    if "compare_sweep" in used:
+        commands["tdslip_compare"] = (compare_sweep_arguments(), "compare")
     # A module's draw(name) of the figure document its tests in xdist group ``name`` read
     # (test_paper_claims.py), drawn by the child on the core the fast tests leave idle: not under xdist,
     # whose two workers keep both cores busy.
@@ -97,11 +100,11 @@ def pytest_collection_finish(session: pytest.Session) -> None:
             for marker in item.iter_markers("xdist_group")
         )
     )
-    if runs or tdslip_runs or drawings:
+    if runs or commands or drawings:
         import analysis_runs
 
         analysis_runs.BACKGROUND = analysis_runs.Background.start(
-            factory.getbasetemp() / "analysis_runs", runs, tdslip_runs, drawings
+            factory.getbasetemp() / "analysis_runs", runs, commands, drawings
         )
     if "readme_colcon_build" in used:
         from colcon_workspace import ColconBuild
@@ -116,19 +119,26 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
         sys.modules["analysis_runs"].BACKGROUND.stop()
 
 
-@pytest.fixture(scope="session")
-def compare_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The output directory of ``tdslip compare`` on test_analysis_controller_comparison's speeds and
-    strides; it exited with status 0. It is not made in the background while the fast tier runs: its
-    runs' wall-clock budgets (command timeout, the recorder's shutdown) are for a machine it has to
-    itself."""
+def compare_sweep_arguments() -> list[str]:
+    """``tdslip compare`` on test_analysis_controller_comparison's speeds and strides (without --out)."""
     from test_analysis_controller_comparison import SPEEDS, STRIDES
 
+    return ["compare", "--speeds-bar", *(str(speed) for speed in SPEEDS), "--strides", str(STRIDES)]
+
+
+@pytest.fixture(scope="session")
+def compare_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The output directory of :func:`compare_sweep_arguments`; it exited with status 0. Made by the
+    background child after its runs (lockstep, while the fast tests run), else here."""
+    out = tmp_path_factory.getbasetemp() / "compare"
+    background = sys.modules["analysis_runs"].BACKGROUND if "analysis_runs" in sys.modules else None
+    ran = None if background is None else background.command(compare_sweep_arguments(), out)
+    if ran is not None:
+        assert ran.returncode == 0, ran.stdout[-2000:] + ran.stderr[-2000:]
+        return out
     from tdslip_ros.commands import cli
 
-    out = tmp_path_factory.getbasetemp() / "compare"
-    speeds = [str(speed) for speed in SPEEDS]
-    assert cli.main(["compare", "--out", str(out), "--speeds-bar", *speeds, "--strides", str(STRIDES)]) == 0
+    assert cli.main([*compare_sweep_arguments(), "--out", str(out)]) == 0
     return out
 
 
