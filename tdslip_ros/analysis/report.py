@@ -443,13 +443,18 @@ def headline(comparison: Comparison) -> str:
         *_perturbation_lines(run),
         _policy_text(comparison),
         *_analytic_map_lines(comparison),
-        f"next-apex prediction error, dimensionless, over {comparison.exact_errors.strides} strides:",
-        f"  {'':<30} {'height max':>10} {'mean':>9} {'speed max':>10} {'mean':>9}",
     ]
     rows = [
         (f"analytic map, {c} correction{'s' if c != 1 else ''}", comparison.errors[c]) for c in CORRECTIONS
     ]
     rows.append(("exact map (DOP853)", comparison.exact_errors))
+    if comparison.exact_errors.strides:  # none in a run whose every stance was under stance feedback
+        lines += [
+            f"next-apex prediction error, dimensionless, over {comparison.exact_errors.strides} strides:",
+            f"  {'':<30} {'height max':>10} {'mean':>9} {'speed max':>10} {'mean':>9}",
+        ]
+    else:
+        rows = []
     for label, stats in rows:
         failures = f"  ({stats.failures} predicted to fail)" if stats.failures else ""
         lines.append(
