@@ -9,11 +9,10 @@ from dataclasses import fields
 
 import numpy as np
 import pytest
-from failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import units
 from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, failure_from_code
+from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.exact_kernels import apex_stride, compiled_apex_return_map
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
@@ -85,32 +84,6 @@ def test_random_strides_are_the_batched_engine_s_to_rounding() -> None:
                 atol=1e-12,
                 err_msg=field.name,
             )
-
-
-@pytest.mark.parametrize(
-    ("params", "apex", "command", "kind"),
-    [case[1:5] for case in FAILURE_CASES],
-    ids=[case.name for case in FAILURE_CASES],
-)
-def test_each_failure_per_lane(
-    params: HopperParams, apex: ApexState, command: StanceCommand, kind: FailureKind
-) -> None:
-    """Each named failure in a lane of its own, next to a lane that hops on."""
-    assert apex_return_map(params, apex, command).failure is kind
-    good_apex, good_command = ApexState(1.2, 4.0), StanceCommand(math.radians(20.0), -600.0, 0.15)
-    compiled = compiled_apex_return_map(
-        params,
-        [apex.y, good_apex.y],
-        [apex.xdot, good_apex.xdot],
-        [command.touchdown_angle, good_command.touchdown_angle],
-        [command.tau0, good_command.tau0],
-        [command.t_f, good_command.t_f],
-    )
-    assert failure_from_code(int(compiled.failure[0])) is kind
-    good = apex_return_map(params, good_apex, good_command)
-    assert failure_from_code(int(compiled.failure[1])) is good.failure
-    if good.apex is not None:
-        assert abs(compiled.y[1] - good.apex.y) <= APEX_TOLERANCE * params.r0
 
 
 def test_a_saturated_ramp_is_the_exact_map_s() -> None:
