@@ -95,48 +95,38 @@ def load_sweep(out: Path) -> list[SweepRun]:
 
 
 def analyse_run(out: Path, entry: SweepRun) -> Tracking:
-    """Read one recorded run back and measure how it tracked its target."""
-    targets = {
-        "controller": entry.controller,
-        "target_height": entry.target_height,
-        "target_speed": entry.target_speed,
-        "target_speed_bar": entry.target_speed_bar,
-        "bag": entry.bag,
-        "stance_touchdown_angle": entry.stance_touchdown_angle,
-    }
-    if entry.bag is None:
-        return Tracking(
-            **targets,
-            outcome=NO_TOUCHDOWN_ANGLE,
-            stable=False,
-            converged_at=None,
-            final_height=math.nan,
-            final_speed=math.nan,
-            speed_error_percent=math.nan,
-            height_error_percent=math.nan,
-        )
-    recorded = read_run(out / entry.bag, entry.params)
-    policy = None  # the baseline's law is no ramp policy: its runs are analysed without one
-    if entry.controller in POLICIES:
-        targeted = {"target_height": entry.target_height, "target_speed": entry.target_speed}
-        policy = policy_for_run(recorded, name=entry.controller, **targeted)
-    comparison = compare_run(recorded, policy)
-    last = recorded.strides[-1]
-    completed = recorded.outcome is not None and recorded.outcome.kind == "run_complete"
-    stable = completed and comparison.converged_at is not None
+    """Read one recorded run back and measure how it tracked its target (lost, with no recording, where the
+    baseline had no touchdown angle)."""
+    outcome, converged_at = NO_TOUCHDOWN_ANGLE, None
+    final_height = final_speed = math.nan
+    if entry.bag is not None:
+        recorded = read_run(out / entry.bag, entry.params)
+        policy = None  # the baseline's law is no ramp policy: its runs are analysed without one
+        if entry.controller in POLICIES:
+            targets = {"target_height": entry.target_height, "target_speed": entry.target_speed}
+            policy = policy_for_run(recorded, name=entry.controller, **targets)
+        converged_at = compare_run(recorded, policy).converged_at
+        outcome = recorded.outcome.kind if recorded.outcome is not None else "incomplete recording"
+        final_height, final_speed = recorded.strides[-1].y, recorded.strides[-1].xdot
+    stable = outcome == "run_complete" and converged_at is not None
     return Tracking(
-        **targets,
-        outcome=recorded.outcome.kind if recorded.outcome is not None else "incomplete recording",
+        controller=entry.controller,
+        target_height=entry.target_height,
+        target_speed=entry.target_speed,
+        target_speed_bar=entry.target_speed_bar,
+        outcome=outcome,
         stable=stable,
-        converged_at=comparison.converged_at,
-        final_height=last.y,
-        final_speed=last.xdot,
-        speed_error_percent=100.0 * (last.xdot - entry.target_speed) / entry.target_speed
+        converged_at=converged_at,
+        final_height=final_height,
+        final_speed=final_speed,
+        speed_error_percent=100.0 * (final_speed - entry.target_speed) / entry.target_speed
         if stable
         else math.nan,
-        height_error_percent=100.0 * (last.y - entry.target_height) / entry.target_height
+        height_error_percent=100.0 * (final_height - entry.target_height) / entry.target_height
         if stable
         else math.nan,
+        bag=entry.bag,
+        stance_touchdown_angle=entry.stance_touchdown_angle,
     )
 
 
