@@ -47,7 +47,9 @@ from tdslip_ros.reporting.output import OutputError, output_directory, to_json, 
 DEFAULT_SPEEDS = tuple(float(v) for v in np.round(np.arange(0.5, 3.001, 0.25), 3))
 """Desired apex speeds xdotbar* of the default sweep (dimensionless)."""
 DEFAULT_STRIDES = 50
-COMMAND_TIMEOUT = 2.0  # s wall: a controller that finds no command ends its run quickly
+COMMAND_TIMEOUT = 2.0
+"""s wall: a ramp controller that finds no command ends its run quickly. The baseline answers every apex, so
+its runs keep the plant's own wait (config/plant.yaml), which a slow start under load does not outlast."""
 
 
 def record_sweep(
@@ -85,7 +87,7 @@ def record_sweep(
                 stance_touchdown_angle=angle,
                 target_height=target_height,
                 target_speed=speed,
-                command_timeout=COMMAND_TIMEOUT,
+                command_timeout=None if controller == BASELINE else COMMAND_TIMEOUT,
             )
             try:
                 report = run(options)
