@@ -77,7 +77,7 @@ def record_sweep(
             if angle is not None and math.isnan(angle):
                 runs.append(SweepRun(controller, target_height, speed, speed_bar, None, PAPER_PARAMS))
                 save_sweep(out, runs)
-                progress(f"not run   {controller} xdotbar* = {speed_bar:.3f}: no touchdown angle matches it")
+                progress(f"not run  {controller:<22} xdotbar* = {speed_bar:.3f}: no touchdown angle")
                 continue
             bag = out / "runs" / f"{controller}-xdotbar{speed_bar:.3f}"
             options = RunOptions(
@@ -102,7 +102,7 @@ def record_sweep(
             save_sweep(out, runs)
             outcome = report.outcome
             progress(
-                f"recorded {controller:<8} xdotbar* = {speed_bar:.3f}: {outcome.kind} ({outcome.reason})"
+                f"recorded {controller:<22} xdotbar* = {speed_bar:.3f}: {outcome.kind} ({outcome.reason})"
             )
     return runs
 
