@@ -3,6 +3,8 @@ as argparse's), never a traceback or a hang; a closed output pipe ends every com
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
 import subprocess
 import sys
@@ -17,6 +19,7 @@ from tdslip_ros.nodes.runner import (
     RunOptions,
     RunReport,
     check_options,
+    check_placement,
     controller_overrides,
     run_custom_data,
 )
@@ -163,6 +166,22 @@ def test_run_hands_its_analytic_map_to_the_controller_and_stores_it(tmp_path: Pa
     assert controller_overrides(RunOptions(out=tmp_path / "run"), PAPER_PARAMS)["analytic_map"] is None
     with pytest.raises(RunOptionError, match="analytic map must be one of ours, paper, not 'papr'"):
         check_options(RunOptions(out=tmp_path / "run", analytic_map="papr"))
+
+
+def test_run_hands_the_stance_touchdown_angle_to_the_stance_controller_and_places_the_leg_at_it(
+    tmp_path: Path,
+) -> None:
+    options = RunOptions(out=tmp_path / "run", policy="stance_pd_speed_energy", stance_touchdown_angle=0.3)
+    check_options(options)
+    assert controller_overrides(options, PAPER_PARAMS)["stance_touchdown_angle"] == 0.3
+    assert (
+        "tdslip_ros.controller.stance_touchdown_angle=0.3" in run_custom_data(options, PAPER_PARAMS).split()
+    )
+    # From 0.95 m the leg lands at the installed 22 deg, not at 10 deg (r0 cos(10 deg) is above 0.98 m).
+    low = RunOptions(out=tmp_path / "run", policy="stance_pd_speed_energy", height=0.95)
+    check_placement(low, PAPER_PARAMS)
+    with pytest.raises(RunOptionError, match="at the touchdown angle 10 deg"):
+        check_placement(dataclasses.replace(low, stance_touchdown_angle=math.radians(10.0)), PAPER_PARAMS)
 
 
 def test_a_misspelt_subcommand_gets_the_closest_name(capsys: pytest.CaptureFixture[str]) -> None:

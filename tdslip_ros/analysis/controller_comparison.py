@@ -1,13 +1,17 @@
-"""The deadbeat controller against apex foot placement over desired speeds (fig. 13's tracking errors; the
-paper's baseline, ref. 36's, acts during stance and is the model's fig. 13), from recorded runs:
-the analysis side of ``tdslip compare``, which needs no ROS.
+"""The deadbeat controller against the baseline of the paper's ref. 36 over desired speeds (fig. 13's
+tracking errors in the node suite; the model's fig. 13 is :mod:`tdslip_ros.analysis.figures.tracking`), from
+recorded runs: the analysis side of ``tdslip compare``, which needs no ROS.
 
 The sweep's recorded runs (one per controller and desired apex speed, from the same initial apex, for a
 fixed number of strides; :mod:`tdslip_ros.commands.compare` records them) are listed in ``OUT/sweep.json``.
-Each recording is read back and analysed (:mod:`tdslip_ros.analysis.compare`): a run tracks its target
-when it completed without failure and converged (apex changes below 1e-4 that shrink); its tracking errors
-are the final apex's speed and height relative to the target, in percent. A run that failed or did not
-converge is where the controller loses stability; the figure marks it.
+The baseline, ``stance_pd_speed_energy``, lands at the touchdown angle of its target speed by the model's
+fig. 13 rule (:func:`~tdslip_ros.analysis.figures.tracking.baseline_touchdown_angles`); where the rule
+finds no angle it is not run, and loses stability there (``no_touchdown_angle``). Apex foot placement
+(``apex_foot_placement``, an apex-level policy) can be compared as well. Each recording is read back and
+analysed (:mod:`tdslip_ros.analysis.compare`): a run tracks its target when it completed without failure and
+converged (apex changes below 1e-4 that shrink); its tracking errors are the final apex's speed and height
+relative to the target, in percent. A run that failed or did not converge is where the controller loses
+stability; the figure marks it.
 """
 
 from __future__ import annotations
@@ -23,26 +27,35 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.compare import compare_run, policy_for_run
+from tdslip_ros.analysis.figures.tracking import BASELINE
 from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies import POLICIES
 from tdslip_ros.reporting.style import CONTROLLER_STYLE, DPI
 
-CONTROLLERS = ("deadbeat", "apex_foot_placement")
+CONTROLLERS = ("deadbeat", BASELINE, "apex_foot_placement")
+"""The controllers ``tdslip compare`` can run."""
+DEFAULT_CONTROLLERS = ("deadbeat", BASELINE)
+"""Those it runs unless told: fig. 13's."""
+NO_TOUCHDOWN_ANGLE = "no_touchdown_angle"
+"""The outcome of a baseline's target speed at which the angle rule finds no angle (not run)."""
 MANIFEST = "sweep.json"
 
 
 @dataclass(frozen=True)
 class SweepRun:
-    """One recorded run of the sweep: controller, target apex (SI, and the desired speed xdotbar* as
-    requested), bag directory (relative to the sweep's directory) and the plant's hopper parameters
-    (a run that fails before its first stance holds too little to infer them)."""
+    """One run of the sweep: controller, target apex (SI, and the desired speed xdotbar* as requested),
+    bag directory (relative to the sweep's directory; None: not run, the baseline has no touchdown angle
+    there), the plant's hopper parameters (a run that fails before its first stance holds too little to
+    infer them) and the baseline's touchdown angle [rad] (None for the other controllers)."""
 
     controller: str
     target_height: float
     target_speed: float
     target_speed_bar: float
-    bag: str
+    bag: str | None
     params: HopperParams
+    stance_touchdown_angle: float | None = None
 
     @classmethod
     def from_json(cls, entry: dict[str, Any]) -> SweepRun:
@@ -64,7 +77,8 @@ class Tracking:
     final_speed: float
     speed_error_percent: float
     height_error_percent: float
-    bag: str
+    bag: str | None
+    stance_touchdown_angle: float | None
 
 
 def save_sweep(out: Path, runs: Sequence[SweepRun]) -> None:
@@ -81,32 +95,38 @@ def load_sweep(out: Path) -> list[SweepRun]:
 
 
 def analyse_run(out: Path, entry: SweepRun) -> Tracking:
-    """Read one recorded run back and measure how it tracked its target."""
-    recorded = read_run(out / entry.bag, entry.params)
-    policy = policy_for_run(
-        recorded, name=entry.controller, target_height=entry.target_height, target_speed=entry.target_speed
-    )
-    comparison = compare_run(recorded, policy)
-    last = recorded.strides[-1]
-    completed = recorded.outcome is not None and recorded.outcome.kind == "run_complete"
-    stable = completed and comparison.converged_at is not None
+    """Read one recorded run back and measure how it tracked its target (lost, with no recording, where the
+    baseline had no touchdown angle)."""
+    outcome, converged_at = NO_TOUCHDOWN_ANGLE, None
+    final_height = final_speed = math.nan
+    if entry.bag is not None:
+        recorded = read_run(out / entry.bag, entry.params)
+        policy = None  # the baseline's law is no ramp policy: its runs are analysed without one
+        if entry.controller in POLICIES:
+            targets = {"target_height": entry.target_height, "target_speed": entry.target_speed}
+            policy = policy_for_run(recorded, name=entry.controller, **targets)
+        converged_at = compare_run(recorded, policy).converged_at
+        outcome = recorded.outcome.kind if recorded.outcome is not None else "incomplete recording"
+        final_height, final_speed = recorded.strides[-1].y, recorded.strides[-1].xdot
+    stable = outcome == "run_complete" and converged_at is not None
     return Tracking(
         controller=entry.controller,
         target_height=entry.target_height,
         target_speed=entry.target_speed,
         target_speed_bar=entry.target_speed_bar,
-        outcome=recorded.outcome.kind if recorded.outcome is not None else "incomplete recording",
+        outcome=outcome,
         stable=stable,
-        converged_at=comparison.converged_at,
-        final_height=last.y,
-        final_speed=last.xdot,
-        speed_error_percent=100.0 * (last.xdot - entry.target_speed) / entry.target_speed
+        converged_at=converged_at,
+        final_height=final_height,
+        final_speed=final_speed,
+        speed_error_percent=100.0 * (final_speed - entry.target_speed) / entry.target_speed
         if stable
         else math.nan,
-        height_error_percent=100.0 * (last.y - entry.target_height) / entry.target_height
+        height_error_percent=100.0 * (final_height - entry.target_height) / entry.target_height
         if stable
         else math.nan,
         bag=entry.bag,
+        stance_touchdown_angle=entry.stance_touchdown_angle,
     )
 
 
@@ -157,14 +177,17 @@ def stable_range(results: Sequence[Tracking], controller: str) -> tuple[float, f
 
 
 def table(results: Sequence[Tracking]) -> str:
+    """One row per run; ``td deg``: the baseline's touchdown angle in degrees."""
     rows = [
-        f"{'controller':<10} {'xdotbar*':>8} {'outcome':<16} {'stable':<6} {'conv.':>5} "
+        f"{'controller':<22} {'xdotbar*':>8} {'td deg':>6} {'outcome':<18} {'stable':<6} {'conv.':>5} "
         f"{'speed %':>9} {'height %':>9}"
     ]
     for r in results:
         converged = "-" if r.converged_at is None else str(r.converged_at)
+        angle = "-" if r.stance_touchdown_angle is None else f"{math.degrees(r.stance_touchdown_angle):.2f}"
         rows.append(
-            f"{r.controller:<10} {r.target_speed_bar:>8.3f} {r.outcome:<16} {'yes' if r.stable else 'NO':<6} "
-            f"{converged:>5} {r.speed_error_percent:>9.3f} {r.height_error_percent:>9.3f}"
+            f"{r.controller:<22} {r.target_speed_bar:>8.3f} {angle:>6} {r.outcome:<18} "
+            f"{'yes' if r.stable else 'NO':<6} {converged:>5} {r.speed_error_percent:>9.3f} "
+            f"{r.height_error_percent:>9.3f}"
         )
     return "\n".join(rows)

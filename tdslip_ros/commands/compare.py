@@ -1,12 +1,15 @@
-"""``tdslip compare``: the deadbeat controller against apex foot placement over desired speeds (the tracking
-errors of the paper's fig. 13, against the apex-level policy ``apex_foot_placement`` rather than the paper's
-baseline), from recorded runs.
+"""``tdslip compare``: the deadbeat controller against the baseline of the paper's ref. 36,
+``stance_pd_speed_energy``, over desired speeds (the tracking errors of the paper's fig. 13), from recorded
+runs: fig. 13 in the node suite, beside the model's (``tdslip figures --only fig13``).
 
 For every controller and desired apex speed the node suite runs in lockstep (``tdslip run``'s
 :func:`tdslip_ros.nodes.runner.run`, every run recorded into ``OUT/runs/<controller>-<xdotbar*>``) from the
-same initial apex, for a fixed number of strides, as the paper's 50-step runs; each recording is then
-analysed (:mod:`tdslip_ros.analysis.controller_comparison`). ``OUT/sweep.json`` lists the recorded runs as
-they finish, so ``--analyse-only`` can redo the analysis and figure without running anything;
+model's fig. 13 apex (the node suite's default, 1 m at 5 m/s), for a fixed number of strides, as the paper's
+50-step runs. The baseline's stance controller node answers every tick with its hip torque and lands at the
+touchdown angle of its target speed by the model's fig. 13 rule; a target speed without one is not run
+(:mod:`tdslip_ros.analysis.controller_comparison`). ``--controllers`` adds apex foot placement
+(``apex_foot_placement``). Each recording is then analysed. ``OUT/sweep.json`` lists the runs as they
+finish, so ``--analyse-only`` can redo the analysis and figure without running anything;
 ``OUT/comparison.json`` holds the results and ``OUT/tracking_error.png`` the figure. The recording step
 needs ROS 2 (rclpy); the analysis does not.
 """
@@ -25,6 +28,7 @@ import numpy as np
 
 from tdslip_ros.analysis.controller_comparison import (
     CONTROLLERS,
+    DEFAULT_CONTROLLERS,
     SweepRun,
     analyse_run,
     load_sweep,
@@ -33,6 +37,7 @@ from tdslip_ros.analysis.controller_comparison import (
     stable_range,
     table,
 )
+from tdslip_ros.analysis.figures.tracking import BASELINE, baseline_touchdown_angles
 from tdslip_ros.analysis.reader import RunReadError
 from tdslip_ros.commands.options import command_parser, deprecated
 from tdslip_ros.model import units
@@ -42,7 +47,9 @@ from tdslip_ros.reporting.output import OutputError, output_directory, to_json, 
 DEFAULT_SPEEDS = tuple(float(v) for v in np.round(np.arange(0.5, 3.001, 0.25), 3))
 """Desired apex speeds xdotbar* of the default sweep (dimensionless)."""
 DEFAULT_STRIDES = 50
-COMMAND_TIMEOUT = 2.0  # s wall: a controller that finds no command ends its run quickly
+COMMAND_TIMEOUT = 2.0
+"""s wall: a ramp controller that finds no command ends its run quickly. The baseline answers every apex, so
+its runs keep the plant's own wait (config/plant.yaml), which a slow start under load does not outlast."""
 
 
 def record_sweep(
@@ -50,7 +57,7 @@ def record_sweep(
     speeds_bar: Sequence[float],
     target_height: float,
     strides: int,
-    controllers: Sequence[str] = CONTROLLERS,
+    controllers: Sequence[str] = DEFAULT_CONTROLLERS,
     progress: Callable[[str], None] = print,
 ) -> list[SweepRun]:
     """Run and record every (controller, desired speed) in lockstep; returns the runs (also in MANIFEST)."""
@@ -58,18 +65,29 @@ def record_sweep(
     from tdslip_ros.nodes.runner import RunError, RunOptions, run
 
     out.mkdir(parents=True, exist_ok=True)
+    speeds = np.asarray(units.speed_from_bar(PAPER_PARAMS, np.asarray(speeds_bar, dtype=float)))
+    angles = None
+    if BASELINE in controllers:
+        angles = baseline_touchdown_angles(PAPER_PARAMS, target_height, speeds)
     runs: list[SweepRun] = []
     for controller in controllers:
-        for speed_bar in speeds_bar:
-            speed = float(units.speed_from_bar(PAPER_PARAMS, speed_bar))
+        for index, speed_bar in enumerate(speeds_bar):
+            speed = float(speeds[index])
+            angle = None if angles is None or controller != BASELINE else float(angles[index])
+            if angle is not None and math.isnan(angle):
+                runs.append(SweepRun(controller, target_height, speed, speed_bar, None, PAPER_PARAMS))
+                save_sweep(out, runs)
+                progress(f"not run  {controller:<22} xdotbar* = {speed_bar:.3f}: no touchdown angle")
+                continue
             bag = out / "runs" / f"{controller}-xdotbar{speed_bar:.3f}"
             options = RunOptions(
                 out=bag,
                 strides=strides,
                 policy=controller,
+                stance_touchdown_angle=angle,
                 target_height=target_height,
                 target_speed=speed,
-                command_timeout=COMMAND_TIMEOUT,
+                command_timeout=None if controller == BASELINE else COMMAND_TIMEOUT,
             )
             try:
                 report = run(options)
@@ -80,19 +98,20 @@ def record_sweep(
                     f"warning: {bag} lost messages: published {report.published}, recorded {report.recorded}"
                 )
             relative = str(bag.relative_to(out))
-            runs.append(SweepRun(controller, target_height, speed, speed_bar, relative, report.params))
+            runs.append(SweepRun(controller, target_height, speed, speed_bar, relative, report.params, angle))
             save_sweep(out, runs)
             outcome = report.outcome
             progress(
-                f"recorded {controller:<8} xdotbar* = {speed_bar:.3f}: {outcome.kind} ({outcome.reason})"
+                f"recorded {controller:<22} xdotbar* = {speed_bar:.3f}: {outcome.kind} ({outcome.reason})"
             )
     return runs
 
 
 DESCRIPTION = """\
-Deadbeat against apex foot placement over desired apex speeds (fig. 13's errors), from recorded runs.
-Every controller and desired speed is run by the node suite in lockstep and recorded into OUT/runs;
-each recording is then analysed into OUT/comparison.json and OUT/tracking_error.png.
+Deadbeat against the baseline of the paper's ref. 36 (stance_pd_speed_energy) over desired apex speeds
+(fig. 13's errors), from recorded runs. Every controller and desired speed is run by the node suite in
+lockstep and recorded into OUT/runs; the baseline lands at the touchdown angle of its target speed by the
+model's fig. 13 rule. Each recording is then analysed into OUT/comparison.json and OUT/tracking_error.png.
 --analyse-only redoes the analysis of the runs listed in OUT/sweep.json without ROS."""
 
 
@@ -114,7 +133,11 @@ def parser() -> argparse.ArgumentParser:
     deprecated(parser, height, "--height")
     parser.add_argument("--strides", type=int, default=DEFAULT_STRIDES, help="strides per run")
     parser.add_argument(
-        "--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS), help="the controllers run"
+        "--controllers",
+        nargs="+",
+        choices=CONTROLLERS,
+        default=list(DEFAULT_CONTROLLERS),
+        help=f"the controllers run (default: {' '.join(DEFAULT_CONTROLLERS)})",
     )
     parser.add_argument(
         "--analyse-only", action="store_true", help="re-analyse the runs listed in OUT/sweep.json"

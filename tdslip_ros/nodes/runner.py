@@ -121,6 +121,8 @@ class RunOptions:
     height: float = DEFAULT_APEX_HEIGHT
     speed: float = DEFAULT_APEX_SPEED
     touchdown_angle: float | None = None  # rad
+    stance_touchdown_angle: float | None = None
+    """The fixed touchdown angle of a stance-feedback policy [rad] (its setting of the same name)."""
     target_energy: float | None = None
     target_height: float | None = None
     target_speed: float | None = None
@@ -299,6 +301,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
         return {
             **model,
             "policy": options.policy,
+            "stance_touchdown_angle": options.stance_touchdown_angle,
             "target_height": options.target_height,
             "target_speed": options.target_speed,
         }
@@ -395,9 +398,11 @@ def check_placement(options: RunOptions, params: HopperParams) -> None:
     angle = None
     if options.policy in FIXED_ANGLE_POLICIES:
         angle = DEFAULT_TOUCHDOWN_ANGLE if options.touchdown_angle is None else options.touchdown_angle
-    elif options.policy in STANCE_FEEDBACK_POLICIES:  # its angle is config/controller.yaml's
-        installed = installed_parameters("controller.yaml")
-        angle = float(installed.get("stance_touchdown_angle", DEFAULT_STANCE_TOUCHDOWN_ANGLE))
+    elif options.policy in STANCE_FEEDBACK_POLICIES:  # its angle, else config/controller.yaml's
+        angle = options.stance_touchdown_angle
+        if angle is None:
+            installed = installed_parameters("controller.yaml")
+            angle = float(installed.get("stance_touchdown_angle", DEFAULT_STANCE_TOUCHDOWN_ANGLE))
     try:
         dynamics.check_placement(params, options.height, angle)
     except ParameterError as error:

@@ -21,7 +21,8 @@ CONTROLLER_STYLE = {
     "apex_foot_placement": ("tab:orange", ":"),
 }
 """Colour and line style of the controllers compared over target speeds: deadbeat and ref. 36's baseline as
-the paper draws them in fig. 13 (solid blue, dashed green), and apex foot placement (``tdslip compare``)."""
+the paper draws them in fig. 13 (solid blue, dashed green), and apex foot placement
+(``tdslip compare --controllers``)."""
 POLICY_COLOURS = {
     "open_loop": "tab:orange",
     "energy": "tab:blue",

@@ -69,6 +69,14 @@ def baseline_law(params: HopperParams, target_y: float, target_speeds: Array) ->
     return law_of
 
 
+def baseline_touchdown_angles(params: HopperParams, target_y: float, target_speeds: Array) -> Array:
+    """The baseline's touchdown angle [rad] per target speed [m/s] towards target_y [m] (NaN: none), by the
+    rule of :func:`~tdslip_ros.model.basins.speed_matching_angle`; ``tdslip compare`` runs it by this rule."""
+    speeds = np.asarray(target_speeds, dtype=float)
+    law_of = baseline_law(params, target_y, speeds)
+    return basins.speed_matching_angle(params, np.full(speeds.shape, target_y), speeds, law_of)
+
+
 def _tracked(run: basins.Basin, speeds_bar: Array, speeds: Array, target_y: float) -> dict[str, Any]:
     """A controller's runs in the document: outcomes, final apexes' errors [%] and its stable range."""
     stable = run.outcome == basins.CONVERGED
@@ -106,10 +114,10 @@ def fig13(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
             PARAMS, TARGET_HEIGHT, speeds, START, strides, reporter.strides("deadbeat"), speed
         )
     }
-    law_of = baseline_law(PARAMS, TARGET_HEIGHT, speeds)
     reporter.stage(f"{BASELINE}: the touchdown angle of each target speed")
-    angle = basins.speed_matching_angle(PARAMS, np.full(speeds.shape, TARGET_HEIGHT), speeds, law_of)
+    angle = baseline_touchdown_angles(PARAMS, TARGET_HEIGHT, speeds)
     reporter.stage(f"{BASELINE}: {strides} strides at 1 kHz")
+    law_of = baseline_law(PARAMS, TARGET_HEIGHT, speeds)
     runs[BASELINE] = basins.feedback_basin(PARAMS, START[0], START[1], angle, law_of, strides)
     for name, run in runs.items():
         data[name] = _tracked(run, speeds_bar, speeds, TARGET_HEIGHT)
