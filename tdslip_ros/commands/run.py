@@ -139,6 +139,9 @@ def parser() -> argparse.ArgumentParser:
         parser, what=", the one the policy plans on", unset="config/controller.yaml's analytic_map, ours"
     )
     parser.add_argument(
+        "--policy-file", type=Path, help="the learned policy's file (examples/learn_cem.py writes one)"
+    )
+    parser.add_argument(
         "--timeout",
         type=float,
         help="lockstep: wait this long for a command [s wall] (default: the plant's command_timeout, 5)",
@@ -243,6 +246,7 @@ def main(argv: list[str]) -> int:
         target_height=args.target_height,
         target_speed=args.target_speed,
         analytic_map=args.map,
+        policy_file=None if args.policy_file is None else str(args.policy_file.resolve()),
         command_timeout=args.timeout,
         realtime_priority=args.realtime_priority,
         record_clock=args.record_clock,
