@@ -335,7 +335,10 @@ class PolicySpec:
         if self.name == LEARNED:
             if not self.policy_file:
                 raise PolicyError("the learned policy needs its file (policy_file)")
-            residual = learned.load(self.policy_file)
+            try:
+                residual = learned.load(self.policy_file)
+            except (OSError, ValueError, KeyError) as error:
+                raise PolicyError(f"the learned policy's file {self.policy_file}: {error}") from None
             # The base plans with this spec's corrections (a study's), its other settings the file's.
             defaults = {setting.name: setting.default for setting in POLICY_SETTINGS}
             values = defaults | {"corrections": self.corrections} | dict(residual.base_settings)
