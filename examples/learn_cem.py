@@ -32,7 +32,7 @@ from tdslip_ros.envs import ApexHopVectorEnv, Task
 from tdslip_ros.model import learned, units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies import PolicySpec, settings_of
 from tdslip_ros.model.terrain import Blocks
 from tdslip_ros.studies.robustness import operating_point
 
@@ -126,7 +126,10 @@ def main() -> None:
         apex=apex,
         scale=APEX_SCALE,
         base_policy=policy.name,
-        base_settings={"touchdown_angle": policy.touchdown_angle, "target_energy": policy.target_energy},
+        # The base's settings but corrections, which the learned policy's spec (a study's, the node's) sets.
+        base_settings={
+            s.name: getattr(policy, s.name) for s in settings_of(policy.name) if s.name != "corrections"
+        },
         half_width=np.asarray(config.residual_half_width),
         command_low=np.asarray(config.command_low),
         command_high=np.asarray(config.command_high),
