@@ -51,3 +51,17 @@ def test_a_lockstep_run_of_the_learned_policy_is_recorded_and_replayed_by_the_an
     assert "policy learned" in analysed.stdout and "reproduces the recorded commands" in analysed.stdout
     comparison = json.loads((bag / "report" / "summary.json").read_text())["comparison"]
     assert comparison["policy"]["policy_file"] == policy_file and comparison["policy_reproduced"]
+
+
+def test_a_learned_run_without_a_readable_file_is_refused_before_anything_starts(tmp_path: Path) -> None:
+    spaced = learned_file(tmp_path / "a policy.json")  # readable, but the bag's custom_data splits at spaces
+    for file, reason in (
+        ((), "needs its file (--policy-file)"),
+        (("--policy-file", str(tmp_path / "missing.json")), "cannot read the learned policy's file"),
+        (("--policy-file", spaced), "cannot name a file with spaces"),
+    ):
+        refused = tdslip(
+            "run", "--strides", "1", "--policy", "learned", *file, "--out", str(tmp_path / "bag")
+        )
+        assert refused.returncode == 2 and reason in refused.stderr, refused.stderr
+        assert not (tmp_path / "bag").exists()

@@ -365,6 +365,8 @@ def check_options(options: RunOptions) -> None:
     if options.policy == LEARNED:
         if options.policy_file is None:
             raise RunOptionError("the learned policy needs its file (--policy-file)")
+        if any(character.isspace() for character in options.policy_file):  # custom_data splits at spaces
+            raise RunOptionError(f"the bag cannot name a file with spaces: {options.policy_file!r}")
         try:
             learned.load(options.policy_file)
         except (OSError, ValueError, KeyError) as error:
