@@ -2,18 +2,20 @@
 numpy only, on the vector env (tdslip_ros/ApexHop-v0, docs/envs.md).
 
     python examples/learn_cem.py [--generations 20] [--population 32] [--episodes 8] [--strides 50]
-                                 [--sigma 0.04] [--out runs/cem-policy.npz]
+                                 [--sigma 0.04] [--out runs/cem-policy.json]
 
 The setting is the robustness study's operating point (``tdslip robustness``: beta 26 deg, Ebar 3.5, energy
 regulation's flat-ground fixed point as the initial apex, ``studies/robustness.py``), on random blocks of
 standard deviation ``--sigma`` [m] (0.5 m long, from x = 1 m), the task ``energy`` (hold Ebar 3.5). The action
 is a residual on energy regulation's command: a = clip(W f + b, -1, 1), the features f the measured apex's
-deviation from the operating point (0.1 m, 0.5 m/s) and the ground 0.5 m and 1 m ahead (per 4 cm).
+deviation from the operating point (per 0.1 m, 0.5 m/s; :mod:`tdslip_ros.model.learned`, the evaluation the
+``learned`` policy shares). No ground ahead: the controller node, which runs the saved policy, senses none.
 
 Each generation draws ``--population`` candidates (W, b) from a diagonal Gaussian, runs each on the same
 ``--episodes`` grounds (common random numbers: the candidates differ by their parameters only), all lanes in
 one vector env, and refits the Gaussian to the best fifth. At the end the learned mean and a zero residual
-(energy regulation alone) hop on held-out grounds; the script prints their survival and saves the mean.
+(energy regulation alone) hop on held-out grounds; the script prints their survival and saves the mean as the
+``learned`` policy's file (``tdslip run --policy learned --policy-file FILE``).
 """
 
 from __future__ import annotations
@@ -27,25 +29,24 @@ from pathlib import Path
 import numpy as np
 
 from tdslip_ros.envs import ApexHopVectorEnv, Task
-from tdslip_ros.model import units
+from tdslip_ros.model import learned, units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies import PolicySpec, settings_of
 from tdslip_ros.model.terrain import Blocks
 from tdslip_ros.studies.robustness import operating_point
 
 BETA = math.radians(26.0)
 EBAR = 3.5
-LOOKAHEAD = (0.5, 1.0)
 APEX_SCALE = np.array([0.1, 0.5])  # m, m/s: the features' units of apex deviation
-GROUND_SCALE = 0.04  # m
 ELITE_FRACTION = 0.2
 INITIAL_STD, STD_FLOOR = 0.3, 0.02
 HELD_OUT_SEED = 1_000_000  # evaluation grounds no generation trains on
 
 
 def environment(lanes: int, sigma: float, strides: int) -> tuple[ApexHopVectorEnv, np.ndarray]:
-    """The vector env at the operating point, and the operating point's apex (y [m], xdot [m/s])."""
+    """The vector env at the operating point (no ground ahead observed), and the operating point's apex
+    (y [m], xdot [m/s])."""
     energy = units.energy_from_bar(PAPER_PARAMS, EBAR)
     point = operating_point(PAPER_PARAMS, BETA, energy)
     policy = replace(PolicySpec.default("energy"), touchdown_angle=BETA, target_energy=energy)
@@ -54,7 +55,6 @@ def environment(lanes: int, sigma: float, strides: int) -> tuple[ApexHopVectorEn
         policy=policy,
         task=Task("energy", target=energy),
         perturbations=Perturbations(terrain=Blocks(sigma=sigma, length=0.5, start=1.0)),
-        lookahead=LOOKAHEAD,
         max_strides=strides,
         initial_height=(point.y, point.y),
         initial_speed=(point.xdot, point.xdot),
@@ -62,23 +62,18 @@ def environment(lanes: int, sigma: float, strides: int) -> tuple[ApexHopVectorEn
     return env, np.array([point.y, point.xdot])
 
 
-def features(observation: np.ndarray, apex: np.ndarray) -> np.ndarray:
-    """(lanes, 4): apex deviation and the ground ahead, scaled (the observation's target is left out)."""
-    return np.hstack([(observation[:, :2] - apex) / APEX_SCALE, observation[:, 3:] / GROUND_SCALE])
-
-
 def episodes(
     env: ApexHopVectorEnv, apex: np.ndarray, weights: np.ndarray, seeds: list[int]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One episode per lane, lane i under weights[i] (acted x (features + 1)) on the ground of seeds[i]:
+    """One episode per lane, lane i under weights[i] (3 x (features + 1)) on the ground of seeds[i]:
     each lane's return and whether it survived the stride budget."""
     observation, _ = env.reset(seed=seeds)
     returns = np.zeros(env.num_envs)
     running = np.ones(env.num_envs, dtype=bool)
     survived = np.zeros(env.num_envs, dtype=bool)
     while np.any(running):
-        f = np.hstack([features(observation, apex), np.ones((env.num_envs, 1))])
-        action = np.clip(np.einsum("laf,lf->la", weights, f), -1.0, 1.0)
+        f = learned.apex_features(observation[:, 0], observation[:, 1], apex, APEX_SCALE)
+        action = learned.linear_action(weights, f)
         observation, reward, terminated, truncated, _ = env.step(action)
         returns += np.where(running, reward, 0.0)
         survived |= running & truncated
@@ -93,11 +88,11 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=8, help="grounds each candidate hops on")
     parser.add_argument("--strides", type=int, default=50, help="the stride budget of an episode")
     parser.add_argument("--sigma", type=float, default=0.04, help="block height standard deviation [m]")
-    parser.add_argument("--out", type=Path, default=Path("runs/cem-policy.npz"))
+    parser.add_argument("--out", type=Path, default=Path("runs/cem-policy.json"))
     args = parser.parse_args()
     lanes = args.population * args.episodes
     env, apex = environment(lanes, args.sigma, args.strides)
-    acted, size = env.config.acted, 2 + len(LOOKAHEAD) + 1
+    acted, size = env.config.acted, len(learned.FEATURES) + 1
     mean, std = np.zeros(acted * size), np.full(acted * size, INITIAL_STD)
     elite = max(2, round(ELITE_FRACTION * args.population))
     rng = np.random.default_rng(0)
@@ -124,9 +119,23 @@ def main() -> None:
             f"held out, {lanes} grounds: {name:18s} survived {survived.mean():5.1%}, "
             f"return {returns.mean():.2f}"
         )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(args.out, weights=mean.reshape(acted, size), std=std.reshape(acted, size))
-    print(f"saved the learned mean (W | b, rows {acted} command fields) to {args.out}")
+    config, policy = env.config, env.config.policy
+    assert policy is not None  # the env is residual
+    residual = learned.LinearResidual(
+        weights=mean.reshape(acted, size),
+        apex=apex,
+        scale=APEX_SCALE,
+        base_policy=policy.name,
+        # The base's settings but corrections, which the learned policy's spec (a study's, the node's) sets.
+        base_settings={
+            s.name: getattr(policy, s.name) for s in settings_of(policy.name) if s.name != "corrections"
+        },
+        half_width=np.asarray(config.residual_half_width),
+        command_low=np.asarray(config.command_low),
+        command_high=np.asarray(config.command_high),
+    )
+    learned.save(residual, args.out)
+    print(f"saved the learned mean as the learned policy's file {args.out} (final std {std.mean():.3f})")
 
 
 if __name__ == "__main__":

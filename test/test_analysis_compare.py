@@ -28,7 +28,7 @@ from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams
-from tdslip_ros.model.policies import STANCE_PD_SPEED_ENERGY, PolicyError, PolicySpec, settings_of
+from tdslip_ros.model.policies import LEARNED, STANCE_PD_SPEED_ENERGY, PolicyError, PolicySpec, settings_of
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes.runner import RunReport
 
@@ -303,8 +303,9 @@ def _spec(name: str, **values: float) -> PolicySpec:
         "foot_placement_kd": 0.03,
         "corrections": 1,
         "analytic_map": "ours",
-        # The stance-feedback policy's, which no ramp policy reads.
+        # The stance-feedback policy's and the learned one's, which these policies do not read.
         **{setting.name: setting.default for setting in settings_of(STANCE_PD_SPEED_ENERGY)},
+        **{setting.name: setting.default for setting in settings_of(LEARNED)},
     }
     return PolicySpec(name=name, **{**defaults, **values})  # type: ignore[arg-type]
 

@@ -9,8 +9,11 @@ placement.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from learned_policy import learned_file
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic import ANALYTIC_MAPS, approximate_map, speed_from_energy
@@ -326,7 +329,7 @@ def test_energy_exact_holds_the_exact_plant_at_its_target_energy_to_1e_10_every_
     assert result.apex.energy(PARAMS) == pytest.approx(ApexState(1.1, 4.5).energy(PARAMS), rel=1e-11)
 
 
-def test_every_policy_is_served_by_its_spec() -> None:
+def test_every_policy_is_served_by_its_spec(tmp_path: Path) -> None:
     values = dict.fromkeys(PolicySpec.settings(), 1.0) | {
         "touchdown_angle": np.radians(24.0),
         "touchdown_power": float(units.power_from_alpha(PARAMS, 1.2)),
@@ -335,6 +338,7 @@ def test_every_policy_is_served_by_its_spec() -> None:
         "target_speed": 4.6,
         "foot_placement_kp": 0.06,
         "foot_placement_kd": 0.03,
+        "policy_file": learned_file(tmp_path / "learned.json"),
     }
     for name in POLICIES:
         for analytic_map in ANALYTIC_MAPS:  # on either analytic map

@@ -7,21 +7,24 @@ import importlib.util
 import math
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from learned_policy import learned_file
 
 from tdslip_ros.envs import ENV_ID, ApexHopEnv, ApexHopVectorEnv, Task
 from tdslip_ros.envs.lanes import terrain_seed
+from tdslip_ros.model import learned
 from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
 from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies import LEARNED, PolicySpec
 from tdslip_ros.model.terrain import Blocks
 
 PERTURBED = Perturbations(
@@ -161,13 +164,31 @@ def test_the_cem_example_trains_and_saves(
     assert spec is not None and spec.loader is not None
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
-    out = tmp_path / "policy.npz"
+    out = tmp_path / "policy.json"
     arguments = "--generations 1 --population 4 --episodes 2 --strides 3"
     monkeypatch.setattr(sys, "argv", ["learn_cem.py", *arguments.split(), "--out", str(out)])
     example.main()
     printed = capsys.readouterr().out
     assert "generation   1" in printed and "learned residual" in printed
-    assert np.load(out)["weights"].shape == (3, 5)
+    residual = learned.load(out)  # the learned policy's file
+    assert residual.weights.shape == (3, 3) and residual.base_policy == "energy"
+
+
+def test_the_learned_policy_commands_what_the_residual_env_applies(tmp_path: Path) -> None:
+    """One source: the residual env on the learned file's base, acted on by the file's residual, applies at
+    each measured apex the command the ``learned`` policy answers that apex with."""
+    policy = replace(PolicySpec.default(LEARNED), policy_file=learned_file(tmp_path / "policy.json"))
+    residual = learned.load(policy.policy_file)
+    noisy = Perturbations(sensing=SensingNoise(height=0.01, speed=0.05))  # measured apexes off the true
+    env = ApexHopEnv(policy=PolicySpec.default("energy"), task="energy", perturbations=noisy)
+    observation, _ = env.reset(seed=3)
+    for _ in range(5):
+        answered = policy.commands(PAPER_PARAMS, observation[0], observation[1], observation[1])
+        action = residual.action(observation[0], observation[1])[0]
+        assert np.any(np.abs(action) > 0.05)  # the residual moves the command
+        observation, _, terminated, _, info = env.step(action)
+        assert [info[name] for name in ("touchdown_angle", "tau0", "t_f")] == list(answered)
+        assert not terminated, info["failure"]
 
 
 def test_the_liftoff_rule_ends_the_ramp_at_the_predicted_liftoff() -> None:

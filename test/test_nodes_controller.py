@@ -4,8 +4,11 @@ policy and targets change at runtime through validated parameters."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from pathlib import Path
 
 import pytest
+from learned_policy import learned_file
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ros_harness import RosGraph
@@ -13,6 +16,7 @@ from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.model import controllers, units
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS
@@ -135,6 +139,20 @@ def test_an_apex_without_a_command_gets_no_answer(ros: RosGraph) -> None:
     bench.apex.publish(apex_event(0, 0.5, 5.0))
     answer = bench.answer(1, 1.0, 5.0)  # answers come in order: the first apex produced nothing
     assert answer.stride == 1 and len(bench.commands) == 1
+
+
+def test_the_learned_policy_answers_from_its_file_and_not_without_one(ros: RosGraph, tmp_path: Path) -> None:
+    bench = Bench(ros)
+    assert bench.set(policy="learned", policy_file=str(tmp_path / "missing.json"))
+    bench.apex.publish(apex_event(0, 1.0, 5.0))  # unreadable file: logged, no answer
+    # Heard (it keeps the apex's speed for the next), before the file is set: no public sign of a refusal.
+    bench.ros.spin_until(lambda: bench.controller._previous_speed == 5.0, "the controller to hear apex 0")
+    policy_file = learned_file(tmp_path / "policy.json")
+    assert bench.set(policy_file=policy_file)
+    answer = bench.answer(1, 0.98, 4.9)
+    assert answer.stride == 1 and len(bench.commands) == 1 and answer.policy == "learned"
+    spec = replace(PolicySpec.default("learned"), policy_file=policy_file)
+    assert fields(answer) == fields(spec.commands(PARAMS, 0.98, 4.9, 4.9).command())
 
 
 @pytest.mark.parametrize("policy", ["energy", "open_loop"])

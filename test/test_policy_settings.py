@@ -15,6 +15,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 import yaml  # type: ignore[import-untyped]
+from learned_policy import WEIGHTS, learned_file
 from rclpy.parameter import Parameter
 
 from tdslip_ros.analysis.report import policy_settings_text
@@ -24,6 +25,7 @@ from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.policies import (
     ANALYTIC_MAP_POLICIES,
     DEFAULT_POLICY,
+    LEARNED,
     POLICIES,
     POLICY_SETTINGS,
     STANCE_PD_SPEED_ENERGY,
@@ -102,8 +104,29 @@ def _commands(spec: PolicySpec, apex: tuple[float, float, float] = APEX) -> np.n
     return np.array(list(spec.commands(PAPER_PARAMS, *apex)), dtype=float)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def learned_files(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The learned policy's file, and another of other weights (its setting changed)."""
+    directory = tmp_path_factory.mktemp("learned")
+    LEARNED_FILES.extend(
+        (learned_file(directory / "policy.json"), learned_file(directory / "other.json", 0.5 * WEIGHTS))
+    )
+
+
+LEARNED_FILES: list[str] = []
+
+
+def _default(policy: str) -> PolicySpec:
+    """The policy at its defaults; the learned policy with its file."""
+    spec = PolicySpec.default(policy)
+    return replace(spec, policy_file=LEARNED_FILES[0]) if policy == LEARNED else spec
+
+
 def _changed(setting: PolicySetting) -> Any:
-    """Another valid value of the setting, close to the default (the next choice of a text setting)."""
+    """Another valid value of the setting, close to the default (the next choice of a text setting, the other
+    learned file)."""
+    if setting.name == "policy_file":
+        return LEARNED_FILES[1]
     if setting.kind is str:
         return next(choice for choice in setting.choices if choice != setting.default)
     if setting.kind is int:
@@ -143,7 +166,7 @@ def _responds(spec: PolicySpec, setting: PolicySetting) -> bool:
 def test_a_policy_uses_exactly_the_settings_declared_for_it(policy: str) -> None:
     """Changing a setting changes the policy's command where the declaration says the policy uses it, and
     only there."""
-    spec = PolicySpec.default(policy)
+    spec = _default(policy)
     assert np.all(np.isfinite(_commands(spec)))
     for setting in POLICY_SETTINGS:
         used = policy in setting.policies
@@ -221,7 +244,10 @@ def test_the_controller_node_has_a_parameter_per_setting() -> None:
         descriptor = spec.descriptor()
         assert descriptor.description == setting.text
         assert spec.choices == setting.choices, setting.name
-        if setting.kind is str:  # its choices, checked by the node's on-set callback, and no range
+        if setting.kind is str and not setting.choices:  # a free text: any string, no range
+            assert not descriptor.additional_constraints and not descriptor.floating_point_range
+            assert parameters.validate(controller_node.SPECS, [Parameter(setting.name, value="any/path")])
+        elif setting.kind is str:  # its choices, checked by the node's on-set callback, and no range
             assert descriptor.additional_constraints == "one of: " + ", ".join(setting.choices)
             assert not descriptor.integer_range and not descriptor.floating_point_range, setting.name
             refused = parameters.validate(controller_node.SPECS, [Parameter(setting.name, value="papr")])
@@ -310,7 +336,7 @@ def test_the_study_design_has_a_column_per_setting_with_its_unit() -> None:
 
 @pytest.mark.parametrize("policy", POLICIES)
 def test_the_report_gives_the_settings_the_policy_uses(policy: str) -> None:
-    text = policy_settings_text(PolicySpec.default(policy), PAPER_PARAMS)
+    text = policy_settings_text(PolicySpec.default(policy), PAPER_PARAMS)  # no file read
     assert re.findall(r"(\w+) = ", text) == [setting.name for setting in settings_of(policy)]
     for setting in settings_of(policy):
         unit = f" {setting.unit}" if setting.unit else ""

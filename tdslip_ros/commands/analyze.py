@@ -15,7 +15,14 @@ from pathlib import Path
 
 from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
-from tdslip_ros.commands.options import add_analytic_map, add_touchdown_angle, command_parser, deprecated
+from tdslip_ros.commands.options import (
+    add_analytic_map,
+    add_policy_file,
+    add_touchdown_angle,
+    command_parser,
+    deprecated,
+    policy_file,
+)
 from tdslip_ros.model.policies import POLICIES, PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
@@ -75,6 +82,7 @@ def parser() -> argparse.ArgumentParser:
         what="; the per-stride predictions, the policy's replay and its closed loop use it",
         unset="the recording's, else ours",
     )
+    add_policy_file(policy)
     return parser
 
 
@@ -116,6 +124,7 @@ def main(argv: list[str]) -> int:
         "foot_placement_kd": args.foot_placement_kd,
         "corrections": args.corrections,
         "analytic_map": args.map,
+        "policy_file": policy_file(args),
     }
     created = not out.exists()
     try:  # usage errors: exit status 2, as argparse's

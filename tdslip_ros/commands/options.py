@@ -12,6 +12,7 @@ import argparse
 import math
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
@@ -159,6 +160,20 @@ def add_analytic_map(parser: argparse.ArgumentParser | Any, what: str = "", unse
         help="the analytic map: ours (next apex speed from the energy balance) or paper (from eq. 7's "
         f"liftoff velocity, as printed){what} (default: {unset or default})",
     )
+
+
+def add_policy_file(parser: argparse.ArgumentParser | Any) -> None:
+    """``--policy-file FILE``, the learned policy's file (model.learned); read it with :func:`policy_file`."""
+    parser.add_argument(
+        "--policy-file",
+        type=Path,
+        help="the learned policy's file, examples/learn_cem.py writes one (default: none; needed by learned)",
+    )
+
+
+def policy_file(args: argparse.Namespace) -> str | None:
+    """The learned policy's file, absolute (the nodes and the study's workers run elsewhere), or None."""
+    return None if args.policy_file is None else str(args.policy_file.resolve())
 
 
 def analytic_map_speed(args: argparse.Namespace) -> SpeedSource:

@@ -41,14 +41,16 @@ from pathlib import Path
 from tdslip_ros.commands.options import (
     add_analytic_map,
     add_energy_bar,
+    add_policy_file,
     add_touchdown_angle,
     command_parser,
+    policy_file,
     touchdown_angle_error,
 )
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.policies import DEFAULT_TARGET_ENERGY, POLICIES
+from tdslip_ros.model.policies import DEFAULT_TARGET_ENERGY, LEARNED, POLICIES
 from tdslip_ros.studies.design import StudyError
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
 from tdslip_ros.studies.robustness import KINDS, write_robustness
@@ -73,8 +75,13 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument("--samples", type=positive_int, default=30, help="trajectories per size and policy")
     parser.add_argument("--strides", type=positive_int, default=50, help="strides that count as surviving")
     parser.add_argument(
-        "--policies", nargs="+", choices=POLICIES, default=list(POLICIES), help="the policies"
+        "--policies",
+        nargs="+",
+        choices=POLICIES,
+        default=[policy for policy in POLICIES if policy != LEARNED],
+        help="the policies (learned: with --policy-file)",
     )
+    add_policy_file(parser)
     parser.add_argument(
         "--kinds", nargs="+", choices=list(KINDS), default=list(KINDS), help="the kinds of perturbation"
     )
@@ -108,6 +115,8 @@ def main(argv: list[str]) -> int:
         params = PAPER_PARAMS
         if (reason := touchdown_angle_error(args.touchdown_angle_deg)) is not None:
             raise StudyError(reason)
+        if LEARNED in policies and args.policy_file is None:
+            raise StudyError("the learned policy needs its file (--policy-file)")
         write_robustness(
             args.out,
             params,
@@ -122,6 +131,7 @@ def main(argv: list[str]) -> int:
             where_of(args),
             args.resume,
             args.map,
+            policy_file(args) or "",
         )
 
     status = run_study_command("robustness", args.out, produce)

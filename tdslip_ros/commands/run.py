@@ -18,8 +18,10 @@ from tdslip_msgs.msg import ApexEvent
 from tdslip_ros.commands.options import (
     add_analytic_map,
     add_initial_apex,
+    add_policy_file,
     add_touchdown_angle,
     command_parser,
+    policy_file,
     touchdown_angle_error,
 )
 from tdslip_ros.interfaces import resolve
@@ -138,6 +140,7 @@ def parser() -> argparse.ArgumentParser:
     add_analytic_map(
         parser, what=", the one the policy plans on", unset="config/controller.yaml's analytic_map, ours"
     )
+    add_policy_file(parser)
     parser.add_argument(
         "--timeout",
         type=float,
@@ -243,6 +246,7 @@ def main(argv: list[str]) -> int:
         target_height=args.target_height,
         target_speed=args.target_speed,
         analytic_map=args.map,
+        policy_file=policy_file(args),
         command_timeout=args.timeout,
         realtime_priority=args.realtime_priority,
         record_clock=args.record_clock,

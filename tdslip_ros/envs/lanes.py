@@ -25,6 +25,7 @@ from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
+from tdslip_ros.model.learned import residual_command
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import DRAW_BLOCK, Perturbations
 from tdslip_ros.model.terrain import Blocks, IntArray, Terrain
@@ -193,7 +194,7 @@ class HopperLanes:
             answered = np.all(np.isfinite(planned_rows), axis=0)
             self.policy_command[:, lanes[answered]] = planned_rows[:, answered]
             centre, half_width = self.policy_command[:, lanes], self._residual_half_width
-        command: FloatArray = np.clip(centre + half_width * acted, self._low, self._high)
+        command: FloatArray = residual_command(centre, half_width, acted, self._low, self._high)
         if config.ramp_duration == LIFTOFF_RULE:
             liftoff = ramp_to_liftoff(
                 self._controller, self.measured[0, lanes], self.measured[1, lanes], command[0], command[1]

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy.typing as npt
 
-from tdslip_ros.model import units
+from tdslip_ros.model import learned, units
 from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.controllers import (
@@ -45,7 +45,9 @@ from tdslip_ros.model.stance_laws import (
     StancePDSpeedEnergy,
 )
 
-POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "apex_foot_placement")
+LEARNED = "learned"
+"""A learned linear residual on a base policy, read from the file ``policy_file`` (:mod:`.learned`)."""
+POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "apex_foot_placement", LEARNED)
 """The policies that answer an apex with a ramp command (:meth:`PolicySpec.commands`)."""
 STANCE_PD_SPEED_ENERGY = "stance_pd_speed_energy"
 """The baseline of the paper's ref. 36: an energy term for height and PD on forward speed, fed back at every
@@ -79,7 +81,7 @@ DEFAULT_TARGET_ENERGY = PAPER_PARAMS.m * (PAPER_PARAMS.g * DEFAULT_APEX_HEIGHT +
 class PolicySetting:
     """One setting of the policies, used by ``policies``: a number of type ``kind`` (float or int) in [lower,
     upper], in ``unit`` (SI; "" where it has none), or a text (``kind`` str) that is one of ``choices``, with
-    no range (lower and upper None) and no unit."""
+    no range (lower and upper None) and no unit. A text without choices is free (a file path), default ""."""
 
     name: str
     kind: type[float] | type[int] | type[str]
@@ -97,7 +99,7 @@ class PolicySetting:
         if self.kind is str:
             if self.lower is not None or self.upper is not None or self.unit:
                 raise ValueError(f"{self.name}: a text setting has choices, not a range or a unit")
-            if self.default not in self.choices:
+            if self.default not in (self.choices or ("",)):
                 raise ValueError(f"{self.name}: default {self.default!r} is not one of {self.choices}")
         else:
             if self.choices or self.lower is None or self.upper is None:
@@ -199,6 +201,16 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         choices=tuple(ANALYTIC_MAPS),
     ),
     PolicySetting(
+        "policy_file",
+        str,
+        "",
+        None,
+        None,
+        "",
+        "the learned policy's file (JSON, model/learned.py)",
+        (LEARNED,),
+    ),
+    PolicySetting(
         "stance_touchdown_angle",
         float,
         "rad",
@@ -267,6 +279,7 @@ class PolicySpec:
     foot_placement_kd: float
     corrections: int
     analytic_map: str
+    policy_file: str
     stance_touchdown_angle: float
     stance_energy_gain: float
     stance_speed_gain: float
@@ -319,6 +332,18 @@ class PolicySpec:
                 corrections=self.corrections,
                 speed=self.speed,
             )
+        if self.name == LEARNED:
+            if not self.policy_file:
+                raise PolicyError("the learned policy needs its file (policy_file)")
+            try:
+                residual = learned.load(self.policy_file)
+            except (OSError, ValueError, KeyError) as error:
+                raise PolicyError(f"the learned policy's file {self.policy_file}: {error}") from None
+            # The base plans with this spec's corrections (a study's), its other settings the file's.
+            defaults = {setting.name: setting.default for setting in POLICY_SETTINGS}
+            values = defaults | {"corrections": self.corrections} | dict(residual.base_settings)
+            base = PolicySpec.of(residual.base_policy, values)
+            return residual.commands(base.commands(params, y, xdot, previous_xdot), y, xdot)
         if self.name in STANCE_FEEDBACK_POLICIES:
             raise PolicyError(f"{self.name} answers with stance feedback, not a ramp (stance_feedback)")
         raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")

@@ -40,7 +40,14 @@ from tdslip_ros.model import controllers
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.policies import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS, PolicySetting, PolicySpec
+from tdslip_ros.model.policies import (
+    DEFAULT_POLICY,
+    POLICIES,
+    POLICY_SETTINGS,
+    PolicyError,
+    PolicySetting,
+    PolicySpec,
+)
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, wait_for_matching
 from tdslip_ros.nodes.parameters import ParameterSpec
@@ -82,7 +89,8 @@ class ControllerNode(Node):
 
     def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
         """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
-        ParameterError if the policy has none (e.g. the leg cannot be placed from this apex)."""
+        ParameterError if the policy has none (e.g. the leg cannot be placed from this apex), PolicyError if
+        its settings cannot serve (the learned policy's file unreadable)."""
         settings = PolicySpec.settings()
         spec = PolicySpec.of(
             policy, {parameter.name: parameter.value for parameter in self.get_parameters(settings)}
@@ -98,7 +106,7 @@ class ControllerNode(Node):
         height, speed = apex.measured_height - apex.ground_height, apex.measured_forward_speed
         try:
             command = self.plan(policy, height, speed)
-        except ParameterError as error:
+        except (ParameterError, PolicyError) as error:
             self.get_logger().error(
                 f"{policy}: no command for apex {apex.stride} (y = {height:.6g} m above the ground, "
                 f"xdot = {speed:.6g} m/s): {error}"

@@ -62,7 +62,7 @@ from tdslip_ros.interfaces import (
     perturbation_parameters,
     resolve,
 )
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import dynamics, learned
 from tdslip_ros.model.analytic import ANALYTIC_MAPS
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
@@ -73,6 +73,7 @@ from tdslip_ros.model.policies import (
     DEFAULT_STANCE_TOUCHDOWN_ANGLE,
     DEFAULT_TOUCHDOWN_ANGLE,
     FIXED_ANGLE_POLICIES,
+    LEARNED,
     POLICIES,
     STANCE_FEEDBACK_POLICIES,
 )
@@ -128,6 +129,8 @@ class RunOptions:
     target_speed: float | None = None
     analytic_map: str | None = None
     """The analytic map the controller's policy plans on (model.analytic.ANALYTIC_MAPS: ours, paper)."""
+    policy_file: str | None = None
+    """The learned policy's file (model.learned), absolute: the controller node reads it."""
     command_timeout: float | None = None
     realtime_priority: int | None = None
     """SCHED_FIFO priority of the realtime plant's tick thread (0: normal scheduling)."""
@@ -313,6 +316,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
         "target_height": options.target_height,
         "target_speed": options.target_speed,
         "analytic_map": options.analytic_map,
+        "policy_file": options.policy_file,
     }
 
 
@@ -361,6 +365,15 @@ def check_options(options: RunOptions) -> None:
         raise RunOptionError(
             f"analytic map must be one of {', '.join(ANALYTIC_MAPS)}, not {options.analytic_map!r}"
         )
+    if options.policy == LEARNED:
+        if options.policy_file is None:
+            raise RunOptionError("the learned policy needs its file (--policy-file)")
+        if any(character.isspace() for character in options.policy_file):  # custom_data splits at spaces
+            raise RunOptionError(f"the bag cannot name a file with spaces: {options.policy_file!r}")
+        try:
+            learned.load(options.policy_file)
+        except (OSError, ValueError, KeyError) as error:
+            raise RunOptionError(f"cannot read the learned policy's file: {error}") from None
     try:
         perturbation_parameters(options.perturbations)  # per-lane values have no node parameters
     except ParameterError as error:

@@ -29,6 +29,7 @@ POLICY_COLOURS = {
     "energy_exact": "tab:purple",
     "deadbeat": "tab:red",
     "apex_foot_placement": "tab:green",
+    "learned": "tab:brown",
 }
 """Colour of each policy where policies are compared over perturbations (robustness, rough terrain)."""
 

@@ -47,12 +47,13 @@ HOPPER_PARAMETERS = ("kbar", "zeta0")
 POLICY_PARAMETERS = tuple(setting.name for setting in POLICY_SETTINGS if setting.name != "corrections")
 """The policies' settings, a value per trajectory (corrections: one per study, Study.corrections)."""
 CHOICE_SETTINGS = tuple(setting.name for setting in POLICY_SETTINGS if setting.kind is str)
-"""The policies' settings of text choices (analytic_map): string columns, one value per engine call."""
+"""The policies' text settings (analytic_map, and the free policy_file): string columns, one value per engine
+call."""
 CHOICES: dict[str, tuple[str, ...]] = {
     "policy": POLICIES,
     **{setting.name: setting.choices for setting in POLICY_SETTINGS if setting.kind is str},
 }
-"""The parameters of text choices, with their choices: ``policy`` and CHOICE_SETTINGS."""
+"""The text parameters, with their choices (none for a free text): ``policy`` and CHOICE_SETTINGS."""
 START_PARAMETERS = ("y0", "xdot0", "energy0")
 NUMERIC_PARAMETERS = (
     HOPPER_PARAMETERS
@@ -235,7 +236,7 @@ class Study:
 
     def _check_value(self, name: str, value: str | float) -> None:
         if name in CHOICES:
-            if value not in CHOICES[name]:
+            if not isinstance(value, str) or (CHOICES[name] and value not in CHOICES[name]):
                 raise StudyError(f"unknown {name} {value!r}; one of {', '.join(CHOICES[name])}")
             return
         if isinstance(value, str):

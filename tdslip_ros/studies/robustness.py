@@ -138,9 +138,11 @@ def studies(
     strides: int,
     seed: int,
     mismatch_field: str,
+    policy_file: str = "",
 ) -> dict[str, Study]:
     """One study per kind: a grid of policy x size, ``samples`` trajectories per cell with their own draws,
-    from the operating point (the sizes of each kind as ``tdslip robustness --help`` describes them)."""
+    from the operating point (the sizes of each kind as ``tdslip robustness --help`` describes them); the
+    learned policy reads ``policy_file``."""
     made = {}
     for name in kinds:
         axis, values = KINDS[name].axis(name, params, mismatch_field)
@@ -150,7 +152,8 @@ def studies(
             samples=samples,
             fixed=point.settings
             | analytic_map_fixed(point.analytic_map)
-            | {"y0": point.y, "xdot0": point.xdot},
+            | {"y0": point.y, "xdot0": point.xdot}
+            | ({"policy_file": policy_file} if policy_file else {}),
             start="speed",
             strides=strides,
             seed=seed,
@@ -309,12 +312,14 @@ def write_robustness(
     where: engine.Where,
     resume: bool,
     analytic_map: str = DEFAULT_ANALYTIC_MAP,
+    policy_file: str = "",
 ) -> None:
     """Run one study per kind from the operating point at touchdown angle beta [rad] and apex energy [J],
-    the policies planning on ``analytic_map``, into ``out/<kind>`` on the engine ``where``, and write the
-    figures, summary.csv, robustness.md and summary.json to ``out`` (the module docstring)."""
+    the policies planning on ``analytic_map`` (the learned one reading ``policy_file``), into ``out/<kind>``
+    on the engine ``where``, and write the figures, summary.csv, robustness.md and summary.json to ``out``
+    (the module docstring)."""
     point = operating_point(params, beta, energy, analytic_map)
-    made = studies(kinds, policies, point, params, samples, strides, seed, mismatch_field)
+    made = studies(kinds, policies, point, params, samples, strides, seed, mismatch_field, policy_file)
     output_directory(out)
     tables = engine.run_studies(made, out, where, resume, "robustness")
     summary = [row for name in kinds for row in summarise(name, made[name], tables[name])]

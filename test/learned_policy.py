@@ -1,0 +1,32 @@
+"""Files of the ``learned`` policy for the tests: a linear residual on energy regulation at its default
+settings, around the default apex, with the environments' default action scaling."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from tdslip_ros.envs.config import DEFAULT_COMMAND_HIGH, DEFAULT_COMMAND_LOW, DEFAULT_RESIDUAL_HALF_WIDTH
+from tdslip_ros.model import learned
+from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
+
+WEIGHTS = np.array([[-0.3, 0.2, 0.1], [0.4, -0.2, 0.05], [0.0, 0.1, -0.2]])
+"""W | b of a residual that moves every command field at and around the default apex."""
+
+
+def learned_file(path: Path, weights: npt.ArrayLike = WEIGHTS) -> str:
+    """Write the residual of ``weights`` on energy regulation to ``path``; the path, as the setting is."""
+    residual = learned.LinearResidual(
+        weights=np.asarray(weights, dtype=np.float64),
+        apex=np.array([DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED]),
+        scale=np.array([0.1, 0.5]),
+        base_policy="energy",
+        base_settings={},
+        half_width=np.asarray(DEFAULT_RESIDUAL_HALF_WIDTH),
+        command_low=np.asarray(DEFAULT_COMMAND_LOW),
+        command_high=np.asarray(DEFAULT_COMMAND_HIGH),
+    )
+    learned.save(residual, path)
+    return str(path)
