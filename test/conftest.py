@@ -77,9 +77,11 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     runs = tuple(dict.fromkeys(name for name in used if name in RECORDED_RUNS))
     # The session's tmp_path_factory (pytest's tmpdir plugin keeps it there; fixtures are not up yet).
     factory: pytest.TempPathFactory = session.config._tmp_path_factory  # type: ignore[attr-defined]
-    # A module's IN_BACKGROUND: tdslip run processes of its tests, by test name (test_nodes_run.py); then
-    # the compare_sweep fixture's tdslip compare.
-    commands = {
+    # The compare_sweep fixture's tdslip compare (test_analysis_controller_comparison.py, the second node
+    # module), then a module's IN_BACKGROUND: tdslip run processes of its tests, by test name
+    # (test_nodes_run.py, late in the node tier).
+    compare = {"tdslip_compare": (compare_sweep_arguments(), "compare")} if "compare_sweep" in used else {}
+    commands = compare | {
         f"tdslip_run_{index}": (["run", *arguments], relative)
         for index, (arguments, relative) in enumerate(
             getattr(item.module, "IN_BACKGROUND", {})[item.name]
@@ -87,8 +89,6 @@ def pytest_collection_finish(session: pytest.Session) -> None:
             if isinstance(item, pytest.Function) and item.name in getattr(item.module, "IN_BACKGROUND", {})
         )
     }
-    if "compare_sweep" in used:
-        commands["tdslip_compare"] = (compare_sweep_arguments(), "compare")
     # A module's draw(name) of the figure document its tests in xdist group ``name`` read
     # (test_paper_claims.py), drawn by the child on the core the fast tests leave idle: not under xdist,
     # whose two workers keep both cores busy.
