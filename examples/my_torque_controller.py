@@ -46,7 +46,8 @@ class MyTorqueController(Node):
 
 def main() -> None:
     # As ros2/demos' demo_nodes_py: Ctrl-C (KeyboardInterrupt) and SIGTERM (rclpy shuts the context
-    # down: ExternalShutdownException) both end the script quietly.
+    # down: ExternalShutdownException) both end the script, quietly as a rule (a Ctrl-C that lands inside
+    # rclpy's take of one of the 1 kHz messages can surface as a RuntimeError traceback: an rclpy race).
     try:
         with rclpy.init():
             rclpy.spin(MyTorqueController())

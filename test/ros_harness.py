@@ -96,6 +96,20 @@ def stop_process(process: subprocess.Popen[bytes], signum: int = signal.SIGINT, 
     return process.wait(timeout)
 
 
+def stop_example(process: subprocess.Popen[bytes], grace: float = 10.0) -> None:
+    """End an example controller (examples/) once its run is over: SIGINT, then SIGKILL after ``grace`` s;
+    its exit status is not the test's business. The examples rely on rclpy's own signal handlers, which now
+    and then lose a signal that arrives while rclpy starts (about 1 in 30 at 0.5-0.8 s after launch here;
+    the process then spins on), or, in a node taking 1 kHz messages, turn one that arrives inside
+    ``take_message`` into a RuntimeError traceback: upstream races, not the run under test."""
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
 @contextmanager
 def ros_graph() -> Iterator[RosGraph]:
     """A private ROS graph for the with-block (see the module docstring). The process environment

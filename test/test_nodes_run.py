@@ -13,6 +13,7 @@ import pytest
 import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from ros_harness import stop_example
 
 from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.interfaces import resolve
@@ -268,18 +269,6 @@ def test_a_double_ctrl_c_leaves_a_finalised_bag(tmp_path: Path) -> None:
     assert (bag / "metadata.yaml").is_file()
 
 
-def stop_controller(controller: subprocess.Popen[bytes], grace: float = 10.0) -> None:
-    """SIGTERM, then SIGKILL after ``grace`` s. The example relies on rclpy's own signal handlers, which
-    now and then lose a signal that arrives while rclpy starts (about 1 in 30 at 0.5-0.8 s after launch
-    here; the process then spins on). The test is about the run, not about that upstream race."""
-    controller.terminate()
-    try:
-        controller.wait(timeout=grace)
-    except subprocess.TimeoutExpired:
-        controller.kill()
-        controller.wait()
-
-
 def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analysable(tmp_path: Path) -> None:
     """``tdslip run --controller none`` starts the plant and the recorder only and waits for the user's own
     controller (examples/my_controller.py, started a few seconds later in the same domain); the run ends by
@@ -309,7 +298,7 @@ def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analy
     try:
         stdout, stderr = run.communicate(timeout=120)
     finally:
-        stop_controller(controller)
+        stop_example(controller)
     assert run.returncode == 0, stderr[-2000:]
     assert stderr.startswith(f"tdslip run: waiting up to 60 s for your controller in ROS domain {domain_id}")
     assert "lockstep run, your own controller: 5 strides" in stdout and "LOST" not in stdout
