@@ -14,8 +14,14 @@ child processes, every run recorded and its counts checked). One command each:
             [--priority 50] [--policies deadbeat --target-height 0.96 --target-speed 4]
         per policy, apex-to-command latency (apex published -> its command received by the plant),
         p50/p99 (target p99 < 2 ms, < 5 ms with --busy-core), beside the policy's own planning time,
-        measured in this process on the same apexes, and the difference: what the nodes and DDS add;
-        and the commands that arrived after their touchdown (target 0).
+        measured in this process on the same apexes (back to back, and spaced like the run's apexes,
+        when caches have gone cold), and the difference: what the nodes and DDS add; and the commands
+        that arrived after their touchdown (target 0). Then the hops of each answer, timed by a probe
+        process of its own on the run's domain from DDS's source and reception timestamps (one wall
+        clock): apex published -> a subscriber has it (DDS), -> the controller has published the
+        command (the controller's process: its wake-up, planning and publishing), -> a subscriber has
+        it (DDS), -> the plant has applied it (the plant's process beyond DDS, with its building of the
+        apex message, which the plant's latency includes).
 
 ``--busy-core N`` runs a busy loop pinned to CPU N for the whole bench: another program hogging a core.
 
@@ -30,6 +36,7 @@ import argparse
 import contextlib
 import os
 import resource
+import signal
 import subprocess
 import sys
 import tempfile
@@ -40,12 +47,16 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from rclpy.context import Context
+from rclpy.node import Node
 from rclpy.parameter import Parameter
+from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.commands.run import counts_table
 from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.policies import POLICIES
+from tdslip_ros.nodes import isolation, topics
+from tdslip_ros.nodes.command_admission import command_key
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.runner import RunOptions, RunReport, controller_overrides, run
 
@@ -54,6 +65,7 @@ REALTIME_BUSY_MISSED_TARGET = 1e-3  # fraction of the ticks
 LOCKSTEP_TARGET = 20.0
 LATENCY_TARGET_P99 = 2e-3  # s
 LATENCY_BUSY_TARGET_P99 = 5e-3  # s
+SPACED_APEXES = 30
 
 
 def load() -> str:
@@ -177,8 +189,10 @@ def percentiles_ms(values_s: Sequence[float]) -> tuple[float, float]:
     return float(p50), float(p99)
 
 
-def planning_times(options: RunOptions, report: RunReport, policy: str) -> list[float]:
-    """The controller node's planning, timed here on the run's apexes with the run's parameters."""
+def planning_times(options: RunOptions, report: RunReport, policy: str) -> tuple[list[float], list[float]]:
+    """The controller node's planning, timed here on the run's apexes with the run's parameters: back to
+    back, and (on at most SPACED_APEXES of them) each after a pause as long as the run's mean time between
+    apexes, as the node plans: its code and data no longer in the CPU's caches."""
     context = Context()
     rclpy.init(context=context)
     try:
@@ -188,18 +202,97 @@ def planning_times(options: RunOptions, report: RunReport, policy: str) -> list[
             cli_args=["--ros-args", "--params-file", str(config_file("controller.yaml"))],
             parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items() if v is not None],
         )
-        times = []
-        for apex in report.apexes:
-            start = time.perf_counter()
-            try:
-                controller.plan(policy, apex.height, apex.forward_speed)
-            except ParameterError:
-                continue
-            times.append(time.perf_counter() - start)
+        pause = report.outcome.wall_time / max(len(report.apexes), 1)
+
+        def timed(apexes: Sequence[ApexEvent], pause: float) -> list[float]:
+            times = []
+            for apex in apexes:
+                time.sleep(pause)
+                start = time.perf_counter()
+                try:
+                    controller.plan(policy, apex.height, apex.forward_speed)
+                except ParameterError:
+                    continue
+                times.append(time.perf_counter() - start)
+            return times
+
+        back_to_back = timed(report.apexes, 0.0)
+        spaced = timed(report.apexes[:SPACED_APEXES], pause)
         controller.destroy_node()
-        return times
+        return back_to_back, spaced
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def probe() -> None:
+    """The latency bench's probe (a process of its own, on the domain its environment names): print
+    'apex|command epoch stride source_ns received_ns' for each apex and command as DDS delivers it, until
+    SIGINT. Both timestamps are DDS's (the writer's, the reader's), on the wall clock every process shares,
+    so the probe's own wake-ups do not enter: it polls every ms."""
+    rclpy.init()
+    node = Node("latency_probe")
+    streams = [
+        (
+            "apex",
+            node.create_subscription(ApexEvent, topics.APEX, lambda _: None, topics.STREAM_QOS, raw=True),
+        ),
+        (
+            "command",
+            node.create_subscription(
+                StanceCommand, topics.COMMAND, lambda _: None, topics.COMMAND_QOS, raw=True
+            ),
+        ),
+    ]
+    try:
+        while True:
+            for kind, subscription in streams:
+                with subscription.handle:
+                    while (
+                        message := subscription.handle.take_message(subscription.msg_type, True)
+                    ) is not None:
+                        data, info = message
+                        key = command_key(data)  # an apex starts with the same header, epoch and stride
+                        if key is not None:
+                            print(
+                                kind, *key, info["source_timestamp"], info["received_timestamp"], flush=True
+                            )
+            time.sleep(1e-3)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+HOPS = ("apex: DDS", "controller", "command: DDS", "plant")
+
+
+def answer_hops(probed: str, report: RunReport) -> dict[str, list[float]]:
+    """Per answered stride, the four hops of its answer [s] (see the module docstring), from the probe's
+    lines and the plant's latencies (apex published -> command applied, in the order answered)."""
+    times: dict[tuple[str, int, int], tuple[int, int]] = {}
+    for line in probed.splitlines():
+        kind, epoch, stride, source, received = line.split()
+        times.setdefault((kind, int(epoch), int(stride)), (int(source), int(received)))
+    answered = sorted(stride for kind, epoch, stride in times if kind == "command" and epoch == 0)
+    hops: dict[str, list[float]] = {hop: [] for hop in HOPS}
+    for stride, latency_ns in zip(answered, report.command_latencies_ns, strict=False):
+        if ("apex", 0, stride) not in times:
+            continue
+        apex_sent, apex_heard = times["apex", 0, stride]
+        command_sent, command_heard = times["command", 0, stride]
+        for hop, ns in zip(
+            HOPS,
+            (
+                apex_heard - apex_sent,
+                command_sent - apex_heard,
+                command_heard - command_sent,
+                latency_ns - (command_heard - apex_sent),
+            ),
+            strict=True,
+        ):
+            hops[hop].append(ns * 1e-9)
+    return hops
 
 
 def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
@@ -207,9 +300,26 @@ def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
         f"apex-to-command latency, {arguments.mode}, {arguments.duration:g} s per policy"
         f" ({conditions(arguments)})"
     )
-    header = ("policy", "strides", "latency p50/p99 ms", "planning p50/p99 ms", "added p50 ms", "late")
-    print("  {:<10}{:>8}{:>22}{:>23}{:>14}{:>6}".format(*header))
+    header = (
+        "policy",
+        "strides",
+        "latency p50/p99 ms",
+        "planning p50/p99 ms",
+        "spaced p50/p99 ms",
+        "added p50 ms",
+        "late",
+    )
+    print("  {:<10}{:>8}{:>22}{:>23}{:>21}{:>14}{:>6}".format(*header))
+    hop_rows = []
     for policy in arguments.policies:
+        with isolation.reserved_domain() as domain_id:
+            pass  # a free id, for the run and the probe
+        probe_process = subprocess.Popen(
+            [sys.executable, __file__, "probe"],
+            env=isolation.isolated_environment(domain_id),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         options = RunOptions(
             scratch / f"latency-{policy}",
             strides=0,
@@ -219,17 +329,31 @@ def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
             target_height=arguments.target_height,
             target_speed=arguments.target_speed,
             realtime_priority=arguments.priority,
+            domain_id=domain_id,
         )
-        report = run_checked(options, fatal=False)  # the other policies are still measured
+        try:
+            report = run_checked(options, fatal=False)  # the other policies are still measured
+        finally:
+            probe_process.send_signal(signal.SIGINT)
+            probed, _ = probe_process.communicate()
         latency = percentiles_ms([ns * 1e-9 for ns in report.command_latencies_ns])
-        planning = percentiles_ms(planning_times(options, report, policy))
+        back_to_back, spaced = (percentiles_ms(times) for times in planning_times(options, report, policy))
         print(
             f"  {policy:<10}{len(report.command_latencies_ns):>8d}{latency[0]:>12.3f} / {latency[1]:<7.3f}"
-            f"{planning[0]:>13.3f} / {planning[1]:<7.3f}{latency[0] - planning[0]:>12.3f}"
-            f"{report.late_commands:>8d}"
+            f"{back_to_back[0]:>13.3f} / {back_to_back[1]:<7.3f}{spaced[0]:>11.3f} / {spaced[1]:<7.3f}"
+            f"{latency[0] - back_to_back[0]:>12.3f}{report.late_commands:>8d}"
         )
+        hop_rows.append((policy, answer_hops(probed, report)))
     target = LATENCY_TARGET_P99 if arguments.busy_core is None else LATENCY_BUSY_TARGET_P99
     print(f"  target: latency p99 < {target * 1e3:g} ms, 0 late commands ({conditions(arguments)})")
+    print("  the hops of each answer, p50 / p99 ms (probed strides):")
+    print("  {:<10}{:>8}".format("policy", "strides") + "".join(f"{hop:>20}" for hop in HOPS))
+    for policy, hops in hop_rows:
+        cells = "".join(
+            "{:>20}".format("{:.3f} / {:.3f}".format(*percentiles_ms(values)) if values else "-")
+            for values in hops.values()
+        )
+        print(f"  {policy:<10}{len(hops[HOPS[0]]):>8d}{cells}")
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -248,6 +372,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     latency.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES))
     latency.add_argument("--target-height", type=float, help="m (deadbeat, apex_foot_placement)")
     latency.add_argument("--target-speed", type=float, help="m/s (deadbeat, apex_foot_placement)")
+    commands.add_parser("probe", help="the latency bench's probe process (started by the bench)")
     for command in (realtime, lockstep, latency):
         command.add_argument("--busy-core", type=int, help="run a busy loop pinned to this CPU meanwhile")
     for command in (realtime, latency):
@@ -255,6 +380,9 @@ def main(argv: Sequence[str] | None = None) -> None:
             "--priority", type=int, default=0, help="SCHED_FIFO priority of the tick (0: none)"
         )
     arguments = parser.parse_args(argv)
+    if arguments.command == "probe":
+        probe()
+        return
     benches: dict[str, Callable[[argparse.Namespace, Path], None]] = {
         "realtime": bench_realtime,
         "lockstep": bench_lockstep,

@@ -141,12 +141,12 @@ class RunOptions:
     namespace: str = "/"
     """Namespace of the three nodes (``tdslip run --namespace /h1``: topics /h1/tdslip/...)."""
     perturbations: Perturbations = field(default_factory=Perturbations)
+    """Terrain, sensing noise, placement error, torque limit and pushes for the plant; mismatch for the
+    controller, whose hopper parameters become the plant's times its factors."""
     own_controller: bool = False
     """Start no controller: the user's own answers the apexes (``tdslip run --controller none``)."""
     controller_wait: float = 300.0
     """s to wait for the user's own controller to connect (own_controller only)."""
-    """Terrain, sensing noise, placement error, torque limit and pushes for the plant; mismatch for the
-    controller, whose hopper parameters become the plant's times its factors."""
 
 
 @dataclass
