@@ -3,7 +3,9 @@ settings, around the default apex, with the environments' default action scaling
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -30,3 +32,13 @@ def learned_file(path: Path, weights: npt.ArrayLike = WEIGHTS) -> str:
     )
     learned.save(residual, path)
     return str(path)
+
+
+def malformed_file(directory: Path, **changes: Any) -> Path:
+    """A copy of :func:`learned_file`'s file in ``directory`` with the top-level fields ``changes`` (default:
+    a base policy that is the learned policy itself, which would plan with itself for ever)."""
+    data = json.loads(Path(learned_file(directory / "good.json")).read_text())
+    data.update(changes or {"base": {"policy": "learned", "settings": {}}})
+    path = directory / "malformed.json"
+    path.write_text(json.dumps(data))
+    return path

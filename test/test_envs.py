@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from learned_policy import learned_file
+from learned_policy import learned_file, malformed_file
 
 from tdslip_ros.envs import ENV_ID, ApexHopEnv, ApexHopVectorEnv, Task
 from tdslip_ros.envs.lanes import terrain_seed
@@ -24,7 +24,7 @@ from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
 from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import LEARNED, PolicySpec
+from tdslip_ros.model.policies import LEARNED, PolicyError, PolicySpec, check_policy_file
 from tdslip_ros.model.terrain import Blocks
 
 PERTURBED = Perturbations(
@@ -210,3 +210,77 @@ def test_a_zero_residual_is_the_policys_command() -> None:
     planned = policy.commands(PAPER_PARAMS, observation[0], observation[1], observation[1])
     applied = [info[name] for name in ("touchdown_angle", "tau0", "t_f")]
     assert applied == pytest.approx([float(field) for field in planned], rel=1e-12)
+
+
+def test_actions_of_the_wrong_shape_or_not_finite_are_refused_and_change_nothing() -> None:
+    vector = ApexHopVectorEnv(2, policy=PolicySpec.default("apex_foot_placement"))
+    vector.reset(seed=4)
+    transposed = np.array([[0.1, 0.2], [0.0, 0.5], [-0.3, 0.1]])  # (acted, lanes): one lane's column each
+    for refused in (transposed, transposed.ravel(), np.array([[np.nan, 0, 0], [0, 0, 0]])):
+        with pytest.raises(ValueError, match="actions must"):
+            vector.step(refused)
+    single = ApexHopEnv(policy=PolicySpec.default("apex_foot_placement"))
+    single.reset(seed=4)
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        single.step(np.zeros(2))
+    with pytest.raises(ValueError, match="finite"):
+        single.step(np.array([np.nan, 0.0, 0.0]))
+    # The refused steps left the lanes as a fresh reset does: the same stride follows.
+    fresh = ApexHopEnv(policy=PolicySpec.default("apex_foot_placement"))
+    fresh.reset(seed=4)
+    assert single.step(np.zeros(3))[4] == fresh.step(np.zeros(3))[4]
+    fresh_vector = ApexHopVectorEnv(2, policy=PolicySpec.default("apex_foot_placement"))
+    fresh_vector.reset(seed=4)
+    assert vector.step(transposed.T)[0].tolist() == fresh_vector.step(transposed.T)[0].tolist()
+
+
+def test_an_action_outside_the_box_acts_as_the_box_s_edge() -> None:
+    envs = [ApexHopEnv(**RESIDUAL) for _ in range(2)]
+    for env in envs:
+        env.reset(seed=8)
+    beyond, edge = np.array([4.0, -3.0, 2.0]), np.array([1.0, -1.0, 1.0])
+    assert envs[0].step(beyond)[4] == envs[1].step(edge)[4]
+
+
+@pytest.mark.parametrize(
+    ("changes", "reason"),
+    [
+        ({"base": {"policy": "learned", "settings": {}}}, "its base policy must be one of"),
+        ({"base": {"policy": "stance_pd_speed_energy", "settings": {}}}, "its base policy must be one of"),
+        ({"base": ["energy"]}, '"base" must be'),
+        ({"base": {"policy": "energy", "settings": {"touchdown_angle": "abc"}}}, "could not convert"),
+        ({"base": {"policy": "energy", "settings": {"touchdown_angel": 0.4}}}, "no setting touchdown_angel"),
+        ({"weights": [[0.0, 0.0, float("nan")]] * 3}, "weights must be finite"),
+        ({"weights": 3.0}, "weights must be 3 x 3"),
+        ({"scale": [0.0, 0.5]}, "scale must be positive"),
+        ({"command_low": [1.0, 0.0, 0.3], "command_high": [0.1, 1.0, 0.4]}, "command_low must lie below"),
+        ({"half_width": None}, "must have 3 entries"),
+        ({"format": "something else"}, "not a tdslip_ros.linear_residual/1 file"),
+    ],
+)
+def test_a_malformed_policy_file_is_refused_naming_the_file_and_the_fault(
+    tmp_path: Path, changes: dict, reason: str
+) -> None:
+    path = malformed_file(tmp_path, **changes)
+    with pytest.raises(PolicyError, match="malformed.json: ") as refused:
+        check_policy_file(str(path))
+    assert reason in str(refused.value)
+    policy = replace(PolicySpec.default(LEARNED), policy_file=str(path))
+    with pytest.raises(PolicyError):  # what the controller node logs, answering no command
+        policy.commands(PAPER_PARAMS, 1.0, 5.0, 5.0)
+    top_level_list = tmp_path / "list.json"
+    top_level_list.write_text("[1, 2]")
+    with pytest.raises(PolicyError, match="not a tdslip_ros.linear_residual/1 file"):
+        check_policy_file(str(top_level_list))
+
+
+def test_the_base_plans_with_the_spec_s_corrections_not_the_file_s(tmp_path: Path) -> None:
+    settings = {"corrections": 0}
+    path = malformed_file(tmp_path, base={"policy": "energy", "settings": settings})
+    by_file = [
+        replace(
+            PolicySpec.default(LEARNED), policy_file=str(path), corrections=corrections
+        ).learned_residual()[1]
+        for corrections in (0, 2)
+    ]
+    assert [spec.corrections for spec in by_file] == [0, 2]

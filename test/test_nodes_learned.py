@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from learned_policy import learned_file
+from learned_policy import learned_file, malformed_file
 
 from tdslip_ros.analysis.compare import REPRODUCTION_TOLERANCE, command_deviation, policy_for_run
 from tdslip_ros.analysis.reader import read_run
@@ -57,7 +57,8 @@ def test_a_learned_run_without_a_readable_file_is_refused_before_anything_starts
     spaced = learned_file(tmp_path / "a policy.json")  # readable, but the bag's custom_data splits at spaces
     for file, reason in (
         ((), "needs its file (--policy-file)"),
-        (("--policy-file", str(tmp_path / "missing.json")), "cannot read the learned policy's file"),
+        (("--policy-file", str(tmp_path / "missing.json")), "missing.json: [Errno 2] No such file"),
+        (("--policy-file", str(malformed_file(tmp_path))), "its base policy must be one of"),
         (("--policy-file", spaced), "cannot name a file with spaces"),
     ):
         refused = tdslip(

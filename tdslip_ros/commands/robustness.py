@@ -50,7 +50,7 @@ from tdslip_ros.commands.options import (
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.policies import DEFAULT_TARGET_ENERGY, LEARNED, POLICIES
+from tdslip_ros.model.policies import DEFAULT_TARGET_ENERGY, LEARNED, POLICIES, PolicyError, check_policy_file
 from tdslip_ros.studies.design import StudyError
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
 from tdslip_ros.studies.robustness import KINDS, write_robustness
@@ -115,8 +115,13 @@ def main(argv: list[str]) -> int:
         params = PAPER_PARAMS
         if (reason := touchdown_angle_error(args.touchdown_angle_deg)) is not None:
             raise StudyError(reason)
-        if LEARNED in policies and args.policy_file is None:
-            raise StudyError("the learned policy needs its file (--policy-file)")
+        if LEARNED in policies:
+            if args.policy_file is None:
+                raise StudyError("the learned policy needs its file (--policy-file)")
+            try:  # before the workers start
+                check_policy_file(policy_file(args) or "")
+            except PolicyError as error:
+                raise StudyError(str(error)) from None
         write_robustness(
             args.out,
             params,

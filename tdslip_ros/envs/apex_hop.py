@@ -67,7 +67,10 @@ class ApexHopEnv(gym.Env[FloatArray, FloatArray]):
     def step(self, action: FloatArray) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:
         if self._ended:
             raise ResetNeeded("the episode has ended (or not begun): call reset")
-        strides = self._lanes.step(ONLY_LANE, np.reshape(action, (1, -1)))
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (self.config.acted,):
+            raise ValueError(f"the action must have the shape {(self.config.acted,)}, got {action.shape}")
+        strides = self._lanes.step(ONLY_LANE, action[None])
         terminated, truncated = bool(strides.terminated[0]), bool(strides.truncated[0])
         self._stepped, self._ended = True, terminated or truncated
         return (

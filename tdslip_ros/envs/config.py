@@ -1,8 +1,9 @@
 """What an apex-hop environment is: the hopper, the task, how an action becomes a command, the perturbations,
 the stride budget; and the observation and action spaces that follow.
 
-**Action** (a Box on [-1, 1]^n, n = 3, or 2 with a fixed ramp duration): a linear map onto the stance
-command, SI: command = centre + half_width * action, clipped to [command_low, command_high]
+**Action** (a Box on [-1, 1]^n, n = 3, or 2 with a fixed ramp duration; an action outside it is clipped to it,
+a non-finite one refused): a linear map onto the stance command, SI: command = centre + half_width * action,
+clipped to [command_low, command_high]
 (touchdown angle [rad], tau0 [N m], t_f [s]; the ramp of eq. 18, tau(s) = tau0 (1 - s / t_f)).
 
 * direct (``policy`` None): centre and half-width are those of [command_low, command_high];

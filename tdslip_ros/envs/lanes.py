@@ -181,7 +181,7 @@ class HopperLanes:
         """(3, lanes): the stance commands the actions (lanes, acted) give (:mod:`.config`)."""
         config = self.config
         acted = np.zeros((3, lanes.size))
-        acted[: config.acted] = np.asarray(action, dtype=np.float64).T
+        acted[: config.acted] = np.clip(np.asarray(action, dtype=np.float64).T, -1.0, 1.0)  # the action box
         if config.policy is None:
             centre, half_width = np.broadcast_to(self._middle[:, None], acted.shape), self._direct_half_width
         else:
@@ -209,9 +209,13 @@ class HopperLanes:
         """One stride of each of ``lanes`` under ``action`` (lanes, acted): one call of the batched engine."""
         index = np.asarray(lanes, dtype=np.int64)
         config = self.config
-        command = self.command(
-            index, np.reshape(np.asarray(action, dtype=np.float64), (index.size, config.acted))
-        )
+        actions = np.asarray(action, dtype=np.float64)
+        # Checked before any lane's state changes: a refused step leaves the lanes as they were.
+        if actions.shape != (index.size, config.acted):
+            raise ValueError(f"actions must have the shape {(index.size, config.acted)}, got {actions.shape}")
+        if not np.all(np.isfinite(actions)):
+            raise ValueError("actions must be finite")
+        command = self.command(index, actions)
         self.previous_speed[index] = self.measured[1, index]
         errors = self._draws(index, self.stride[index])
         self.last_inputs = {

@@ -72,7 +72,9 @@ class ApexHopVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         if not self._generators:
             raise ResetNeeded("call reset before step")
         count = self.num_envs
-        actions = np.reshape(np.asarray(actions, dtype=np.float64), (count, self.config.acted))
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (count, self.config.acted):
+            raise ValueError(f"actions must have the shape {(count, self.config.acted)}, got {actions.shape}")
         resetting = np.flatnonzero(self._autoreset)
         stepping = np.flatnonzero(~self._autoreset)
         observation = np.empty((count, self._observation_size))

@@ -100,6 +100,15 @@ class LinearResidual:
         for name in ("half_width", "command_low", "command_high"):
             if np.shape(getattr(self, name)) != (COMMAND_ROWS,):
                 raise ValueError(f"{name} must have {COMMAND_ROWS} entries")
+        for name in ("weights", "apex", "scale", "half_width", "command_low", "command_high"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"{name} must be finite numbers")
+        if not np.all(self.scale > 0.0):
+            raise ValueError(f"scale must be positive, got {self.scale.tolist()}")
+        if not np.all(self.half_width >= 0.0):
+            raise ValueError(f"half_width must not be negative, got {self.half_width.tolist()}")
+        if not np.all(self.command_low < self.command_high):
+            raise ValueError("command_low must lie below command_high in every field")
 
     def action(self, y: npt.ArrayLike, xdot: npt.ArrayLike) -> np.ndarray:
         """(lanes, 3): the normalised residual at measured apexes."""
@@ -146,18 +155,27 @@ def load(path: str | Path) -> LinearResidual:
 
 @functools.lru_cache(maxsize=8)
 def _load(path: str, mtime_ns: int, size: int) -> LinearResidual:
+    """OSError if the file cannot be read, ValueError (saying what is wrong) if it is not a residual."""
     del mtime_ns, size  # the cache key: a rewritten file is read again
     data = json.loads(Path(path).read_text())
-    if data.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a {FORMAT} file")
-    return LinearResidual(
-        weights=np.asarray(data["weights"], dtype=np.float64),
-        apex=np.asarray(data["apex"], dtype=np.float64),
-        scale=np.asarray(data["scale"], dtype=np.float64),
-        base_policy=str(data["base"]["policy"]),
-        base_settings=dict(data["base"]["settings"]),
-        half_width=np.asarray(data["half_width"], dtype=np.float64),
-        command_low=np.asarray(data["command_low"], dtype=np.float64),
-        command_high=np.asarray(data["command_high"], dtype=np.float64),
-        features=tuple(data["features"]),
-    )
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"not a {FORMAT} file")
+    try:
+        base = data["base"]
+        if not isinstance(base, dict) or not isinstance(base.get("policy"), str):
+            raise ValueError('"base" must be {"policy": NAME, "settings": {...}}')
+        return LinearResidual(
+            weights=np.asarray(data["weights"], dtype=np.float64),
+            apex=np.asarray(data["apex"], dtype=np.float64),
+            scale=np.asarray(data["scale"], dtype=np.float64),
+            base_policy=base["policy"],
+            base_settings=dict(base["settings"]),
+            half_width=np.asarray(data["half_width"], dtype=np.float64),
+            command_low=np.asarray(data["command_low"], dtype=np.float64),
+            command_high=np.asarray(data["command_high"], dtype=np.float64),
+            features=tuple(data["features"]),
+        )
+    except KeyError as error:
+        raise ValueError(f"no field {error}") from None
+    except TypeError as error:  # a field of the wrong kind (a number where a list belongs, ...)
+        raise ValueError(f"a field of the wrong kind: {error}") from None

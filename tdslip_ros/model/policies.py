@@ -333,20 +333,32 @@ class PolicySpec:
                 speed=self.speed,
             )
         if self.name == LEARNED:
-            if not self.policy_file:
-                raise PolicyError("the learned policy needs its file (policy_file)")
-            try:
-                residual = learned.load(self.policy_file)
-            except (OSError, ValueError, KeyError) as error:
-                raise PolicyError(f"the learned policy's file {self.policy_file}: {error}") from None
-            # The base plans with this spec's corrections (a study's), its other settings the file's.
-            defaults = {setting.name: setting.default for setting in POLICY_SETTINGS}
-            values = defaults | {"corrections": self.corrections} | dict(residual.base_settings)
-            base = PolicySpec.of(residual.base_policy, values)
+            residual, base = self.learned_residual()
             return residual.commands(base.commands(params, y, xdot, previous_xdot), y, xdot)
         if self.name in STANCE_FEEDBACK_POLICIES:
             raise PolicyError(f"{self.name} answers with stance feedback, not a ramp (stance_feedback)")
         raise PolicyError(f"unknown policy {self.name!r}; one of {', '.join(POLICIES)}")
+
+    def learned_residual(self) -> tuple[learned.LinearResidual, PolicySpec]:
+        """The learned policy's residual, from the file ``policy_file``, and the spec of its base policy: the
+        file's settings, but this spec's corrections (a study's). PolicyError, naming the file and what is
+        wrong with it, if it cannot serve."""
+        if not self.policy_file:
+            raise PolicyError("the learned policy needs its file (policy_file)")
+        try:
+            residual = learned.load(self.policy_file)
+            if residual.base_policy not in POLICIES or residual.base_policy == LEARNED:
+                bases = ", ".join(policy for policy in POLICIES if policy != LEARNED)
+                raise ValueError(f"its base policy must be one of {bases}, not {residual.base_policy!r}")
+            known = {setting.name for setting in POLICY_SETTINGS}
+            if unknown := sorted(set(residual.base_settings) - known):
+                raise ValueError(f"its base settings name no setting {', '.join(unknown)}")
+            defaults = {setting.name: setting.default for setting in POLICY_SETTINGS}
+            values = defaults | dict(residual.base_settings) | {"corrections": self.corrections}
+            base = PolicySpec.of(residual.base_policy, values)
+        except (OSError, ValueError, TypeError) as error:
+            raise PolicyError(f"the learned policy's file {self.policy_file}: {error}") from None
+        return residual, base
 
     def stance_feedback(self, params: HopperParams) -> StanceFeedback:
         """The stance feedback a policy of :data:`STANCE_FEEDBACK_POLICIES` answers every apex with, the law
@@ -388,3 +400,10 @@ class PolicySpec:
         if self.name in TARGET_APEX_POLICIES:
             return self.target_height, self.target_speed
         return None
+
+
+def check_policy_file(policy_file: str) -> None:
+    """PolicyError, naming the file and what is wrong with it, unless the learned policy can serve from
+    ``policy_file``: the commands that start nodes or workers refuse a bad file before anything runs."""
+    defaults = {setting.name: setting.default for setting in POLICY_SETTINGS}
+    PolicySpec.of(LEARNED, defaults | {"policy_file": policy_file}).learned_residual()

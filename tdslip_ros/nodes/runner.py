@@ -62,7 +62,7 @@ from tdslip_ros.interfaces import (
     perturbation_parameters,
     resolve,
 )
-from tdslip_ros.model import dynamics, learned
+from tdslip_ros.model import dynamics
 from tdslip_ros.model.analytic import ANALYTIC_MAPS
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
@@ -76,6 +76,8 @@ from tdslip_ros.model.policies import (
     LEARNED,
     POLICIES,
     STANCE_FEEDBACK_POLICIES,
+    PolicyError,
+    check_policy_file,
 )
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.entry import (
@@ -371,9 +373,9 @@ def check_options(options: RunOptions) -> None:
         if any(character.isspace() for character in options.policy_file):  # custom_data splits at spaces
             raise RunOptionError(f"the bag cannot name a file with spaces: {options.policy_file!r}")
         try:
-            learned.load(options.policy_file)
-        except (OSError, ValueError, KeyError) as error:
-            raise RunOptionError(f"cannot read the learned policy's file: {error}") from None
+            check_policy_file(options.policy_file)
+        except PolicyError as error:
+            raise RunOptionError(str(error)) from None
     try:
         perturbation_parameters(options.perturbations)  # per-lane values have no node parameters
     except ParameterError as error:
