@@ -96,6 +96,17 @@ def test_a_sweep_no_run_can_make_is_refused_at_once(
     assert needle in one_line_error(capsys, "compare")
 
 
+def test_robustness_refuses_a_learned_policy_file_before_its_workers_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Before: a missing file started the Dask cluster, then failed in a worker with a traceback."""
+    out = tmp_path / "robustness"
+    arguments = ["robustness", "--out", str(out), "--policies", "learned", "--workers", "1"]
+    assert cli.main([*arguments, "--policy-file", str(tmp_path / "missing.json")]) == 2
+    assert "missing.json: [Errno 2] No such file" in one_line_error(capsys, "robustness")
+    assert not out.exists()
+
+
 def run_with_closed_output(arguments: list[str]) -> subprocess.CompletedProcess[str]:
     """``tdslip ARGUMENTS`` writing into a pipe whose reader is already gone (``| head`` finished)."""
     read_end, write_end = os.pipe()
