@@ -306,9 +306,9 @@ def test_iteration_and_grid_bounds_are_checked_with_a_clear_message() -> None:
 
 
 def test_energy_exact_holds_the_exact_plant_at_its_target_energy_to_1e_10_every_stride() -> None:
-    """On the scalar exact map (solve_ivp, independent of the batched engine the policy plans on): the next
-    apex energy equals the target to 1e-10 m g r0 at every stride, the ramp ends at the exact liftoff, and
-    the run converges."""
+    """On the scalar exact map (solve_ivp, independent of the compiled exact stride the policy plans on): the
+    next apex energy equals the target to 1e-10 m g r0 at every stride, the ramp ends at the exact liftoff,
+    and the run converges."""
     beta, goal = np.radians(26.0), units.energy_from_bar(PARAMS, 3.0)
     apex = ApexState(1.2, 1.05 * float(speed_from_energy(PARAMS, 1.2, goal)))
     heights = []

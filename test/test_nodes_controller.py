@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from learned_policy import learned_file
+from learned_policy import learned_file, malformed_file
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ros_harness import RosGraph
@@ -191,3 +191,18 @@ def test_a_late_subscriber_gets_the_next_command_not_an_old_one(ros: RosGraph) -
     bench.answer(3, 0.97, 5.0)
     ros.spin_until(lambda: len(received) >= 1, "the next answer")
     assert [msg.stride for msg in received] == [3]
+
+
+def test_the_exact_plant_is_loaded_when_the_policy_changes_to_one_that_plans_on_it(
+    ros: RosGraph, tmp_path: Path
+) -> None:
+    """Loaded at the change, not at the next apex (whose answer 0.2 s of loading would make late): for
+    energy_exact, and for a learned policy whose base is energy_exact; not for the analytic policies."""
+    bench = Bench(ros)
+    assert bench.set(policy="energy") and not bench.controller.exact_plant_ready
+    base_exact = malformed_file(tmp_path, base={"policy": "energy_exact", "settings": {}})
+    assert bench.set(policy_file=str(base_exact), policy="learned")
+    assert bench.controller.exact_plant_ready
+    other = Bench(ros)
+    assert other.set(policy="deadbeat") and not other.controller.exact_plant_ready
+    assert other.set(policy="energy_exact") and other.controller.exact_plant_ready

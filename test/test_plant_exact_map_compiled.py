@@ -1,6 +1,6 @@
 """The compiled exact stride (model.exact_kernels) against the scalar exact map and the batched engine: the
 same failure kinds, the apex to the exact map's accuracy, the batch's numbers to rounding, the same
-ParameterErrors; and energy_exact, which plans on it."""
+ParameterErrors; and energy_exact, which plans on it, over many lanes against the scalar exact map."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import units
+from tdslip_ros.model.arrays import HAS_COMMAND, NoCommand
 from tdslip_ros.model.batch import batch_apex_return_map
+from tdslip_ros.model.controllers import exact_energy_regulation
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.exact_kernels import apex_stride, compiled_apex_return_map
 from tdslip_ros.model.exact_map import apex_return_map
@@ -155,3 +157,30 @@ def test_one_apex_beyond_the_limits_raises_the_exact_map_s_parameter_error() -> 
     assert str(compiled_error.value) == str(exact_error.value)
     with pytest.raises(ParameterError, match="tau_max"):
         apex_stride(PARAMS, ApexState(1.2, 4.0), command, tau_max=0.0)
+
+
+def test_energy_exact_over_many_lanes_meets_its_target_on_scipy_s_exact_map_or_says_why_not() -> None:
+    """energy_exact's compiled Newton (exact_kernels.exact_regulation_lanes), many lanes in one call, checked
+    lane by lane on the scalar exact map (scipy's DOP853, not the kernel it plans on): every command it gives
+    ends the stride at the target energy with the ramp ending at liftoff; the lanes it does not answer have a
+    reason, both kinds among them: an iterate's failure on the exact plant and Newton finding no solution."""
+    rng = np.random.default_rng(11)
+    count = 80
+    y = rng.uniform(0.93, 1.5, count)
+    xdot = rng.uniform(2.0, 7.0, count)
+    beta = np.radians(rng.uniform(14.0, 32.0, count))
+    # targets within +-15 % of each apex's energy, and every tenth a fifth of it: too little to keep hopping
+    energy = PARAMS.m * (PARAMS.g * y + 0.5 * xdot**2)
+    target = energy * np.where(np.arange(count) % 10 == 0, 0.2, rng.uniform(0.85, 1.15, count))
+    plan = exact_energy_regulation(PARAMS, y, xdot, beta, target)
+    answered = np.flatnonzero(plan.no_command == HAS_COMMAND)
+    assert 0.5 * count < answered.size < count  # most lanes answered, not all
+    for lane in answered:
+        command = plan.command(lane)
+        result = apex_return_map(PARAMS, ApexState(y[lane], xdot[lane]), command)
+        assert result.apex is not None and result.liftoff is not None and result.touchdown is not None
+        assert abs(result.apex.energy(PARAMS) - target[lane]) < 1e-9 * ENERGY_SCALE
+        assert command.t_f == pytest.approx(result.liftoff.t - result.touchdown.t, abs=1e-9)
+    reasons = {plan.reason(lane) for lane in np.flatnonzero(plan.no_command != HAS_COMMAND)}
+    assert NoCommand.NO_SOLUTION in reasons and reasons & {NoCommand.NO_LIFTOFF, NoCommand.PREDICTED_FALL}
+    assert not np.isin(np.arange(0, count, 10), answered).any()

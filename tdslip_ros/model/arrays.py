@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
+from tdslip_ros.model.events import FAILURE_KINDS, FailureKind
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 
 Array = npt.NDArray[Any]
@@ -150,12 +150,6 @@ REASON_OF_FAILURE = np.array(
     ]
 )
 """The no_command code for each failure code (HAS_COMMAND for the exact plant's other kinds)."""
-
-
-def no_command_of_failure(failure: ArrayLike) -> Array:
-    """no_command codes for map failure codes (events.failure_code); HAS_COMMAND where none."""
-    failure = np.asarray(failure)
-    return np.where(failure == NO_FAILURE_CODE, HAS_COMMAND, REASON_OF_FAILURE[failure])
 
 
 class NoCommandError(ParameterError):

@@ -220,8 +220,8 @@ def exact_energy_regulation(
     command, succeeds and meets both tolerances. Lanes where the analytic plan has no command keep its
     reason, lanes where the exact map fails at an iterate get that failure's, and lanes not converged in
     EXACT_ITERATIONS get no_solution. A plan costs about 3 x 4 exact strides (a few tenths of a millisecond).
-    ParameterError as :func:`~.batch.batch_apex_return_map` for an apex beyond the hopper's limits. The gap
-    between ``energy`` and ``energy_exact`` is what the analytic approximation costs.
+    An apex the analytic plan has no command for, one beyond the hopper's limits among them, keeps its reason
+    (no exception). The gap between ``energy`` and ``energy_exact`` is what the analytic approximation costs.
     """
     # Imported here: the exact kernels import scipy.integrate (0.6 s), which only this policy needs; a
     # controller node of the others starts as fast as before (its DDS discovery races the recorder's).

@@ -30,6 +30,7 @@ sensing noise), its height taken above ``ground_height``, the ground of the stan
 
 from __future__ import annotations
 
+import contextlib
 import sys
 
 from rclpy.node import Node
@@ -42,6 +43,7 @@ from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.model.policies import (
     DEFAULT_POLICY,
+    LEARNED,
     POLICIES,
     POLICY_SETTINGS,
     PolicyError,
@@ -81,22 +83,43 @@ class ControllerNode(Node):
         self.published = 0
         self._previous_speed: float | None = None
         self._publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
-        # The policies' compiled kernels load (or compile) before the first apex can arrive, not at it; the
-        # exact plant's only for energy_exact (they bring scipy.integrate, 0.6 s, into the node's start).
-        exact_plant = self.get_parameter("policy").value == "energy_exact"
-        controllers.warm_up(self.hopper, complex_step=False, exact_plant=exact_plant)
+        # The policies' compiled kernels load (or compile) before the first apex can arrive, not at it.
+        controllers.warm_up(self.hopper, complex_step=False, exact_plant=False)
+        self.exact_plant_ready = False
+        """energy_exact's compiled exact stride is loaded (see :meth:`_ready_exact_plant`)."""
+        self._ready_exact_plant()
+        self.add_post_set_parameters_callback(lambda changed: self._ready_exact_plant())
         self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
+
+    def _ready_exact_plant(self) -> None:
+        """Load energy_exact's compiled exact stride once the policy plans on it, directly or as a learned
+        policy's base: at the start, or as the parameters change to it, not at the next apex (0.2 s, or a
+        compilation, would make its answer late). Only then: it brings scipy.integrate (0.6 s) to the start.
+        """
+        if self.exact_plant_ready:
+            return
+        spec = self.policy_spec(str(self.get_parameter("policy").value))
+        planned = {spec.name}
+        if spec.name == LEARNED:
+            with contextlib.suppress(PolicyError):  # a bad file is reported at the apex it cannot answer
+                planned.add(spec.learned_residual()[1].name)
+        if "energy_exact" in planned:
+            controllers.warm_up(self.hopper, complex_step=False, exact_plant=True)
+            self.exact_plant_ready = True
 
     def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
         """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
         ParameterError if the policy has none (e.g. the leg cannot be placed from this apex), PolicyError if
         its settings cannot serve (the learned policy's file unreadable)."""
+        previous = xdot if self._previous_speed is None else self._previous_speed
+        return self.policy_spec(policy).commands(self.hopper, y, xdot, previous).command()
+
+    def policy_spec(self, policy: str) -> PolicySpec:
+        """``policy`` with the current values of the settings."""
         settings = PolicySpec.settings()
-        spec = PolicySpec.of(
+        return PolicySpec.of(
             policy, {parameter.name: parameter.value for parameter in self.get_parameters(settings)}
         )
-        previous = xdot if self._previous_speed is None else self._previous_speed
-        return spec.commands(self.hopper, y, xdot, previous).command()
 
     def _on_apex(self, apex: ApexEvent) -> None:
         if apex.stride == 0:
