@@ -4,13 +4,24 @@ map replays each stance from its recorded torques and reproduces the recorded ap
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tdslip_ros.analysis.compare import compare_run
-from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.analysis.reader import (
+    STANCE_FEEDBACK,
+    CommandRecord,
+    ContactRecord,
+    StateRecord,
+    applied_commands,
+    read_run,
+)
 from tdslip_ros.analysis.report import analyze
+from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary
+from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.policies import STANCE_PD_SPEED_ENERGY
 from tdslip_ros.model.stance_laws import RecordedTorques
 from tdslip_ros.nodes.runner import RunReport
@@ -44,3 +55,31 @@ def test_tdslip_analyze_reports_the_replay(stance_pd: RunReport, tmp_path: Path)
         "its recorded torques replayed on the exact map over 8 strides"
         in analysis.files["report"].read_text()
     )
+
+
+def test_a_stance_feedback_command_is_found_applied_with_and_without_a_torque_limit() -> None:
+    """Before: with tau_max the reader evaluated the ramp of a command that has none (t_f = 0) and divided
+    by zero, so that tdslip analyze crashed on every stance-feedback run recorded with --tau-max."""
+    angle = math.radians(22.0)
+    state = StateRecord(
+        t=0.5, stride=0, phase=1, x=0.0, y=0.93, xdot=3.0, ydot=-1.0, toe_x=0.4, toe_y=0.0, r=1.0,
+        theta=angle, rdot=-1.0, thetadot=-3.0, hip_torque=0.0, energy=0.0, ground_height=0.0,
+    )  # fmt: skip
+    touchdown = ContactRecord("touchdown", 0, 0.5, state)
+    command = CommandRecord(0, angle, 0.0, 0.0, STANCE_PD_SPEED_ENERGY, 1, STANCE_FEEDBACK)
+    for perturbations in (Perturbations(), Perturbations(tau_max=500.0)):
+        assert applied_commands([touchdown], [command], perturbations) == {0: command}
+
+
+def test_a_replay_predicted_to_fail_does_not_hide_the_other_strides_errors() -> None:
+    predictions = FeedbackPredictions(
+        stride=np.array([3, 4]),
+        recorded=np.array([[1.0, 4.0], [1.1, 4.2]]),
+        exact=np.array([[1.0 + 2e-12, 4.0 - 3e-12], [np.nan, np.nan]]),
+        failures=[None, "fall"],
+    )
+    summary = feedback_summary(predictions)
+    assert summary["failures"] == 1
+    assert summary["max_height_error_m"] == pytest.approx(2e-12, rel=1e-3)
+    assert summary["max_speed_error_m_per_s"] == pytest.approx(3e-12, rel=1e-3)
+    json.dumps(summary, allow_nan=False)  # standard JSON: no NaN

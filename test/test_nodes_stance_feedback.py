@@ -109,9 +109,43 @@ def test_bad_torques_are_refused_and_the_plant_waits_for_the_right_one(ros: RosG
     assert len(refused) == 5 and not any(s.fatal for s in statuses if s.kind == Status.KIND_TORQUE_REJECTED)
     for reason in ("not a plausible hip torque", "ahead of the plant", "the plant's latest state is tick"):
         assert any(reason in r for r in refused), (reason, refused)
-    # Every stance tick held the valid -50 N m (the first samples of both stances included).
-    assert all(s.hip_torque in (0.0, -50.0) for s in stance_states)
+    # Every stance tick held the valid -50 N m: each stance's first state holds zero only until its first
+    # sample instant, the tick after touchdown; every later one holds -50.
+    by_stride: dict[int, list[float]] = {}
+    for state in stance_states:
+        by_stride.setdefault(state.stride, []).append(state.hip_torque)
+    assert len(by_stride) == 2 and all(set(held[1:]) == {-50.0} for held in by_stride.values()), by_stride
     assert plant.torques.late == 0
+
+
+def test_the_torque_of_the_tick_that_fails_is_recorded_too(ros: RosGraph) -> None:
+    """A stream that brakes hard (+3000 N m, backward) ends the stance in a failure; every torque the plant
+    held went out on tdslip/applied_torque, the one of the failing tick included (before: all but it)."""
+    plant = ros.add(PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=2)))
+    node = ros.node("braking")
+    commands = node.create_publisher(StanceCommand, topics.COMMAND, 10)
+    torques = node.create_publisher(HipTorque, topics.HIP_TORQUE, 10)
+    applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
+    sent: list[int] = []
+
+    def answer(apex: ApexEvent) -> None:
+        msg = StanceCommand(epoch=apex.epoch, stride=apex.stride, touchdown_angle=math.radians(22.0))
+        msg.stance = StanceCommand.STANCE_FEEDBACK
+        commands.publish(msg)
+
+    def stream(state: HopperState) -> None:
+        if state.phase == HopperState.PHASE_STANCE:
+            tick = tick_of(state.header.stamp.sec, state.header.stamp.nanosec)
+            sent.append(tick)
+            torques.publish(HipTorque(epoch=0, stride=state.stride, tick=tick, torque=3000.0))
+
+    node.create_subscription(ApexEvent, topics.APEX, answer, 10)
+    node.create_subscription(HopperState, topics.STATE, stream, 10)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome is not None and not plant.outcome.ok, plant.outcome
+    ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
+    assert plant.rejections.total == 0 and plant.received_torques == len(sent) > 10
+    assert [(a.tick, a.torque) for a in applied] == [(tick, 3000.0) for tick in sent]
 
 
 def test_a_silent_torque_stream_ends_a_lockstep_run_with_command_timeout(ros: RosGraph) -> None:

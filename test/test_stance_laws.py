@@ -265,6 +265,9 @@ def test_per_lane_targets_and_bad_inputs() -> None:
         FixedStepStepper(PARAMS, START, StanceFeedback(BETA, LAW, sample_period=2e-3))
     with pytest.raises(ParameterError, match="apex_time"):
         batch_feedback_return_map(PARAMS, 1.2, 4.0, BETA, LAW, apex_time=[0.0, math.nan])
+    for apex_time in (math.nan, math.inf):  # before: the exact map integrated to a NaN time for ever
+        with pytest.raises(ParameterError, match="apex_time must be finite"):
+            apex_return_map(PARAMS, START, StanceFeedback(BETA, LAW), apex_time=apex_time)
     with pytest.raises(ParameterError, match="touchdown_angle"):
         StanceFeedback(2.0, LAW)
     with pytest.raises(ParameterError, match="increase"):

@@ -660,8 +660,8 @@ def _applied_at(
     command: CommandRecord, touchdown: ContactRecord, perturbations: Perturbations, errors: FloatArray
 ) -> bool:
     placed = placed_angle(command.touchdown_angle, float(errors[touchdown.stride]))
-    torque = command.tau0
-    if perturbations.saturates:
+    torque = command.tau0  # stance feedback: 0, the hold from touchdown to the first sample instant
+    if perturbations.saturates and command.stance != STANCE_FEEDBACK:
         torque = float(dynamics.hip_torque(command.tau0, command.t_f, 0.0, float(perturbations.tau_max)))
     return bool(placed == touchdown.state.theta and torque == touchdown.state.hip_torque)
 

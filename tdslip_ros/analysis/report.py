@@ -36,6 +36,7 @@ from tdslip_ros.analysis.compare import (
     policy_for_run,
 )
 from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError
+from tdslip_ros.analysis.stance_feedback import largest_errors
 from tdslip_ros.interfaces import (
     RUN_COMPLETE,
     STOP_REQUESTED,
@@ -463,10 +464,14 @@ def headline(comparison: Comparison) -> str:
         )
     replay = comparison.stance_feedback
     if len(replay.stride):
-        error = replay.error
+        largest = largest_errors(replay)
+        errors = (
+            "no apex" if largest is None else f"next-apex error max {largest[0]:.2e} m, {largest[1]:.2e} m/s"
+        )
+        failures = sum(f is not None for f in replay.failures)
         lines.append(
             f"stance feedback, its recorded torques replayed on the exact map over {len(replay.stride)} "
-            f"strides: next-apex error max {np.max(error[:, 0]):.2e} m, {np.max(error[:, 1]):.2e} m/s"
+            f"strides: {errors}" + (f"; {failures} replayed to a failure" if failures else "")
         )
     failed = next((s.stride for s in run.strides if s.failure is not None), None)
     predictions = comparison.predictions

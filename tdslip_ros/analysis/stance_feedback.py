@@ -82,12 +82,20 @@ def predict_stance_feedback(run: Run) -> FeedbackPredictions:
     )
 
 
+def largest_errors(predictions: FeedbackPredictions) -> tuple[float, float] | None:
+    """The largest next-apex errors (height [m], speed [m/s]) of the strides whose replay has an apex (a
+    replay predicted to fail has none, and is counted among the failures); None without one."""
+    error = predictions.error
+    replayed = error[~np.isnan(error).any(axis=1)]
+    return (float(replayed[:, 0].max()), float(replayed[:, 1].max())) if len(replayed) else None
+
+
 def feedback_summary(predictions: FeedbackPredictions) -> dict[str, Any]:
     """The replay's errors for the summary: strides, largest height and speed errors (SI)."""
-    error = predictions.error
+    largest = largest_errors(predictions)
     return {
         "strides": len(predictions.stride),
         "failures": sum(f is not None for f in predictions.failures),
-        "max_height_error_m": float(np.max(error[:, 0])) if len(error) else None,
-        "max_speed_error_m_per_s": float(np.max(error[:, 1])) if len(error) else None,
+        "max_height_error_m": None if largest is None else largest[0],
+        "max_speed_error_m_per_s": None if largest is None else largest[1],
     }

@@ -98,11 +98,14 @@ def apex_return_map(
     Stance feedback (a :class:`.stance_laws.StanceFeedback` command): the apex is at apex_time [s] on the
     sample clock, whose sample instants are the multiples of the command's sample_period; the law's
     torques are clipped at tau_max and at the limits' max_torque. Times in the result (``.t`` of the
-    states, apex_time) stay relative to the apex. ParameterError for a TorqueStream law.
+    states, apex_time) stay relative to the apex. ParameterError for a TorqueStream law or a non-finite
+    apex_time.
     """
     check_tolerances(rtol, atol)
     if isinstance(command, StanceFeedback) and isinstance(command.law, TorqueStream):
         raise ParameterError("the exact map cannot run a torque stream: replay it with RecordedTorques")
+    if not math.isfinite(apex_time):  # the sample instants would be NaN: the integration would never end
+        raise ParameterError(f"apex_time must be finite, got {apex_time!r}")
     limits = PlausibilityLimits.of(params, limits)
     limits.check_apex(apex)
     t_limit = limits.max_stance_time

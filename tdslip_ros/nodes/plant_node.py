@@ -526,6 +526,8 @@ class PlantNode(Node):
                 self._publish_apex(event.stride, event.state)
             elif event.kind is EventKind.FAILURE:
                 assert event.failure is not None
+                if isinstance(stepper.command, StanceFeedback):
+                    self._publish_applied_torques()  # the failing tick's torque was applied too
                 self._finish(event.failure.value, event.reason, self._offset + event.t)
                 return True
             else:
