@@ -22,7 +22,7 @@ from tdslip_ros.model import learned
 from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.params import ApexState, ParameterError, StanceCommand
 from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
 from tdslip_ros.model.policies import LEARNED, PolicyError, PolicySpec, check_policy_file
 from tdslip_ros.model.terrain import Blocks
@@ -284,3 +284,29 @@ def test_the_base_plans_with_the_spec_s_corrections_not_the_file_s(tmp_path: Pat
         for corrections in (0, 2)
     ]
     assert [spec.corrections for spec in by_file] == [0, 2]
+
+
+@pytest.mark.parametrize(
+    ("settings", "reason"),
+    [
+        ({"policy": PolicySpec.default("stance_pd_speed_energy")}, "answering with a ramp"),
+        ({"residual_half_width": (0.1, 50.0)}, "residual_half_width must be 3"),
+        ({"residual_half_width": (-0.1, 50.0, 0.01)}, "residual_half_width must be 3"),
+        ({"tolerance": -1.0}, "tolerance must be positive"),
+        ({"lookahead": (0.5, math.nan)}, "lookahead distances must be finite"),
+        ({"task": Task("speed", target=1e3)}, "outside what the observation can hold"),
+    ],
+)
+def test_a_configuration_that_cannot_serve_is_refused_when_made(settings: dict, reason: str) -> None:
+    with pytest.raises(ParameterError, match=reason):
+        ApexHopEnv(**settings)
+
+
+def test_seeds_gymnasium_accepts_are_taken_and_others_refused_clearly() -> None:
+    vector = ApexHopVectorEnv(2)
+    by_numpy, by_int = vector.reset(seed=np.int64(3))[0], ApexHopVectorEnv(2).reset(seed=3)[0]
+    assert by_numpy.tolist() == by_int.tolist()
+    for seed in (2**63, -1):
+        with pytest.raises(ValueError, match=r"a seed must be an integer in \[0, 2\*\*63\)"):
+            vector.reset(seed=[seed, 0])
+    ApexHopEnv().reset(seed=2**63 - 1)

@@ -40,7 +40,7 @@ from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, PolicySpec
+from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, POLICIES, PolicySpec
 
 COMMAND_FIELDS = ("touchdown_angle", "tau0", "t_f")
 LIFTOFF_RULE = "liftoff"
@@ -113,6 +113,25 @@ class HopConfig:
         ):
             if not 0.0 < lo <= hi <= bound:
                 raise ParameterError(f"{name} must be an interval within (0, {bound:.6g}], got {(lo, hi)}")
+        # Refused here, not at the first step:
+        if self.policy is not None and self.policy.name not in POLICIES:
+            raise ParameterError(f"a residual needs a policy answering with a ramp, not {self.policy.name}")
+        half_width = np.asarray(self.residual_half_width, dtype=np.float64)
+        if half_width.shape != (3,) or not np.all(np.isfinite(half_width) & (half_width >= 0.0)):
+            raise ParameterError(
+                f"residual_half_width must be 3 finite widths >= 0, got {self.residual_half_width!r}"
+            )
+        if not (math.isfinite(self.tolerance) and self.tolerance > 0.0):
+            raise ParameterError(f"tolerance must be positive, got {self.tolerance!r}")
+        if not all(math.isfinite(distance) for distance in self.lookahead):
+            raise ParameterError(f"lookahead distances must be finite, got {self.lookahead!r}")
+        if self.task.has_target:
+            low_bound, high_bound = self.observation_bounds()
+            if not low_bound[2] <= self.task.target <= high_bound[2]:
+                raise ParameterError(
+                    f"task {self.task.name}: target {self.task.target!r} lies outside what the observation "
+                    f"can hold, [{low_bound[2]:.6g}, {high_bound[2]:.6g}]"
+                )
 
     @property
     def limits(self) -> PlausibilityLimits:

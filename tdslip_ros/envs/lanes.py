@@ -32,8 +32,17 @@ from tdslip_ros.model.terrain import Blocks, IntArray, Terrain
 
 SEED_BOUND = 2**31
 """Stream seeds drawn for unseeded lanes, and terrain seeds, lie below this (the model's terrain seeds do)."""
+SEED_LIMIT = 2**63
+"""A reset's seed lies below this: a lane keeps its stream seed as a 64-bit integer."""
 FAILURE_TEXTS = np.array(["", *(kind.value for kind in FAILURE_KINDS)], dtype=object)
 """info ``failure`` by failure code + 1: "" for none, else the kind's name."""
+
+
+def check_seeds(seeds: Sequence[int | None]) -> None:
+    """ValueError unless each seed is None or an integer in [0, SEED_LIMIT)."""
+    for seed in seeds:
+        if seed is not None and not (isinstance(seed, int | np.integer) and 0 <= seed < SEED_LIMIT):
+            raise ValueError(f"a seed must be an integer in [0, 2**63), got {seed!r}")
 
 
 def terrain_seed(stream_seed: int, episode: int) -> int:
@@ -108,6 +117,7 @@ class HopperLanes:
     ) -> FloatArray:
         """Start the next episode of each lane (a new stream where its seed is given); observation rows."""
         index = np.asarray(lanes, dtype=np.int64)
+        check_seeds(seeds)
         for lane, seed, generator in zip(index.tolist(), seeds, generators, strict=True):
             if seed is not None:
                 self.stream_seed[lane], self.episode[lane] = seed, 0

@@ -22,7 +22,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from tdslip_ros.envs.config import HopConfig
-from tdslip_ros.envs.lanes import HopperLanes
+from tdslip_ros.envs.lanes import HopperLanes, check_seeds
 from tdslip_ros.model.dynamics import FloatArray
 
 
@@ -52,12 +52,13 @@ class ApexHopVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         """Every lane's next episode; seed: one for all (lane i takes seed + i), or one per lane."""
         if options:
             raise ValueError(f"ApexHop takes no reset options, got {sorted(options)}")
-        if seed is None or isinstance(seed, int):
-            seeds = [None if seed is None else seed + lane for lane in range(self.num_envs)]
+        if seed is None or isinstance(seed, int | np.integer):
+            seeds = [None if seed is None else int(seed) + lane for lane in range(self.num_envs)]
         else:
             seeds = list(seed)
         if len(seeds) != self.num_envs:
             raise ValueError(f"{len(seeds)} seeds for {self.num_envs} lanes")
+        check_seeds(seeds)  # before any lane's generator is seeded
         if not self._generators:
             self._generators = [seeding.np_random(lane_seed)[0] for lane_seed in seeds]
         for lane, lane_seed in enumerate(seeds):
