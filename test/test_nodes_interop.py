@@ -220,10 +220,14 @@ def test_a_subscriber_frozen_for_5_s_neither_stops_nor_holds_the_plant(
     ros.spin_until(lambda: plant.matched_subscribers(topics.STATE) >= 2, "the echo to subscribe")
     ros.spin_until(lambda: plant.start_wall_ns > 0, "the start of the run")
     echo.send_signal(signal.SIGSTOP)
-    frozen_at = time.monotonic()
+    frozen_at, samples_at_freeze = time.monotonic(), plant.published[topics.STATE]
     try:
         ros.spin_until(lambda: time.monotonic() - frozen_at >= 5.0 or plant.outcome is not None, "5 s")
-        assert plant.outcome is None, f"the run ended while the subscriber was frozen: {plant.outcome}"
+        # A lockstep run may complete within the 5 s (15x real time on a quiet machine): what matters is
+        # that it went on far beyond what the echo's queue (depth 10) and DDS could hold for it, and did not
+        # end for the frozen subscriber.
+        assert plant.outcome is None or plant.outcome.kind == Status.KIND_RUN_COMPLETE, plant.outcome
+        assert plant.published[topics.STATE] - samples_at_freeze > 2000
         ros.spin_until(lambda: plant.outcome is not None, "the end of the run", timeout=120.0)
         assert plant.outcome.kind == Status.KIND_RUN_COMPLETE
         started = time.monotonic()

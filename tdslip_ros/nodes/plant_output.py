@@ -26,6 +26,7 @@ from tdslip_ros.model.events import Event, EventKind, StrideEnergy
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.markers import HopperMarkers
+from tdslip_ros.nodes.torque_stream import tick_stamp
 from tdslip_ros.nodes.wire import (
     SAMPLE_FIELDS,
     fill_state,
@@ -40,8 +41,6 @@ _CONTACT_KINDS = {
     EventKind.BOTTOM: ContactEvent.BOTTOM,
     EventKind.LIFTOFF: ContactEvent.LIFTOFF,
 }
-_NS_PER_S = 1_000_000_000
-_NS_PER_TICK = 1_000_000  # the plant's 1 ms tick
 
 
 class PlantOutput:
@@ -112,8 +111,7 @@ class PlantOutput:
 
     def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None:
         """A hip torque as held from plant ``tick`` on (stamped with the tick's time)."""
-        sec, nanosec = divmod(tick * _NS_PER_TICK, _NS_PER_S)
-        values = (sec, nanosec, epoch, stride, tick, torque)
+        values = (*tick_stamp(tick), epoch, stride, tick, torque)
         self._applied_torque_pub.publish(self._applied_torque_encoder.encode(values))
         self.published[topics.APPLIED_TORQUE] += 1
 

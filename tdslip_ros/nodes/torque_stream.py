@@ -36,6 +36,7 @@ _CDR_LITTLE_ENDIAN = 1
 _UINT32_PAIR = struct.Struct("<II")
 _UINT64_FLOAT64 = struct.Struct("<Qd")
 _NS_PER_TICK = 1_000_000  # the plant's 1 ms tick
+_NS_PER_S = 1_000_000_000
 
 
 class TorqueFields(NamedTuple):
@@ -49,7 +50,13 @@ class TorqueFields(NamedTuple):
 
 def tick_of(sec: int, nanosec: int) -> int:
     """The plant tick of a state sample stamped (sec, nanosec): its stamp in milliseconds."""
-    return round((sec * 1_000_000_000 + nanosec) / _NS_PER_TICK)
+    return round((sec * _NS_PER_S + nanosec) / _NS_PER_TICK)
+
+
+def tick_stamp(tick: int) -> tuple[int, int]:
+    """The stamp (sec, nanosec) of plant ``tick``: the inverse of :func:`tick_of`."""
+    sec, nanosec = divmod(tick * _NS_PER_TICK, _NS_PER_S)
+    return sec, nanosec
 
 
 def torque_fields(data: bytes) -> TorqueFields | None:
