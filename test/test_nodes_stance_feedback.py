@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from rclpy.node import Node
+from rclpy.publisher import Publisher
 from ros_harness import RosGraph, overrides, stop_example
 from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, Status
 
@@ -48,6 +50,21 @@ def model_apexes(strides: int) -> tuple[list[tuple[float, float, float]], list[t
     return apexes, torques
 
 
+def stance_feedback_node(ros: RosGraph, name: str) -> tuple[Node, Publisher[HipTorque]]:
+    """A hand-made controller ``name`` that answers every apex with stance feedback at 22 deg, and its hip
+    torque publisher (what it streams is the test's)."""
+    node = ros.node(name)
+    commands = node.create_publisher(StanceCommand, topics.COMMAND, 10)
+
+    def answer(apex: ApexEvent) -> None:
+        msg = StanceCommand(epoch=apex.epoch, stride=apex.stride, touchdown_angle=math.radians(22.0))
+        msg.stance = StanceCommand.STANCE_FEEDBACK
+        commands.publish(msg)
+
+    node.create_subscription(ApexEvent, topics.APEX, answer, 10)
+    return node, node.create_publisher(HipTorque, topics.HIP_TORQUE, 10)
+
+
 def test_the_baseline_node_drives_the_plant_as_the_law_drives_the_stepper(ros: RosGraph) -> None:
     """Lockstep: the plant waits for each stance tick's torque, so the run is the model's own, bit for bit:
     the same apexes, and the torques applied (tdslip/applied_torque) are the law's."""
@@ -71,18 +88,10 @@ def test_bad_torques_are_refused_and_the_plant_waits_for_the_right_one(ros: RosG
     """A hand-made stream: NaN, implausible, ahead of the plant and for another epoch are refused (a Status
     each) or counted late, and the plant holds the first valid one for the awaited tick."""
     plant = ros.add(PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=2)))
-    node = ros.node("hand")
-    commands = node.create_publisher(StanceCommand, topics.COMMAND, 10)
-    torques = node.create_publisher(HipTorque, topics.HIP_TORQUE, 10)
+    node, torques = stance_feedback_node(ros, "hand")
     statuses = ros.collect(Status, topics.STATUS)
     stance_states: list[HopperState] = []
     sent: list[int] = []
-
-    def answer(apex: ApexEvent) -> None:
-        angle = math.radians(22.0)
-        msg = StanceCommand(epoch=apex.epoch, stride=apex.stride, touchdown_angle=angle)
-        msg.stance = StanceCommand.STANCE_FEEDBACK
-        commands.publish(msg)
 
     def stream(state: HopperState) -> None:
         if state.phase != HopperState.PHASE_STANCE:
@@ -101,7 +110,6 @@ def test_bad_torques_are_refused_and_the_plant_waits_for_the_right_one(ros: RosG
         sent.append(tick)
         torques.publish(HipTorque(epoch=0, stride=state.stride, tick=tick, torque=-50.0))
 
-    node.create_subscription(ApexEvent, topics.APEX, answer, 10)
     node.create_subscription(HopperState, topics.STATE, stream, 10)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and plant.outcome.ok, plant.outcome
@@ -122,16 +130,9 @@ def test_the_torque_of_the_tick_that_fails_is_recorded_too(ros: RosGraph) -> Non
     """A stream that brakes hard (+3000 N m, backward) ends the stance in a failure; every torque the plant
     held went out on tdslip/applied_torque, the one of the failing tick included (before: all but it)."""
     plant = ros.add(PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=2)))
-    node = ros.node("braking")
-    commands = node.create_publisher(StanceCommand, topics.COMMAND, 10)
-    torques = node.create_publisher(HipTorque, topics.HIP_TORQUE, 10)
+    node, torques = stance_feedback_node(ros, "braking")
     applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
     sent: list[int] = []
-
-    def answer(apex: ApexEvent) -> None:
-        msg = StanceCommand(epoch=apex.epoch, stride=apex.stride, touchdown_angle=math.radians(22.0))
-        msg.stance = StanceCommand.STANCE_FEEDBACK
-        commands.publish(msg)
 
     def stream(state: HopperState) -> None:
         if state.phase == HopperState.PHASE_STANCE:
@@ -139,7 +140,6 @@ def test_the_torque_of_the_tick_that_fails_is_recorded_too(ros: RosGraph) -> Non
             sent.append(tick)
             torques.publish(HipTorque(epoch=0, stride=state.stride, tick=tick, torque=3000.0))
 
-    node.create_subscription(ApexEvent, topics.APEX, answer, 10)
     node.create_subscription(HopperState, topics.STATE, stream, 10)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and not plant.outcome.ok, plant.outcome
@@ -152,15 +152,7 @@ def test_a_silent_torque_stream_ends_a_lockstep_run_with_command_timeout(ros: Ro
     plant = ros.add(
         PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=3, command_timeout=0.5))
     )
-    node = ros.node("silent")
-    commands = node.create_publisher(StanceCommand, topics.COMMAND, 10)
-
-    def answer(apex: ApexEvent) -> None:
-        msg = StanceCommand(epoch=apex.epoch, stride=apex.stride, touchdown_angle=math.radians(22.0))
-        msg.stance = StanceCommand.STANCE_FEEDBACK
-        commands.publish(msg)
-
-    node.create_subscription(ApexEvent, topics.APEX, answer, 10)
+    stance_feedback_node(ros, "silent")  # streams nothing
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and plant.outcome.kind == Status.KIND_COMMAND_TIMEOUT
     assert "no valid hip torque for epoch 0, stride 0, tick" in plant.outcome.reason
