@@ -69,7 +69,14 @@ from tdslip_ros.model.batch import batch_apex_return_map
 from tdslip_ros.model.closed_loop import eigenvalues
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.policies import FIXED_ANGLE_POLICIES, POLICIES, POLICY_SETTINGS, PolicyError, PolicySpec
+from tdslip_ros.model.policies import (
+    FIXED_ANGLE_POLICIES,
+    POLICIES,
+    POLICY_SETTINGS,
+    SETTING_DEFAULTS,
+    PolicyError,
+    PolicySpec,
+)
 from tdslip_ros.reporting.output import unit_key
 
 FloatArray = npt.NDArray[np.float64]
@@ -92,9 +99,7 @@ def controller_defaults() -> dict[str, Any]:
     """The installed controller node's parameter file (config/controller.yaml), as a mapping, with the
     declared default of each policy setting it does not set (the node's own, then; an older install)."""
     try:
-        return {setting.name: setting.default for setting in POLICY_SETTINGS} | installed_parameters(
-            "controller.yaml"
-        )
+        return {**SETTING_DEFAULTS, **installed_parameters("controller.yaml")}
     except (
         MessageDefinitionError,
         OSError,

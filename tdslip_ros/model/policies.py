@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import numpy.typing as npt
@@ -252,6 +253,10 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
     ),
 )
 """Every setting of the policies, in the order the controller's parameters and a study's columns take."""
+SETTING_DEFAULTS: Mapping[str, float | str] = MappingProxyType(
+    {setting.name: setting.default for setting in POLICY_SETTINGS}
+)
+"""Each setting's default, by name."""
 
 
 def settings_of(policy: str) -> tuple[PolicySetting, ...]:
@@ -353,8 +358,7 @@ class PolicySpec:
             known = {setting.name for setting in POLICY_SETTINGS}
             if unknown := sorted(set(residual.base_settings) - known):
                 raise ValueError(f"its base settings name no setting {', '.join(unknown)}")
-            defaults = {setting.name: setting.default for setting in POLICY_SETTINGS}
-            values = defaults | dict(residual.base_settings) | {"corrections": self.corrections}
+            values = {**SETTING_DEFAULTS, **residual.base_settings, "corrections": self.corrections}
             base = PolicySpec.of(residual.base_policy, values)
         except (OSError, ValueError, TypeError) as error:
             raise PolicyError(f"the learned policy's file {self.policy_file}: {error}") from None
@@ -383,7 +387,7 @@ class PolicySpec:
     @classmethod
     def default(cls, name: str) -> PolicySpec:
         """The policy ``name`` with each setting at its declared default."""
-        return cls.of(name, {setting.name: setting.default for setting in POLICY_SETTINGS})
+        return cls.of(name, SETTING_DEFAULTS)
 
     @classmethod
     def of(cls, name: str, values: Mapping[str, str | float], source: str = "") -> PolicySpec:
@@ -405,5 +409,4 @@ class PolicySpec:
 def check_policy_file(policy_file: str) -> None:
     """PolicyError, naming the file and what is wrong with it, unless the learned policy can serve from
     ``policy_file``: the commands that start nodes or workers refuse a bad file before anything runs."""
-    defaults = {setting.name: setting.default for setting in POLICY_SETTINGS}
-    PolicySpec.of(LEARNED, defaults | {"policy_file": policy_file}).learned_residual()
+    PolicySpec.of(LEARNED, {**SETTING_DEFAULTS, "policy_file": policy_file}).learned_residual()

@@ -28,7 +28,7 @@ from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, Sta
 
 from tdslip_ros.interfaces import STAMP_FIELDS, hopper_from_parameters
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
-from tdslip_ros.model.policies import POLICY_SETTINGS, STANCE_PD_SPEED_ENERGY, PolicySpec, settings_of
+from tdslip_ros.model.policies import SETTING_DEFAULTS, STANCE_PD_SPEED_ENERGY, PolicySpec, settings_of
 from tdslip_ros.model.stance_laws import StanceFeedback, StanceSample, clip_torque
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
@@ -67,7 +67,7 @@ class StanceControllerNode(Node):
 
     def feedback(self) -> StanceFeedback:
         """The policy's stance feedback with the current parameters."""
-        values = {setting.name: setting.default for setting in POLICY_SETTINGS}
+        values = {**SETTING_DEFAULTS}
         values |= {setting.name: self.get_parameter(setting.name).value for setting in settings_of(POLICY)}
         return PolicySpec.of(POLICY, values).stance_feedback(self.hopper)
 

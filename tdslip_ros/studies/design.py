@@ -40,7 +40,7 @@ import numpy as np
 from tdslip_ros.model import stability, units
 from tdslip_ros.model.analytic import ANALYTIC_MAPS, speed_from_energy
 from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
-from tdslip_ros.model.policies import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS
+from tdslip_ros.model.policies import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS, SETTING_DEFAULTS
 from tdslip_ros.studies import perturbed
 
 HOPPER_PARAMETERS = ("kbar", "zeta0")
@@ -77,7 +77,7 @@ DEFAULTS: dict[str, str | float] = {
     "policy": DEFAULT_POLICY,
     "kbar": 36.0,
     "zeta0": 0.08,
-    **{setting.name: setting.default for setting in POLICY_SETTINGS if setting.name in POLICY_PARAMETERS},
+    **{name: SETTING_DEFAULTS[name] for name in POLICY_PARAMETERS},
     # The studies' own: the figures' angle, and the goal regulator.
     "touchdown_angle": math.radians(26.0),
     "touchdown_power": math.nan,  # set it (or the study's alpha) for the open loop
