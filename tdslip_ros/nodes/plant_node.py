@@ -172,8 +172,8 @@ class PlantNode(Node):
         self.received_commands = 0
         self.received_torques = 0
         self.rejections = RejectionLog()
-        self.command_latencies_ns: list[int] = []
-        """Wall time from each apex's publication to the valid command answering it."""
+        self.command_latencies_ns: list[tuple[int, int, int]] = []
+        """(epoch, stride, ns) of each answered apex: wall time from its publication to the valid command."""
         self.late_commands = 0
         """Realtime: answers that arrived after the touchdown of their stride (never applied)."""
         self.tick_timing = None if self.lockstep else TickTiming(round(TICK_PERIOD * _NS_PER_S))
@@ -526,8 +526,7 @@ class PlantNode(Node):
                 self._publish_apex(event.stride, event.state)
             elif event.kind is EventKind.FAILURE:
                 assert event.failure is not None
-                if isinstance(stepper.command, StanceFeedback):
-                    self._publish_applied_torques()  # the failing tick's torque was applied too
+                self._publish_applied_torques()  # the failing tick's torque was applied too
                 self._finish(event.failure.value, event.reason, self._offset + event.t)
                 return True
             else:
@@ -537,8 +536,7 @@ class PlantNode(Node):
         state = stepper.state
         t = self._offset + state.t
         self._out.sample(state, t)
-        if isinstance(stepper.command, StanceFeedback):
-            self._publish_applied_torques()
+        self._publish_applied_torques()
         self._out.markers(state, t, self._ticks)
         if apex is None:
             if self.lockstep and stepper.torque_due:
@@ -644,7 +642,8 @@ class PlantNode(Node):
             )
             return
         if msg.stride != self._answered:
-            self.command_latencies_ns.append(time.monotonic_ns() - self._apex_wall_ns)
+            latency = time.monotonic_ns() - self._apex_wall_ns
+            self.command_latencies_ns.append((msg.epoch, msg.stride, latency))
             self._answered = msg.stride
         if self.lockstep:
             self._awaiting = None
@@ -752,7 +751,9 @@ class PlantNode(Node):
 
     def _publish_applied_torques(self) -> None:
         """The stance's torques sampled since the last call, as held (tdslip/applied_torque): the record
-        from which the analysis replays the stance."""
+        from which the analysis replays the stance (none under a ramp)."""
+        if not isinstance(self._stepper.command, StanceFeedback):
+            return
         samples = self._stepper.stance_torques
         for t, torque in samples[self._applied_published :]:
             tick = self._offset_ticks + round(t / TICK_PERIOD)
