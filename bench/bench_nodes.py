@@ -49,6 +49,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.commands.run import counts_table
@@ -66,6 +67,7 @@ LOCKSTEP_TARGET = 20.0
 LATENCY_TARGET_P99 = 2e-3  # s
 LATENCY_BUSY_TARGET_P99 = 5e-3  # s
 SPACED_APEXES = 30
+PROBE_STOP_TIMEOUT = 10.0  # s
 
 
 def load() -> str:
@@ -229,7 +231,7 @@ def probe() -> None:
     'apex|command epoch stride source_ns received_ns' for each apex and command as DDS delivers it, until
     SIGINT. Both timestamps are DDS's (the writer's, the reader's), on the wall clock every process shares,
     so the probe's own wake-ups do not enter: it polls every ms."""
-    rclpy.init()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # SIGINT: KeyboardInterrupt, here
     node = Node("latency_probe")
     streams = [
         (
@@ -268,19 +270,18 @@ HOPS = ("apex: DDS", "controller", "command: DDS", "plant")
 
 
 def answer_hops(probed: str, report: RunReport) -> dict[str, list[float]]:
-    """Per answered stride, the four hops of its answer [s] (see the module docstring), from the probe's
-    lines and the plant's latencies (apex published -> command applied, in the order answered)."""
+    """Per answered stride the probe heard both ways, the four hops of its answer [s] (see the module
+    docstring), from the probe's lines and the plant's latency (apex published -> command applied)."""
     times: dict[tuple[str, int, int], tuple[int, int]] = {}
     for line in probed.splitlines():
         kind, epoch, stride, source, received = line.split()
         times.setdefault((kind, int(epoch), int(stride)), (int(source), int(received)))
-    answered = sorted(stride for kind, epoch, stride in times if kind == "command" and epoch == 0)
     hops: dict[str, list[float]] = {hop: [] for hop in HOPS}
-    for stride, latency_ns in zip(answered, report.command_latencies_ns, strict=False):
-        if ("apex", 0, stride) not in times:
-            continue
-        apex_sent, apex_heard = times["apex", 0, stride]
-        command_sent, command_heard = times["command", 0, stride]
+    for epoch, stride, latency_ns in report.command_latencies_ns:
+        if ("apex", epoch, stride) not in times or ("command", epoch, stride) not in times:
+            continue  # the probe had not yet matched
+        apex_sent, apex_heard = times["apex", epoch, stride]
+        command_sent, command_heard = times["command", epoch, stride]
         for hop, ns in zip(
             HOPS,
             (
@@ -335,8 +336,12 @@ def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
             report = run_checked(options, fatal=False)  # the other policies are still measured
         finally:
             probe_process.send_signal(signal.SIGINT)
-            probed, _ = probe_process.communicate()
-        latency = percentiles_ms([ns * 1e-9 for ns in report.command_latencies_ns])
+            try:
+                probed, _ = probe_process.communicate(timeout=PROBE_STOP_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                probe_process.kill()
+                probed, _ = probe_process.communicate()
+        latency = percentiles_ms([ns * 1e-9 for _, _, ns in report.command_latencies_ns])
         back_to_back, spaced = (percentiles_ms(times) for times in planning_times(options, report, policy))
         print(
             f"  {policy:<10}{len(report.command_latencies_ns):>8d}{latency[0]:>12.3f} / {latency[1]:<7.3f}"

@@ -160,8 +160,9 @@ class RunReport:
     """Messages per recorded topic (fully qualified name): the plant's, and the commands it received."""
     recorded: dict[str, int]
     """Messages per recorded topic in the bag."""
-    command_latencies_ns: list[int]
-    """Wall time from each apex's publication to the plant's receipt of the valid command for it."""
+    command_latencies_ns: list[tuple[int, int, int]]
+    """(epoch, stride, ns) of each answered apex: wall time from its publication to the plant's receipt of the
+    valid command for it."""
     delivery_time: float
     """s from the plant's start until every subscriber had acknowledged all its messages."""
     tick_timing: TickTiming | None
