@@ -196,7 +196,8 @@ def frozen_subscriber(ros: RosGraph, log: Path) -> subprocess.Popen[bytes]:
     return ros.start_process([sys.executable, "-c", code], log)
 
 
-@pytest.mark.parametrize(("mode", "strides"), [("lockstep", 150), ("realtime", 40)])
+# Lockstep: 400 strides (104 s simulated) outlast the 5 s freeze at up to 20x real time.
+@pytest.mark.parametrize(("mode", "strides"), [("lockstep", 400), ("realtime", 40)])
 def test_a_subscriber_frozen_for_5_s_neither_stops_nor_holds_the_plant(
     ros: RosGraph, tmp_path: Path, mode: str, strides: int
 ) -> None:
@@ -223,10 +224,8 @@ def test_a_subscriber_frozen_for_5_s_neither_stops_nor_holds_the_plant(
     frozen_at, samples_at_freeze = time.monotonic(), plant.published[topics.STATE]
     try:
         ros.spin_until(lambda: time.monotonic() - frozen_at >= 5.0 or plant.outcome is not None, "5 s")
-        # A lockstep run may complete within the 5 s (15x real time on a quiet machine): what matters is
-        # that it went on far beyond what the echo's queue (depth 10) and DDS could hold for it, and did not
-        # end for the frozen subscriber.
-        assert plant.outcome is None or plant.outcome.kind == Status.KIND_RUN_COMPLETE, plant.outcome
+        assert plant.outcome is None, f"the run ended while the subscriber was frozen: {plant.outcome}"
+        # ... and went on far beyond what the echo's queue (depth 10) and DDS could hold for it
         assert plant.published[topics.STATE] - samples_at_freeze > 2000
         ros.spin_until(lambda: plant.outcome is not None, "the end of the run", timeout=120.0)
         assert plant.outcome.kind == Status.KIND_RUN_COMPLETE
