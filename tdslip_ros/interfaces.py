@@ -22,6 +22,7 @@ from tdslip_ros.model.terrain import parse_terrain
 # (``--ros-args -r __ns:=/hopper1``) and remapping apply as in any ROS 2 package. /clock is global.
 STATE = "tdslip/state"
 GRF = "tdslip/grf"
+SAMPLES = "tdslip/samples"
 APEX = "tdslip/apex"
 CONTACT = "tdslip/contact"
 STATUS = "tdslip/status"

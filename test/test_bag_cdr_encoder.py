@@ -1,6 +1,7 @@
-"""The fixed-layout CDR encoder the plant publishes its 1 kHz messages with gives what rclpy's
-serialize_message gives for the same message: the rosidl type support (the independent truth) reads it
-back as that very message, from bytes of the same length."""
+"""The encoders the plant publishes its 1 kHz messages with give what rclpy's serialize_message gives for
+the same message: the rosidl type support (the independent truth) reads it back as that very message, from
+bytes of the same length. So do the batches of samples (HopperSamples), and a batch's rows written back as
+messages are the plant's live messages, byte for byte."""
 
 from __future__ import annotations
 
@@ -13,14 +14,26 @@ from geometry_msgs.msg import WrenchStamped
 from mcap.records import Schema
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
-from tdslip_msgs.msg import HipTorque, HopperState
+from tdslip_msgs.msg import HipTorque, HopperSamples, HopperState
 from visualization_msgs.msg import MarkerArray
 
-from tdslip_ros.bag.cdr import FixedLayoutEncoder
+from tdslip_ros.bag.cdr import FixedLayoutEncoder, SequenceColumns
 from tdslip_ros.bag.schema import message_definition
+from tdslip_ros.interfaces import GRF_FIELDS
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.events import Phase
-from tdslip_ros.nodes.wire import SAMPLE_FIELDS, fill_state, fixed_layout_encoder, serialized, state_values
+from tdslip_ros.nodes.wire import (
+    SAMPLE_COLUMNS,
+    SAMPLE_FIELDS,
+    fill_state,
+    fixed_layout_encoder,
+    grf_encoder,
+    sample_batch,
+    sample_rows,
+    serialized,
+    state_encoder,
+    state_values,
+)
 
 NUMBERS = (
     "x y xdot ydot toe_x toe_y r theta rdot thetadot hip_torque energy grf_x grf_y ground_height".split()
@@ -109,3 +122,41 @@ def test_what_it_cannot_encode_is_refused_when_it_is_made() -> None:
         FixedLayoutEncoder(schema_of("tdslip_msgs/msg/HopperState"), state, ("height",))
     with pytest.raises(ValueError, match="in the message's order"):
         FixedLayoutEncoder(schema_of("tdslip_msgs/msg/HopperState"), state, ("y", "x"))
+
+
+def test_the_batch_declares_one_column_per_field_of_the_live_messages() -> None:
+    assert tuple(HopperSamples.get_fields_and_field_types()) == SAMPLE_COLUMNS
+    assert len(SAMPLE_COLUMNS) == len(SAMPLE_FIELDS) + len(GRF_FIELDS)
+
+
+@pytest.mark.parametrize("rows", [0, 1, 2, 3, 50])
+def test_sample_batches_serialise_as_rclpy_does_and_give_back_the_live_messages(rows: int) -> None:
+    rng = random.Random(rows)
+    states = [random_state(rng) for _ in range(rows)]
+    times = [rng.uniform(0.0, 1e5) for _ in range(rows)]
+    values = [(*state_values(s, t), s.grf_x, s.grf_y) for s, t in zip(states, times, strict=True)]
+    batch = sample_batch()
+    for row in values:
+        batch.append(row)
+    data = batch.take()
+    assert len(batch) == 0
+    reference = HopperSamples(**{name: [row[i] for row in values] for i, name in enumerate(SAMPLE_COLUMNS)})
+    assert data == serialized(reference)  # padding zero, as the plant's other messages
+    assert deserialize_message(data, HopperSamples) == reference
+    written = list(sample_rows(data))
+    assert len(written) == rows
+    for row, state, t in zip(written, states, times, strict=True):
+        live = HopperState()
+        live.header.frame_id = "world"
+        fill_state(live, state, t)
+        assert state_encoder().encode(row[:-2]) == serialized(live)
+        force = WrenchStamped()
+        force.header.frame_id = "world"
+        force.header.stamp.sec, force.header.stamp.nanosec = row[:2]
+        force.wrench.force.x, force.wrench.force.y = state.grf_x, state.grf_y
+        assert grf_encoder().encode((*row[:2], *row[-2:])) == serialized(force)
+
+
+def test_sequence_columns_refuse_a_message_with_other_fields() -> None:
+    with pytest.raises(ValueError, match="not sequences of primitives: header, stride, phase, x,"):
+        SequenceColumns(schema_of("tdslip_msgs/msg/HopperState"))

@@ -4,8 +4,13 @@ the count of what went out per topic (the recorder's flow control and the run's 
 Every message goes out as bytes with no undefined byte (:mod:`tdslip_ros.nodes.wire`): the 1 kHz ones
 (state, ground reaction force, /clock, applied torques) from fixed-layout encoders, since building message
 objects cost the tick more than the bytes do; the event-rate ones serialised with their padding zeroed.
-/clock and the markers cost a publish even when nobody listens, so they go out only while someone subscribes
-(:meth:`PlantOutput.check_graph`).
+
+The 1 kHz state and force go to recorders in batches (tdslip/samples, :data:`SAMPLES_PER_BATCH` ticks, and
+before every event) and live, a message per tick, only while someone subscribes to them: one reliable write
+to a recorder in another process costs the tick ~28 us, two a tick were a third of a lockstep plant's CPU.
+Their counts in :attr:`PlantOutput.published` are of the samples that went out in batches.
+/clock and the markers cost a publish even when nobody listens, so they too go out only while someone
+subscribes (:meth:`PlantOutput.check_graph`).
 Each count is taken right after its publish, so that a failing publish (rclpy's RCLError) leaves them exact.
 """
 
@@ -15,26 +20,30 @@ from collections import Counter
 from typing import Any
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock as ClockMsg
-from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, Status
+from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, Status
 
-from tdslip_ros.interfaces import GRF_FIELDS, STAMP_FIELDS
+from tdslip_ros.interfaces import STAMP_FIELDS
 from tdslip_ros.model.events import Event, EventKind, StrideEnergy
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.markers import HopperMarkers
 from tdslip_ros.nodes.torque_stream import tick_stamp
 from tdslip_ros.nodes.wire import (
-    SAMPLE_FIELDS,
     fill_state,
     fixed_layout_encoder,
+    grf_encoder,
+    sample_batch,
     serialized,
     set_stamp,
+    state_encoder,
     state_values,
 )
+
+SAMPLES_PER_BATCH = 50
+"""Ticks per tdslip/samples message at most: a realtime recording trails the plant by up to 50 ms."""
 
 _CONTACT_KINDS = {
     EventKind.TOUCHDOWN: ContactEvent.TOUCHDOWN,
@@ -48,7 +57,8 @@ class PlantOutput:
     goes out on them; markers every ``marker_period_ticks`` ticks (0: never)."""
 
     def __init__(self, node: Node, *, publish_clock: bool, marker_period_ticks: int) -> None:
-        published_topics = [*topics.PLANT_TOPICS, *((topics.CLOCK,) if publish_clock else ())]
+        # tdslip/samples first: a recorder that sees the plant's state publisher knows its batches too.
+        published_topics = [topics.SAMPLES, *topics.PLANT_TOPICS, *((topics.CLOCK,) if publish_clock else ())]
         self._publishers: dict[str, Publisher[Any]] = {
             topic: node.create_publisher(topics.MESSAGE_TYPES[topic], topic, topics.STREAM_QOS)
             for topic in published_topics
@@ -57,8 +67,12 @@ class PlantOutput:
         """Fully qualified name of each published topic, by its relative name."""
         self.published: Counter[str] = Counter()
         """Messages published per topic, by relative name (topics.STATE, ...)."""
+        self._samples_pub = self._publishers[topics.SAMPLES]
+        self._batch = sample_batch()  # the samples not yet published on tdslip/samples
         self._state_pub = self._publishers[topics.STATE]
         self._grf_pub = self._publishers[topics.GRF]
+        self._state_out: Publisher[Any] | None = None  # _state_pub while it has subscribers
+        self._grf_out: Publisher[Any] | None = None  # _grf_pub while it has subscribers
         self._applied_torque_pub = self._publishers[topics.APPLIED_TORQUE]
         self._clock_pub = self._publishers.get(topics.CLOCK)
         self._clock_out: Publisher[Any] | None = None  # _clock_pub while it has subscribers
@@ -66,8 +80,8 @@ class PlantOutput:
         self._marker_period_ticks = marker_period_ticks
         self._markers_out = False  # markers are drawn while someone subscribes to them
         self._markers = HopperMarkers(topics.FRAME_ID)
-        self._state_encoder = fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
-        self._grf_encoder = fixed_layout_encoder(WrenchStamped, (*STAMP_FIELDS, *GRF_FIELDS))
+        self._state_encoder = state_encoder()
+        self._grf_encoder = grf_encoder()
         self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
         self._applied_torque_encoder = fixed_layout_encoder(
             HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
@@ -78,10 +92,12 @@ class PlantOutput:
         return self._publishers[topic].get_subscription_count()
 
     def check_graph(self) -> None:
-        """Publish /clock and the markers from now on while someone subscribes to them (a graph query costs
-        ~20 us: the plant calls this every few dozen ticks)."""
+        """Publish the live state and force, /clock and the markers from now on while someone subscribes to
+        them (a graph query costs ~20 us: the plant calls this every few dozen ticks and at every apex)."""
         listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
         self._clock_out = self._clock_pub if listened else None
+        self._state_out = self._state_pub if self._state_pub.get_subscription_count() > 0 else None
+        self._grf_out = self._grf_pub if self._grf_pub.get_subscription_count() > 0 else None
         self._markers_out = bool(self._marker_period_ticks) and self._markers_pub.get_subscription_count() > 0
 
     def _publish(self, topic: str, msg: object) -> None:
@@ -91,15 +107,25 @@ class PlantOutput:
     def sample(self, state: ModelState, t: float) -> None:
         """The 1 kHz state and ground reaction force (and /clock) of ``state`` stamped t [s]."""
         values = state_values(state, t)
-        published = self.published
-        self._state_pub.publish(self._state_encoder.encode(values))
-        published[topics.STATE] += 1
         sec, nanosec = values[:2]
-        self._grf_pub.publish(self._grf_encoder.encode((sec, nanosec, state.grf_x, state.grf_y)))
-        published[topics.GRF] += 1
+        self._batch.append((*values, state.grf_x, state.grf_y))
+        if self._state_out is not None:
+            self._state_out.publish(self._state_encoder.encode(values))
+        if self._grf_out is not None:
+            self._grf_out.publish(self._grf_encoder.encode((sec, nanosec, state.grf_x, state.grf_y)))
         if self._clock_out is not None:
             self._clock_out.publish(self._clock_encoder.encode((sec, nanosec)))
-            published[topics.CLOCK] += 1
+            self.published[topics.CLOCK] += 1
+        if len(self._batch) >= SAMPLES_PER_BATCH:
+            self.flush()
+
+    def flush(self) -> None:
+        """Publish the samples not yet batched on tdslip/samples (the plant calls this before it waits)."""
+        samples = len(self._batch)
+        if samples:
+            self._samples_pub.publish(self._batch.take())
+            self.published[topics.STATE] += samples
+            self.published[topics.GRF] += samples
 
     def markers(self, state: ModelState, t: float, tick: int) -> None:
         """The hopper drawn at ``state`` stamped t [s], if plant ``tick`` is one of the markers' and someone
@@ -127,6 +153,8 @@ class PlantOutput:
     ) -> None:
         """Apex ``stride`` at t [s]: the true state, the ``measured`` (height, speed), the ground of the
         stance before it and that stance's energy ``flows`` (None: zero, the initial apex)."""
+        self.flush()
+        self.check_graph()
         msg = ApexEvent(epoch=epoch, stride=stride, sim_time=t, x=state.x, height=state.y)
         msg.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, t)
@@ -144,6 +172,7 @@ class PlantOutput:
 
     def contact(self, epoch: int, event: Event, t: float) -> None:
         """A touchdown, bottom or liftoff at t [s], with its state."""
+        self.flush()
         msg = ContactEvent(
             kind=_CONTACT_KINDS[event.kind],
             epoch=epoch,
@@ -157,6 +186,7 @@ class PlantOutput:
         self._publish(topics.CONTACT, msg)
 
     def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None:
+        self.flush()
         msg = Status(epoch=epoch, stride=stride, sim_time=t, kind=kind, reason=reason, fatal=fatal)
         msg.header.frame_id = topics.FRAME_ID
         set_stamp(msg.header.stamp, t)

@@ -12,6 +12,13 @@ untouched) by a thread, in batches, without a Python callback per message (see
 :class:`RecorderNode`); the log time is the system time [ns] at which the message was taken, the
 publish time the publisher's source timestamp.
 
+The plant's 1 kHz state and force (:data:`~tdslip_ros.nodes.topics.BATCHED_TOPICS`) are recorded from
+its batches on ``tdslip/samples`` while a publisher offers them there: each row is written as the
+tdslip/state and tdslip/grf message the plant publishes live at that tick, byte for byte
+(:mod:`tdslip_ros.nodes.wire`), with the batch's log and publish time. The bag holds the two topics, not
+the batches. Where nobody publishes tdslip/samples (``tdslip replay``, another plant) the recorder
+subscribes to the two topics themselves.
+
 Progress goes out on ``tdslip/recorder_status`` (``tdslip_msgs/RecorderStatus``) every
 :data:`STATUS_MESSAGES` recorded messages and every DISCOVERY_PERIOD: per topic the messages
 written and the publishers matched. A plant with ``wait_for_recorder`` paces itself on it.
@@ -24,7 +31,7 @@ A write error (disk full, I/O error) stops the recording with one logged line; t
 finalised with everything written when the writer's reserve made that possible, and reported
 closed on tdslip/recorder_status, so that a plant stops waiting for it.
 
-Run it in a process of its own next to a 1 kHz plant: each message costs a Python callback.
+Run it in a process of its own next to a 1 kHz plant: every message written costs Python work.
 """
 
 from __future__ import annotations
@@ -47,7 +54,7 @@ from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
-from tdslip_ros.nodes.wire import serialized
+from tdslip_ros.nodes.wire import grf_encoder, sample_rows, serialized, state_encoder
 
 DISCOVERY_PERIOD = 0.05  # s between two looks for new publishers (and status reports)
 TAKE_PERIOD = 0.001  # s the taker thread sleeps when it found nothing to take
@@ -128,6 +135,10 @@ class RecorderNode(Node):
         self._message_classes = {
             name: topics.MESSAGE_TYPES[topic] for name, topic in zip(self.topic_names, relative, strict=True)
         }
+        self._samples_topic = self.resolve_topic_name(topics.SAMPLES)
+        self._message_classes[self._samples_topic] = topics.MESSAGE_TYPES[topics.SAMPLES]
+        self._state_topic, self._grf_topic = (self.resolve_topic_name(t) for t in topics.BATCHED_TOPICS)
+        self._state_encoder, self._grf_encoder = state_encoder(), grf_encoder()
         self.write_error: str | None = None
         """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
         self._reader = Node(
@@ -147,9 +158,11 @@ class RecorderNode(Node):
             RecorderStatus, topics.RECORDER_STATUS, topics.RECORDER_STATUS_QOS
         )
         # Subscribed from the start (reliable, volatile: any reliable publisher matches), so that
-        # a publisher that appears later has the recorder's subscription to match from its start.
-        for name in self.topic_names:
-            self._subscribe(name, topics.adapted_qos([]))
+        # a publisher that appears later has the recorder's subscription to match from its start; the
+        # batched topics through tdslip/samples, until _discover finds them published without it.
+        for name in [self._samples_topic, *self.topic_names]:
+            if name not in (self._state_topic, self._grf_topic):
+                self._subscribe(name, topics.adapted_qos([]))
         self._stop_taking = threading.Event()
         self._taker = threading.Thread(target=self._take_loop, name="tdslip-recorder-take", daemon=True)
         self._taker.start()
@@ -159,7 +172,9 @@ class RecorderNode(Node):
 
     def _discover(self) -> None:
         """Register newly published topics in the bag with their offered QoS and adapt a subscription
-        that has recorded nothing yet to what its publishers offer; then report progress."""
+        that has recorded nothing yet to what its publishers offer (the batched topics: take them from
+        tdslip/samples while it has a publisher, else subscribe to them); then report progress."""
+        batches = self.count_publishers(self._samples_topic) > 0
         for name in self.topic_names:
             offered = [
                 topics.offered_qos(info.qos_profile) for info in self.get_publishers_info_by_topic(name)
@@ -167,8 +182,18 @@ class RecorderNode(Node):
             if not offered:
                 continue
             self._register(name, offered)
+            subscription = self._topic_subscriptions.get(name)
+            if name in (self._state_topic, self._grf_topic) and batches:
+                if subscription is not None:  # a plant with batches came after a replay
+                    with self._subscriptions_lock:
+                        assert self._reader is not None
+                        self._reader.destroy_subscription(self._topic_subscriptions.pop(name))
+                continue
             wanted = topics.adapted_qos(offered)
-            subscription = self._topic_subscriptions[name]
+            if subscription is None:  # a batched topic published without batches
+                with self._subscriptions_lock:
+                    self._subscribe(name, wanted)
+                continue
             if _same_policies(subscription.qos_profile, wanted):
                 continue
             if self.bag.message_counts.get(name, 0) == 0:
@@ -214,14 +239,14 @@ class RecorderNode(Node):
                         taken.append((time.time_ns(), info["source_timestamp"], name, data))
         if not taken or self.write_error is not None:
             return 0
-        write = self.bag.write
+        written = 0
         for received, sent, name, data in taken:
-            if name not in self._registered:  # a message before its publisher was discovered
-                self._register(
-                    name, [topics.offered_qos(i.qos_profile) for i in self.get_publishers_info_by_topic(name)]
-                )
             try:
-                write(name, data, received, sent)
+                if name == self._samples_topic:
+                    written += self._write_samples(data, received, sent)
+                else:
+                    self._write(name, data, received, sent)
+                    written += 1
             except BagWriteError as error:  # the bag is closed now (finalised if it could be)
                 self.write_error = str(error)
                 self.get_logger().error(self.write_error)
@@ -229,10 +254,28 @@ class RecorderNode(Node):
                 return 0
             except BagClosedError:  # closed meanwhile: nothing more is recorded
                 return 0
-        self._unreported += len(taken)
+        self._unreported += written
         if self._unreported >= STATUS_MESSAGES:
             self.publish_status()
-        return len(taken)
+        return written
+
+    def _write(self, name: str, data: bytes, received: int, sent: int) -> None:
+        if name not in self._registered:  # a message before its publisher was discovered
+            self._register(
+                name, [topics.offered_qos(i.qos_profile) for i in self.get_publishers_info_by_topic(name)]
+            )
+        self.bag.write(name, data, received, sent)
+
+    def _write_samples(self, data: bytes, received: int, sent: int) -> int:
+        """Write a batch of samples as the state and force messages of its ticks; the number written."""
+        encode_state, encode_grf = self._state_encoder.encode, self._grf_encoder.encode
+        state, grf = self._state_topic, self._grf_topic
+        rows = 0
+        for row in sample_rows(data):
+            self._write(state, encode_state(row[:-2]), received, sent)
+            self._write(grf, encode_grf((row[0], row[1], row[-2], row[-1])), received, sent)
+            rows += 1
+        return 2 * rows
 
     def publish_status(self) -> None:
         """Report what has been written so far (tdslip/recorder_status)."""
@@ -244,12 +287,17 @@ class RecorderNode(Node):
             status.recorded = [counts.get(name, 0) for name in self.topic_names]
             status.publishers = [
                 subscription.get_publisher_count()
-                if (subscription := self._topic_subscriptions.get(name))
+                if (subscription := self._topic_subscriptions.get(name) or self._batches_of(name))
                 else 0
                 for name in self.topic_names
             ]
             status.closed = self.bag.closed
             self._status_publisher.publish(serialized(status))
+
+    def _batches_of(self, name: str) -> Subscription[Any] | None:
+        """The tdslip/samples subscription, if ``name`` is recorded from it."""
+        batched = name in (self._state_topic, self._grf_topic)
+        return self._topic_subscriptions[self._samples_topic] if batched else None
 
     @property
     def message_count(self) -> int:

@@ -36,7 +36,15 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 from rosgraph_msgs.msg import Clock
-from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, StanceCommand, Status
+from tdslip_msgs.msg import (
+    ApexEvent,
+    ContactEvent,
+    HipTorque,
+    HopperSamples,
+    HopperState,
+    StanceCommand,
+    Status,
+)
 from visualization_msgs.msg import MarkerArray
 
 from tdslip_ros.bag import OfferedQos
@@ -53,6 +61,7 @@ from tdslip_ros.interfaces import (  # noqa: F401
     MARKERS,
     RECORDER_STATUS,
     RESET_SERVICE,
+    SAMPLES,
     STATE,
     STATUS,
 )
@@ -116,6 +125,7 @@ def adapted_qos(offered: Iterable[OfferedQos]) -> QoSProfile:
 MESSAGE_TYPES: dict[str, type] = {
     STATE: HopperState,
     GRF: WrenchStamped,
+    SAMPLES: HopperSamples,
     APEX: ApexEvent,
     CONTACT: ContactEvent,
     STATUS: Status,
@@ -128,9 +138,14 @@ MESSAGE_TYPES: dict[str, type] = {
 """Every topic the plant publishes or subscribes, with its message class."""
 
 PLANT_TOPICS = (STATE, GRF, APEX, CONTACT, STATUS, MARKERS, APPLIED_TORQUE)
-"""What the plant publishes besides /clock."""
+"""What the plant publishes for anyone (besides /clock and :data:`SAMPLES`)."""
+BATCHED_TOPICS = (STATE, GRF)
+"""The 1 kHz topics whose samples the plant also publishes in batches on :data:`SAMPLES`: a recorder
+records them from there (:func:`~tdslip_ros.nodes.wire.sample_rows`), and the plant publishes them live
+only while someone else subscribes."""
 RECORDED_TOPICS = (*PLANT_TOPICS, COMMAND, HIP_TORQUE)
-"""What the recorder records (and /clock if asked)."""
+"""What the recorder records (and /clock if asked): the topics of the bag. It takes STATE and GRF from
+SAMPLES where a plant publishes that, else from the topics themselves (a replay)."""
 
 
 def type_name(message_class: type) -> str:

@@ -6,21 +6,28 @@ heap into every subscriber and recording. The nodes therefore publish bytes: :fu
 the event-rate messages (padding zeroed from the message's schema, :mod:`tdslip_ros.bag.padding`),
 :func:`fixed_layout_encoder` for the 1 kHz ones (a zero-padded template whose fields are packed in
 place). The same options thus give the same bytes in every process, on every machine.
+
+The 1 kHz samples also travel in batches (``tdslip_msgs/HopperSamples``, :func:`sample_batch`), one
+row per tick; a recorder turns each row back into the tick's HopperState and WrenchStamped
+(:func:`sample_rows`, :func:`state_encoder`, :func:`grf_encoder`), byte for byte the messages the plant
+publishes live.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from functools import cache
 
 from builtin_interfaces.msg import Time
+from geometry_msgs.msg import WrenchStamped
 from mcap.records import Schema
-from rclpy.serialization import serialize_message
-from tdslip_msgs.msg import HopperState
+from rclpy.serialization import deserialize_message, serialize_message
+from tdslip_msgs.msg import HopperSamples, HopperState
 
-from tdslip_ros.bag.cdr import FixedLayoutEncoder
+from tdslip_ros.bag.cdr import FixedLayoutEncoder, SequenceColumns
 from tdslip_ros.bag.padding import PaddingZeroer, padded_to_4
 from tdslip_ros.bag.schema import message_definition
-from tdslip_ros.interfaces import STAMP_FIELDS, STATE_FIELDS
+from tdslip_ros.interfaces import GRF_FIELDS, STAMP_FIELDS, STATE_FIELDS
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.events import Phase
 from tdslip_ros.nodes import topics
@@ -94,3 +101,35 @@ def fixed_layout_encoder(message_class: type, fields: tuple[str, ...]) -> FixedL
     name, text = _definition(message_class)
     schema = Schema(id=0, name=name, encoding="ros2msg", data=text.encode())
     return FixedLayoutEncoder(schema, serialize_message(template), fields)
+
+
+@cache
+def state_encoder() -> FixedLayoutEncoder:
+    """The 1 kHz HopperState from the values of :data:`SAMPLE_FIELDS`."""
+    return fixed_layout_encoder(HopperState, SAMPLE_FIELDS)
+
+
+@cache
+def grf_encoder() -> FixedLayoutEncoder:
+    """The 1 kHz ground reaction force (WrenchStamped) from (sec, nanosec, force x, force y)."""
+    return fixed_layout_encoder(WrenchStamped, (*STAMP_FIELDS, *GRF_FIELDS))
+
+
+SAMPLE_COLUMNS = ("sec", "nanosec", *STATE_FIELDS, "force_x", "force_y")
+"""The arrays of a HopperSamples in the order of a sample row: the values of :data:`SAMPLE_FIELDS`, then
+the ground reaction force."""
+
+
+def sample_batch() -> SequenceColumns:
+    """An empty batch of sample rows (the values of :data:`SAMPLE_FIELDS`, force x, force y), whose
+    ``take()`` is a serialised HopperSamples."""
+    name, text = _definition(HopperSamples)
+    batch = SequenceColumns(Schema(id=0, name=name, encoding="ros2msg", data=text.encode()))
+    assert batch.names == SAMPLE_COLUMNS, batch.names
+    return batch
+
+
+def sample_rows(data: bytes) -> Iterator[tuple[int | float, ...]]:
+    """The rows of a serialised HopperSamples, in order."""
+    batch = deserialize_message(data, HopperSamples)
+    return zip(*(getattr(batch, name) for name in SAMPLE_COLUMNS), strict=True)
