@@ -111,7 +111,8 @@ class LaneTorque(NamedTuple):
     stop: float
 
 
-# The small kernels of the stage loop are inlined (a third off a stride), the rest are not (compile time).
+# The kernels of the step (the field, the sums, the step itself) are inlined: the calls, which pass named
+# tuples, cost about as much as their arithmetic. The rest are not (compile time).
 @inlined_kernel
 def stance_field(hopper: LaneHopper, torque: LaneTorque, s: float, y: Array, out: Array) -> None:
     """The stance right-hand side at (s, y) into ``out`` (:func:`.dynamics.stance_derivatives`)."""
