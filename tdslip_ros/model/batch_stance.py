@@ -1,5 +1,6 @@
 """The stance of the batched engine's lanes (:mod:`.batch`), from touchdown to each lane's end, on the
-compiled stance integrator :func:`.stance_kernel.integrate_lanes` (the compiled stride's too).
+compiled stance integrator of :mod:`.stance_kernel` (the compiled stride's too), one lane after the other
+(:func:`.stance_kernel.integrate_lanes`).
 
 Lanes under torque ramps go through it in one call. Lanes under stance feedback (:mod:`.stance_laws`) go
 sample by sample: each lane holds its last sampled torque until its next sample instant, where the
