@@ -16,13 +16,15 @@ import pytest
 
 from tdslip_ros.model import dynamics, exact_map, units
 from tdslip_ros.model.analytic import approximate_return_map
-from tdslip_ros.model.batch import batch_apex_return_map, simulate_strides
-from tdslip_ros.model.batch_stance import StanceField
+from tdslip_ros.model.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides
+from tdslip_ros.model.batch_stance import feedback_stance
 from tdslip_ros.model.controllers import deadbeat
 from tdslip_ros.model.events import EventKind, FailureKind, HopperState, failure_from_code
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.stance_kernel import STANCE_LIFTOFF, STANCE_STEP_COLLAPSE
+from tdslip_ros.model.stance_laws import StanceSample
 from tdslip_ros.model.stepper import FixedStepStepper
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
@@ -238,26 +240,60 @@ def test_the_exact_map_never_returns_a_failed_integration(monkeypatch: pytest.Mo
     assert result.failure_state.t > result.touchdown.t
 
 
-def test_a_batch_lane_whose_steps_collapse_fails_alone(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A lane whose field turns NaN can take no step; it ends as state_limit at its last accepted state
-    (the batch used to take NaN errors for 0 and accept the step, or stall) and its neighbours hop on."""
-    poisoned_tau0 = -123.0
-    real_field = StanceField.__call__
+class _TurnsNaN:
+    """A stance law that holds -200 N m, except in lane 1 from its first sample after 20 ms of stance on:
+    NaN, which every trial step then carries out of the floats. Keeps that sample (s, r, theta, rdot,
+    thetadot): the last state the lane can reach."""
 
-    def poisoned_field(self: StanceField, s: Any, y: Any, out: Any) -> None:
-        real_field(self, s, y, out)
-        out[:, (self.tau0 == poisoned_tau0) & (s > 0.02)] = math.nan
+    def __init__(self) -> None:
+        self.poisoned_at: tuple[float, ...] | None = None
 
-    healthy = batch_apex_return_map(PARAMS, START.y, START.xdot, *GAIT_LANES)
-    monkeypatch.setattr(StanceField, "__call__", poisoned_field)
+    def torque(self, sample: StanceSample, lanes: np.ndarray | None = None) -> Any:
+        poisoned = (lanes == 1) & (sample.s > 0.02)
+        if self.poisoned_at is None and poisoned.any():
+            at = int(np.flatnonzero(poisoned)[0])
+            self.poisoned_at = tuple(float(v[at]) for v in sample[1:6])
+        return np.where(poisoned, math.nan, -200.0)
+
+
+def test_a_batch_lane_whose_steps_collapse_fails_alone() -> None:
+    """A lane whose torque turns NaN can take no step: its step size collapses (STANCE_STEP_COLLAPSE) at
+    its last accepted state (the batch used to take NaN errors for 0 and accept the step, or stall), it
+    ends as state_limit and its neighbours hop on."""
+    angle = GAIT.touchdown_angle
+    healthy = batch_feedback_return_map(PARAMS, START.y, START.xdot, angle, _TurnsNaN())
     with deadline(20.0):
-        batch = batch_apex_return_map(
-            PARAMS, START.y, START.xdot, GAIT.touchdown_angle, [-273.0, poisoned_tau0], 0.13
-        )
+        batch = batch_feedback_return_map(PARAMS, [START.y, START.y], START.xdot, angle, _TurnsNaN())
     assert failure_from_code(int(batch.failure[1])) is FailureKind.STATE_LIMIT
     assert math.isnan(batch.y[1]) and math.isnan(batch.hip_work[1])
     assert failure_from_code(int(batch.failure[0])) is None
     assert (batch.y[0], batch.xdot[0]) == pytest.approx((float(healthy.y), float(healthy.xdot)), abs=1e-12)
+
+    # The compiled stance itself, from touchdown on a sample grid that starts there.
+    sin_td, cos_td = math.sin(angle), math.cos(angle)
+    ydot_td = -math.sqrt(2.0 * PARAMS.g * (START.y - dynamics.touchdown_height(PARAMS, cos_td)))
+    rdot_td, thetadot_td = dynamics.polar_velocity(PARAMS.r0, sin_td, cos_td, START.xdot, ydot_td)
+    y = np.tile([PARAMS.r0, angle, rdot_td, thetadot_td, 0.0, 0.0], (2, 1))
+    law = _TurnsNaN()
+    with deadline(20.0):
+        outcome, s = feedback_stance(
+            PARAMS,
+            y,
+            law,
+            1e-3,
+            np.zeros(2),
+            np.full(2, LIMITS.max_torque),
+            None,
+            np.arange(2),
+            np.zeros(2, dtype=bool),
+            LIMITS.max_stance_time,
+            1e-12,
+            1e-12,
+        )
+    assert outcome.tolist() == [STANCE_LIFTOFF, STANCE_STEP_COLLAPSE]
+    assert law.poisoned_at is not None and law.poisoned_at[0] == 21 * 1e-3
+    assert (s[1], *y[1, :4]) == law.poisoned_at
+    assert np.all(np.isfinite(y))
 
 
 # --- fuzz ---------------------------------------------------------------------------------------

@@ -2,8 +2,8 @@
 
 Each lane is one initial condition with its own command: a torque ramp (:func:`batch_apex_return_map`) or
 a stance law (:func:`batch_feedback_return_map`, :mod:`.stance_laws`). Descent and ascent are closed-form,
-as in :mod:`.exact_map`; stance is integrated by DOP853 over the lanes still in stance, with per-lane step
-sizes and event location (:mod:`.batch_stance`).
+as in :mod:`.exact_map`; stance is integrated lane by lane by the compiled DOP853 of
+:mod:`.stance_kernel`, with per-lane step sizes and event location (:mod:`.batch_stance`).
 
 Failures are per lane, as integer codes (:func:`.events.failure_code`, -1 for none), with the
 same rules as the single-trajectory paths, plausibility limits (:mod:`.limits`) included. A lane whose step
@@ -21,21 +21,13 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.model import dynamics
-from tdslip_ros.model.batch_stance import (
-    STANCE_FAILURES,
-    STANCE_LIFTOFF,
-    STATE_SIZE,
-    IntArray,
-    LaneField,
-    SampledField,
-    StanceField,
-    integrate_stance,
-)
+from tdslip_ros.model.batch_stance import IntArray, feedback_stance, ramp_stance
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.stance_kernel import STANCE_FAILURES, STANCE_LIFTOFF, STATE_SIZE
 from tdslip_ros.model.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw, TorqueStream, torque_limit
 from tdslip_ros.model.terrain import FLAT, Terrain, touchdown
 
@@ -539,37 +531,47 @@ def _stride(
     failure[(failure == NO_FAILURE_CODE) & (thetadot_td >= 0.0)] = failure_code(FailureKind.REVERSAL)
 
     in_stance = np.flatnonzero(failure == NO_FAILURE_CODE)
-    y0 = np.zeros((STATE_SIZE, in_stance.size))
-    y0[0], y0[1], y0[2], y0[3] = params.r0, angle[in_stance], rdot_td[in_stance], thetadot_td[in_stance]
+    y_end = np.zeros((in_stance.size, STATE_SIZE))  # the touchdown states, then the stances' ends
+    y_end[:, 0], y_end[:, 1] = params.r0, angle[in_stance]
+    y_end[:, 2], y_end[:, 3] = rdot_td[in_stance], thetadot_td[in_stance]
     tau_max = None if perturbed.tau_max is None else perturbed.tau_max[in_stance]
-    field: LaneField
+    t_limit = limits.max_stance_time
     if isinstance(stance, _Ramp):
-        field = StanceField(params, stance.tau0[in_stance], stance.t_f[in_stance], tau_max)
-    else:
-        limit = torque_limit(tau_max, limits.max_torque)
-        t_touchdown = stance.apex_time[in_stance] + t_td[in_stance]
-        field = SampledField(
+        outcome, s_end = ramp_stance(
             params,
+            y_end,
+            stance.tau0[in_stance],
+            stance.t_f[in_stance],
+            tau_max,
+            t_limit,
+            rtol,
+            atol,
+        )
+    else:
+        outcome, s_end = feedback_stance(
+            params,
+            y_end,
             stance.law,
             stance.period,
-            t_touchdown,
-            np.broadcast_to(limit, in_stance.shape),
+            stance.apex_time[in_stance] + t_td[in_stance],
+            np.broadcast_to(torque_limit(tau_max, limits.max_torque), in_stance.shape),
             tau_max,
             in_stance,
-            y0,
             saturated,
+            t_limit,
+            rtol,
+            atol,
         )
-    outcome, s_end, y_end = integrate_stance(params, y0, field, limits.max_stance_time, rtol, atol)
     for code, kind in STANCE_FAILURES.items():
         failure[in_stance[outcome == code]] = failure_code(kind)
 
     lifted = outcome == STANCE_LIFTOFF
     lanes_lo = in_stance[lifted]
-    r, theta, rdot, thetadot = y_end[0, lifted], y_end[1, lifted], y_end[2, lifted], y_end[3, lifted]
+    r, theta, rdot, thetadot = y_end[lifted, 0], y_end[lifted, 1], y_end[lifted, 2], y_end[lifted, 3]
     sin_lo, cos_lo = np.sin(theta), np.cos(theta)
     xdot_lo, ydot_lo = dynamics.cartesian_velocity(r, sin_lo, cos_lo, rdot, thetadot)
-    out["hip_work"][lanes_lo] = y_end[4, lifted]
-    out["damping_loss"][lanes_lo] = y_end[5, lifted]
+    out["hip_work"][lanes_lo] = y_end[lifted, 4]
+    out["damping_loss"][lanes_lo] = y_end[lifted, 5]
     out["spring_loss"][lanes_lo] = dynamics.spring_energy(params, r)
     out["stance"][lanes_lo] = s_end[lifted]
     # The same rules, in the same order, as dynamics.takeoff_failure.

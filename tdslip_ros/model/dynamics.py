@@ -15,7 +15,9 @@ the spring energy it still holds then is lost with the massless leg.
 
 The functions below that an integrator calls inside its steps are plain arithmetic: they take
 sin(theta) and cos(theta) from the caller, so the same code serves Python floats (the 1 kHz
-stepper, where ``math`` is fastest) and numpy arrays (the batched engine).
+stepper and the exact map, where ``math`` is fastest), numpy arrays (the batched engine's flight,
+the stance laws) and the compiled kernels, which compile it for one lane (:mod:`.stance_kernel`,
+:mod:`.exact_kernels`).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ Real = TypeVar("Real", float, FloatArray)
 
 class Hopper(Protocol):
     """What the stance's arithmetic reads of a hopper: :class:`.params.HopperParams`, or the named tuple
-    of the same fields that the compiled kernels pass (:class:`.exact_kernels.LaneHopper`)."""
+    of the same fields that the compiled kernels pass (:class:`.stance_kernel.LaneHopper`)."""
 
     @property
     def m(self) -> float: ...
@@ -202,8 +204,9 @@ def stance_derivatives(
     params: Hopper, r: Real, sin_t: Real, cos_t: Real, rdot: Real, thetadot: Real, tau: Real
 ) -> tuple[Real, Real, Real, Real, Real, Real]:
     """The stance right-hand side: d/ds of (r, theta, rdot, thetadot, hip work, damper loss) under hip
-    torque tau [N m]. The one source of every DOP853 engine's field: the batched engine calls it on arrays,
-    the compiled one (:mod:`.exact_kernels`) compiles it for one lane."""
+    torque tau [N m]. The one source of every DOP853 engine's field: the exact map calls it on floats, the
+    compiled stance (:mod:`.stance_kernel`, the batched engine's and the compiled stride's) compiles it for
+    one lane."""
     rddot, thetaddot = stance_accelerations(params, r, sin_t, cos_t, rdot, thetadot, tau)
     hip_power, damper_power = stance_powers(params, rdot, thetadot, tau)
     return rdot, thetadot, rddot, thetaddot, hip_power, damper_power

@@ -1,21 +1,19 @@
-"""The exact stride of one lane under a torque ramp, compiled: the batched engine's algorithm without numpy's
-cost per step, for callers that hop a few apexes at a time. :func:`apex_stride` hops one apex (the exact
+"""The exact stride of one lane under a torque ramp, compiled: the batched engine's stride without numpy's
+cost per call, for callers that hop a few apexes at a time. :func:`apex_stride` hops one apex (the exact
 map's arguments), :func:`compiled_apex_return_map` a few lanes (the batched engine's), and
 :func:`exact_regulation_lanes` is ``energy_exact``'s whole Newton iteration on it.
 
 The stride is the one of :func:`.batch.batch_apex_return_map` on flat ground: descent and ascent in closed
-form; stance (eq. 2, the ramp of eq. 18 saturated at tau_max) by DOP853 with scipy's coefficients, error
-norm and step-size rule, split at the kinks of the torque; a step that crosses a terminal event (liftoff,
-reversal, fall) is cut back to the event by safeguarded Newton iteration on trial steps from the step's
-start, to 1e-14 s. The constants are :mod:`.batch_stance`'s and the rules and their order those of
-:mod:`.batch`, so the failure kinds are the same and the states agree to rounding (1e-14 relative:
-numpy's pow and libm's differ in the last bit, and so do the step sizes).
+form; stance (eq. 2, the ramp of eq. 18 saturated at tau_max) by the batched engine's own integrator,
+:func:`.stance_kernel.integrate_stance` (DOP853 split at the torque's kinks, terminal events located to
+1e-14 s); the rules and their order are those of :mod:`.batch`, so the failure kinds are the same and the
+states agree to rounding (the batched engine's flight is numpy's arithmetic, this one libm's).
 
 One source. The stance's right-hand side, torque, event functions and rates, and the flight's closed forms
 are :mod:`.dynamics`' own functions, compiled here for one lane (numba compiles the Python source of each
 on its first use in a kernel): the numpy engines call the very same code on arrays. The hopper reaches them
-as :class:`LaneHopper`, a named tuple with the fields of :class:`.params.HopperParams` they read, and the
-limits' rules as :class:`LaneLimits`.
+as :class:`.stance_kernel.LaneHopper`, a named tuple with the fields of :class:`.params.HopperParams` they
+read, and the limits' rules as :class:`LaneLimits`.
 """
 
 from __future__ import annotations
@@ -33,51 +31,30 @@ from numba.extending import register_jitable
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.arrays import HAS_COMMAND, REASON_OF_FAILURE, Array
 from tdslip_ros.model.batch import BatchStrideResult, check_lanes, ramp_checks, validate_lanes
-from tdslip_ros.model.batch_stance import (
-    E3,
-    E5,
-    ERROR_EXPONENT,
-    EVENT_TIME_TOLERANCE,
-    INITIAL_STEP_PERIODS,
-    MAX_FACTOR,
-    MAX_ROOT_ITERATIONS,
-    MIN_FACTOR,
-    SAFETY,
-    STAGES,
-    STANCE_FAILURES,
-    STANCE_FALL,
-    STANCE_LIFTOFF,
-    STANCE_REVERSAL,
-    STANCE_STEP_COLLAPSE,
-    STANCE_TIME_LIMIT,
-    STATE_SIZE,
-    A,
-    B,
-    C,
-)
-from tdslip_ros.model.compiled import inlined_kernel, kernel
+from tdslip_ros.model.compiled import kernel
 from tdslip_ros.model.controller_kernels import NO_SOLUTION_REASON, solve2, torque_scales
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, failure_from_code
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.stance_kernel import (
+    STANCE_FAILURES,
+    STANCE_LIFTOFF,
+    LaneHopper,
+    LaneTorque,
+    first_step,
+    hopper_row,
+    integrate_stance,
+)
 
-# dynamics' functions (and the limits' rules) made callable from kernels as they are: numba compiles their
-# Python source where a kernel calls them, while Python callers keep the plain functions (numpy, floats).
+# The flight's functions of dynamics (the stance's are stance_kernel's) and the limits' rules made callable
+# from kernels as they are: numba compiles their Python source where a kernel calls them, while Python
+# callers keep the plain functions (numpy, floats).
 for _shared in (
     dynamics.fall_time,
     dynamics.ballistic,
     dynamics.polar_velocity,
     dynamics.cartesian_velocity,
     dynamics.touchdown_height,
-    dynamics.ramp_torque,
-    dynamics.hip_torque,
-    dynamics.saturation_time,
-    dynamics.leg_force,
-    dynamics.stance_accelerations,
-    dynamics.stance_powers,
-    dynamics.stance_derivatives,
-    dynamics.stance_event_values,
-    dynamics.stance_event_rates,
     dynamics.spring_energy,
     PlausibilityLimits.torque_exceeded,
     PlausibilityLimits.apex_exceeded,
@@ -94,9 +71,7 @@ STATE_LIMIT = failure_code(FailureKind.STATE_LIMIT)
 STANCE_FAILURE_CODES = np.array(
     [failure_code(STANCE_FAILURES.get(outcome)) for outcome in range(max(STANCE_FAILURES) + 1)]
 )
-"""The failure code of each stance outcome (batch_stance.STANCE_FAILURES; none for liftoff)."""
-TERMINAL_OUTCOMES = np.array([STANCE_LIFTOFF, STANCE_REVERSAL, STANCE_FALL])
-"""The stance outcome of each terminal event, in the order of terminal_values."""
+"""The failure code of each stance outcome (stance_kernel.STANCE_FAILURES; none for liftoff)."""
 ROW = {field.name: row for row, field in enumerate(fields(BatchStrideResult))}
 """The row of each field of :class:`.batch.BatchStrideResult` in a block of strides."""
 STRIDE_ROWS = len(ROW)
@@ -111,16 +86,6 @@ HIP_WORK_ROW, DAMPING_LOSS_ROW, SPRING_LOSS_ROW = ROW["hip_work"], ROW["damping_
 STANCE_TIME_ROW, STRIDE_TIME_ROW, SATURATED_ROW = ROW["stance_time"], ROW["stride_time"], ROW["saturated"]
 
 
-class LaneHopper(NamedTuple):
-    """The hopper's parameters as the compiled :mod:`.dynamics` reads them (SI)."""
-
-    m: float
-    k: float
-    r0: float
-    c: float
-    g: float
-
-
 class LaneLimits(NamedTuple):
     """The plausibility limits as the compiled rules of :class:`.limits.PlausibilityLimits` read them."""
 
@@ -130,190 +95,6 @@ class LaneLimits(NamedTuple):
     max_stance_time: float
 
 
-class LaneRamp(NamedTuple):
-    """One lane's ramp of eq. 18 (tau0 [N m], t_f [s]) saturated at tau_max [N m] (inf: never)."""
-
-    tau0: float
-    t_f: float
-    tau_max: float
-
-
-# The small kernels of the stage loop are inlined (a third off a stride), the rest are not (compile time).
-@inlined_kernel
-def stance_field(hopper: LaneHopper, ramp: LaneRamp, s: float, y: Array, out: Array) -> None:
-    """The stance right-hand side at (s, y) into ``out`` (:func:`.dynamics.stance_derivatives`)."""
-    theta = y[1]
-    tau = dynamics.hip_torque(ramp.tau0, ramp.t_f, s, ramp.tau_max)
-    derivatives = dynamics.stance_derivatives(hopper, y[0], math.sin(theta), math.cos(theta), y[2], y[3], tau)
-    for i in range(STATE_SIZE):
-        out[i] = derivatives[i]
-
-
-@inlined_kernel
-def combined(weights: Array, k: Array, i: int) -> float:
-    """sum_j weights[j] k[j, i] over the tableau's non-zero weights, in the order of j (as
-    the batched engine's ``_combine`` sums each lane)."""
-    total = 0.0
-    for j in range(weights.size):
-        if weights[j] != 0.0:
-            total += weights[j] * k[j, i]
-    return total
-
-
-@kernel
-def dop853_step(
-    hopper: LaneHopper, ramp: LaneRamp, s: float, y: Array, h: float, k: Array, y_new: Array
-) -> None:
-    """One DOP853 step of length h into y_new; k[0] must hold the field at (s, y); fills k[1:12]."""
-    stage_y = np.empty(STATE_SIZE)
-    for stage in range(1, STAGES):
-        for i in range(STATE_SIZE):
-            stage_y[i] = y[i] + h * combined(A[stage, :stage], k, i)
-        stance_field(hopper, ramp, s + C[stage] * h, stage_y, k[stage])
-    for i in range(STATE_SIZE):
-        y_new[i] = y[i] + h * combined(B, k, i)
-
-
-@inlined_kernel
-def terminal_values(hopper: LaneHopper, y: Array) -> tuple[float, float, float]:
-    """The terminal events' values (liftoff, reversal, fall) of :func:`.dynamics.stance_event_values`."""
-    values = dynamics.stance_event_values(hopper, y[0], math.cos(y[1]), y[2], y[3])
-    return values[1], values[2], values[3]
-
-
-@kernel
-def terminal_rate(hopper: LaneHopper, y: Array, velocity: Array, event: int) -> float:
-    """The rate of terminal event ``event`` (0 liftoff, 1 reversal, 2 fall) at y moving with ``velocity``."""
-    theta = y[1]
-    rates = dynamics.stance_event_rates(
-        hopper, y[0], math.sin(theta), math.cos(theta), y[2], y[3], velocity[2], velocity[3]
-    )
-    rate: float = rates[event + 1]
-    return rate
-
-
-@kernel
-def kink(ramp: LaneRamp, s: float) -> float:
-    """The next kink of the torque after s: the end of the saturation, else the ramp's end t_f."""
-    if abs(ramp.tau0) > ramp.tau_max:
-        end = dynamics.saturation_time(ramp.tau0, ramp.t_f, ramp.tau_max)
-        if s < end:
-            return end
-    return ramp.t_f
-
-
-@kernel
-def locate_event(
-    hopper: LaneHopper,
-    ramp: LaneRamp,
-    s0: float,
-    y0: Array,
-    h: float,
-    k: Array,
-    crossed: tuple[bool, bool, bool],
-    g_start: tuple[float, float, float],
-    g_end: tuple[float, float, float],
-    y_event: Array,
-) -> tuple[int, float]:
-    """The earliest terminal event inside [s0, s0 + h] (the batched engine's ``_locate``): its index (0
-    liftoff, 1 reversal, 2 fall) and time; its state into y_event. k[0] holds the field at (s0, y0)."""
-    g_a, g_b = math.inf, math.inf
-    for event in range(3):
-        if crossed[event]:
-            g_a, g_b = min(g_a, g_start[event]), min(g_b, g_end[event])
-    a, b = 0.0, h
-    sigma = min(max(g_a * h / (g_a - g_b), 0.0), h)
-    velocity = np.empty(STATE_SIZE)
-    active = 0
-    for _ in range(MAX_ROOT_ITERATIONS):
-        dop853_step(hopper, ramp, s0, y0, sigma, k, y_event)
-        values = terminal_values(hopper, y_event)
-        g = math.inf
-        for event in range(3):  # the first smallest, as numpy's argmin
-            if crossed[event] and values[event] < g:
-                active, g = event, values[event]
-        stance_field(hopper, ramp, s0 + sigma, y_event, velocity)
-        rate = terminal_rate(hopper, y_event, velocity, active)
-        if g > 0.0:
-            a = sigma
-        else:
-            b = sigma
-        newton_step = g / rate
-        if abs(newton_step) <= EVENT_TIME_TOLERANCE or g == 0.0:
-            break
-        newton = sigma - newton_step
-        sigma = newton if a < newton < b else 0.5 * (a + b)
-    return active, s0 + sigma
-
-
-@kernel
-def integrate_stance(
-    hopper: LaneHopper, ramp: LaneRamp, y0: Array, t_limit: float, rtol: float, atol: float, y_end: Array
-) -> tuple[int, float]:
-    """One lane's stance from touchdown (s = 0) to its first terminal event or the time limit
-    (:func:`.batch_stance.integrate_stance`): its outcome (batch_stance.STANCE_*) and time s; the state
-    there into y_end (the last accepted one on a step collapse)."""
-    k = np.empty((STAGES + 1, STATE_SIZE))
-    y = y0.copy()
-    y_new = np.empty(STATE_SIZE)
-    s = 0.0
-    stance_field(hopper, ramp, s, y, k[0])
-    g_before = terminal_values(hopper, y)
-    h = INITIAL_STEP_PERIODS * 2.0 * math.pi / math.sqrt(hopper.k / hopper.m)
-    rejected = False
-    while True:
-        next_kink = kink(ramp, s)
-        in_ramp = s < next_kink
-        if in_ramp:
-            h = min(h, next_kink - s)
-        h = min(h, t_limit - s)
-        dop853_step(hopper, ramp, s, y, h, k, y_new)
-        stance_field(hopper, ramp, s + h, y_new, k[STAGES])
-        err5, err3, finite = 0.0, 0.0, True
-        for i in range(STATE_SIZE):
-            scale = atol + max(abs(y[i]), abs(y_new[i])) * rtol
-            q5, q3 = combined(E5, k, i) / scale, combined(E3, k, i) / scale
-            err5 += q5 * q5
-            err3 += q3 * q3
-            finite = finite and math.isfinite(y_new[i])
-        denominator = err5 + 0.01 * err3
-        error = h * err5 / math.sqrt(denominator * STATE_SIZE) if denominator > 0.0 else 0.0
-        # A step that left the floats (overflow, NaN) fails its error test and shrinks by MIN_FACTOR.
-        if math.isnan(denominator) or math.isnan(error) or not finite:
-            error = math.inf
-        growth = SAFETY * error**ERROR_EXPONENT
-        accepted = error < 1.0
-        if not accepted:
-            factor = max(MIN_FACTOR, growth)
-        elif rejected:
-            factor = min(1.0, growth)
-        else:
-            factor = min(MAX_FACTOR, growth)
-        g_after = terminal_values(hopper, y_new)
-        crossed = (
-            accepted and g_before[0] > 0.0 and g_after[0] <= 0.0,
-            accepted and g_before[1] > 0.0 and g_after[1] <= 0.0,
-            accepted and g_before[2] > 0.0 and g_after[2] <= 0.0,
-        )
-        if crossed[0] or crossed[1] or crossed[2]:
-            event, s_event = locate_event(hopper, ramp, s, y, h, k, crossed, g_before, g_after, y_end)
-            return TERMINAL_OUTCOMES[event], s_event
-        if accepted:
-            # Land exactly on the kink, so that the next segment (torque-free after t_f) starts there.
-            s = next_kink if in_ramp and h == next_kink - s else s + h
-            y[:] = y_new
-            k[0] = k[STAGES]
-            g_before = g_after
-        rejected = not accepted
-        h = h * factor
-        if accepted and s >= t_limit:
-            y_end[:] = y
-            return STANCE_TIME_LIMIT, t_limit
-        if rejected and h < 10.0 * (np.nextafter(s, math.inf) - s):  # scipy's smallest step
-            y_end[:] = y
-            return STANCE_STEP_COLLAPSE, s
-
-
 @kernel
 def lane_stride(
     hopper: LaneHopper,
@@ -321,14 +102,15 @@ def lane_stride(
     y: float,
     xdot: float,
     angle: float,
-    ramp: LaneRamp,
+    ramp: LaneTorque,
     rtol: float,
     atol: float,
     out: Array,
     lane: int,
 ) -> None:
-    """One lane's stride from the apex (y [m], xdot [m/s]) with the leg landing at ``angle`` [rad] into
-    column ``lane`` of ``out`` (STRIDE_ROWS rows): the rules of the batched engine's stride, in its order."""
+    """One lane's stride from the apex (y [m], xdot [m/s]) with the leg landing at ``angle`` [rad] under
+    ``ramp`` (no stop) into column ``lane`` of ``out`` (STRIDE_ROWS rows): the rules of the batched
+    engine's stride, in its order."""
     for row in range(STRIDE_ROWS):
         out[row, lane] = math.nan
     failure = NO_FAILURE_CODE
@@ -350,9 +132,10 @@ def lane_stride(
     out[FAILURE_ROW, lane] = failure
     if failure != NO_FAILURE_CODE:
         return
-    y0 = np.array([hopper.r0, angle, rdot_td, thetadot_td, 0.0, 0.0])
-    y_end = np.empty(STATE_SIZE)
-    outcome, s_end = integrate_stance(hopper, ramp, y0, limits.max_stance_time, rtol, atol, y_end)
+    y_end = np.array([hopper.r0, angle, rdot_td, thetadot_td, 0.0, 0.0])
+    outcome, s_end, _ = integrate_stance(
+        hopper, ramp, 0.0, first_step(hopper), y_end, limits.max_stance_time, rtol, atol
+    )
     if outcome != STANCE_LIFTOFF:
         out[FAILURE_ROW, lane] = STANCE_FAILURE_CODES[outcome]
         return
@@ -398,7 +181,7 @@ def stride_lanes(
     lane_hopper = LaneHopper(hopper[0], hopper[1], hopper[2], hopper[3], hopper[4])
     lane_limits = LaneLimits(limits[0], limits[1], limits[2], limits[3])
     for lane in range(y.size):
-        ramp = LaneRamp(tau0[lane], t_f[lane], tau_max[lane])
+        ramp = LaneTorque(tau0[lane], t_f[lane], tau_max[lane], math.inf)
         lane_stride(lane_hopper, lane_limits, y[lane], xdot[lane], angle[lane], ramp, rtol, atol, out, lane)
 
 
@@ -412,9 +195,7 @@ def default_limits(params: HopperParams) -> PlausibilityLimits:
 def kernel_rows(limits: PlausibilityLimits) -> tuple[Array, Array]:
     """The hopper (m, k, r0, c, g) and the limits (the fields of :class:`LaneLimits`) as the lane loops
     take them; made once per limits and shared (the kernels only read them)."""
-    params = limits.params
-    hopper = np.array([params.m, params.k, params.r0, params.c, params.g])
-    return hopper, np.array([getattr(limits, name) for name in LaneLimits._fields])
+    return hopper_row(limits.params), np.array([getattr(limits, name) for name in LaneLimits._fields])
 
 
 def compiled_apex_return_map(
@@ -555,7 +336,7 @@ def exact_regulation_lanes(
             for point in range(3):
                 p0 = x0 + (newton.jacobian_step if point == 1 else 0.0)
                 p1 = x1 + (newton.jacobian_step if point == 2 else 0.0)
-                ramp = LaneRamp(p0 * torque_scale, p1 * time_scale, math.inf)
+                ramp = LaneTorque(p0 * torque_scale, p1 * time_scale, math.inf, math.inf)
                 lane_stride(
                     lane_hopper,
                     lane_limits,
