@@ -55,7 +55,7 @@ from tdslip_msgs.msg import ApexEvent, StanceCommand
 from tdslip_ros.commands.run import counts_table
 from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
-from tdslip_ros.model.policies import POLICIES
+from tdslip_ros.model.policies import LEARNED, POLICIES
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.command_admission import command_key
 from tdslip_ros.nodes.controller_node import ControllerNode
@@ -374,7 +374,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     latency = commands.add_parser("latency")
     latency.add_argument("--mode", choices=("realtime", "lockstep"), default="realtime")
     latency.add_argument("--duration", type=float, default=20.0, help="s of wall time per policy")
-    latency.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES))
+    # Not `learned`: a run of it needs a policy file (its answers are its base policy's plus a residual).
+    timed_policies = [policy for policy in POLICIES if policy != LEARNED]
+    latency.add_argument("--policies", nargs="+", choices=timed_policies, default=timed_policies)
     latency.add_argument("--target-height", type=float, help="m (deadbeat, apex_foot_placement)")
     latency.add_argument("--target-speed", type=float, help="m/s (deadbeat, apex_foot_placement)")
     commands.add_parser("probe", help="the latency bench's probe process (started by the bench)")

@@ -4,6 +4,7 @@ policy and targets change at runtime through validated parameters."""
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import replace
 from pathlib import Path
 
@@ -206,3 +207,26 @@ def test_the_exact_plant_is_loaded_when_the_policy_changes_to_one_that_plans_on_
     other = Bench(ros)
     assert other.set(policy="deadbeat") and not other.controller.exact_plant_ready
     assert other.set(policy="energy_exact") and other.controller.exact_plant_ready
+
+
+def test_the_first_answer_waits_for_a_plant_whose_subscription_it_has_not_seen(
+    ros: RosGraph,
+) -> None:
+    """Discovery is not symmetric: a plant may have matched the controller's publisher and asked before the
+    controller has discovered the plant's command subscription. The answer to the first apex of a run waits
+    for it (a volatile answer published before would never reach the plant)."""
+    controller = ros.add(ControllerNode(context=ros.context))
+    plant = ros.node("late_plant")
+    apex = plant.create_publisher(ApexEvent, topics.APEX, topics.STREAM_QOS)
+    ros.spin_until(lambda: apex.get_subscription_count() >= 1, "the controller to subscribe")
+    commands: list[StanceCommand] = []
+    subscribe = threading.Timer(
+        0.3, lambda: plant.create_subscription(StanceCommand, topics.COMMAND, commands.append, 10)
+    )
+    subscribe.start()  # while the controller's callback runs: the executor is busy with it
+    try:
+        apex.publish(apex_event(0, 1.0, 5.0))
+        ros.spin_until(lambda: len(commands) == 1, "the answer to the first apex")
+    finally:
+        subscribe.cancel()
+    assert (commands[0].epoch, commands[0].stride) == (0, 0) and controller.published == 1

@@ -51,7 +51,7 @@ from tdslip_ros.model.policies import (
     PolicySpec,
 )
 from tdslip_ros.nodes import parameters, topics
-from tdslip_ros.nodes.entry import run_node, wait_for_matching
+from tdslip_ros.nodes.entry import run_node, wait_to_answer
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.wire import serialized
 
@@ -89,7 +89,9 @@ class ControllerNode(Node):
         """energy_exact's compiled exact stride is loaded (see :meth:`_ready_exact_plant`)."""
         self._ready_exact_plant()
         self.add_post_set_parameters_callback(lambda changed: self._ready_exact_plant())
-        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
+        self._apex_topic = self.create_subscription(
+            ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS
+        ).topic_name
 
     def _ready_exact_plant(self) -> None:
         """Load energy_exact's compiled exact stride once the policy plans on it, directly or as a learned
@@ -146,9 +148,8 @@ class ControllerNode(Node):
             policy=policy,
         )
         msg.header = apex.header
-        # A recorder or plant the graph shows but this publisher has not matched yet would miss it.
-        if not wait_for_matching(self, [self._publisher], MATCH_TIMEOUT):
-            self.get_logger().warning(f"{self._publisher.topic_name}: not every subscriber matched in time")
+        # A recorder or plant this publisher has not matched (or discovered) yet would miss it.
+        wait_to_answer(self, self._publisher, self._apex_topic, first=apex.stride == 0, timeout=MATCH_TIMEOUT)
         self._publisher.publish(serialized(msg))
         self.published += 1
 

@@ -81,21 +81,46 @@ def spin_until(executor: Executor, condition: Callable[[], bool], timeout: float
     return True
 
 
+def _wait_until(condition: Callable[[], bool], timeout: float) -> bool:
+    """Sleep in MATCH_POLL steps until ``condition()`` holds (True) or ``timeout`` s pass (False)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(MATCH_POLL)
+    return True
+
+
 def wait_for_matching(node: Node, publishers: Sequence[Publisher[Any]], timeout: float) -> bool:
     """Wait (sleeping, without spinning: DDS matches on threads of its own) until each publisher
     has matched every subscription the graph shows on its topic; False after ``timeout`` s.
     A volatile publisher sends nothing to a subscriber it has not matched yet, even one the graph
     already shows: this is how a node makes sure a recorder that started first hears it."""
-    deadline = time.monotonic() + timeout
+    return _wait_until(
+        lambda: all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in publishers),
+        timeout,
+    )
 
-    def matched() -> bool:
-        return all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in publishers)
 
-    while not matched():
-        if time.monotonic() >= deadline:
-            return False
-        time.sleep(MATCH_POLL)
-    return True
+def wait_to_answer(
+    node: Node, answers: Publisher[Any], question_topic: str, *, first: bool, timeout: float
+) -> None:
+    """Before an answer to a message of ``question_topic`` (an apex) goes out on ``answers`` (the commands):
+    :func:`wait_for_matching`, and at the ``first`` question of a run also until every node that asks (the
+    plant) subscribes to the answers in this node's view of the graph. Discovery is not symmetric: a plant
+    may have matched this publisher, started and asked before this node has discovered the plant's
+    subscription, and a volatile answer published then reaches everyone but the plant. A warning after
+    ``timeout`` s (a node that asks without listening, such as a replay, costs that once per run)."""
+
+    def askers_listen() -> bool:
+        askers = {(i.node_namespace, i.node_name) for i in node.get_publishers_info_by_topic(question_topic)}
+        listeners = {
+            (i.node_namespace, i.node_name) for i in node.get_subscriptions_info_by_topic(answers.topic_name)
+        }
+        return askers <= listeners
+
+    if (first and not _wait_until(askers_listen, timeout)) or not wait_for_matching(node, [answers], timeout):
+        node.get_logger().warning(f"{answers.topic_name}: not every subscriber matched in time")
 
 
 def wait_for_delivery(node: Node, timeout: float = DELIVERY_TIMEOUT) -> bool:

@@ -32,7 +32,7 @@ from tdslip_ros.model.policies import SETTING_DEFAULTS, STANCE_PD_SPEED_ENERGY, 
 from tdslip_ros.model.stance_laws import StanceFeedback, StanceSample, clip_torque
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
-from tdslip_ros.nodes.entry import run_node, wait_for_matching
+from tdslip_ros.nodes.entry import run_node, wait_to_answer
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.torque_stream import tick_of
 from tdslip_ros.nodes.wire import fixed_layout_encoder, serialized
@@ -61,7 +61,9 @@ class StanceControllerNode(Node):
         self._torque_encoder = fixed_layout_encoder(
             HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
         )
-        self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
+        self._apex_topic = self.create_subscription(
+            ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS
+        ).topic_name
         self.create_subscription(ContactEvent, topics.CONTACT, self._on_contact, topics.STREAM_QOS)
         self.create_subscription(HopperState, topics.STATE, self._on_state, topics.STREAM_QOS)
 
@@ -81,10 +83,10 @@ class StanceControllerNode(Node):
             stance=StanceCommand.STANCE_FEEDBACK,
         )
         msg.header = apex.header
-        if not wait_for_matching(self, [self._command_publisher], MATCH_TIMEOUT):
-            self.get_logger().warning(
-                f"{self._command_publisher.topic_name}: not every subscriber matched in time"
-            )
+        # A recorder or plant this publisher has not matched (or discovered) yet would miss it.
+        wait_to_answer(
+            self, self._command_publisher, self._apex_topic, first=apex.stride == 0, timeout=MATCH_TIMEOUT
+        )
         self._command_publisher.publish(serialized(msg))
         self.commands += 1
 
