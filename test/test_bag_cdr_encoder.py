@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import random
+from dataclasses import replace
 
 import pytest
 from builtin_interfaces.msg import Time
@@ -14,18 +15,19 @@ from geometry_msgs.msg import WrenchStamped
 from mcap.records import Schema
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
-from tdslip_msgs.msg import HipTorque, HopperSamples, HopperState
-from visualization_msgs.msg import MarkerArray
+from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperSamples, HopperState
+from visualization_msgs.msg import Marker, MarkerArray
 
 from tdslip_ros.bag.cdr import FixedLayoutEncoder, SequenceColumns
 from tdslip_ros.bag.schema import message_definition
 from tdslip_ros.interfaces import GRF_FIELDS
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.events import Phase
+from tdslip_ros.nodes.markers import GRF_SCALE, GROUND_HALF_WINDOW, HopperMarkers
+from tdslip_ros.nodes.plant_output import APEX_FIELDS, CONTACT_FIELDS
 from tdslip_ros.nodes.wire import (
     SAMPLE_COLUMNS,
     SAMPLE_FIELDS,
-    fill_state,
     fixed_layout_encoder,
     grf_encoder,
     sample_batch,
@@ -44,6 +46,19 @@ def random_state(rng: random.Random) -> ModelState:
     numbers = {name: rng.uniform(-1e3, 1e3) for name in NUMBERS}
     t = rng.uniform(0.0, 1e5)
     return ModelState(t=t, stride=rng.randrange(2**32), phase=rng.choice(list(Phase)), **numbers)
+
+
+def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
+    """A model state copied into a HopperState message stamped t [s], field by field: the message the
+    encoders must give the bytes of."""
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(round(t * 1e9), 1_000_000_000)
+    msg.stride = state.stride
+    msg.phase = HopperState.PHASE_STANCE if state.phase is Phase.STANCE else HopperState.PHASE_FLIGHT
+    msg.x, msg.y, msg.xdot, msg.ydot = state.x, state.y, state.xdot, state.ydot
+    msg.toe_x, msg.toe_y = state.toe_x, state.toe_y
+    msg.leg_length, msg.leg_angle = state.r, state.theta
+    msg.leg_length_rate, msg.leg_angle_rate = state.rdot, state.thetadot
+    msg.hip_torque, msg.energy, msg.ground_height = state.hip_torque, state.energy, state.ground_height
 
 
 def test_hopper_states_encode_to_the_bytes_of_serialize_message() -> None:
@@ -114,9 +129,13 @@ def schema_of(type_name: str) -> Schema:
 
 def test_what_it_cannot_encode_is_refused_when_it_is_made() -> None:
     state = serialize_message(HopperState())
-    with pytest.raises(ValueError, match="no fixed CDR layout"):
+    with pytest.raises(ValueError, match="no fixed CDR layout"):  # bytes of another message
+        FixedLayoutEncoder(schema_of("visualization_msgs/msg/MarkerArray"), state, ())
+    with pytest.raises(ValueError, match="no primitive field markers.0.id"):  # arrays are indexed: [0]
         FixedLayoutEncoder(
-            schema_of("visualization_msgs/msg/MarkerArray"), serialize_message(MarkerArray()), ()
+            schema_of("visualization_msgs/msg/MarkerArray"),
+            serialize_message(MarkerArray()),
+            ("markers.0.id",),
         )
     with pytest.raises(ValueError, match="no primitive field height"):
         FixedLayoutEncoder(schema_of("tdslip_msgs/msg/HopperState"), state, ("height",))
@@ -160,3 +179,59 @@ def test_sample_batches_serialise_as_rclpy_does_and_give_back_the_live_messages(
 def test_sequence_columns_refuse_a_message_with_other_fields() -> None:
     with pytest.raises(ValueError, match="not sequences of primitives: header, stride, phase, x,"):
         SequenceColumns(schema_of("tdslip_msgs/msg/HopperState"))
+
+
+def test_markers_encode_in_place_to_the_bytes_of_serialize_message() -> None:
+    """Arrays keep the lengths of the template (two points a line): the drawing's stamps and coordinates
+    land where rclpy puts them, every other byte as rclpy serialises the template."""
+    rng = random.Random(13)
+    drawing = HopperMarkers("world")
+    for _ in range(100):
+        state, t, ground = random_state(rng), rng.uniform(0.0, 1e4), rng.uniform(-1.0, 1.0)
+        if rng.random() < 0.3:
+            state = replace(state, grf_x=0.0, grf_y=0.0)  # flight: the arrow deleted
+        data = drawing.encoded(state, t, ground)
+        message = deserialize_message(data, MarkerArray)
+        assert serialized(message) == data
+        body, leg, toe, ground_line, grf = message.markers
+        sec, nanosec = divmod(round(t * 1e9), 1_000_000_000)
+        assert {(m.header.stamp.sec, m.header.stamp.nanosec) for m in message.markers} == {(sec, nanosec)}
+        assert (body.pose.position.x, body.pose.position.z) == (state.x, state.y)
+        assert (toe.pose.position.x, toe.pose.position.z) == (state.toe_x, state.toe_y)
+        assert [(p.x, p.z) for p in leg.points] == [(state.x, state.y), (state.toe_x, state.toe_y)]
+        assert [p.z for p in ground_line.points] == [ground, ground]
+        assert ground_line.points[1].x - ground_line.points[0].x == pytest.approx(2 * GROUND_HALF_WINDOW)
+        assert grf.action == (Marker.DELETE if state.grf_x == state.grf_y == 0.0 else Marker.ADD)
+        assert (grf.points[1].x - state.toe_x) * GRF_SCALE == pytest.approx(state.grf_x, abs=1e-9)
+        assert [m.id for m in message.markers] == list(range(5)) and body.color.b == pytest.approx(0.9)
+
+
+def test_apex_and_contact_events_encode_to_the_bytes_of_serialize_message() -> None:
+    rng = random.Random(17)
+    apex_encoder = fixed_layout_encoder(ApexEvent, APEX_FIELDS)
+    template = ContactEvent()
+    template.header.frame_id = template.state.header.frame_id = "world"
+    contact_encoder = fixed_layout_encoder(ContactEvent, CONTACT_FIELDS, template)
+    for _ in range(200):
+        state, t = random_state(rng), rng.uniform(0.0, 1e5)
+        sec, nanosec = divmod(round(t * 1e9), 1_000_000_000)
+        epoch, stride = rng.randrange(2**32), rng.randrange(2**32)
+        numbers = [rng.uniform(-1e3, 1e3) for _ in range(12)]
+        apex = ApexEvent(epoch=epoch, stride=stride)
+        apex.header.frame_id = "world"
+        apex.header.stamp.sec, apex.header.stamp.nanosec = sec, nanosec
+        names = APEX_FIELDS[4:]
+        for name, value in zip(names, [t, *numbers[: len(names) - 1]], strict=True):
+            setattr(apex, name, value)
+        assert apex_encoder.encode(
+            (sec, nanosec, epoch, stride, t, *numbers[: len(names) - 1])
+        ) == serialized(apex)
+        kind = rng.choice([ContactEvent.TOUCHDOWN, ContactEvent.BOTTOM, ContactEvent.LIFTOFF])
+        contact = ContactEvent(kind=kind, epoch=epoch, stride=stride, sim_time=t, ground_height=numbers[0])
+        contact.header.frame_id = contact.state.header.frame_id = "world"
+        contact.header.stamp.sec, contact.header.stamp.nanosec = sec, nanosec
+        fill_state(contact.state, state, t)
+        encoded = contact_encoder.encode(
+            (sec, nanosec, kind, epoch, stride, t, numbers[0], *state_values(state, t))
+        )
+        assert encoded == serialized(contact)

@@ -12,12 +12,12 @@ import string
 from typing import Any
 
 import pytest
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosgraph_msgs.msg import Clock
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
+from visualization_msgs.msg import MarkerArray
 
 from tdslip_ros.bag.padding import PaddingError, PaddingZeroer, layout, padded_to_4, padding_positions
 from tdslip_ros.bag.schema import message_definition
@@ -89,7 +89,8 @@ def random_markers(rng: random.Random) -> Any:
         },
         ground_height=rng.uniform(-0.1, 0.1),
     )
-    return HopperMarkers(topics.FRAME_ID).update(state, Time(sec=rng.randrange(100)), state.ground_height)
+    drawn = HopperMarkers(topics.FRAME_ID).encoded(state, rng.randrange(100), state.ground_height)
+    return deserialize_message(drawn, MarkerArray)
 
 
 def messages(count: int, seed: int = 5) -> list[Any]:

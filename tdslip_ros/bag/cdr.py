@@ -64,9 +64,10 @@ _CDR_LITTLE_ENDIAN = b"\x00\x01"
 
 def _fixed_layout(schema: Schema, sample: bytes) -> dict[str, tuple[int, str]] | None:
     """Byte offset (after the 4-byte encapsulation header) and numpy type of every primitive field,
-    by dotted path, for messages laid out like ``sample``; None if the layout is not fixed
-    (arrays, wide strings) or ``sample`` is not little-endian CDR. Strings take the length that
-    ``sample`` holds; callers check that every message of a batch holds the same lengths."""
+    by dotted path (``points[1].x`` in arrays), for messages laid out like ``sample``; None if ``sample``
+    is not little-endian CDR of that layout, or holds a wide string. Strings and sequences take the
+    lengths that ``sample`` holds (their ``.__length__`` entries); callers check that every message of a
+    batch holds the same lengths."""
     if sample[:2] != _CDR_LITTLE_ENDIAN:
         return None
     type_name, definitions = message_fields(schema.name, schema.data.decode())
@@ -74,28 +75,50 @@ def _fixed_layout(schema: Schema, sample: bytes) -> dict[str, tuple[int, str]] |
     payload = memoryview(sample)[4:]
     offset = 0
 
+    def length(path: str) -> int | None:
+        """The uint32 length of a string or sequence at the offset, read from ``sample``."""
+        nonlocal offset
+        offset += -offset % 4
+        if offset + 4 > len(payload):
+            return None
+        layout[path + ".__length__"] = (offset, "<u4")
+        offset += 4
+        return int.from_bytes(payload[offset - 4 : offset], "little")
+
+    def value(base: str, path: str) -> bool:
+        nonlocal offset
+        if base in _PRIMITIVES:
+            size = np.dtype(_PRIMITIVES[base]).itemsize
+            offset += -offset % size
+            layout[path] = (offset, _PRIMITIVES[base])
+            offset += size
+        elif base == "string":
+            characters = length(path)
+            if characters is None:
+                return False
+            offset += characters
+        elif base in definitions:
+            return walk(base, path + ".")
+        else:
+            return False
+        return True
+
     def walk(type_name: str, prefix: str) -> bool:
         nonlocal offset
         for field in definitions.get(type_name, ()):
             path = prefix + field.name
-            if field.count is not None or field.sequence:
-                return False  # arrays have no fixed layout here
-            if field.base in _PRIMITIVES:
-                dtype = np.dtype(_PRIMITIVES[field.base])
-                offset += -offset % dtype.itemsize
-                layout[path] = (offset, _PRIMITIVES[field.base])
-                offset += dtype.itemsize
-            elif field.base == "string":
-                offset += -offset % 4
-                layout[path + ".__length__"] = (offset, "<u4")
-                if offset + 4 > len(payload):
+            if not field.sequence and field.count is None:
+                if not value(field.base, path):
                     return False
-                offset += 4 + int.from_bytes(payload[offset : offset + 4], "little")
-            elif field.base in definitions:
-                if not walk(field.base, path + "."):
-                    return False
-            else:
+                continue
+            count = length(path) if field.sequence else field.count
+            if count is None:
                 return False
+            if field.sequence and field.base in _PRIMITIVES:  # aligned for its elements even when empty
+                offset += -offset % np.dtype(_PRIMITIVES[field.base]).itemsize
+            for index in range(count):
+                if not value(field.base, f"{path}[{index}]"):
+                    return False
         return True
 
     # An RMW pads what it sends to a multiple of 4 bytes: up to 3 bytes may follow the last field.
@@ -110,7 +133,11 @@ def decoded_columns(schema: Schema, datas: Sequence[bytes], paths: Sequence[str]
     if not datas:
         return {path: np.empty(0) for path in paths}
     layout = _fixed_layout(schema, datas[0])
-    if layout is not None and all(len(data) == len(datas[0]) for data in datas):
+    if (
+        layout is not None
+        and all(path in layout for path in paths)
+        and all(len(data) == len(datas[0]) for data in datas)
+    ):
         dtype = np.dtype(
             {
                 "names": list(layout),

@@ -52,8 +52,14 @@ def serialized(msg: object) -> bytes:
     return padded_to_4(_zeroer(type(msg))(serialize_message(msg)))
 
 
+def stamp_of(t: float) -> tuple[int, int]:
+    """(sec, nanosec) of a time t [s]."""
+    sec, nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
+    return sec, nanosec
+
+
 def set_stamp(stamp: Time, t: float) -> None:
-    stamp.sec, stamp.nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
+    stamp.sec, stamp.nanosec = stamp_of(t)
 
 
 SAMPLE_FIELDS = (*STAMP_FIELDS, *STATE_FIELDS)
@@ -62,7 +68,7 @@ SAMPLE_FIELDS = (*STAMP_FIELDS, *STATE_FIELDS)
 
 def state_values(state: ModelState, t: float) -> tuple[int | float, ...]:
     """The values of :data:`SAMPLE_FIELDS` for a model state stamped t [s]."""
-    sec, nanosec = divmod(round(t * _NS_PER_S), _NS_PER_S)
+    sec, nanosec = stamp_of(t)
     phase = HopperState.PHASE_STANCE if state.phase is Phase.STANCE else HopperState.PHASE_FLIGHT
     return (
         sec,
@@ -85,19 +91,15 @@ def state_values(state: ModelState, t: float) -> tuple[int | float, ...]:
     )
 
 
-def fill_state(msg: HopperState, state: ModelState, t: float) -> None:
-    """Copy a model state into a HopperState message stamped t [s]."""
-    values = state_values(state, t)
-    msg.header.stamp.sec, msg.header.stamp.nanosec = values[:2]
-    for name, value in zip(STATE_FIELDS, values[len(STAMP_FIELDS) :], strict=True):
-        setattr(msg, name, value)
-
-
-def fixed_layout_encoder(message_class: type, fields: tuple[str, ...]) -> FixedLayoutEncoder:
-    """An encoder of ``message_class`` (frame_id ``world`` where it has a header) from ``fields``' values."""
-    template = message_class()
-    if hasattr(template, "header"):
-        template.header.frame_id = topics.FRAME_ID
+def fixed_layout_encoder(
+    message_class: type, fields: tuple[str, ...], template: object | None = None
+) -> FixedLayoutEncoder:
+    """An encoder of ``message_class`` from ``fields``' values; every other field as in ``template`` (its
+    sequences keep their lengths), by default a new message with frame_id ``world`` where it has a header."""
+    if template is None:
+        template = message_class()
+        if hasattr(template, "header"):
+            template.header.frame_id = topics.FRAME_ID
     name, text = _definition(message_class)
     schema = Schema(id=0, name=name, encoding="ros2msg", data=text.encode())
     return FixedLayoutEncoder(schema, serialize_message(template), fields)
