@@ -18,13 +18,14 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from ros_harness import RosGraph, overrides, stop_process
 from rosbags.highlevel import AnyReader
-from tdslip_msgs.msg import ApexEvent
+from tdslip_msgs.msg import ApexEvent, HopperSamples
 
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
-from tdslip_ros.nodes.entry import wait_for_delivery
+from tdslip_ros.nodes.entry import wait_for_delivery, wait_for_matching
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
+from tdslip_ros.nodes.wire import SAMPLE_COLUMNS
 
 RECORDER = "tdslip_ros.nodes.recorder_node"
 NS = 1_000_000_000
@@ -160,3 +161,36 @@ def test_a_stop_signal_mid_run_leaves_a_finalised_readable_bag(
     assert mcap_counts[resolve(topics.STATE)] >= 1500
     for decoded in (mcap_messages, rosbags_messages):
         assert_gapless_from_start(decoded[resolve(topics.STATE)])
+
+
+def test_a_recorder_of_the_batches_counts_as_a_subscriber_of_the_state_for_min_subscribers(
+    ros: RosGraph, tmp_path: Path
+) -> None:
+    """With min_subscribers 1 the plant starts once the recorder is there: it hears the state and the force
+    through tdslip/samples, not on the live topics."""
+    recorder = start_recorder(ros, tmp_path / "bag", record_clock=False)
+    plant, _ = start_hopping(ros, max_strides=2, min_subscribers=1, command_timeout=30.0)
+    assert plant.matched_subscribers(topics.STATE) == 0 and plant.matched_subscribers(topics.SAMPLES) == 1
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome.kind == "run_complete" and plant.deliver(ros.executor)
+    assert stop_process(recorder) == 0
+
+
+def test_a_malformed_batch_is_skipped_and_recording_goes_on(ros: RosGraph, tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    recorder = start_recorder(ros, bag, record_clock=False)
+    node = ros.node("someone")
+    batches = node.create_publisher(HopperSamples, topics.SAMPLES, topics.STREAM_QOS)
+    ros.spin_until(lambda: batches.get_subscription_count() >= 1, "the recorder to subscribe")
+    wait_for_matching(node, [batches], 5.0)
+    batches.publish(HopperSamples(sec=[1, 2], nanosec=[0]))  # columns of unequal length
+    rows = [(tick, 0, 0, 0, *([float(tick)] * 15)) for tick in range(3)]
+    batches.publish(
+        HopperSamples(**{name: [row[i] for row in rows] for i, name in enumerate(SAMPLE_COLUMNS)})
+    )
+    assert wait_for_delivery(node)
+    assert stop_process(recorder) == 0
+    _, counts, messages = mcap_contents(bag / "bag_0.mcap")
+    assert counts[resolve(topics.STATE)] == counts[resolve(topics.GRF)] == 3
+    assert [m.x for m in messages[resolve(topics.STATE)]] == [0.0, 1.0, 2.0]
+    assert "a malformed batch skipped" in (tmp_path / "recorder.log").read_text()

@@ -110,7 +110,7 @@ def wait_to_answer(
     plant) subscribes to the answers in this node's view of the graph. Discovery is not symmetric: a plant
     may have matched this publisher, started and asked before this node has discovered the plant's
     subscription, and a volatile answer published then reaches everyone but the plant. A warning after
-    ``timeout`` s (a node that asks without listening, such as a replay, costs that once per run)."""
+    ``timeout`` s (a node that asks without listening, such as a replay, costs that at each run's start)."""
 
     def askers_listen() -> bool:
         askers = {(i.node_namespace, i.node_name) for i in node.get_publishers_info_by_topic(question_topic)}
@@ -119,7 +119,8 @@ def wait_to_answer(
         }
         return askers <= listeners
 
-    if (first and not _wait_until(askers_listen, timeout)) or not wait_for_matching(node, [answers], timeout):
+    heard = not first or _wait_until(askers_listen, timeout)
+    if not wait_for_matching(node, [answers], timeout) or not heard:
         node.get_logger().warning(f"{answers.topic_name}: not every subscriber matched in time")
 
 

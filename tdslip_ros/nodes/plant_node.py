@@ -1,7 +1,9 @@
 """The plant node: the exact TD-SLIP stepper of the model, advanced at 1 kHz and published.
 
-Every tick it publishes the state (``tdslip/state``) and the ground reaction force (``tdslip/grf``),
-and, stamped with the times the stepper located inside the tick, the apex (``tdslip/apex``),
+Every tick it publishes the state (``tdslip/state``) and the ground reaction force (``tdslip/grf``) to
+whoever subscribes to them, and to recorders in batches (``tdslip/samples``,
+:mod:`tdslip_ros.nodes.plant_output`); and, stamped with the times the stepper located inside the tick,
+the apex (``tdslip/apex``),
 contact (``tdslip/contact``) and failure (``tdslip/status``) events; ``tdslip/markers`` draws the
 hopper for Foxglove and RViz at ``marker_rate`` Hz of simulated time, and /clock carries the
 simulated time while someone subscribes to it (``publish_clock``). Every stamp is simulated time,
@@ -57,7 +59,8 @@ publisher, a lockstep run never gets more than :data:`FLOW_WINDOW` messages ahea
 recorder has written, and the end of a run waits until everything is in the bag. No other
 subscriber can slow or stop the plant: one that stalls only loses messages.
 
-The run starts once each of the plant's topics has ``min_subscribers`` subscribers and a controller
+The run starts once each of the plant's topics has ``min_subscribers`` subscribers (a recorder of the
+batches counts for the state and the force) and a controller
 is connected (or ``command_timeout`` has passed). It ends, with a fatal Status, at a failure of
 the hopper, at a command timeout, as ``publish_failed`` when a publication fails or the recorder
 waited for stops reporting, or as ``run_complete`` at apex ``max_strides``. The reset service
@@ -111,7 +114,8 @@ START_SETTLE = 0.2  # s the peers must have been there before the run starts
 LOCKSTEP_BATCH = 50
 """Ticks per lockstep timer callback: amortises the executor's cost while keeping it responsive."""
 GRAPH_CHECK_TICKS = 50
-"""Ticks between two looks at who subscribes to /clock and the markers (a graph query costs ~20 us)."""
+"""Ticks between two looks at who subscribes to the live state and force, /clock and the markers (a graph
+query costs ~20 us); the plant also looks at every apex and touchdown."""
 DELIVERY_TIMEOUT = 10.0
 """s a finished run waits for the recorder it waits for to write everything (and, without one, at
 most :data:`ACK_TIMEOUT` for subscribers' acknowledgements)."""
@@ -292,7 +296,7 @@ class PlantNode(Node):
 
     def _peers_required_present(self) -> bool:
         """min_subscribers listen to each topic and a recorder waited for has matched every publisher."""
-        if any(self.matched_subscribers(topic) < self._min_subscribers for topic in topics.PLANT_TOPICS):
+        if any(self._out.listeners(topic) < self._min_subscribers for topic in topics.PLANT_TOPICS):
             return False
         return not self._wait_for_recorder or self.recorder_ready()
 
@@ -443,7 +447,10 @@ class PlantNode(Node):
     def deliver(self, executor: Executor) -> bool:
         """After a run: with ``wait_for_recorder``, spin until the recorder has written everything
         (False after DELIVERY_TIMEOUT s); without, wait at most ACK_TIMEOUT for the subscribers'
-        acknowledgements, so that no stalled subscriber can keep the plant."""
+        acknowledgements, so that no stalled subscriber can keep the plant. The samples not yet batched go
+        out first (a run stopped from outside, e.g. by SIGINT, published no final status)."""
+        with self._lock:
+            self._out.flush()
         if self._wait_for_recorder and self.recorders.heard:
             return spin_until(executor, self.recorded_everything, DELIVERY_TIMEOUT)
         return wait_for_delivery(self, ACK_TIMEOUT)
@@ -606,7 +613,8 @@ class PlantNode(Node):
             if key > (self._epoch, self._stepper.stride):
                 epoch, stride = key
                 reason = not_yet(key, self._epoch, self._stepper.stride)
-                self._report_rejection(f"command for epoch {epoch}, stride {stride} rejected: {reason}")
+                with self._lock:  # its Status flushes the samples the tick thread is batching
+                    self._report_rejection(f"command for epoch {epoch}, stride {stride} rejected: {reason}")
             else:
                 self.rejections.total += 1  # a late answer: counted, not reported
                 if key[0] == self._epoch and key[1] > self._answered:

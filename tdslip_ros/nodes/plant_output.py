@@ -121,6 +121,11 @@ class PlantOutput:
         """Subscriptions matched with the publisher of ``topic`` (relative name)."""
         return self._publishers[topic].get_subscription_count()
 
+    def listeners(self, topic: str) -> int:
+        """:meth:`subscribers`, and for the state and the force also the recorders of their batches."""
+        batched = self.subscribers(topics.SAMPLES) if topic in topics.BATCHED_TOPICS else 0
+        return self.subscribers(topic) + batched
+
     def check_graph(self) -> None:
         """Publish the live state and force, /clock and the markers from now on while someone subscribes to
         them (a graph query costs ~20 us: the plant calls this every few dozen ticks and at every apex)."""
@@ -150,7 +155,8 @@ class PlantOutput:
             self.flush()
 
     def flush(self) -> None:
-        """Publish the samples not yet batched on tdslip/samples (the plant calls this before it waits)."""
+        """Publish the samples not yet batched on tdslip/samples (every event does, first; so does the end of
+        a run)."""
         samples = len(self._batch)
         if samples:
             self._samples_pub.publish(self._batch.take())
@@ -203,6 +209,8 @@ class PlantOutput:
     def contact(self, epoch: int, event: Event, t: float) -> None:
         """A touchdown, bottom or liftoff at t [s], with its state."""
         self.flush()
+        if event.kind is EventKind.TOUCHDOWN:  # a stance controller needs every sample of the stance
+            self.check_graph()
         kind, state = _CONTACT_KINDS[event.kind], event.state
         values = (*stamp_of(t), kind, epoch, event.stride, t, state.toe_y, *state_values(state, t))
         self._contact_pub.publish(self._contact_encoder.encode(values))

@@ -117,7 +117,8 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "min_subscribers",
         0,
-        "the run starts once each of the plant's topics has this many subscribers",
+        "the run starts once each of the plant's topics has this many subscribers "
+        "(a recorder of tdslip/samples counts for the state and the force)",
         0,
         1000,
         read_only=True,

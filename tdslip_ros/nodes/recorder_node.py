@@ -3,10 +3,11 @@
 It records the topics of :data:`~tdslip_ros.nodes.topics.RECORDED_TOPICS` in its namespace (so
 ``__ns:=/h1`` records hopper /h1). It subscribes to them at once (reliable and volatile, which any
 reliable publisher matches), so a node started after it finds its subscription there from the
-start. Like rosbag2 it adapts to what the publishers offer (the graph is looked at every
-:data:`DISCOVERY_PERIOD` s; :func:`~tdslip_ros.nodes.topics.adapted_qos`): a topic is registered in
-the bag with its publishers' offered profiles when the first one appears, and a subscription that
-has recorded nothing yet is made best-effort or transient-local if every publisher is.
+start; the plant's state and force through its batches (below). Like rosbag2 it adapts to what the
+publishers offer (the graph is looked at every :data:`DISCOVERY_PERIOD` s;
+:func:`~tdslip_ros.nodes.topics.adapted_qos`): a topic is registered in the bag with its publishers'
+offered profiles when the first one appears, and a subscription that has recorded nothing yet is made
+best-effort or transient-local if every publisher is.
 The messages are taken raw (the CDR bytes go to :class:`~tdslip_ros.bag.RosbagMcapWriter`
 untouched) by a thread, in batches, without a Python callback per message (see
 :class:`RecorderNode`); the log time is the system time [ns] at which the message was taken, the
@@ -191,8 +192,9 @@ class RecorderNode(Node):
                 continue
             wanted = topics.adapted_qos(offered)
             if subscription is None:  # a batched topic published without batches
-                with self._subscriptions_lock:
-                    self._subscribe(name, wanted)
+                if self.count_publishers(self._samples_topic) == 0:  # (still: discovery goes on meanwhile)
+                    with self._subscriptions_lock:
+                        self._subscribe(name, wanted)
                 continue
             if _same_policies(subscription.qos_profile, wanted):
                 continue
@@ -267,11 +269,19 @@ class RecorderNode(Node):
         self.bag.write(name, data, received, sent)
 
     def _write_samples(self, data: bytes, received: int, sent: int) -> int:
-        """Write a batch of samples as the state and force messages of its ticks; the number written."""
+        """Write a batch of samples as the state and force messages of its ticks; the number written. A
+        batch that is no HopperSamples of equal columns is skipped, with one warning."""
         encode_state, encode_grf = self._state_encoder.encode, self._grf_encoder.encode
         state, grf = self._state_topic, self._grf_topic
+        try:
+            batch = list(sample_rows(data))
+        except ValueError as error:  # e.g. `ros2 topic pub` of unequal arrays
+            if self._samples_topic not in self._warned:
+                self._warned.add(self._samples_topic)
+                self.get_logger().warning(f"{self._samples_topic}: a malformed batch skipped ({error})")
+            return 0
         rows = 0
-        for row in sample_rows(data):
+        for row in batch:
             self._write(state, encode_state(row[:-2]), received, sent)
             self._write(grf, encode_grf((row[0], row[1], row[-2], row[-1])), received, sent)
             rows += 1
