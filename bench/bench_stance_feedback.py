@@ -2,15 +2,15 @@
 
     python bench/bench_stance_feedback.py [--lanes-per-side 32] [--strides 20] [--tolerance 1e-12]
 
-The grid is lanes-per-side^2 initial apex states (y in [1.0, 1.35] m, xdot in [3, 5] m/s; default
-32^2 = 1,024) of the paper's hopper (kbar = 36, zeta0 = 0.08), run by ``simulate_strides`` twice, at
-the same DOP853 tolerance: under the ramp of a proportional energy regulator at beta = 20 deg (the
-policy of bench_batch.py), and under the stance law of ref. 36's baseline (``StancePDSpeedEnergy``,
-default gains, target 1.2 m at 4 m/s) sampled at 1 kHz, at beta = 22 deg. A law's stance is split at
-every sample instant, so each lane takes at least one DOP853 step per millisecond of stance (about 150 a
-stance), where a ramp's takes a few dozen steps in all (about 22), and the law is evaluated at every
-sample. Both runs are timed in this process, one after the other, each the better of --repeats; printed:
-strides/s of each and their ratio.
+The grid is lanes-per-side^2 initial apex states (y in [1.0, 1.35] m, xdot in [3, 5] m/s; default 32^2 =
+1,024) of the paper's hopper (kbar = 36, zeta0 = 0.08), run by ``simulate_strides`` twice, at the same
+DOP853 tolerance: under the ramp of a proportional energy regulator at beta = 20 deg (the policy of
+bench_batch.py), and under the stance law of ref. 36's baseline (``StancePDSpeedEnergy``, default gains,
+target 1.2 m at 4 m/s) sampled at 1 kHz, at beta = 22 deg. A law's stance is split at every sample instant,
+so each lane takes at least one DOP853 step per millisecond of stance (about 150 a stance when the steps
+were last counted, before the stance was compiled), where a ramp's takes a few dozen steps in all (about 22
+then), and the law is evaluated at every sample. Both runs are timed in this process, one after the other,
+each the better of --repeats; printed: strides/s of each and their ratio.
 """
 
 from __future__ import annotations

@@ -18,6 +18,7 @@ from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.exact_kernels import apex_stride, compiled_apex_return_map
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.stance_kernel import LaneTorque, kink
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 ENERGY_SCALE = units.energy_scale(PARAMS)
@@ -184,3 +185,14 @@ def test_energy_exact_over_many_lanes_meets_its_target_on_scipy_s_exact_map_or_s
     reasons = {plan.reason(lane) for lane in np.flatnonzero(plan.no_command != HAS_COMMAND)}
     assert NoCommand.NO_SOLUTION in reasons and reasons & {NoCommand.NO_LIFTOFF, NoCommand.PREDICTED_FALL}
     assert not np.isin(np.arange(0, count, 10), answered).any()
+
+
+def test_the_next_kink_is_the_first_of_saturation_end_ramp_end_and_a_stop_still_ahead() -> None:
+    """A stop instant the lane has reached is served: the ramp's own kinks count again after it."""
+    ramp = LaneTorque(tau0=-500.0, t_f=0.15, tau_max=math.inf, stop=0.05)
+    assert kink(ramp, 0.0) == 0.05  # the stop comes first
+    assert kink(ramp, 0.05) == 0.15  # standing on it: the ramp's end is next
+    assert kink(ramp._replace(stop=0.01), 0.1) == 0.15
+    saturated = ramp._replace(tau_max=400.0, stop=math.inf)  # |tau| > 400 until 0.15 * (1 - 400/500)
+    assert kink(saturated, 0.0) == pytest.approx(0.03, rel=1e-12)
+    assert kink(saturated, 0.05) == 0.15

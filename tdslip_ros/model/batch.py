@@ -1,4 +1,4 @@
-"""Batched exact TD-SLIP engine: many apex-to-apex strides at once, vectorised over lanes with numpy.
+"""Batched exact TD-SLIP engine: many apex-to-apex strides at once, their flights vectorised over lanes.
 
 Each lane is one initial condition with its own command: a torque ramp (:func:`batch_apex_return_map`) or
 a stance law (:func:`batch_feedback_return_map`, :mod:`.stance_laws`). Descent and ascent are closed-form,

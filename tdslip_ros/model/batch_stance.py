@@ -53,14 +53,15 @@ def ramp_stance(
         saturation,
         never,
         np.arange(lanes),
-        t_limit,
-        rtol,
-        atol,
+        float(t_limit),  # floats: an int would compile the kernels a second time
+        float(rtol),
+        float(atol),
         s,
         h,
         y,
         outcome,
     )
+    assert not np.any(outcome == STANCE_STOP), "a ramp has no stop instant"
     return outcome, s
 
 
@@ -114,9 +115,9 @@ def feedback_stance(
             unbounded,
             stop,
             stepping,
-            t_limit,
-            rtol,
-            atol,
+            float(t_limit),
+            float(rtol),
+            float(atol),
             s,
             h,
             y,

@@ -213,7 +213,8 @@ def compiled_apex_return_map(
 ) -> BatchStrideResult:
     """:func:`.batch.batch_apex_return_map` on flat ground, without pushes or placement errors (the same
     arguments, checks and ParameterError), one lane after the other in compiled code: for a few lanes per
-    call, where the batched engine spends its time in numpy's overhead per step."""
+    call, where the batched engine spends its time in numpy's overhead per call (its descent, ascent and
+    checks are array operations)."""
     check_tolerances(rtol, atol)
     limits = PlausibilityLimits.of(params, limits)
     arrays = np.broadcast_arrays(

@@ -168,13 +168,13 @@ def terminal_rate(hopper: LaneHopper, y: Array, velocity: Array, event: int) -> 
 @kernel
 def kink(torque: LaneTorque, s: float) -> float:
     """The next kink of the torque after s: the end of the saturation, else the ramp's end t_f; the stop
-    instant where it comes first."""
+    instant where it comes first (a stop at or before s is no kink: it has been served)."""
     end = torque.t_f
     if abs(torque.tau0) > torque.tau_max:
         saturation_end = dynamics.saturation_time(torque.tau0, torque.t_f, torque.tau_max)
         if s < saturation_end:
             end = saturation_end
-    return min(end, torque.stop)
+    return min(end, torque.stop) if torque.stop > s else end
 
 
 @kernel
@@ -205,7 +205,9 @@ def locate_event(
     sigma = min(max(g_a * h / (g_a - g_b), 0.0), h)
     velocity = np.empty(STATE_SIZE)
     active = 0
+    located = sigma  # the trial length whose state y_event holds
     for _ in range(MAX_ROOT_ITERATIONS):
+        located = sigma
         dop853_step(hopper, torque, s0, y0, sigma, k, y_event)
         values = terminal_values(hopper, y_event)
         g = math.inf
@@ -223,7 +225,7 @@ def locate_event(
             break
         newton = sigma - newton_step
         sigma = newton if a < newton < b else 0.5 * (a + b)
-    return active, s0 + sigma
+    return active, s0 + located
 
 
 @kernel
