@@ -94,8 +94,9 @@ def random_markers(rng: random.Random) -> Any:
 
 
 def messages(count: int, seed: int = 5) -> list[Any]:
-    """Random messages of every type the nodes publish. Their sequences are not empty: rosbags aligns an
-    empty sequence of 8-byte numbers, where Fast-CDR (rclpy, every ROS 2 RMW) does not."""
+    """Random messages of every type the nodes publish. Their sequences are not empty: Fast-CDR (rclpy, every
+    ROS 2 RMW) aligns an empty sequence of 8-byte numbers for its elements, where rosbags does not (an empty
+    tdslip_msgs/HopperSamples: 140 bytes against 80)."""
     rng = random.Random(seed)
     out: list[Any] = []
     for _ in range(count):
