@@ -170,13 +170,13 @@ def _attribute(message: object, path: str) -> Any:
 
 
 class FixedLayoutEncoder:
-    """Serialises messages of one fixed CDR layout straight from the values of chosen fields, without
-    building a message object: the publisher's cost at 1 kHz. ``sample`` is one message serialised the
-    usual way (rclpy's ``serialize_message``); every field not in ``fields`` keeps its value there (the
-    frame_id, constants), and every padding byte is zero whatever ``sample`` held there, up to a
-    length that is a multiple of 4 (:mod:`tdslip_ros.bag.padding`). ``fields`` are dotted paths in
-    the order of the message (their byte order); runs of them that only CDR padding separates are
-    packed by one ``struct`` call."""
+    """Serialises messages of one fixed CDR layout straight from the values of chosen fields, without building
+    a message object: the publisher's cost at 1 kHz. ``sample`` is one message serialised the usual way
+    (rclpy's ``serialize_message``); every field not in ``fields`` keeps its value there (the frame_id,
+    constants, the lengths of its arrays), and every padding byte is zero whatever ``sample`` held there,
+    up to a length that is a multiple of 4 (:mod:`tdslip_ros.bag.padding`). ``fields`` are dotted paths in
+    the order of the message (their byte order); runs of them that only CDR padding separates are packed
+    by one ``struct`` call."""
 
     def __init__(self, schema: Schema, sample: bytes, fields: Sequence[str]) -> None:
         layout = _fixed_layout(schema, sample)

@@ -355,8 +355,7 @@ class PolicySpec:
             if residual.base_policy not in POLICIES or residual.base_policy == LEARNED:
                 bases = ", ".join(policy for policy in POLICIES if policy != LEARNED)
                 raise ValueError(f"its base policy must be one of {bases}, not {residual.base_policy!r}")
-            known = {setting.name for setting in POLICY_SETTINGS}
-            if unknown := sorted(set(residual.base_settings) - known):
+            if unknown := sorted(residual.base_settings.keys() - SETTING_DEFAULTS.keys()):
                 raise ValueError(f"its base settings name no setting {', '.join(unknown)}")
             values = {**SETTING_DEFAULTS, **residual.base_settings, "corrections": self.corrections}
             base = PolicySpec.of(residual.base_policy, values)

@@ -139,6 +139,8 @@ class RecorderNode(Node):
         self._samples_topic = self.resolve_topic_name(topics.SAMPLES)
         self._message_classes[self._samples_topic] = topics.MESSAGE_TYPES[topics.SAMPLES]
         self._state_topic, self._grf_topic = (self.resolve_topic_name(t) for t in topics.BATCHED_TOPICS)
+        self._batched = {self._state_topic, self._grf_topic}
+        """The topics recorded from the batches on tdslip/samples while it has a publisher."""
         self._state_encoder, self._grf_encoder = state_encoder(), grf_encoder()
         self.write_error: str | None = None
         """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
@@ -162,7 +164,7 @@ class RecorderNode(Node):
         # a publisher that appears later has the recorder's subscription to match from its start; the
         # batched topics through tdslip/samples, until _discover finds them published without it.
         for name in [self._samples_topic, *self.topic_names]:
-            if name not in (self._state_topic, self._grf_topic):
+            if name not in self._batched:
                 self._subscribe(name, topics.adapted_qos([]))
         self._stop_taking = threading.Event()
         self._taker = threading.Thread(target=self._take_loop, name="tdslip-recorder-take", daemon=True)
@@ -184,7 +186,7 @@ class RecorderNode(Node):
                 continue
             self._register(name, offered)
             subscription = self._topic_subscriptions.get(name)
-            if name in (self._state_topic, self._grf_topic) and batches:
+            if name in self._batched and batches:
                 if subscription is not None:  # a plant with batches came after a replay
                     with self._subscriptions_lock:
                         assert self._reader is not None
@@ -297,17 +299,16 @@ class RecorderNode(Node):
             status.recorded = [counts.get(name, 0) for name in self.topic_names]
             status.publishers = [
                 subscription.get_publisher_count()
-                if (subscription := self._topic_subscriptions.get(name) or self._batches_of(name))
+                if (subscription := self._topic_subscriptions.get(name) or self._batch_subscription(name))
                 else 0
                 for name in self.topic_names
             ]
             status.closed = self.bag.closed
             self._status_publisher.publish(serialized(status))
 
-    def _batches_of(self, name: str) -> Subscription[Any] | None:
+    def _batch_subscription(self, name: str) -> Subscription[Any] | None:
         """The tdslip/samples subscription, if ``name`` is recorded from it."""
-        batched = name in (self._state_topic, self._grf_topic)
-        return self._topic_subscriptions[self._samples_topic] if batched else None
+        return self._topic_subscriptions[self._samples_topic] if name in self._batched else None
 
     @property
     def message_count(self) -> int:
