@@ -12,7 +12,7 @@ Their defaults are the paper's figures 8-10: kbar = 36, zeta0 = 0.08, m = 80 kg,
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -154,6 +154,21 @@ _TYPE_NAMES = {bool: "true or false", int: "an integer", float: "a number", str:
 _RCL_TRUE = {"y", "Y", "yes", "Yes", "YES", "true", "True", "TRUE", "on", "On", "ON"}
 _RCL_FALSE = {"n", "N", "no", "No", "NO", "false", "False", "FALSE", "off", "Off", "OFF"}
 _RCL_FLOAT_WORDS = {".nan", ".NaN", ".NAN", ".inf", ".Inf", ".INF", "-.inf", "-.Inf", "-.INF"}
+
+
+def check_values(specs: Sequence[ParameterSpec], values: Mapping[str, object]) -> None:
+    """ParameterError, in one line, for the first of ``values`` (None: not set) outside its spec's range or
+    choices: what the node would refuse at start-up, said before it is started."""
+    by_name = {spec.name: spec for spec in specs}
+    for name, value in values.items():
+        spec = by_name[name]
+        if value is None:
+            continue
+        if spec.choices and value not in spec.choices:
+            raise ParameterError(f"{name} must be one of {', '.join(spec.choices)}, got {value!r}")
+        bounded = spec.low is not None and spec.high is not None and isinstance(value, int | float)
+        if bounded and not spec.low <= value <= spec.high:  # type: ignore[operator]
+            raise ParameterError(f"{name} must lie in [{spec.low:g}, {spec.high:g}], got {value!r}")
 
 
 def rcl_value_type(text: str) -> type:

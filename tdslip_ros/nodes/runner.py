@@ -79,7 +79,7 @@ from tdslip_ros.model.policies import (
     PolicyError,
     check_policy_file,
 )
-from tdslip_ros.nodes import isolation, topics
+from tdslip_ros.nodes import controller_node, isolation, parameters, stance_controller_node, topics
 from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
     spin_until,
@@ -405,7 +405,26 @@ def check_options(options: RunOptions) -> None:
         check_output_directory(bag)
     except OutputError as error:
         raise RunOptionError(str(error)) from None
-    check_placement(options, hopper_from_parameters(installed_parameters("plant.yaml")))
+    hopper = hopper_from_parameters(installed_parameters("plant.yaml"))
+    check_placement(options, hopper)
+    if not options.own_controller:
+        check_controller_parameters(options, hopper)
+
+
+def check_controller_parameters(options: RunOptions, params: HopperParams) -> None:
+    """RunOptionError for what the controller node would refuse at its start (a value out of its range), said
+    before anything starts, as the plant's are; the stance controller's policy is its own."""
+    try:
+        values = controller_overrides(options, params)
+    except ParameterError as error:
+        raise RunOptionError(f"the controller's model (--mismatch): {error}") from None
+    specs = controller_node.SPECS
+    if options.policy in STANCE_FEEDBACK_POLICIES:
+        specs, values = stance_controller_node.SPECS, {k: v for k, v in values.items() if k != "policy"}
+    try:
+        parameters.check_values(specs, values)
+    except ParameterError as error:
+        raise RunOptionError(f"controller parameters: {error}") from None
 
 
 def check_placement(options: RunOptions, params: HopperParams) -> None:
