@@ -160,6 +160,7 @@ def bench_realtime(arguments: argparse.Namespace, scratch: Path) -> None:
         f"   (stolen in the timed windows: {timing.stolen_ns * 1e-9:.2f} s)"
     )
     print(f"    while the tick waited for a CPU {timing.missed_waiting:>6d}")
+    print(f"    woken late by the kernel {timing.missed_woken_late:>12d}   (asleep past its deadline)")
     print(f"    unexplained (ours)          {timing.missed_unexplained:>8d}   target 0")
     print(f"  period error p50 / p99  {p50 * 1e3:>8.3f} / {p99 * 1e3:.3f} ms   {target}")
     print(f"  recorded == published on every topic: {report.recording_complete} ({load()})")

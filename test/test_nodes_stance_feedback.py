@@ -80,8 +80,8 @@ def test_the_baseline_node_drives_the_plant_as_the_law_drives_the_stepper(ros: R
     assert [(a.sim_time, a.height, a.forward_speed) for a in apexes] == expected
     ros.spin_until(lambda: len(applied) == len(torques), "every applied torque")
     assert [(a.tick, a.torque) for a in applied] == [(round(t / TICK_PERIOD), tau) for t, tau in torques]
-    assert controller.torques == len(torques) and plant.torques.late == plant.torques.stale == 0
-    assert plant.rejections.total == 0
+    assert controller.torques == len(torques) and plant.counts.late_torques == plant.counts.stale_torques == 0
+    assert plant.counts.rejected == 0
 
 
 def test_bad_torques_are_refused_and_the_plant_waits_for_the_right_one(ros: RosGraph) -> None:
@@ -123,7 +123,7 @@ def test_bad_torques_are_refused_and_the_plant_waits_for_the_right_one(ros: RosG
     for state in stance_states:
         by_stride.setdefault(state.stride, []).append(state.hip_torque)
     assert len(by_stride) == 2 and all(set(held[1:]) == {-50.0} for held in by_stride.values()), by_stride
-    assert plant.torques.late == 0
+    assert plant.counts.late_torques == 0
 
 
 def test_the_torque_of_the_tick_that_fails_is_recorded_too(ros: RosGraph) -> None:
@@ -144,7 +144,7 @@ def test_the_torque_of_the_tick_that_fails_is_recorded_too(ros: RosGraph) -> Non
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and not plant.outcome.ok, plant.outcome
     ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
-    assert plant.rejections.total == 0 and plant.received_torques == len(sent) > 10
+    assert plant.counts.rejected == 0 and plant.received_torques == len(sent) > 10
     assert [(a.tick, a.torque) for a in applied] == [(tick, 3000.0) for tick in sent]
 
 
@@ -169,10 +169,10 @@ def test_realtime_holds_the_stream_and_counts_stale_ticks(ros: RosGraph) -> None
     statuses = ros.collect(Status, topics.STATUS)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and plant.outcome.ok, plant.outcome
-    assert controller.torques > 0 and plant.rejections.total == 0, [s.reason for s in statuses]
+    assert controller.torques > 0 and plant.counts.rejected == 0, [s.reason for s in statuses]
     ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
     stale = sum(1 for a in applied if a.torque == 0.0)
-    assert plant.torques.stale <= stale
+    assert plant.counts.stale_torques <= stale
 
 
 def test_a_torque_controller_of_ones_own_with_default_qos_drives_the_plant(
@@ -196,7 +196,7 @@ def test_a_torque_controller_of_ones_own_with_default_qos_drives_the_plant(
     assert plant.outcome is not None and plant.outcome.ok, (plant.outcome, log.read_text())
     ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
     ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
-    assert plant.received_torques == len(applied) > 100 and plant.rejections.total == 0
-    assert plant.torques.late == 0 and all(abs(a.torque) <= 400.0 for a in applied)
+    assert plant.received_torques == len(applied) > 100 and plant.counts.rejected == 0
+    assert plant.counts.late_torques == 0 and all(abs(a.torque) <= 400.0 for a in applied)
     assert apexes[-1].height == pytest.approx(1.01, abs=0.01)
     assert apexes[-1].forward_speed == pytest.approx(5.02, abs=0.01)

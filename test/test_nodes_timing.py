@@ -59,12 +59,12 @@ def test_no_firings_no_statistics() -> None:
 class ScriptedClocks:
     """CpuClocks that advance as the test says: (steal, wait) added at each reading."""
 
-    def __init__(self, increments: list[tuple[int, int]]) -> None:
-        self._increments = iter(increments)
+    def __init__(self) -> None:
+        self.increments: list[tuple[int, int]] = []
         self._steal = self._wait = 0
 
     def __call__(self) -> tuple[int, int]:
-        steal, wait = next(self._increments, (0, 0))
+        steal, wait = self.increments.pop(0) if self.increments else (0, 0)
         self._steal += steal
         self._wait += wait
         return self._steal, self._wait
@@ -72,20 +72,57 @@ class ScriptedClocks:
 
 def test_missed_ticks_are_told_apart_by_what_the_machine_was_doing() -> None:
     window = TickTiming.WINDOW_FIRINGS
-    # Readings: at the first firing, then after each window of firings. Window 1: the hypervisor
-    # stole 10 ms; window 2: the thread waited 3 ms for a CPU; window 3: neither; window 4: quiet.
-    clocks = ScriptedClocks([(0, 0), (10_000_000, 0), (0, 3_000_000), (0, 100_000), (0, 0)])
+    clocks = ScriptedClocks()
     timing = TickTiming(PERIOD, clocks)
     now = 0
     timing.record(now, 1)
-    for missed in (2, 3, 4, 0):  # the misses of each window, in its first firing
+    # In each window one firing comes 2.6 ms late and catches up: the hypervisor stole 10 ms in the first
+    # window; in the second the tick thread waited 2.5 ms for a CPU before it (2.6 - 2.5 < half a period: it
+    # would have come in time); in the third only 1 ms (it would still have missed); the fourth is quiet.
+    for steal, wait, missed in ((10_000_000, 0, 2), (0, 2_500_000, 3), (0, 1_000_000, 4), (0, 0, 0)):
         for firing in range(window):
-            now += PERIOD
+            late = 2_600_000 if firing == 0 and missed else 0
+            clocks.increments.append((steal, wait) if firing == 0 else (0, 0))
+            now += PERIOD + late
             timing.record(now, 1 + (missed if firing == 0 else 0))
+    timing.close_window()
     assert timing.missed == 9
     assert (timing.missed_stolen, timing.missed_waiting, timing.missed_unexplained) == (2, 3, 4)
     assert timing.stolen_ns == 10_000_000
     assert "2 while the hypervisor stole 0.01 s" in timing.summary()
+
+
+def test_a_wait_for_a_cpu_explains_only_the_lateness_it_caused() -> None:
+    """A firing 0.9 ms late after a 0.3 ms wait would have missed anyway (0.6 ms late): ours."""
+    clocks = ScriptedClocks()
+    timing = TickTiming(PERIOD, clocks)
+    timing.record(0, 1)
+    clocks.increments.append((0, 300_000))
+    timing.record(PERIOD + 900_000, 2)
+    clocks.increments.append((0, 800_000))
+    timing.record(3 * PERIOD + 800_000, 2)  # 0.9 ms late again, after a 0.8 ms wait: the machine's
+    timing.close_window()
+    assert (timing.missed, timing.missed_waiting, timing.missed_unexplained) == (2, 1, 1)
+
+
+def test_a_ticker_that_says_when_it_was_idle_tells_its_own_lateness_from_a_late_wake_up() -> None:
+    """With the deadline and the time the ticker was ready to wait for it: a firing whose process worked
+    past the deadline by more than half a period is ours; one that slept past it without waiting for a CPU
+    was woken late by the kernel."""
+    clocks = ScriptedClocks()
+    timing = TickTiming(PERIOD, clocks)
+    timing.record(0, 1, 0, 0)
+    deadline = 2 * PERIOD
+    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline + 700_000)  # busy until 0.7 ms late
+    deadline = 4 * PERIOD
+    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline - 800_000)  # idle, asleep 1.2 ms late
+    clocks.increments.append((0, 1_000_000))
+    deadline = 6 * PERIOD
+    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline - 800_000)  # 1 ms of it queued
+    timing.close_window()
+    assert timing.missed == 3
+    assert (timing.missed_unexplained, timing.missed_woken_late, timing.missed_waiting) == (1, 1, 1)
+    assert "1 woken late by the kernel" in timing.summary()
 
 
 def test_the_proc_clocks_see_this_thread_wait_for_a_cpu_that_others_take() -> None:

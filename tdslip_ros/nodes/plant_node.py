@@ -8,18 +8,19 @@ contact (``tdslip/contact``) and failure (``tdslip/status``) events; ``tdslip/ma
 hopper for Foxglove and RViz at ``marker_rate`` Hz of simulated time, and /clock carries the
 simulated time while someone subscribes to it (``publish_clock``). Every stamp is simulated time,
 in both clock modes; nodes that should follow it run with ``use_sim_time``. All physics is the
-model's (:class:`~tdslip_ros.model.stepper.FixedStepStepper`); this node only schedules, validates
-commands and converts records to messages. Names are relative, so ``__ns`` puts a hopper in a
+model's (:class:`~tdslip_ros.model.stepper.FixedStepStepper`), and the run's rules (admission, torques,
+when it ends) are :class:`~tdslip_ros.nodes.plant_run.PlantRun`'s; this node only schedules and converts
+what the run emits to messages. Names are relative, so ``__ns`` puts a hopper in a
 namespace of its own; QoS is :mod:`tdslip_ros.nodes.topics`'s contract.
 
 Clock modes (parameter ``clock_mode``):
 
-* ``realtime``: a 1 kHz tick against the steady clock, on a thread of its own
-  (:mod:`tdslip_ros.nodes.realtime`: why, and ``realtime_priority``); each tick steps the plant up
-  to the tick due at that wall time (a late one catches up, so simulated time never drifts from
-  wall time). The latest valid command for the current stride is used at touchdown; a controller
+* ``realtime``: a 1 kHz tick against the steady clock, in a process of its own
+  (:mod:`tdslip_ros.nodes.tick_process`: why; :mod:`tdslip_ros.nodes.realtime`: ``realtime_priority``);
+  each tick steps the plant up to the tick due at that wall time (a late one catches up, so simulated
+  time never drifts from wall time). This node publishes what that process steps and forwards it what
+  arrives. The latest valid command for the current stride is used at touchdown; a controller
   that leaves ``max_stale_strides`` strides in a row unanswered ends the run (``command_timeout``).
-  A lock keeps the tick thread and the executor's callbacks (commands, reset) apart.
 * ``lockstep``: as fast as possible. At each apex (the initial one included) the plant stops and
   waits for the command answering that stride; nothing but the command decides what happens next,
   so runs with equal parameters give bit-identical results. No valid command within
@@ -74,14 +75,12 @@ import dataclasses
 import sys
 import threading
 import time
-from dataclasses import dataclass
 
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.executors import Executor
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from tdslip_msgs.msg import HipTorque, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
@@ -90,54 +89,40 @@ from tdslip_ros.interfaces import (
     hopper_from_parameters,
     perturbations_from_parameters,
 )
-from tdslip_ros.model.events import Event, EventKind
+from tdslip_ros.model.events import Event, StrideEnergy
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.stance_laws import StanceFeedback
-from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import parameters, topics
-from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
 from tdslip_ros.nodes.plant_output import PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
-from tdslip_ros.nodes.realtime import Ticker, TickTiming
-from tdslip_ros.nodes.torque_stream import LateTorque, TorqueInput, torque_fields
+from tdslip_ros.nodes.plant_run import (
+    TICK_PERIOD,
+    PlantRun,
+    PublishFailed,
+    RunCounts,
+    RunOutcome,
+    RunSettings,
+)
+from tdslip_ros.nodes.tick_process import TickProcess
+
+__all__ = ["TICK_PERIOD", "PlantNode", "RunOutcome"]
 
 RCLError = rclpy_implementation.RCLError  # what a failed publish raises (as rclpy.subscription names it)
 
-TICK_PERIOD = 1e-3  # s, the plant's fixed step
 START_CHECK_PERIOD = 0.05  # s, how often an autostarting plant checks whether its peers are there
 START_SETTLE = 0.2  # s the peers must have been there before the run starts
 LOCKSTEP_BATCH = 50
 """Ticks per lockstep timer callback: amortises the executor's cost while keeping it responsive."""
-GRAPH_CHECK_TICKS = 50
-"""Ticks between two looks at who subscribes to the live state and force, /clock and the markers (a graph
-query costs ~20 us); the plant also looks at every apex and touchdown."""
 DELIVERY_TIMEOUT = 10.0
 """s a finished run waits for the recorder it waits for to write everything (and, without one, at
 most :data:`ACK_TIMEOUT` for subscribers' acknowledgements)."""
 ACK_TIMEOUT = 1.0  # s
 
 _NS_PER_S = 1_000_000_000
-
-
-@dataclass(frozen=True)
-class RunOutcome:
-    """How a run ended: a Status kind (a FailureKind value, command_timeout or run_complete), when
-    in simulated time [s] and after how much wall time since start() [s]."""
-
-    kind: str
-    reason: str
-    stride: int
-    sim_time: float
-    wall_time: float
-
-    @property
-    def ok(self) -> bool:
-        return bool(self.kind == Status.KIND_RUN_COMPLETE)
 
 
 class PlantNode(Node):
@@ -150,7 +135,7 @@ class PlantNode(Node):
 
     def __init__(self, *, autostart: bool = True, **node_options: object) -> None:
         super().__init__("plant", **node_options)  # type: ignore[arg-type]
-        self._ticker: Ticker | None = None  # first: destroy_node must work if the rest raises
+        self._ticking: TickProcess | None = None  # first: destroy_node must work if the rest raises
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         values = parameters.declare(self, SPECS)
         self.hopper = hopper_from_parameters(values)
@@ -158,35 +143,37 @@ class PlantNode(Node):
         self.limits = PlausibilityLimits.for_hopper(self.hopper)
         if float(values["max_torque"]) > 0.0:
             self.limits = dataclasses.replace(self.limits, max_torque=float(values["max_torque"]))
-        self._initial_command = ModelCommand(
+        initial_command = ModelCommand(
             float(values["initial_touchdown_angle"]),
             float(values["initial_tau0"]),
             float(values["initial_t_f"]),
         )
-        self.limits.check_command(self._initial_command)
+        self.limits.check_command(initial_command)
         initial_apex = ApexState(float(values["initial_height"]), float(values["initial_forward_speed"]))
         self.limits.check_apex(initial_apex)
         self.perturbations = perturbations_from_parameters(values)
         self.perturbations.check_limits(self.limits)
         self.lockstep = values["clock_mode"] == "lockstep"
         self._max_strides = int(values["max_strides"])
-        self._max_stale_strides = int(values["max_stale_strides"])
         self._wait_for_recorder = bool(values["wait_for_recorder"])
+        settings = RunSettings(
+            self.hopper,
+            self.limits,
+            self.perturbations,
+            initial_command,
+            lockstep=self.lockstep,
+            max_strides=self._max_strides,
+            max_stale_strides=int(values["max_stale_strides"]),
+            torque_max_age_ticks=round(float(values["torque_max_age"]) / TICK_PERIOD),
+        )
 
         self.received_commands = 0
         self.received_torques = 0
-        self.rejections = RejectionLog()
         self.command_latencies_ns: list[tuple[int, int, int]] = []
         """(epoch, stride, ns) of each answered apex: wall time from its publication to the valid command."""
-        self.late_commands = 0
-        """Realtime: answers that arrived after the touchdown of their stride (never applied)."""
-        self.tick_timing = None if self.lockstep else TickTiming(round(TICK_PERIOD * _NS_PER_S))
-        self.torques = TorqueInput(
-            lockstep=self.lockstep,
-            max_age_ticks=round(float(values["torque_max_age"]) / TICK_PERIOD),
-            max_torque=self.limits.max_torque,
-        )
-        """Stance feedback: the streamed hip torques (tdslip/hip_torque), their late and stale counts."""
+        self.counts = RunCounts()
+        """What the run counted (late commands, rejections, torques, the tick's timing), as of its latest apex
+        and its end."""
         self.recorders = RecorderProgress()
         self.outcome: RunOutcome | None = None
         self.done: Future[RunOutcome] = Future()
@@ -202,7 +189,7 @@ class PlantNode(Node):
         self.topic_names = self._out.topic_names
         """Fully qualified name of each published topic, by its relative name."""
         self.command_topic = self.resolve_topic_name(topics.COMMAND)
-        # Raw: an answer to an earlier apex is recognised from its bytes (command_key), unparsed.
+        # Raw: the run recognises an answer to an earlier apex from its bytes (command_key), unparsed.
         self._command_subscription = self.create_subscription(
             StanceCommand, topics.COMMAND, self._on_command, topics.COMMAND_SUBSCRIPTION_QOS, raw=True
         )
@@ -215,8 +202,8 @@ class PlantNode(Node):
         )
         self.create_service(Reset, topics.RESET_SERVICE, self._on_reset)
 
-        # Stepping: lockstep by a zero-period timer of the executor, realtime by a Ticker thread;
-        # the lock keeps the tick thread and the executor's callbacks apart.
+        # Stepping: lockstep by a zero-period timer of the executor, realtime in a process of its own whose
+        # output a thread replays here; the lock keeps that thread and the executor's callbacks apart.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._lock = threading.Lock()
         self._lockstep_timer = self.create_timer(0.0, self._advance_lockstep, clock=steady, autostart=False)
@@ -228,14 +215,26 @@ class PlantNode(Node):
         self._recorder_timer = self.create_timer(
             self._command_timeout, self._on_recorder_timeout, clock=steady, autostart=False
         )
-        self._realtime_priority = int(values["realtime_priority"])
-        self._realtime_cpu = None if int(values["realtime_cpu"]) < 0 else int(values["realtime_cpu"])
-        self._running = False
+        self._started = False
         self._epoch = 0
-        self._ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD
-        self._tick0 = 0  # the tick at start(), due at start_wall_ns of the steady clock
+        self._stride = 0
+        self._ticks = 0  # of the latest sample published, since construction
+        self._apex_wall_ns = time.monotonic_ns()
         self.start_wall_ns = 0
-        self._restart(initial_apex, time_offset_ticks=0)
+        sink = _NodeSink(self, self._out)
+        self._run: PlantRun | None = None
+        if self.lockstep:
+            self._run = PlantRun(settings, initial_apex, sink)
+        else:
+            self._ticking = TickProcess(
+                settings,
+                initial_apex,
+                sink,
+                self._lock,
+                priority=int(values["realtime_priority"]),
+                cpu=None if int(values["realtime_cpu"]) < 0 else int(values["realtime_cpu"]),
+                on_lost=self._on_tick_process_lost,
+            )
 
         self._min_subscribers = int(values["min_subscribers"])
         self._created_ns = time.monotonic_ns()
@@ -267,22 +266,22 @@ class PlantNode(Node):
 
     @property
     def sim_time(self) -> float:
+        """The simulated time of the latest sample published [s]."""
         return self._ticks * TICK_PERIOD
 
     @property
     def stride(self) -> int:
-        """The latest apex of the run (0: the initial one)."""
-        return self._stepper.stride
-
-    @property
-    def saturated_strides(self) -> int:
-        """Touchdowns of this run whose |tau0| exceeded tau_max (the hip saturated)."""
-        return self._stepper.saturated_strides
+        """The latest apex of the run published (0: the initial one)."""
+        return self._stride
 
     @property
     def epoch(self) -> int:
         """The run epoch: 0 for the first run, one more after every reset."""
         return self._epoch
+
+    @property
+    def running(self) -> bool:
+        return self._started and self.outcome is None
 
     def matched_subscribers(self, topic: str) -> int:
         """Subscriptions matched with the plant's publisher on ``topic`` (relative name)."""
@@ -338,107 +337,64 @@ class PlantNode(Node):
         """Publish the initial apex and sample, then start stepping (or wait for its command)."""
         self._start_check.cancel()
         with self._lock:
-            self._start()
-
-    def _start(self) -> None:
-        if self._running:
-            return
-        self._running = True
-        self.start_wall_ns = time.monotonic_ns()
-        self._tick0 = self._ticks
-        self._out.check_graph()
-        self._publish_apex(0, self._stepper.apex_state)
-        state = self._stepper.state
-        self._out.sample(state, self._offset + state.t)
-        if self.lockstep:
-            self._await_command()
-        else:
-            assert self.tick_timing is not None
-            self.tick_timing.resume()
-            self._ticker = Ticker(
-                round(TICK_PERIOD * _NS_PER_S),
-                self._advance_realtime,
-                priority=self._realtime_priority,
-                cpu=self._realtime_cpu,
-                on_error=self._log_warning,
-            )
-            self._ticker.start(self.start_wall_ns)
-
-    def _log_warning(self, message: str) -> None:
-        self.get_logger().warning(message)
+            if self._started:
+                return
+            self._started = True
+            self.start_wall_ns = time.monotonic_ns()
+            if self._run is not None:
+                self._run.start(self.start_wall_ns)
+        if self._ticking is not None:
+            self._ticking.start(self.start_wall_ns)
 
     def end_run(self, reason: str) -> None:
         """End a running run now as complete (e.g. a caller's wall-time limit)."""
         with self._lock:
-            if self._running:
-                self._finish(Status.KIND_RUN_COMPLETE, reason, self.sim_time)
+            if self._run is not None:
+                self._run.end(Status.KIND_RUN_COMPLETE, reason)
+        if self._ticking is not None:
+            self._ticking.end(Status.KIND_RUN_COMPLETE, reason)
 
     def destroy_node(self) -> None:
-        self._stop_ticker()
+        if self._ticking is not None:
+            self._ticking.close()
         super().destroy_node()
 
-    def _stop_ticker(self) -> None:
-        if self._ticker is not None:
-            self._ticker.stop()
-            self._ticker = None
-
-    def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
-        self._stepper = FixedStepStepper(
-            self.hopper,
-            apex,
-            self._initial_command,
-            dt=TICK_PERIOD,
-            limits=self.limits,
-            perturbations=self.perturbations,
-            trajectory=self._epoch,
-        )
-        self._offset = time_offset_ticks * TICK_PERIOD
-        self._offset_ticks = time_offset_ticks
-        self._applied_published = 0  # samples of the current stance published on tdslip/applied_torque
-        self.torques.restart()
-        self._awaiting: int | None = None
-        self._answered = -1  # the latest stride whose command was applied
-        self._late_stride = -1  # the latest stride counted in late_commands
-        self._stale_strides = 0  # realtime: strides in a row that no valid command answered
-        self._apex_wall_ns = time.monotonic_ns()
-
-    def _finish(self, kind: str, reason: str, t: float) -> None:
-        self._running = False
+    def _finished(self, outcome: RunOutcome) -> None:
+        """The run ended (under the lock)."""
         self._lockstep_timer.cancel()
         self._timeout_timer.cancel()
         self._recorder_timer.cancel()
         self._held_by_recorder = False
-        if self._ticker is not None:
-            self._ticker.request_stop()  # the lock is held: the tick thread may be waiting for it
-        try:
-            self._publish_status(kind, reason, t, fatal=True)
-        except RCLError as error:
-            self.get_logger().error(f"the final status could not be published: {error}")
-        wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
-        self.outcome = RunOutcome(kind, reason, self._stepper.stride, t, wall_time)
-        if self.tick_timing is not None:
-            self.tick_timing.close_window()
-            self.get_logger().info(f"realtime: {self.tick_timing.summary()}")
-            if self.published[topics.APPLIED_TORQUE]:
-                self.get_logger().info(
-                    f"realtime: {self.torques.late} hip torque(s) came after their tick, "
-                    f"{self.torques.stale} stance tick(s) held zero (no torque within torque_max_age)"
-                )
-            if self.late_commands:
-                self.get_logger().warning(
-                    f"realtime: {self.late_commands} command(s) arrived after their touchdown (the command "
-                    "in force held)"
-                )
-        if self.perturbations.saturates:
-            self.get_logger().info(f"the hip saturated in {self._stepper.saturated_strides} stride(s)")
-        if kind == Status.KIND_RUN_COMPLETE:
-            self.get_logger().info(f"run complete at stride {self._stepper.stride}, t = {t:.3f} s: {reason}")
-        else:
-            self.get_logger().error(
-                f"run ended at stride {self._stepper.stride}, t = {t:.6f} s: {kind}: {reason}"
-            )
+        self.outcome = outcome
         if not self.done.done():
-            self.done.set_result(self.outcome)
+            self.done.set_result(outcome)
+
+    def _restarted(self, epoch: int, ended: RunOutcome) -> None:
+        """A reset began ``epoch`` (under the lock); ``ended``: how the run before ended, if it had not."""
+        self._lockstep_timer.cancel()
+        self._timeout_timer.cancel()
+        self._recorder_timer.cancel()
+        self._held_by_recorder = False
+        if not self.done.done():
+            self.done.set_result(ended)
+        self._epoch = epoch
+        self.outcome = None
+        self.done = Future()
+        self.start_wall_ns = time.monotonic_ns()
+
+    def _on_tick_process_lost(self, reason: str) -> None:
+        with self._lock:
+            if self.running:
+                self.get_logger().error(f"run ended: {reason}")
+                self._finished(
+                    RunOutcome(
+                        Status.KIND_PUBLISH_FAILED,
+                        reason,
+                        self._stride,
+                        self.sim_time,
+                        (time.monotonic_ns() - self.start_wall_ns) * 1e-9,
+                    )
+                )
 
     def recorded_everything(self) -> bool:
         """Every recorder waited for has written everything published on the topics it records."""
@@ -447,25 +403,27 @@ class PlantNode(Node):
     def deliver(self, executor: Executor) -> bool:
         """After a run: with ``wait_for_recorder``, spin until the recorder has written everything
         (False after DELIVERY_TIMEOUT s); without, wait at most ACK_TIMEOUT for the subscribers'
-        acknowledgements, so that no stalled subscriber can keep the plant. The samples not yet batched go
-        out first (a run stopped from outside, e.g. by SIGINT, published no final status)."""
+        acknowledgements, so that no stalled subscriber can keep the plant. What the tick process stepped and
+        the samples not yet batched go out first (a run stopped from outside, e.g. by SIGINT, published no
+        final status)."""
+        if self._ticking is not None:
+            self._ticking.close()
         with self._lock:
             self._out.flush()
         if self._wait_for_recorder and self.recorders.heard:
             return spin_until(executor, self.recorded_everything, DELIVERY_TIMEOUT)
         return wait_for_delivery(self, ACK_TIMEOUT)
 
-    # --- stepping -------------------------------------------------------------------------------
+    # --- lockstep stepping ----------------------------------------------------------------------
 
     def _advance_lockstep(self) -> None:
+        assert self._run is not None
         with self._lock:
             if self._wait_for_recorder and self._recorder_lag() > FLOW_WINDOW:
                 self._hold_for_recorder()
                 return
-            for _ in range(LOCKSTEP_BATCH):
-                if self._tick_or_fail():
-                    self._lockstep_timer.cancel()
-                    return
+            if self._run.advance(LOCKSTEP_BATCH):
+                self._lockstep_timer.cancel()
 
     def _recorder_lag(self) -> int:
         """The most messages on any one topic that the recorder has not written yet: each topic, as
@@ -482,7 +440,7 @@ class PlantNode(Node):
     def _on_recorder_status(self, msg: RecorderStatus) -> None:
         with self._lock:
             self.recorders.update(msg)
-            if self._held_by_recorder and self._running and self._recorder_lag() <= FLOW_WINDOW // 2:
+            if self._held_by_recorder and self.running and self._recorder_lag() <= FLOW_WINDOW // 2:
                 self._held_by_recorder = False
                 self._recorder_timer.cancel()
                 self._lockstep_timer.reset()
@@ -490,224 +448,38 @@ class PlantNode(Node):
     def _on_recorder_timeout(self) -> None:
         self._recorder_timer.cancel()
         with self._lock:
-            if self._held_by_recorder and self._running:
-                self._finish(
+            if self._held_by_recorder and self._run is not None:
+                self._run.end(
                     Status.KIND_PUBLISH_FAILED,
                     f"the recorder waited for stopped: it is {self._recorder_lag()} messages behind and "
                     f"reported nothing for {self.recorders.silent_for(time.monotonic_ns()):.1f} s",
-                    self.sim_time,
                 )
-
-    def _advance_realtime(self, now_ns: int) -> None:
-        """Tick thread: step up to the tick due at ``now_ns`` of the steady clock."""
-        with self._lock:
-            due = self._tick0 + round((now_ns - self.start_wall_ns) * 1e-9 / TICK_PERIOD)
-            first = self._ticks
-            while self._ticks < due and self._running:
-                self._tick_or_fail()
-            assert self.tick_timing is not None
-            self.tick_timing.record(now_ns, self._ticks - first)
-
-    def _tick_or_fail(self) -> bool:
-        """:meth:`_tick`; a publication that fails ends the run with ``publish_failed``."""
-        try:
-            return self._tick()
-        except RCLError as error:
-            self._finish(Status.KIND_PUBLISH_FAILED, str(error).split(",", 1)[0], self.sim_time)
-            return True
-
-    def _tick(self) -> bool:
-        """Step one tick and publish it; True when stepping must pause (awaited command or torque, end of
-        run)."""
-        stepper = self._stepper
-        if not self.lockstep and stepper.torque_due:  # lockstep: the awaited torque is held already
-            stepper.hold_torque(self.torques.held(stepper.stride, self._ticks))
-        events = stepper.step()
-        self._ticks += 1
-        if self._ticks % GRAPH_CHECK_TICKS == 0:
-            self._out.check_graph()
-        apex: Event | None = None
-        for event in events:
-            if event.kind is EventKind.APEX:
-                apex = event
-                self._publish_apex(event.stride, event.state)
-            elif event.kind is EventKind.FAILURE:
-                assert event.failure is not None
-                self._publish_applied_torques()  # the failing tick's torque was applied too
-                self._finish(event.failure.value, event.reason, self._offset + event.t)
-                return True
-            else:
-                if event.kind is EventKind.TOUCHDOWN:
-                    self._applied_published = 0
-                self._out.contact(self._epoch, event, self._offset + event.t)
-        state = stepper.state
-        t = self._offset + state.t
-        self._out.sample(state, t)
-        self._publish_applied_torques()
-        self._out.markers(state, t, self._ticks)
-        if apex is None:
-            if self.lockstep and stepper.torque_due:
-                self._await_torque()
-                return True
-            return False
-        if apex.stride == self._max_strides:
-            reason = f"reached max_strides = {self._max_strides}"
-            self._finish(Status.KIND_RUN_COMPLETE, reason, self._offset + state.t)
-            return True
-        if self.lockstep:
-            self._await_command()
-            return True
-        return self._count_stale_stride(apex.stride)
-
-    def _count_stale_stride(self, stride: int) -> bool:
-        """Realtime: at the apex of ``stride``, was the previous stride answered? Too many unanswered
-        in a row end the run (a dead or silent controller must not go unnoticed)."""
-        self._stale_strides = 0 if self._answered == stride - 1 else self._stale_strides + 1
-        if self._max_stale_strides and self._stale_strides >= self._max_stale_strides:
-            self._finish(
-                Status.KIND_COMMAND_TIMEOUT,
-                f"no valid command answered the last {self._stale_strides} strides (max_stale_strides)",
-                self._offset + self._stepper.t,
-            )
-            return True
-        return False
-
-    def _await_command(self) -> None:
-        self._awaiting = self._stepper.stride
-        self._timeout_timer.reset()
-
-    def _await_torque(self) -> None:
-        self.torques.await_tick(self._epoch, self._stepper.stride, self._ticks)
-        self._timeout_timer.reset()
 
     def _on_command_timeout(self) -> None:
         self._timeout_timer.cancel()
         with self._lock:
-            self._time_out()
+            if self._run is not None:
+                self._run.time_out(self._command_timeout)
 
-    def _time_out(self) -> None:
-        awaited = self.torques.awaited
-        if (self._awaiting is None and awaited is None) or not self._running:
-            return
-        rejected = self.rejections.total
-        rejected_so_far = f"; {rejected} command(s) or torque(s) rejected so far" if rejected else ""
-        what = (
-            f"command for epoch {self._epoch}, stride {self._awaiting}"
-            if awaited is None
-            else f"hip torque for epoch {awaited[0]}, stride {awaited[1]}, tick {awaited[2]}"
-        )
-        self._finish(
-            Status.KIND_COMMAND_TIMEOUT,
-            f"no valid {what} within command_timeout = {self._command_timeout:g} s{rejected_so_far}",
-            self._offset + self._stepper.t,
-        )
-
-    # --- commands and reset ---------------------------------------------------------------------
+    # --- commands, torques and reset ------------------------------------------------------------
 
     def _on_command(self, data: bytes) -> None:
         self.received_commands += 1
-        key = command_key(data)
-        # Unlocked and unparsed: an answer to another apex costs next to nothing, so that a flood of
-        # them cannot delay the one the plant waits for.
-        if key is not None and key != (self._epoch, self._stepper.stride):
-            if key > (self._epoch, self._stepper.stride):
-                epoch, stride = key
-                reason = not_yet(key, self._epoch, self._stepper.stride)
-                with self._lock:  # its Status flushes the samples the tick thread is batching
-                    self._report_rejection(f"command for epoch {epoch}, stride {stride} rejected: {reason}")
-            else:
-                self.rejections.total += 1  # a late answer: counted, not reported
-                if key[0] == self._epoch and key[1] > self._answered:
-                    self._count_late(key[1])  # its stride never had a command: it missed the touchdown
+        if self._ticking is not None:
+            self._ticking.take_command(data)
             return
-        msg = deserialize_message(data, StanceCommand)
+        assert self._run is not None
         with self._lock:
-            self._take_command(msg)
-
-    def _count_late(self, stride: int) -> None:
-        """Count a stride in late_commands once, however many late answers it gets."""
-        if stride != self._late_stride:
-            self._late_stride = stride
-            self.late_commands += 1
-
-    def _report_rejection(self, reason: str, kind: str = Status.KIND_COMMAND_REJECTED) -> None:
-        """Log and report a rejection (at most REJECTION_REPORTS per period, the rest summed)."""
-        prefix = self.rejections.admit(time.monotonic_ns())
-        if prefix is not None:
-            self.get_logger().warning(prefix + reason)
-            self._publish_status(kind, prefix + reason, self._offset + self._stepper.t, fatal=False)
-
-    def _take_command(self, msg: StanceCommand) -> None:
-        if not self._running:
-            self.get_logger().debug(f"command for stride {msg.stride} ignored: no run in progress")
-            return
-        try:
-            self._apply(msg)
-        except ParameterError as error:
-            self._report_rejection(
-                f"command for epoch {msg.epoch}, stride {msg.stride} ({msg.policy or 'no policy'}) "
-                f"rejected: {error}"
-            )
-            return
-        if msg.stride != self._answered:
-            latency = time.monotonic_ns() - self._apex_wall_ns
-            self.command_latencies_ns.append((msg.epoch, msg.stride, latency))
-            self._answered = msg.stride
-        if self.lockstep:
-            self._awaiting = None
-            self._timeout_timer.cancel()
-            self._lockstep_timer.reset()
-
-    def _apply(self, msg: StanceCommand) -> None:
-        """Admit a command and hand it to the stepper; ParameterError gives the reason to refuse it."""
-        stride = self._stepper.stride
-        try:
-            command = admit(
-                msg,
-                epoch=self._epoch,
-                stride=stride,
-                lockstep=self.lockstep,
-                awaiting=self._awaiting,
-                past_touchdown=self._stepper.past_touchdown,
-                limits=self.limits,
-            )
-        except LateCommand:
-            self._count_late(stride)
-            raise
-        self._stepper.set_command(command)
+            self._run.take_command(data)
 
     def _on_hip_torque(self, data: bytes) -> None:
         self.received_torques += 1
-        fields = torque_fields(data)
+        if self._ticking is not None:
+            self._ticking.take_torque(data)
+            return
+        assert self._run is not None
         with self._lock:
-            if not self._running:
-                return
-            if fields is None:
-                self._report_rejection("hip torque rejected: not a HipTorque", Status.KIND_TORQUE_REJECTED)
-                return
-            stepper = self._stepper
-            try:
-                self.torques.take(
-                    fields,
-                    epoch=self._epoch,
-                    stride=stepper.stride,
-                    tick=self._ticks,
-                    streaming=isinstance(stepper.command, StanceFeedback),
-                    stance_over=stepper.past_touchdown and not stepper.torque_due,
-                )
-            except LateTorque:
-                return
-            except ParameterError as error:
-                self._report_rejection(
-                    f"hip torque for epoch {fields.epoch}, stride {fields.stride}, tick {fields.tick} "
-                    f"rejected: {error}",
-                    Status.KIND_TORQUE_REJECTED,
-                )
-                return
-            if self.lockstep:  # the awaited torque: hold it and step on
-                stepper.hold_torque(fields.torque)
-                self._timeout_timer.cancel()
-                self._lockstep_timer.reset()
+            self._run.take_torque(data)
 
     def _on_reset(self, request: Reset.Request, response: Reset.Response) -> Reset.Response:
         try:
@@ -717,59 +489,106 @@ class PlantNode(Node):
             response.success, response.message = False, f"reset refused: {error}"
             response.epoch = self._epoch
             return response
-        self._stop_ticker()  # outside the lock: the tick in progress needs it to finish
-        with self._lock:
-            response.message = self._reset(apex)
+        if self._ticking is not None:
+            response.message = self._ticking.reset(apex)  # unlocked: the replaying thread takes the lock
+        else:
+            assert self._run is not None
+            with self._lock:
+                response.message = self._run.reset(apex)
         response.success, response.epoch = True, self._epoch
         return response
 
-    def _reset(self, apex: ApexState) -> str:
-        self._lockstep_timer.cancel()
-        self._timeout_timer.cancel()
-        self._recorder_timer.cancel()
-        self._held_by_recorder = False
-        self._running = False
-        message = (
-            f"reset to apex height {apex.y} m, forward speed {apex.xdot} m/s at t = {self.sim_time:.3f} s "
-            f"(epoch {self._epoch + 1})"
-        )
-        if not self.done.done():
-            wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
-            self.done.set_result(
-                RunOutcome(Status.KIND_RESET, message, self._stepper.stride, self.sim_time, wall_time)
-            )
-        self._publish_status(Status.KIND_RESET, message, self.sim_time, fatal=False)
-        self._epoch += 1
-        self._restart(apex, time_offset_ticks=self._ticks)
-        self.outcome = None
-        self.done = Future()
-        self.get_logger().info(message)
-        self._start()
-        return message
 
-    # --- publishing -----------------------------------------------------------------------------
+class _NodeSink:
+    """The node's side of a run (:class:`~tdslip_ros.nodes.plant_run.PlantSink`): publishes through the
+    node's :class:`PlantOutput` and keeps the node's view of the run (called under the node's lock)."""
 
-    def _publish_apex(self, stride: int, state: ModelState) -> None:
-        stepper = self._stepper
-        flows = stepper.last_stride_energy if stride > 0 else None
-        self._apex_wall_ns = time.monotonic_ns()
-        self._out.apex(
-            self._epoch, stride, self._offset + state.t, state, stepper.measured_apex, stepper.ground, flows
-        )
+    def __init__(self, node: PlantNode, out: PlantOutput) -> None:
+        self._node = node
+        self._out = out
 
-    def _publish_applied_torques(self) -> None:
-        """The stance's torques sampled since the last call, as held (tdslip/applied_torque): the record
-        from which the analysis replays the stance (none under a ramp)."""
-        if not isinstance(self._stepper.command, StanceFeedback):
-            return
-        samples = self._stepper.stance_torques
-        for t, torque in samples[self._applied_published :]:
-            tick = self._offset_ticks + round(t / TICK_PERIOD)
-            self._out.applied_torque(self._epoch, self._stepper.stride, tick, torque)
-        self._applied_published = len(samples)
+    @staticmethod
+    def _failing(error: RCLError) -> PublishFailed:
+        return PublishFailed(str(error).split(",", 1)[0])
 
-    def _publish_status(self, kind: str, reason: str, t: float, *, fatal: bool) -> None:
-        self._out.status(self._epoch, self._stepper.stride, kind, reason, t, fatal=fatal)
+    def tick(self, state: ModelState, t: float, tick: int) -> None:
+        try:
+            self._out.sample(state, t)
+            self._out.markers(state, t, tick)
+        except RCLError as error:
+            raise self._failing(error) from error
+        self._node._ticks = tick
+
+    def apex(
+        self,
+        epoch: int,
+        stride: int,
+        t: float,
+        state: ModelState,
+        measured: tuple[float, float],
+        ground: float,
+        flows: StrideEnergy | None,
+    ) -> None:
+        self._node._apex_wall_ns = time.monotonic_ns()
+        self._node._stride = stride
+        try:
+            self._out.apex(epoch, stride, t, state, measured, ground, flows)
+        except RCLError as error:
+            raise self._failing(error) from error
+
+    def contact(self, epoch: int, event: Event, t: float) -> None:
+        try:
+            self._out.contact(epoch, event, t)
+        except RCLError as error:
+            raise self._failing(error) from error
+
+    def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None:
+        try:
+            self._out.status(epoch, stride, kind, reason, t, fatal=fatal)
+        except RCLError as error:
+            raise self._failing(error) from error
+
+    def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None:
+        try:
+            self._out.applied_torque(epoch, stride, tick, torque)
+        except RCLError as error:
+            raise self._failing(error) from error
+
+    def check_graph(self) -> bool:
+        return self._out.check_graph()
+
+    def awaiting(self) -> None:
+        self._node._timeout_timer.reset()
+
+    def resumed(self) -> None:
+        self._node._timeout_timer.cancel()
+        self._node._lockstep_timer.reset()
+
+    def command_applied(self, epoch: int, stride: int, applied_ns: int) -> None:
+        self._node.command_latencies_ns.append((epoch, stride, applied_ns - self._node._apex_wall_ns))
+
+    def counted(self, counts: RunCounts) -> None:
+        if counts.tick_timing is None:  # sent only at the end of a run
+            counts = dataclasses.replace(counts, tick_timing=self._node.counts.tick_timing)
+        self._node.counts = counts
+
+    def log(self, level: str, text: str) -> None:
+        # One call per severity: rclpy fixes a call site's severity at its first call.
+        logger = self._node.get_logger()
+        if level == "error":
+            logger.error(text)
+        elif level == "warning":
+            logger.warning(text)
+        elif level == "info":
+            logger.info(text)
+        else:
+            logger.debug(text)
+
+    def finished(self, outcome: RunOutcome) -> None:
+        self._node._finished(outcome)
+
+    def restarted(self, epoch: int, message: str, outcome: RunOutcome) -> None:
+        self._node._restarted(epoch, outcome)
 
 
 def main(argv: list[str] | None = None) -> int:

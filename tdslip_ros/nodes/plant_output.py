@@ -126,14 +126,16 @@ class PlantOutput:
         batched = self.subscribers(topics.SAMPLES) if topic in topics.BATCHED_TOPICS else 0
         return self.subscribers(topic) + batched
 
-    def check_graph(self) -> None:
+    def check_graph(self) -> bool:
         """Publish the live state and force, /clock and the markers from now on while someone subscribes to
-        them (a graph query costs ~20 us: the plant calls this every few dozen ticks and at every apex)."""
+        them (a graph query costs ~20 us: the plant calls this every few dozen ticks and at every apex).
+        True while a tick's state, force or /clock goes out live."""
         listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
         self._clock_out = self._clock_pub if listened else None
         self._state_out = self._state_pub if self._state_pub.get_subscription_count() > 0 else None
         self._grf_out = self._grf_pub if self._grf_pub.get_subscription_count() > 0 else None
         self._markers_out = bool(self._marker_period_ticks) and self._markers_pub.get_subscription_count() > 0
+        return not (self._state_out is self._grf_out is self._clock_out is None)
 
     def _publish(self, topic: str, msg: object) -> None:
         self._publishers[topic].publish(serialized(msg))

@@ -101,7 +101,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "realtime_priority",
         0,
-        "realtime: SCHED_FIFO priority of the tick thread (0: normal scheduling; needs CAP_SYS_NICE)",
+        "realtime: SCHED_FIFO priority of the tick process (0: normal scheduling; needs CAP_SYS_NICE)",
         0,
         99,
         read_only=True,
@@ -109,7 +109,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "realtime_cpu",
         -1,
-        "realtime: the CPU the tick thread is pinned to (-1: any; e.g. one kept free with isolcpus)",
+        "realtime: the CPU the tick process is pinned to (-1: any; e.g. one kept free with isolcpus)",
         -1,
         1023,
         read_only=True,

@@ -1,25 +1,18 @@
-"""The realtime plant's wall-clock tick: a thread sleeping to absolute deadlines, and its statistics.
+"""The realtime plant's scheduling and the statistics of its wall-clock tick.
 
-Why a thread and not an rclpy timer: every firing of a timer in rclpy's EventsExecutor crosses two
-threads and re-inspects the callback's signature, ~120 us of CPU per firing on the development
-machine (12% of a core at 1 kHz before any work), while a thread sleeping to the next deadline of
-the steady clock costs ~30 us and can be given a real-time scheduling priority (SCHED_FIFO), which
-keeps the tick on time on a loaded machine (see :class:`Ticker`). The thread needs the GIL only
-while it works; the executor thread of the same process waits in C++ without it.
+The tick runs in a process of its own, on its only thread (:mod:`tdslip_ros.nodes.tick_process`): it sleeps
+to absolute deadlines of the steady clock and shares the GIL with nothing. :func:`schedule_realtime` gives
+that thread a real-time priority (SCHED_FIFO) and a CPU when asked; :class:`TickTiming` times the firings
+and tells why ticks were missed.
 """
 
 from __future__ import annotations
 
-import gc
+import ctypes
 import math
 import os
-import sys
-import threading
-import time
+import struct
 from collections.abc import Callable
-
-SWITCH_INTERVAL = 1e-4
-"""s: how soon another thread holding the GIL is asked to hand it to a due tick (Python's default: 5 ms)."""
 
 CpuClocks = Callable[[], tuple[int, int]]
 """(CPU time the hypervisor stole from this machine [ns], time the calling thread waited for a CPU
@@ -73,12 +66,20 @@ class TickTiming:
     had to be computed in a later firing than its own (the firing came more than half a period
     late, or not at all, and the plant caught up).
 
-    Missed ticks are explained per window of WINDOW_FIRINGS firings by the CPU clocks
-    (:data:`CpuClocks`): ``missed_stolen`` in a window in which the hypervisor stole CPU time from
-    the machine, else ``missed_waiting`` in one in which the tick thread waited more than half a
-    period for a CPU (other work on this machine), else ``missed_unexplained`` (this process: the
-    GIL, the garbage collector, or the tick's own work). The first two are the machine's, the last
-    is ours.
+    A missed tick is explained by the CPU clocks (:data:`CpuClocks`), read at every firing, and, where the
+    ticker says when it was ready to wait for the firing (``ready_ns``), by that:
+
+    - ``missed_stolen``: the hypervisor stole CPU time from the machine in the firing's window of
+      WINDOW_FIRINGS firings (steal is counted in clock ticks of 10 ms: finer windows would not see more);
+    - ``missed_unexplained``: the tick's own process was still at work more than half a period after the
+      firing's deadline (the firing before, the messages it took, the garbage collector): ours;
+    - ``missed_waiting``: else, the tick thread waited for a CPU (other work on this machine) so long since
+      the firing before that it would have come in time without that wait;
+    - ``missed_woken_late``: else, the thread slept in the kernel past its deadline without waiting for a
+      CPU: the kernel's timer, or the hypervisor's, woke it late (only with ``ready_ns``, which says that the
+      process was idle; without, these count as unexplained).
+
+    All but the unexplained are the machine's.
     """
 
     BIN_NS = 1_000
@@ -90,56 +91,83 @@ class TickTiming:
         self._histogram = [0] * (self.BINS + 1)
         self._last_ns: int | None = None
         self._cpu_clocks = ProcCpuClocks() if cpu_clocks is None else cpu_clocks
-        self._window_clocks: tuple[int, int] | None = None
+        self._clocks: tuple[int, int] | None = None  # as read at the latest firing
+        self._window_steal: int | None = None  # the steal clock at the start of the window
         self._window_firings = 0
-        self._window_missed = 0
+        self._window_waiting = 0  # missed in the window, in time but for a wait for a CPU
+        self._window_woken_late = 0  # missed in the window, the thread woken late by the kernel
+        self._window_ours = 0  # missed in the window, otherwise
         self.firings = 0
         self.ticks = 0
         self.missed = 0
         self.missed_stolen = 0
         self.missed_waiting = 0
+        self.missed_woken_late = 0
         self.missed_unexplained = 0
         self.stolen_ns = 0
-        """CPU time the hypervisor stole from the machine during the timed windows."""
+        """CPU time the hypervisor stole from the machine during the windows timed."""
+
+    def __getstate__(self) -> dict[str, object]:
+        """Pickled (the tick process sends its timing to the node): the counts, not the clocks of this
+        process's thread."""
+        state = self.__dict__.copy()
+        state["_cpu_clocks"] = None
+        return state
 
     def resume(self) -> None:
         """A new run: the next firing has no previous one to be timed against."""
         self._last_ns = None
-        self._window_clocks = None
+        self._clocks = None
+        self._window_steal = None
 
-    def record(self, now_ns: int, ticks: int) -> None:
+    def record(
+        self, now_ns: int, ticks: int, deadline_ns: int | None = None, ready_ns: int | None = None
+    ) -> None:
         """One firing at ``now_ns`` (steady clock) that computed ``ticks`` ticks (on the tick thread:
-        the waits are that thread's)."""
+        the waits are that thread's); due at ``deadline_ns``, for which the thread was ready to wait from
+        ``ready_ns`` on (its work done), if the ticker knows."""
+        clocks = self._cpu_clocks()
+        late = (ticks - 1) * self._period_ns
         if self._last_ns is not None:
             error = abs(now_ns - self._last_ns - self._period_ns)
             self._histogram[min(error // self.BIN_NS, self.BINS)] += 1
+            late = now_ns - self._last_ns - self._period_ns
+        if deadline_ns is not None:
+            late = now_ns - deadline_ns
+        waited = clocks[1] - self._clocks[1] if self._clocks is not None else 0
         self._last_ns = now_ns
+        self._clocks = clocks
         self.firings += 1
         self.ticks += ticks
         if ticks > 1:
             self.missed += ticks - 1
-            self._window_missed += ticks - 1
+            half = self._period_ns // 2
+            if deadline_ns is not None and ready_ns is not None and ready_ns - deadline_ns >= half:
+                self._window_ours += ticks - 1
+            elif late - waited < half:  # without the wait it would have come in time
+                self._window_waiting += ticks - 1
+            elif deadline_ns is not None and ready_ns is not None:
+                self._window_woken_late += ticks - 1
+            else:
+                self._window_ours += ticks - 1
         self._window_firings += 1
-        if self._window_clocks is None or self._window_firings >= self.WINDOW_FIRINGS:
-            self.close_window()
+        if self._window_steal is None or self._window_firings >= self.WINDOW_FIRINGS:
+            self._close_window(clocks[0])
 
     def close_window(self) -> None:
         """Explain the misses of the firings since the last window (also at the end of a run)."""
-        clocks = self._cpu_clocks()
-        if self._window_clocks is not None:
-            stolen = clocks[0] - self._window_clocks[0]
-            waited = clocks[1] - self._window_clocks[1]
-            self.stolen_ns += stolen
-            if stolen > 0:
-                self.missed_stolen += self._window_missed
-            elif waited > self._period_ns // 2:
-                self.missed_waiting += self._window_missed
-            else:
-                self.missed_unexplained += self._window_missed
-        else:  # misses before the first reading cannot be explained
-            self.missed_unexplained += self._window_missed
-        self._window_clocks = clocks
-        self._window_firings = self._window_missed = 0
+        self._close_window(self._cpu_clocks()[0])
+
+    def _close_window(self, steal: int) -> None:
+        if self._window_steal is not None and steal > self._window_steal:
+            self.stolen_ns += steal - self._window_steal
+            self.missed_stolen += self._window_waiting + self._window_woken_late + self._window_ours
+        else:
+            self.missed_waiting += self._window_waiting
+            self.missed_woken_late += self._window_woken_late
+            self.missed_unexplained += self._window_ours
+        self._window_steal = steal
+        self._window_firings = self._window_waiting = self._window_woken_late = self._window_ours = 0
 
     def period_error(self, quantile: float) -> float:
         """The quantile (0..1) of the period error [s], to the bin width (1 us)."""
@@ -157,91 +185,53 @@ class TickTiming:
         return (
             f"{self.ticks} ticks in {self.firings} firings, {self.missed} missed ({self.missed_stolen} "
             f"while the hypervisor stole {self.stolen_ns * 1e-9:.2f} s of CPU, {self.missed_waiting} while "
-            f"the tick waited for a CPU, {self.missed_unexplained} unexplained); period error "
+            f"the tick waited for a CPU, {self.missed_woken_late} woken late by the kernel, "
+            f"{self.missed_unexplained} unexplained); period error "
             f"p50 {self.period_error(0.5) * 1e3:.3f} ms, p99 {self.period_error(0.99) * 1e3:.3f} ms"
         )
 
 
-class Ticker:
-    """Calls ``callback(now_ns)`` on its own thread at ``start_ns + k * period_ns`` (steady clock).
+SHORT_SLICE_NS = 100_000
+"""The time slice a tick under normal scheduling asks for: the shortest Linux grants (sched_attr's
+sched_runtime; EEVDF, Linux 6.12 on). A thread with a short slice has an early deadline when it wakes, so it
+preempts the programs of the same priority that run then instead of queueing behind them; no privilege needed.
+"""
+_SCHED_ATTR = struct.Struct("<IIQiIQQQII")  # struct sched_attr, SCHED_ATTR_SIZE_VER1
+_SYS_SCHED_SETATTR = {"x86_64": 314, "aarch64": 274}
 
-    A late callback is not repeated for the deadlines it overran (the callback catches up by wall
-    time); the next call is at the next deadline still ahead.
 
-    ``priority`` > 0 puts the thread under SCHED_FIFO at that priority (needs CAP_SYS_NICE or root;
-    ``on_error`` hears why if it is refused); ``cpu`` pins it to that CPU (its process's other threads
-    stay where they are). The tick can still wait for other threads of its
-    process that hold the GIL or a DDS lock; raising those too made no measurable difference.
-    """
+def ask_short_slice() -> str | None:
+    """Ask for :data:`SHORT_SLICE_NS` slices for the calling thread (normal scheduling); why not, if refused
+    (an older kernel keeps its default slice and says nothing)."""
+    number = _SYS_SCHED_SETATTR.get(os.uname().machine)
+    if number is None:
+        return f"no sched_setattr on {os.uname().machine}"
+    libc = ctypes.CDLL(None, use_errno=True)
+    attr = ctypes.create_string_buffer(
+        _SCHED_ATTR.pack(_SCHED_ATTR.size, 0, 0, 0, 0, SHORT_SLICE_NS, 0, 0, 0, 0)
+    )
+    if libc.syscall(number, 0, attr, 0) != 0:
+        return os.strerror(ctypes.get_errno())
+    return None
 
-    def __init__(
-        self,
-        period_ns: int,
-        callback: Callable[[int], None],
-        *,
-        priority: int = 0,
-        cpu: int | None = None,
-        on_error: Callable[[str], None] = lambda message: None,
-    ) -> None:
-        self._period_ns = period_ns
-        self._callback = callback
-        self._priority = priority
-        self._cpu = cpu
-        self._on_error = on_error
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
-    def start(self, start_ns: int) -> None:
-        # Everything alive now (modules, the node, its messages) is moved out of the collector's
-        # reach: a full collection then walks only what the run allocates, not the whole process.
-        gc.collect()
-        gc.freeze()
-        self._thread = threading.Thread(target=self._run, args=(start_ns,), name="tdslip-tick", daemon=True)
-        self._thread.start()
-
-    def request_stop(self) -> None:
-        """Stop after the callback in progress, without waiting (safe from the callback itself)."""
-        self._stop.set()
-
-    def stop(self) -> None:
-        """Stop after the callback in progress and wait for the thread (not from the callback)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-
-    def _run(self, start_ns: int) -> None:
-        # A due tick waits for the GIL until the thread holding it is asked to let go, by default
-        # after 5 ms: five ticks. Asked after SWITCH_INTERVAL instead, a callback of another thread
-        # delays the tick by at most that. Process-wide, so only while this thread runs.
-        switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(SWITCH_INTERVAL)
+def schedule_realtime(priority: int, cpu: int | None) -> list[str]:
+    """Put the calling thread under SCHED_FIFO at ``priority`` (> 0; needs CAP_SYS_NICE or root), else give it
+    short slices (:func:`ask_short_slice`), and pin it to ``cpu``; what was refused, and why (it then runs
+    with normal scheduling, or on any CPU)."""
+    refused = []
+    if priority > 0:
         try:
-            self._tick_until_stopped(start_ns)
-        finally:
-            sys.setswitchinterval(switch_interval)
-
-    def _tick_until_stopped(self, start_ns: int) -> None:
-        if self._priority > 0:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self._priority))  # this thread
-            except OSError as error:
-                self._on_error(f"SCHED_FIFO priority {self._priority} refused ({error}); normal scheduling")
-        if self._cpu is not None:
-            try:
-                os.sched_setaffinity(0, {self._cpu})  # this thread only
-            except OSError as error:
-                self._on_error(f"CPU affinity {self._cpu} refused ({error}); any CPU")
-        period = self._period_ns
-        deadline = start_ns + period
-        while not self._stop.is_set():
-            delay = deadline - time.monotonic_ns()
-            if delay > 0:
-                time.sleep(delay * 1e-9)
-            if self._stop.is_set():
-                break
-            now = time.monotonic_ns()
-            self._callback(now)
-            deadline += period
-            overrun = time.monotonic_ns() - deadline
-            if overrun > 0:
-                deadline += (overrun // period + 1) * period
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))  # this thread
+        except OSError as error:
+            refused.append(f"SCHED_FIFO priority {priority} refused ({error}); normal scheduling")
+    if priority <= 0 or refused:
+        refusal = ask_short_slice()
+        if refusal is not None:
+            refused.append(f"a short time slice refused ({refusal}); the default one")
+    if cpu is not None:
+        try:
+            os.sched_setaffinity(0, {cpu})  # this thread only
+        except OSError as error:
+            refused.append(f"CPU affinity {cpu} refused ({error}); any CPU")
+    return refused

@@ -5,9 +5,10 @@ Three processes on a private ROS graph (:mod:`tdslip_ros.nodes.isolation`: a fre
 and a Fast DDS profile with prompt acknowledgements):
 
 * this one hosts the plant node (so it knows exactly what was published) and a small monitor that
-  follows /tdslip/apex for the progress line and the summary table;
+  follows /tdslip/apex for the progress line and the summary table; a realtime plant ticks in a process of
+  its own (:mod:`tdslip_ros.nodes.tick_process`);
 * ``controller_node`` in a child process: its planning (milliseconds of numpy per apex) would
-  hold the GIL against the plant's 1 kHz tick thread (in one process: thousands of missed ticks
+  hold the GIL against the plant's publishing (in one process with the tick: thousands of missed ticks
   in 15 s and a slower answer, measured); apart, an answer costs a DDS round trip (~1-2 ms on the
   development VM) on top of the planning; a stance-feedback policy
   (:data:`~tdslip_ros.model.policies.STANCE_FEEDBACK_POLICIES`) runs in ``stance_controller_node`` instead,
@@ -135,7 +136,7 @@ class RunOptions:
     """The learned policy's file (model.learned), absolute: the controller node reads it."""
     command_timeout: float | None = None
     realtime_priority: int | None = None
-    """SCHED_FIFO priority of the realtime plant's tick thread (0: normal scheduling)."""
+    """SCHED_FIFO priority of the realtime plant's tick (0: normal scheduling)."""
     record_clock: bool = False
     duration: float | None = None
     """Wall-time limit [s]: the run ends as complete when it is reached."""
@@ -588,13 +589,13 @@ def run(
             recorded=dict(sorted(recorded.items())),
             command_latencies_ns=plant.command_latencies_ns,
             delivery_time=delivery_time,
-            tick_timing=plant.tick_timing,
+            tick_timing=plant.counts.tick_timing,
             bag=bag,
             controller_log="" if controller is None else controller.output(),
-            saturated_strides=plant.saturated_strides,
-            late_commands=plant.late_commands,
-            stale_torques=plant.torques.stale,
-            late_torques=plant.torques.late,
+            saturated_strides=plant.counts.saturated_strides,
+            late_commands=plant.counts.late_commands,
+            stale_torques=plant.counts.stale_torques,
+            late_torques=plant.counts.late_torques,
             problems=problems,
         )
     return report

@@ -1,0 +1,516 @@
+"""The plant's run without ROS: the model's stepper advanced tick by tick, the commands and hip torques it
+takes, and everything it emits, told to a :class:`PlantSink`.
+
+The plant node (:mod:`tdslip_ros.nodes.plant_node`) owns the ROS side: publishers, subscriptions, timers,
+the recorder's flow control and when to start. It drives a :class:`PlantRun` in its own process in lockstep,
+and in realtime :mod:`tdslip_ros.nodes.tick_process` drives it at 1 kHz in a process of its own, whose sink
+sends every call back to the node. Either way the calls reach the same sink, in the same order, so both
+modes publish alike.
+
+A run is not thread-safe: its driver calls it from one thread at a time (under a lock where several could).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+from rclpy.serialization import deserialize_message, serialize_message
+from tdslip_msgs.msg import StanceCommand, Status
+
+from tdslip_ros.model.events import Event, EventKind, StrideEnergy
+from tdslip_ros.model.events import HopperState as ModelState
+from tdslip_ros.model.limits import PlausibilityLimits
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
+from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.perturbations import Perturbations
+from tdslip_ros.model.stance_laws import StanceFeedback
+from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
+from tdslip_ros.nodes.realtime import TickTiming
+from tdslip_ros.nodes.torque_stream import LateTorque, TorqueInput, torque_fields
+
+TICK_PERIOD = 1e-3  # s, the plant's fixed step
+TICK_NS = 1_000_000
+GRAPH_CHECK_TICKS = 50
+"""Ticks between two looks at who subscribes to the live state and force, /clock and the markers (a graph
+query costs ~20 us); the plant also looks at every apex and touchdown."""
+
+_NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """How a run ended: a Status kind (a FailureKind value, command_timeout or run_complete), when
+    in simulated time [s] and after how much wall time since start() [s]."""
+
+    kind: str
+    reason: str
+    stride: int
+    sim_time: float
+    wall_time: float
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.kind == Status.KIND_RUN_COMPLETE)
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """What a run is given once: the hopper, its limits and perturbations, the command in force until the
+    first answer, the clock mode and when the run ends by itself (0: never)."""
+
+    hopper: HopperParams
+    limits: PlausibilityLimits
+    perturbations: Perturbations
+    initial_command: ModelCommand
+    lockstep: bool
+    max_strides: int
+    max_stale_strides: int
+    torque_max_age_ticks: int
+
+
+@dataclass(frozen=True)
+class RunCounts:
+    """What a run has counted so far, over its resets."""
+
+    late_commands: int = 0
+    """Realtime: strides whose answer arrived after their touchdown (never applied)."""
+    rejected: int = 0
+    """Commands and torques rejected, late answers included."""
+    late_torques: int = 0
+    """Hip torques that came after their tick was stepped or after their stance."""
+    stale_torques: int = 0
+    """Realtime: stance ticks that held zero, as no torque within the age bound had come."""
+    saturated_strides: int = 0
+    """Touchdowns of the current epoch whose |tau0| exceeded tau_max (the hip saturated)."""
+    tick_timing: TickTiming | None = None
+    """Realtime: the tick's wall-clock timing."""
+
+
+class PublishFailed(Exception):
+    """A sink could not publish (its reason); the run ends with ``publish_failed``."""
+
+
+class PlantSink(Protocol):
+    """Where a run's output goes. The first group publishes; the rest tell the driver how the run goes."""
+
+    def tick(self, state: ModelState, t: float, tick: int) -> None: ...
+
+    def apex(
+        self,
+        epoch: int,
+        stride: int,
+        t: float,
+        state: ModelState,
+        measured: tuple[float, float],
+        ground: float,
+        flows: StrideEnergy | None,
+    ) -> None: ...
+
+    def contact(self, epoch: int, event: Event, t: float) -> None: ...
+
+    def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None: ...
+
+    def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None: ...
+
+    def check_graph(self) -> bool:
+        """Look who subscribes; True while a tick's samples go out live (they are wanted at once)."""
+        ...
+
+    def awaiting(self) -> None:
+        """Lockstep: stepping paused for a command or a torque (the driver times the wait)."""
+
+    def resumed(self) -> None:
+        """Lockstep: what was awaited came; step on."""
+
+    def command_applied(self, epoch: int, stride: int, applied_ns: int) -> None:
+        """The first valid answer to apex (epoch, stride), applied at ``applied_ns`` (steady clock)."""
+
+    def counted(self, counts: RunCounts) -> None:
+        """The counts, at every apex and at the end of a run."""
+
+    def log(self, level: str, text: str) -> None:
+        """A line for the node's log (``info``, ``warning`` or ``error``)."""
+
+    def finished(self, outcome: RunOutcome) -> None: ...
+
+    def restarted(self, epoch: int, message: str, outcome: RunOutcome) -> None:
+        """A reset began epoch ``epoch`` (``outcome``: how the one before ended)."""
+
+
+class PlantRun:
+    """The TD-SLIP plant's run (module docstring): :meth:`start`, then :meth:`advance` (lockstep) or
+    :meth:`advance_to` (realtime) steps it; :meth:`take_command`, :meth:`take_torque`, :meth:`reset`,
+    :meth:`end` and :meth:`time_out` are what reaches it from outside."""
+
+    def __init__(self, settings: RunSettings, apex: ApexState, sink: PlantSink) -> None:
+        self.settings = settings
+        self._sink = sink
+        self.lockstep = settings.lockstep
+        self.rejections = RejectionLog()
+        self.late_commands = 0
+        self.applied_torques = 0  # samples published on tdslip/applied_torque, over resets
+        self.tick_timing = None if self.lockstep else TickTiming(TICK_NS)
+        self.torques = TorqueInput(
+            lockstep=self.lockstep,
+            max_age_ticks=settings.torque_max_age_ticks,
+            max_torque=settings.limits.max_torque,
+        )
+        self.running = False
+        self.epoch = 0
+        self.ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD
+        self._tick0 = 0  # the tick at start(), due at start_wall_ns of the steady clock
+        self.start_wall_ns = 0
+        self._restart(apex, time_offset_ticks=0)
+
+    @staticmethod
+    def load_message_support() -> None:
+        """Load what parsing a command needs now: its first parse loads the type support, ~30 ms."""
+        deserialize_message(serialize_message(StanceCommand()), StanceCommand)
+
+    @property
+    def sim_time(self) -> float:
+        return self.ticks * TICK_PERIOD
+
+    @property
+    def stride(self) -> int:
+        return self._stepper.stride
+
+    def counts(self, *, timing: bool) -> RunCounts:
+        """The counts so far; with the tick's ``timing`` (a histogram: sent at the end of a run only)."""
+        return RunCounts(
+            self.late_commands,
+            self.rejections.total,
+            self.torques.late,
+            self.torques.stale,
+            self._stepper.saturated_strides,
+            self.tick_timing if timing else None,
+        )
+
+    def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
+        settings = self.settings
+        self._stepper = FixedStepStepper(
+            settings.hopper,
+            apex,
+            settings.initial_command,
+            dt=TICK_PERIOD,
+            limits=settings.limits,
+            perturbations=settings.perturbations,
+            trajectory=self.epoch,
+        )
+        self._offset = time_offset_ticks * TICK_PERIOD
+        self._offset_ticks = time_offset_ticks
+        self._applied_published = 0  # samples of the current stance published on tdslip/applied_torque
+        self.torques.restart()
+        self._awaiting: int | None = None
+        self._answered = -1  # the latest stride whose command was applied
+        self._late_stride = -1  # the latest stride counted in late_commands
+        self._stale_strides = 0  # realtime: strides in a row that no valid command answered
+
+    # --- run control ----------------------------------------------------------------------------
+
+    def start(self, start_wall_ns: int) -> None:
+        """Publish the initial apex and sample; lockstep: wait for its command."""
+        if self.running:
+            return
+        self.running = True
+        self.start_wall_ns = start_wall_ns
+        self._tick0 = self.ticks
+        self._sink.check_graph()
+        self._publish_apex(0, self._stepper.apex_state)
+        state = self._stepper.state
+        self._sink.tick(state, self._offset + state.t, self.ticks)
+        if self.lockstep:
+            self._await_command()
+        else:
+            assert self.tick_timing is not None
+            self.tick_timing.resume()
+
+    def end(self, kind: str, reason: str) -> None:
+        """End a running run now (e.g. complete at a caller's wall-time limit, or a failed publication)."""
+        if self.running:
+            self._finish(kind, reason, self.sim_time)
+
+    def reset(self, apex: ApexState) -> str:
+        """Restart from ``apex`` (checked by the caller) in a new epoch, simulated time running on."""
+        message = (
+            f"reset to apex height {apex.y} m, forward speed {apex.xdot} m/s at t = {self.sim_time:.3f} s "
+            f"(epoch {self.epoch + 1})"
+        )
+        self.running = False
+        wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
+        ended = RunOutcome(Status.KIND_RESET, message, self._stepper.stride, self.sim_time, wall_time)
+        self._status(Status.KIND_RESET, message, self.sim_time, fatal=False)
+        self.epoch += 1
+        self._restart(apex, time_offset_ticks=self.ticks)
+        self._sink.restarted(self.epoch, message, ended)
+        self._sink.log("info", message)
+        self.start(time.monotonic_ns())
+        return message
+
+    def time_out(self, command_timeout: float) -> None:
+        """Lockstep: nothing awaited came within ``command_timeout`` s."""
+        awaited = self.torques.awaited
+        if (self._awaiting is None and awaited is None) or not self.running:
+            return
+        rejected = self.rejections.total
+        rejected_so_far = f"; {rejected} command(s) or torque(s) rejected so far" if rejected else ""
+        what = (
+            f"command for epoch {self.epoch}, stride {self._awaiting}"
+            if awaited is None
+            else f"hip torque for epoch {awaited[0]}, stride {awaited[1]}, tick {awaited[2]}"
+        )
+        self._finish(
+            Status.KIND_COMMAND_TIMEOUT,
+            f"no valid {what} within command_timeout = {command_timeout:g} s{rejected_so_far}",
+            self._offset + self._stepper.t,
+        )
+
+    def _finish(self, kind: str, reason: str, t: float) -> None:
+        self.running = False
+        try:
+            self._status(kind, reason, t, fatal=True)
+        except PublishFailed as error:
+            self._sink.log("error", f"the final status could not be published: {error}")
+        wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
+        outcome = RunOutcome(kind, reason, self._stepper.stride, t, wall_time)
+        stride = self._stepper.stride
+        if self.tick_timing is not None:
+            self.tick_timing.close_window()
+            self._sink.log("info", f"realtime: {self.tick_timing.summary()}")
+            if self.applied_torques:
+                self._sink.log(
+                    "info",
+                    f"realtime: {self.torques.late} hip torque(s) came after their tick, "
+                    f"{self.torques.stale} stance tick(s) held zero (no torque within torque_max_age)",
+                )
+            if self.late_commands:
+                self._sink.log(
+                    "warning",
+                    f"realtime: {self.late_commands} command(s) arrived after their touchdown (the command "
+                    "in force held)",
+                )
+        if self.settings.perturbations.saturates:
+            self._sink.log("info", f"the hip saturated in {self._stepper.saturated_strides} stride(s)")
+        if kind == Status.KIND_RUN_COMPLETE:
+            self._sink.log("info", f"run complete at stride {stride}, t = {t:.3f} s: {reason}")
+        else:
+            self._sink.log("error", f"run ended at stride {stride}, t = {t:.6f} s: {kind}: {reason}")
+        self._sink.counted(self.counts(timing=True))
+        self._sink.finished(outcome)
+
+    # --- stepping -------------------------------------------------------------------------------
+
+    def advance(self, ticks: int) -> bool:
+        """Lockstep: step up to ``ticks`` ticks; True when stepping must pause (an awaited command or torque,
+        the end of the run)."""
+        for _ in range(ticks):
+            if self._tick_or_fail():
+                return True
+        return False
+
+    def advance_to(self, now_ns: int, deadline_ns: int | None = None, ready_ns: int | None = None) -> None:
+        """Realtime: step up to the tick due at ``now_ns`` of the steady clock (a late call catches up); the
+        firing was due at ``deadline_ns`` and its caller idle from ``ready_ns`` (for :class:`TickTiming`)."""
+        due = self._tick0 + round((now_ns - self.start_wall_ns) / TICK_NS)
+        first = self.ticks
+        while self.ticks < due and self.running:
+            self._tick_or_fail()
+        assert self.tick_timing is not None
+        self.tick_timing.record(now_ns, self.ticks - first, deadline_ns, ready_ns)
+        if first < self.ticks and not self.running:  # it ended in this firing: the timing with its last
+            self.tick_timing.close_window()
+            self._sink.counted(self.counts(timing=True))
+
+    def _tick_or_fail(self) -> bool:
+        """:meth:`_tick`; a publication that fails ends the run with ``publish_failed``."""
+        try:
+            return self._tick()
+        except PublishFailed as error:
+            self._finish(Status.KIND_PUBLISH_FAILED, str(error), self.sim_time)
+            return True
+
+    def _tick(self) -> bool:
+        stepper = self._stepper
+        if not self.lockstep and stepper.torque_due:  # lockstep: the awaited torque is held already
+            stepper.hold_torque(self.torques.held(stepper.stride, self.ticks))
+        events = stepper.step()
+        self.ticks += 1
+        if self.ticks % GRAPH_CHECK_TICKS == 0:
+            self._sink.check_graph()
+        apex: Event | None = None
+        for event in events:
+            if event.kind is EventKind.APEX:
+                apex = event
+                self._publish_apex(event.stride, event.state)
+            elif event.kind is EventKind.FAILURE:
+                assert event.failure is not None
+                self._publish_applied_torques()  # the failing tick's torque was applied too
+                self._finish(event.failure.value, event.reason, self._offset + event.t)
+                return True
+            else:
+                if event.kind is EventKind.TOUCHDOWN:
+                    self._applied_published = 0
+                self._sink.contact(self.epoch, event, self._offset + event.t)
+        state = stepper.state
+        self._sink.tick(state, self._offset + state.t, self.ticks)
+        self._publish_applied_torques()
+        if apex is None:
+            if self.lockstep and stepper.torque_due:
+                self.torques.await_tick(self.epoch, stepper.stride, self.ticks)
+                self._sink.awaiting()
+                return True
+            return False
+        max_strides = self.settings.max_strides
+        if apex.stride == max_strides:
+            reason = f"reached max_strides = {max_strides}"
+            self._finish(Status.KIND_RUN_COMPLETE, reason, self._offset + state.t)
+            return True
+        if self.lockstep:
+            self._await_command()
+            return True
+        return self._count_stale_stride(apex.stride)
+
+    def _count_stale_stride(self, stride: int) -> bool:
+        """Realtime: at the apex of ``stride``, was the previous stride answered? Too many unanswered
+        in a row end the run (a dead or silent controller must not go unnoticed)."""
+        self._stale_strides = 0 if self._answered == stride - 1 else self._stale_strides + 1
+        limit = self.settings.max_stale_strides
+        if limit and self._stale_strides >= limit:
+            self._finish(
+                Status.KIND_COMMAND_TIMEOUT,
+                f"no valid command answered the last {self._stale_strides} strides (max_stale_strides)",
+                self._offset + self._stepper.t,
+            )
+            return True
+        return False
+
+    def _await_command(self) -> None:
+        self._awaiting = self._stepper.stride
+        self._sink.awaiting()
+
+    # --- commands and torques -------------------------------------------------------------------
+
+    def take_command(self, data: bytes) -> None:
+        """A serialised StanceCommand: applied if it answers the current apex and is admissible, else
+        counted and (unless merely late) reported."""
+        key = command_key(data)
+        current = (self.epoch, self._stepper.stride)
+        # An answer to another apex is recognised from its bytes, unparsed: a flood of them costs next to
+        # nothing and cannot delay the one the plant waits for.
+        if key is not None and key != current:
+            if key > current:
+                reason = not_yet(key, *current)
+                self._report_rejection(f"command for epoch {key[0]}, stride {key[1]} rejected: {reason}")
+            else:
+                self.rejections.total += 1  # a late answer: counted, not reported
+                if key[0] == self.epoch and key[1] > self._answered:
+                    self._count_late(key[1])  # its stride never had a command: it missed the touchdown
+            return
+        msg = deserialize_message(data, StanceCommand)
+        if not self.running:
+            self._sink.log("debug", f"command for stride {msg.stride} ignored: no run in progress")
+            return
+        try:
+            self._apply(msg)
+        except ParameterError as error:
+            self._report_rejection(
+                f"command for epoch {msg.epoch}, stride {msg.stride} ({msg.policy or 'no policy'}) "
+                f"rejected: {error}"
+            )
+            return
+        if msg.stride != self._answered:
+            self._sink.command_applied(msg.epoch, msg.stride, time.monotonic_ns())
+            self._answered = msg.stride
+        if self.lockstep:
+            self._awaiting = None
+            self._sink.resumed()
+
+    def _count_late(self, stride: int) -> None:
+        """Count a stride in late_commands once, however many late answers it gets."""
+        if stride != self._late_stride:
+            self._late_stride = stride
+            self.late_commands += 1
+
+    def _apply(self, msg: StanceCommand) -> None:
+        """Admit a command and hand it to the stepper; ParameterError gives the reason to refuse it."""
+        stride = self._stepper.stride
+        try:
+            command = admit(
+                msg,
+                epoch=self.epoch,
+                stride=stride,
+                lockstep=self.lockstep,
+                awaiting=self._awaiting,
+                past_touchdown=self._stepper.past_touchdown,
+                limits=self.settings.limits,
+            )
+        except LateCommand:
+            self._count_late(stride)
+            raise
+        self._stepper.set_command(command)
+
+    def take_torque(self, data: bytes) -> None:
+        """A serialised HipTorque, judged by :class:`~tdslip_ros.nodes.torque_stream.TorqueInput`."""
+        if not self.running:
+            return
+        fields = torque_fields(data)
+        if fields is None:
+            self._report_rejection("hip torque rejected: not a HipTorque", Status.KIND_TORQUE_REJECTED)
+            return
+        stepper = self._stepper
+        try:
+            self.torques.take(
+                fields,
+                epoch=self.epoch,
+                stride=stepper.stride,
+                tick=self.ticks,
+                streaming=isinstance(stepper.command, StanceFeedback),
+                stance_over=stepper.past_touchdown and not stepper.torque_due,
+            )
+        except LateTorque:
+            return
+        except ParameterError as error:
+            self._report_rejection(
+                f"hip torque for epoch {fields.epoch}, stride {fields.stride}, tick {fields.tick} "
+                f"rejected: {error}",
+                Status.KIND_TORQUE_REJECTED,
+            )
+            return
+        if self.lockstep:  # the awaited torque: hold it and step on
+            stepper.hold_torque(fields.torque)
+            self._sink.resumed()
+
+    def _report_rejection(self, reason: str, kind: str = Status.KIND_COMMAND_REJECTED) -> None:
+        """Log and report a rejection (at most REJECTION_REPORTS per period, the rest summed)."""
+        prefix = self.rejections.admit(time.monotonic_ns())
+        if prefix is not None:
+            self._sink.log("warning", prefix + reason)
+            self._status(kind, prefix + reason, self._offset + self._stepper.t, fatal=False)
+            self._sink.counted(self.counts(timing=False))
+
+    # --- output ---------------------------------------------------------------------------------
+
+    def _publish_apex(self, stride: int, state: ModelState) -> None:
+        stepper = self._stepper
+        flows = stepper.last_stride_energy if stride > 0 else None
+        t = self._offset + state.t
+        self._sink.apex(self.epoch, stride, t, state, stepper.measured_apex, stepper.ground, flows)
+        self._sink.counted(self.counts(timing=False))
+
+    def _publish_applied_torques(self) -> None:
+        """The stance's torques sampled since the last call, as held (tdslip/applied_torque): the record
+        from which the analysis replays the stance (none under a ramp)."""
+        if not isinstance(self._stepper.command, StanceFeedback):
+            return
+        samples = self._stepper.stance_torques
+        for t, torque in samples[self._applied_published :]:
+            tick = self._offset_ticks + round(t / TICK_PERIOD)
+            self._sink.applied_torque(self.epoch, self._stepper.stride, tick, torque)
+            self.applied_torques += 1
+        self._applied_published = len(samples)
+
+    def _status(self, kind: str, reason: str, t: float, *, fatal: bool) -> None:
+        self._sink.status(self.epoch, self._stepper.stride, kind, reason, t, fatal=fatal)
