@@ -3,10 +3,10 @@ child processes, every run recorded and its counts checked). One command each:
 
     .venv/bin/python bench/bench_nodes.py realtime [--duration 60] [--priority 50] [--busy-core 1]
         1 kHz tick against wall time: missed ticks, split into those the machine explains (CPU time
-        the hypervisor stole, the tick waiting for a CPU) and the unexplained ones (ours; target 0),
-        and the |period error| of the plant's tick, p50 and p99 (target p99 < 0.3 ms); optionally
-        with the tick thread at a SCHED_FIFO priority (root). With --busy-core: target < 0.1% of the
-        ticks missed.
+        the hypervisor stole, the tick waiting for a CPU, the tick woken late by the kernel) and the
+        unexplained ones (ours; target 0), and the |period error| of the plant's tick, p50 and p99
+        (target p99 < 0.3 ms); optionally with the tick process at a SCHED_FIFO priority (root). With
+        --busy-core: target < 0.1% of the ticks missed.
     .venv/bin/python bench/bench_nodes.py lockstep [--strides 100] [--record-clock]
         simulated time over wall time with every 1 kHz sample recorded (target >= 20x), both until
         the end of the run and until the recorder had acknowledged every message.

@@ -232,7 +232,7 @@ def test_realtime_mode_keeps_simulated_time_with_wall_time(ros: RosGraph) -> Non
         timing = plant.counts.tick_timing
         return None if timing is None else timing.ticks
 
-    # Every tick came from the tick thread (its last firing is recorded last).
+    # Every tick came from the tick process (its last firing is recorded last).
     ros.spin_until(lambda: timed_ticks() == round(plant.sim_time / TICK_PERIOD), "the last firing's record")
     # Each command arrived in the flight it was for, so the stances match the lockstep model.
     assert len(plant.command_latencies_ns) == strides

@@ -75,6 +75,8 @@ import dataclasses
 import sys
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
@@ -89,7 +91,6 @@ from tdslip_ros.interfaces import (
     hopper_from_parameters,
     perturbations_from_parameters,
 )
-from tdslip_ros.model.events import Event, StrideEnergy
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
@@ -101,6 +102,7 @@ from tdslip_ros.nodes.plant_output import PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.plant_run import (
     TICK_PERIOD,
+    ApexReport,
     PlantRun,
     PublishFailed,
     RunCounts,
@@ -216,6 +218,7 @@ class PlantNode(Node):
             self._command_timeout, self._on_recorder_timeout, clock=steady, autostart=False
         )
         self._started = False
+        self._tick_process_lost: str | None = None  # why the realtime tick process ended by itself
         self._epoch = 0
         self._stride = 0
         self._ticks = 0  # of the latest sample published, since construction
@@ -278,6 +281,11 @@ class PlantNode(Node):
     def epoch(self) -> int:
         """The run epoch: 0 for the first run, one more after every reset."""
         return self._epoch
+
+    @property
+    def tick_process_id(self) -> int | None:
+        """Realtime: the process id of the tick's process (e.g. for ``chrt`` or ``taskset``)."""
+        return None if self._ticking is None else self._ticking.pid
 
     @property
     def running(self) -> bool:
@@ -343,11 +351,15 @@ class PlantNode(Node):
             self.start_wall_ns = time.monotonic_ns()
             if self._run is not None:
                 self._run.start(self.start_wall_ns)
+            if self._tick_process_lost is not None:
+                self._end_lost_run()
+                return
         if self._ticking is not None:
             self._ticking.start(self.start_wall_ns)
 
     def end_run(self, reason: str) -> None:
-        """End a running run now as complete (e.g. a caller's wall-time limit)."""
+        """End a running run as complete (e.g. a caller's wall-time limit): at once in lockstep; in realtime
+        the tick process ends it, and ``outcome`` is set when that reaches the node."""
         with self._lock:
             if self._run is not None:
                 self._run.end(Status.KIND_RUN_COMPLETE, reason)
@@ -384,17 +396,17 @@ class PlantNode(Node):
 
     def _on_tick_process_lost(self, reason: str) -> None:
         with self._lock:
+            self._tick_process_lost = reason
             if self.running:
-                self.get_logger().error(f"run ended: {reason}")
-                self._finished(
-                    RunOutcome(
-                        Status.KIND_PUBLISH_FAILED,
-                        reason,
-                        self._stride,
-                        self.sim_time,
-                        (time.monotonic_ns() - self.start_wall_ns) * 1e-9,
-                    )
-                )
+                self._end_lost_run()
+
+    def _end_lost_run(self) -> None:
+        """End the run that the tick process can no longer step (under the lock)."""
+        reason = self._tick_process_lost
+        assert reason is not None
+        self.get_logger().error(f"run ended: {reason}")
+        wall_time = (time.monotonic_ns() - self.start_wall_ns) * 1e-9
+        self._finished(RunOutcome(Status.KIND_PUBLISH_FAILED, reason, self._stride, self.sim_time, wall_time))
 
     def recorded_everything(self) -> bool:
         """Every recorder waited for has written everything published on the topics it records."""
@@ -490,7 +502,12 @@ class PlantNode(Node):
             response.epoch = self._epoch
             return response
         if self._ticking is not None:
-            response.message = self._ticking.reset(apex)  # unlocked: the replaying thread takes the lock
+            try:
+                response.message = self._ticking.reset(apex)  # unlocked: the replaying thread takes the lock
+            except TimeoutError as error:
+                response.success, response.message = False, f"reset failed: {error}"
+                response.epoch = self._epoch
+                return response
         else:
             assert self._run is not None
             with self._lock:
@@ -507,55 +524,38 @@ class _NodeSink:
         self._node = node
         self._out = out
 
+    @property
+    def live(self) -> bool:
+        return self._out.live
+
     @staticmethod
-    def _failing(error: RCLError) -> PublishFailed:
-        return PublishFailed(str(error).split(",", 1)[0])
+    def _publishing(publish: Callable[..., None], *args: Any, **kwargs: Any) -> None:
+        try:
+            publish(*args, **kwargs)
+        except RCLError as error:
+            raise PublishFailed(str(error).split(",", 1)[0]) from error
 
     def tick(self, state: ModelState, t: float, tick: int) -> None:
-        try:
-            self._out.sample(state, t)
-            self._out.markers(state, t, tick)
-        except RCLError as error:
-            raise self._failing(error) from error
+        self._publishing(self._out.sample, state, t)
+        self._publishing(self._out.markers, state, t, tick)
         self._node._ticks = tick
 
-    def apex(
-        self,
-        epoch: int,
-        stride: int,
-        t: float,
-        state: ModelState,
-        measured: tuple[float, float],
-        ground: float,
-        flows: StrideEnergy | None,
-    ) -> None:
+    def apex(self, report: ApexReport) -> None:
         self._node._apex_wall_ns = time.monotonic_ns()
-        self._node._stride = stride
-        try:
-            self._out.apex(epoch, stride, t, state, measured, ground, flows)
-        except RCLError as error:
-            raise self._failing(error) from error
+        self._node._stride = report.stride
+        self._publishing(self._out.apex, report)
 
-    def contact(self, epoch: int, event: Event, t: float) -> None:
-        try:
-            self._out.contact(epoch, event, t)
-        except RCLError as error:
-            raise self._failing(error) from error
+    def contact(self, *args: Any) -> None:
+        self._publishing(self._out.contact, *args)
 
-    def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None:
-        try:
-            self._out.status(epoch, stride, kind, reason, t, fatal=fatal)
-        except RCLError as error:
-            raise self._failing(error) from error
+    def status(self, *args: Any, **kwargs: Any) -> None:
+        self._publishing(self._out.status, *args, **kwargs)
 
-    def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None:
-        try:
-            self._out.applied_torque(epoch, stride, tick, torque)
-        except RCLError as error:
-            raise self._failing(error) from error
+    def applied_torque(self, *args: Any) -> None:
+        self._publishing(self._out.applied_torque, *args)
 
-    def check_graph(self) -> bool:
-        return self._out.check_graph()
+    def check_graph(self) -> None:
+        self._out.check_graph()
 
     def awaiting(self) -> None:
         self._node._timeout_timer.reset()

@@ -25,10 +25,11 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, Status
 
 from tdslip_ros.interfaces import STAMP_FIELDS
-from tdslip_ros.model.events import Event, EventKind, StrideEnergy
+from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.markers import HopperMarkers
+from tdslip_ros.nodes.plant_run import ApexReport
 from tdslip_ros.nodes.torque_stream import tick_stamp
 from tdslip_ros.nodes.wire import (
     SAMPLE_FIELDS,
@@ -126,16 +127,19 @@ class PlantOutput:
         batched = self.subscribers(topics.SAMPLES) if topic in topics.BATCHED_TOPICS else 0
         return self.subscribers(topic) + batched
 
-    def check_graph(self) -> bool:
+    @property
+    def live(self) -> bool:
+        """A tick's state, force or /clock goes out live: someone wants each tick at once."""
+        return not (self._state_out is self._grf_out is self._clock_out is None)
+
+    def check_graph(self) -> None:
         """Publish the live state and force, /clock and the markers from now on while someone subscribes to
-        them (a graph query costs ~20 us: the plant calls this every few dozen ticks and at every apex).
-        True while a tick's state, force or /clock goes out live."""
+        them (a graph query costs ~20 us: the plant calls this every few dozen ticks and at every apex)."""
         listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
         self._clock_out = self._clock_pub if listened else None
         self._state_out = self._state_pub if self._state_pub.get_subscription_count() > 0 else None
         self._grf_out = self._grf_pub if self._grf_pub.get_subscription_count() > 0 else None
         self._markers_out = bool(self._marker_period_ticks) and self._markers_pub.get_subscription_count() > 0
-        return not (self._state_out is self._grf_out is self._clock_out is None)
 
     def _publish(self, topic: str, msg: object) -> None:
         self._publishers[topic].publish(serialized(msg))
@@ -178,32 +182,23 @@ class PlantOutput:
         self._applied_torque_pub.publish(self._applied_torque_encoder.encode(values))
         self.published[topics.APPLIED_TORQUE] += 1
 
-    def apex(
-        self,
-        epoch: int,
-        stride: int,
-        t: float,
-        state: ModelState,
-        measured: tuple[float, float],
-        ground: float,
-        flows: StrideEnergy | None,
-    ) -> None:
-        """Apex ``stride`` at t [s]: the true state, the ``measured`` (height, speed), the ground of the
-        stance before it and that stance's energy ``flows`` (None: zero, the initial apex)."""
+    def apex(self, report: ApexReport) -> None:
+        """An apex event, after the samples before it."""
         self.flush()
         self.check_graph()
+        flows, state = report.flows, report.state
         energy = (0.0, 0.0, 0.0) if flows is None else (flows.hip_work, flows.damping_loss, flows.spring_loss)
         values = (
-            *stamp_of(t),
-            epoch,
-            stride,
-            t,
+            *stamp_of(report.t),
+            report.epoch,
+            report.stride,
+            report.t,
             state.x,
             state.y,
             state.xdot,
             state.energy,
-            ground,
-            *measured,
+            report.ground,
+            *report.measured,
         )
         self._apex_pub.publish(self._apex_encoder.encode((*values, *energy)))
         self.published[topics.APEX] += 1

@@ -42,8 +42,9 @@ _NS_PER_S = 1_000_000_000
 
 @dataclass(frozen=True)
 class RunOutcome:
-    """How a run ended: a Status kind (a FailureKind value, command_timeout or run_complete), when
-    in simulated time [s] and after how much wall time since start() [s]."""
+    """How a run ended: a Status kind (a FailureKind value, command_timeout, publish_failed, run_complete, or
+    reset for a run a reset ended), when in simulated time [s] and after how much wall time since start()
+    [s]."""
 
     kind: str
     reason: str
@@ -89,6 +90,21 @@ class RunCounts:
     """Realtime: the tick's wall-clock timing."""
 
 
+@dataclass(frozen=True)
+class ApexReport:
+    """Apex ``stride`` of ``epoch`` at ``t`` [s]: the true state, the ``measured`` (height, speed) the
+    controller's sensor reports, the ground of the stance before it and that stance's energy ``flows`` (None:
+    zero, the initial apex)."""
+
+    epoch: int
+    stride: int
+    t: float
+    state: ModelState
+    measured: tuple[float, float]
+    ground: float
+    flows: StrideEnergy | None
+
+
 class PublishFailed(Exception):
     """A sink could not publish (its reason); the run ends with ``publish_failed``."""
 
@@ -96,18 +112,13 @@ class PublishFailed(Exception):
 class PlantSink(Protocol):
     """Where a run's output goes. The first group publishes; the rest tell the driver how the run goes."""
 
+    @property
+    def live(self) -> bool:
+        """Someone takes each tick's samples live, at once (the tick process then writes every tick)."""
+
     def tick(self, state: ModelState, t: float, tick: int) -> None: ...
 
-    def apex(
-        self,
-        epoch: int,
-        stride: int,
-        t: float,
-        state: ModelState,
-        measured: tuple[float, float],
-        ground: float,
-        flows: StrideEnergy | None,
-    ) -> None: ...
+    def apex(self, report: ApexReport) -> None: ...
 
     def contact(self, epoch: int, event: Event, t: float) -> None: ...
 
@@ -115,9 +126,8 @@ class PlantSink(Protocol):
 
     def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None: ...
 
-    def check_graph(self) -> bool:
-        """Look who subscribes; True while a tick's samples go out live (they are wanted at once)."""
-        ...
+    def check_graph(self) -> None:
+        """Look who subscribes (every GRAPH_CHECK_TICKS ticks and at the start of a run)."""
 
     def awaiting(self) -> None:
         """Lockstep: stepping paused for a command or a torque (the driver times the wait)."""
@@ -228,9 +238,10 @@ class PlantRun:
             assert self.tick_timing is not None
             self.tick_timing.resume()
 
-    def end(self, kind: str, reason: str) -> None:
-        """End a running run now (e.g. complete at a caller's wall-time limit, or a failed publication)."""
-        if self.running:
+    def end(self, kind: str, reason: str, epoch: int | None = None) -> None:
+        """End a running run now (e.g. complete at a caller's wall-time limit, or a failed publication); only
+        if it is still in ``epoch``, when given (a reset may have come first)."""
+        if self.running and epoch in (None, self.epoch):
             self._finish(kind, reason, self.sim_time)
 
     def reset(self, apex: ApexState) -> str:
@@ -496,8 +507,10 @@ class PlantRun:
     def _publish_apex(self, stride: int, state: ModelState) -> None:
         stepper = self._stepper
         flows = stepper.last_stride_energy if stride > 0 else None
-        t = self._offset + state.t
-        self._sink.apex(self.epoch, stride, t, state, stepper.measured_apex, stepper.ground, flows)
+        report = ApexReport(
+            self.epoch, stride, self._offset + state.t, state, stepper.measured_apex, stepper.ground, flows
+        )
+        self._sink.apex(report)
         self._sink.counted(self.counts(timing=False))
 
     def _publish_applied_torques(self) -> None:

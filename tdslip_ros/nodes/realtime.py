@@ -24,8 +24,8 @@ class ProcCpuClocks:
     ticks) and the run-queue wait of /proc/thread-self/schedstat. The files stay open and are re-read
     with pread (a few microseconds); the thread's file is opened by the first call, on the thread
     whose waits it then reports. Where /proc lacks them, both read 0 (no explanation is given). Once that
-    thread has ended (a run's last window is closed after its tick thread stopped), its wait stays at
-    the last value read: an ended thread waits no more."""
+    thread has ended (if a window is closed after it), its wait stays at the last value read: an ended
+    thread waits no more."""
 
     def __init__(self) -> None:
         self._tick_ns = 1_000_000_000 // os.sysconf("SC_CLK_TCK")

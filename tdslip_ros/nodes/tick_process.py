@@ -27,6 +27,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from typing import IO, Any
 
@@ -38,22 +39,23 @@ _LENGTH = struct.Struct("<I")
 PIPE_BYTES = 1 << 20
 """Each pipe's capacity asked for (Linux's default limit for a user): a tick's message is ~0.5 kB, so the
 node's process may fall ~2 s behind before the tick would wait for it."""
-SINK_CALLS = frozenset(name for name in vars(PlantSink) if not name.startswith("_"))
+SINK_CALLS = frozenset(name for name, value in vars(PlantSink).items() if callable(value) and name[0] != "_")
 _ROUTINE_CALLS = frozenset({"tick", "check_graph", "counted"})
 """Sink calls that may wait for the next write (the rest are events, wanted at once)."""
 OUTBOX_TICKS = 10
 """Ticks gathered at most before they are written to the node (as the node batches them for recorders)."""
 CLOSE_TIMEOUT = 5.0  # s the process is given to end after "stop" before it is killed
 RESET_TIMEOUT = 5.0  # s a reset waits for the process to have restarted the run
+READY_TIMEOUT = 60.0  # s the process is given to start (a cold cache of compiled kernels: tens of seconds)
 
 
-def _framed(message: object) -> bytes:
+def framed(message: object) -> bytes:
     payload = pickle.dumps(message, pickle.HIGHEST_PROTOCOL)
     return _LENGTH.pack(len(payload)) + payload
 
 
 def _write(fd: int, message: object) -> None:
-    data = memoryview(_framed(message))
+    data = memoryview(framed(message))
     while data:
         data = data[os.write(fd, data) :]
 
@@ -63,7 +65,10 @@ def _read(stream: IO[bytes]) -> Any:
     header = stream.read(_LENGTH.size)
     if len(header) < _LENGTH.size:
         return None
-    payload = stream.read(_LENGTH.unpack(header)[0])
+    size = _LENGTH.unpack(header)[0]
+    payload = stream.read(size)
+    if len(payload) < size:  # the writer died in the middle of it
+        return None
     return pickle.loads(payload)
 
 
@@ -95,7 +100,7 @@ class PipeSink:
             raise AttributeError(name)
 
         def send(*args: object, **kwargs: object) -> None:
-            self._pending.append(_framed((name, args, kwargs)))
+            self._pending.append(framed((name, args, kwargs)))
             if name == "tick":
                 self._ticks_pending += 1
             elif name not in _ROUTINE_CALLS:
@@ -155,11 +160,17 @@ class TickProcess:
         self._outbox = os.fdopen(outbox_read, "rb")
         self._send_lock = threading.Lock()
         self._send("settings", settings, apex, priority, cpu)
-        if _read(self._outbox) != ("ready",):  # the import and a first step take the process ~1 s
-            self._process.wait()
-            raise RuntimeError(f"the tick process did not start (exit status {self._process.returncode})")
+        # Its imports take the process about a second.
+        ready = select.select([self._outbox], [], [], READY_TIMEOUT)[0] and _read(self._outbox) == ("ready",)
+        if not ready:
+            self._process.kill()
+            status = self._process.wait()
+            os.close(self._inbox)
+            self._outbox.close()
+            raise RuntimeError(
+                f"the tick process did not start within {READY_TIMEOUT:g} s (exit status {status})"
+            )
         self._closing = False
-        self._failed_publish = False
         self._restarted = threading.Event()
         self._reset_message = ""
         self._replayer = threading.Thread(
@@ -167,11 +178,17 @@ class TickProcess:
         )
         self._replayer.start()
 
+    @property
+    def pid(self) -> int:
+        return self._process.pid
+
     def _send(self, *message: object) -> None:
         with self._send_lock:
+            if self._inbox < 0:  # closed: what still reaches the node after the run is not for the tick
+                return
             try:
                 _write(self._inbox, message)
-            except (BrokenPipeError, OSError):  # the process has ended: _replay says why
+            except OSError:  # the process has ended (a broken pipe): _replay says why
                 pass
 
     def start(self, start_wall_ns: int) -> None:
@@ -184,7 +201,7 @@ class TickProcess:
         self._send("torque", data)
 
     def end(self, kind: str, reason: str) -> None:
-        self._send("end", kind, reason)
+        self._send("end", kind, reason, None)
 
     def reset(self, apex: ApexState) -> str:
         """Restart the run from ``apex`` in a new epoch; the reset's message once the process has."""
@@ -195,7 +212,8 @@ class TickProcess:
         return self._reset_message
 
     def close(self) -> None:
-        """Stop the process; every call it made before is replayed when this returns."""
+        """Stop the process; every call it made before is replayed when this returns, unless it had to be
+        killed after CLOSE_TIMEOUT s."""
         if self._closing:
             return
         self._closing = True
@@ -206,33 +224,45 @@ class TickProcess:
         except subprocess.TimeoutExpired:
             self._process.kill()
             self._process.wait()
-        os.close(self._inbox)
+        with self._send_lock:
+            os.close(self._inbox)
+            self._inbox = -1
 
     def _replay(self, sink: PlantSink, lock: threading.Lock, on_lost: Callable[[str], None]) -> None:
-        live = False
-        with self._outbox:
-            while (message := _read(self._outbox)) is not None:
-                name, args, kwargs = message
-                result = None
-                with lock:
-                    try:
-                        result = getattr(sink, name)(*args, **kwargs)
-                    except PublishFailed as error:
-                        if not self._failed_publish:  # the run ends once
-                            self._failed_publish = True
-                            self._send("end", "publish_failed", str(error))
-                if name == "check_graph" and result != live:
-                    live = result
-                    self._send("live", live)
-                elif name == "restarted":
-                    self._reset_message = args[1]
-                    self._restarted.set()
+        try:
+            self._replay_until_the_end(sink, lock)
+        except Exception as error:  # a bug of this side: say so, and end the run rather than hang
+            traceback.print_exc()
+            self._process.kill()
+            on_lost(f"the node could not replay the tick process's output ({error!r})")
+            return
         if not self._closing:
             status = self._process.wait()
             on_lost(f"the tick process ended unexpectedly (exit status {status})")
 
+    def _replay_until_the_end(self, sink: PlantSink, lock: threading.Lock) -> None:
+        live, epoch, failed = False, 0, False
+        with self._outbox:
+            while (message := _read(self._outbox)) is not None:
+                name, args, kwargs = message
+                with lock:
+                    try:
+                        getattr(sink, name)(*args, **kwargs)
+                    except PublishFailed as error:
+                        if not failed:  # the run ends once
+                            failed = True
+                            self._send("end", "publish_failed", str(error), epoch)
+                    now_live = sink.live  # the node looks at the graph itself at every apex and touchdown
+                if now_live != live:
+                    live = now_live
+                    self._send("live", live)
+                if name == "restarted":
+                    epoch, failed = args[0], False
+                    self._reset_message = args[1]
+                    self._restarted.set()
 
-class _FrameReader:
+
+class FrameReader:
     """The messages in what arrives on a pipe read without blocking (a message may come in pieces)."""
 
     def __init__(self) -> None:
@@ -261,7 +291,7 @@ class _TickServer:
         self._deadline: int | None = None  # of the next firing (steady clock), while the run runs
         self._ready_ns = 0  # since when the process has had nothing to do but wait for the deadline
 
-    def serve(self, inbox: int, frames: _FrameReader) -> None:
+    def serve(self, inbox: int, frames: FrameReader) -> None:
         """Until "stop", or until the node's process is gone."""
         while True:
             deadline = self._deadline
@@ -275,6 +305,7 @@ class _TickServer:
                     if message[0] == "stop":
                         return
                     self._handle(*message)
+                self._ready_ns = time.monotonic_ns()
             if self._deadline is not None and time.monotonic_ns() >= self._deadline:
                 self._fire()
 
@@ -317,7 +348,7 @@ class _TickServer:
 def main(argv: list[str]) -> int:
     """``python -m tdslip_ros.nodes.tick_process INBOX_FD OUTBOX_FD``, as TickProcess starts it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node decides when to stop
-    inbox, frames = int(argv[1]), _FrameReader()
+    inbox, frames = int(argv[1]), FrameReader()
     sink = PipeSink(int(argv[2]))
     received: list[Any] = []
     while not received:
@@ -327,16 +358,17 @@ def main(argv: list[str]) -> int:
         received = frames.feed(data)
     kind, settings, apex, priority, cpu = received[0]
     assert kind == "settings" and len(received) == 1  # the node waits for "ready" before it sends more
-    for refusal in schedule_realtime(priority, cpu):
-        sink.log("warning", refusal)
+    refusals = schedule_realtime(priority, cpu)
     server = _TickServer(PlantRun(settings, apex, sink), sink)
     PlantRun.load_message_support()
     # Everything alive now (modules, the run) is moved out of the collector's reach: a full collection then
     # walks only what the run allocates, not the whole process.
     gc.collect()
     gc.freeze()
-    sink.flush()
     _write(int(argv[2]), ("ready",))
+    for refusal in refusals:
+        sink.log("warning", refusal)
+    sink.flush()
     try:
         server.serve(inbox, frames)
     finally:

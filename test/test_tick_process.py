@@ -1,0 +1,96 @@
+"""The realtime tick's process: its pipe protocol (no ROS), and a plant whose tick process is refused a
+scheduling wish or dies."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+from ros_harness import RosGraph, overrides
+from tdslip_msgs.msg import ApexEvent, Status
+
+from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.controller_node import ControllerNode
+from tdslip_ros.nodes.plant_node import PlantNode
+from tdslip_ros.nodes.tick_process import OUTBOX_TICKS, FrameReader, PipeSink, framed
+
+
+def state(t: float) -> tuple[float, ...]:
+    """A stand-in for the model's HopperState: the sink passes it on as it is."""
+    return (t, t, 1.0, 5.0, 0.0)
+
+
+def written(fd: int) -> bytes:
+    try:
+        return os.read(fd, 1 << 20)
+    except BlockingIOError:
+        return b""
+
+
+def test_messages_fed_in_pieces_come_out_whole_and_in_order() -> None:
+    messages = [("tick", (state(0.001 * k), 0.001 * k, k), {}) for k in range(20)] + [("stop",)]
+    data = b"".join(framed(message) for message in messages)
+    for piece in (1, 7, 4096):
+        reader = FrameReader()
+        received = []
+        for start in range(0, len(data), piece):
+            received += reader.feed(data[start : start + piece])
+        assert received == messages
+
+
+def test_the_pipe_sink_writes_events_at_once_and_routine_ticks_every_few() -> None:
+    read, write = os.pipe()
+    os.set_blocking(read, False)
+    try:
+        sink = PipeSink(write)
+        for k in range(OUTBOX_TICKS - 1):
+            sink.tick(state(k * 1e-3), k * 1e-3, k)
+            sink.check_graph()
+            sink.flush(unless_routine=True)
+        assert written(read) == b""  # routine calls wait for the batch
+        sink.tick(state(0.009), 0.009, OUTBOX_TICKS - 1)
+        sink.flush(unless_routine=True)
+        received = FrameReader().feed(written(read))
+        assert [name for name, _, _ in received].count("tick") == OUTBOX_TICKS
+        sink.tick(state(0.010), 0.010, OUTBOX_TICKS)
+        sink.log("warning", "an event")
+        sink.flush(unless_routine=True)
+        assert [name for name, _, _ in FrameReader().feed(written(read))] == ["tick", "log"]
+        sink.live = True  # someone takes the samples live: every tick goes out at once
+        sink.tick(state(0.011), 0.011, OUTBOX_TICKS + 1)
+        sink.flush(unless_routine=True)
+        assert len(FrameReader().feed(written(read))) == 1
+        with pytest.raises(AttributeError):
+            sink.not_a_sink_call  # noqa: B018
+    finally:
+        os.close(read)
+        os.close(write)
+
+
+def test_a_refused_cpu_is_logged_and_the_realtime_plant_runs_on(ros: RosGraph) -> None:
+    """The tick process reports what the scheduler refused after it is ready (that report came first and
+    hung the plant's start)."""
+    plant = ros.add(
+        PlantNode(
+            context=ros.context,
+            parameter_overrides=overrides(max_strides=2, clock_mode="realtime", realtime_cpu=1023),
+        )
+    )
+    ros.add(ControllerNode(context=ros.context))
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome.kind == Status.KIND_RUN_COMPLETE
+
+
+def test_a_tick_process_that_dies_ends_the_run_instead_of_hanging_it(ros: RosGraph) -> None:
+    plant = ros.add(
+        PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=0, clock_mode="realtime"))
+    )
+    ros.add(ControllerNode(context=ros.context))
+    apexes = ros.collect(ApexEvent, topics.APEX)
+    ros.spin_until(lambda: len(apexes) >= 2, "two apexes")
+    assert plant.tick_process_id is not None
+    os.kill(plant.tick_process_id, signal.SIGKILL)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome.kind == Status.KIND_PUBLISH_FAILED
+    assert "the tick process ended unexpectedly" in plant.outcome.reason
