@@ -8,8 +8,9 @@ deadline of the steady clock, on the process's only thread) and writes every cal
 the node's process replays them on its own sink, which publishes. What reaches the node (commands, hip
 torques, a reset, the end of a run) goes up another pipe, and the process takes it between two ticks.
 
-Measured on the 2-core development VM beside a realtime run of the three nodes: a tick process alone missed 1
-tick in 20 s unloaded, 0 at SCHED_FIFO 50 with the three nodes busy beside it.
+Measured on the 2-core development VM (``bench/bench_nodes.py realtime --duration 60``, docs/realtime.md): no
+tick missed by this process's own doing, where a third to a half of the misses were the node process's before;
+0.08 % missed at SCHED_FIFO 50 with the other core busy.
 
 Each message is a length-prefixed pickle: both ends are this module, in one Python installation.
 """
