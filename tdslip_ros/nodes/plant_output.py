@@ -185,7 +185,6 @@ class PlantOutput:
     def apex(self, report: ApexReport) -> None:
         """An apex event, after the samples before it."""
         self.flush()
-        self.check_graph()
         flows, state = report.flows, report.state
         energy = (0.0, 0.0, 0.0) if flows is None else (flows.hip_work, flows.damping_loss, flows.spring_loss)
         values = (
@@ -202,16 +201,17 @@ class PlantOutput:
         )
         self._apex_pub.publish(self._apex_encoder.encode((*values, *energy)))
         self.published[topics.APEX] += 1
+        self.check_graph()  # after the apex is out (the controller waits for it), before the next sample
 
     def contact(self, epoch: int, event: Event, t: float) -> None:
         """A touchdown, bottom or liftoff at t [s], with its state."""
         self.flush()
-        if event.kind is EventKind.TOUCHDOWN:  # a stance controller needs every sample of the stance
-            self.check_graph()
         kind, state = _CONTACT_KINDS[event.kind], event.state
         values = (*stamp_of(t), kind, epoch, event.stride, t, state.toe_y, *state_values(state, t))
         self._contact_pub.publish(self._contact_encoder.encode(values))
         self.published[topics.CONTACT] += 1
+        if event.kind is EventKind.TOUCHDOWN:  # a stance controller needs every sample of the stance
+            self.check_graph()
 
     def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None:
         self.flush()
