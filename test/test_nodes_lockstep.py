@@ -229,7 +229,7 @@ def test_realtime_mode_keeps_simulated_time_with_wall_time(ros: RosGraph) -> Non
     assert plant.outcome.wall_time == pytest.approx(plant.outcome.sim_time, abs=0.02)
 
     def timed_ticks() -> int | None:
-        timing = plant.counts.tick_timing
+        timing = plant.tick_timing
         return None if timing is None else timing.ticks
 
     # Every tick came from the tick process (its last firing is recorded last).

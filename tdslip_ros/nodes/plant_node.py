@@ -109,6 +109,7 @@ from tdslip_ros.nodes.plant_run import (
     RunOutcome,
     RunSettings,
 )
+from tdslip_ros.nodes.realtime import TickTiming
 from tdslip_ros.nodes.tick_process import TickProcess
 
 __all__ = ["TICK_PERIOD", "PlantNode", "RunOutcome"]
@@ -174,8 +175,9 @@ class PlantNode(Node):
         self.command_latencies_ns: list[tuple[int, int, int]] = []
         """(epoch, stride, ns) of each answered apex: wall time from its publication to the valid command."""
         self.counts = RunCounts()
-        """What the run counted (late commands, rejections, torques, the tick's timing), as of its latest apex
-        and its end."""
+        """What the run counted (late commands, rejections, torques), as of its latest apex and its end."""
+        self.tick_timing: TickTiming | None = None
+        """Realtime: the tick's wall-clock timing, once a run is over."""
         self.recorders = RecorderProgress()
         self.outcome: RunOutcome | None = None
         self.done: Future[RunOutcome] = Future()
@@ -225,11 +227,13 @@ class PlantNode(Node):
         self._apex_wall_ns = time.monotonic_ns()
         self.start_wall_ns = 0
         sink = _NodeSink(self, self._out)
-        self._run: PlantRun | None = None
+        self._run: PlantRun | None = None  # lockstep: the run this node steps
+        self._driver: _InProcessRun | TickProcess
         if self.lockstep:
             self._run = PlantRun(settings, initial_apex, sink)
+            self._driver = _InProcessRun(self._run, self._lock)
         else:
-            self._ticking = TickProcess(
+            self._driver = self._ticking = TickProcess(
                 settings,
                 initial_apex,
                 sink,
@@ -349,22 +353,15 @@ class PlantNode(Node):
                 return
             self._started = True
             self.start_wall_ns = time.monotonic_ns()
-            if self._run is not None:
-                self._run.start(self.start_wall_ns)
             if self._tick_process_lost is not None:
                 self._end_lost_run()
                 return
-        if self._ticking is not None:
-            self._ticking.start(self.start_wall_ns)
+        self._driver.start(self.start_wall_ns)
 
     def end_run(self, reason: str) -> None:
         """End a running run as complete (e.g. a caller's wall-time limit): at once in lockstep; in realtime
         the tick process ends it, and ``outcome`` is set when that reaches the node."""
-        with self._lock:
-            if self._run is not None:
-                self._run.end(Status.KIND_RUN_COMPLETE, reason)
-        if self._ticking is not None:
-            self._ticking.end(Status.KIND_RUN_COMPLETE, reason)
+        self._driver.end(Status.KIND_RUN_COMPLETE, reason)
 
     def destroy_node(self) -> None:
         if self._ticking is not None:
@@ -477,21 +474,11 @@ class PlantNode(Node):
 
     def _on_command(self, data: bytes) -> None:
         self.received_commands += 1
-        if self._ticking is not None:
-            self._ticking.take_command(data)
-            return
-        assert self._run is not None
-        with self._lock:
-            self._run.take_command(data)
+        self._driver.take_command(data)
 
     def _on_hip_torque(self, data: bytes) -> None:
         self.received_torques += 1
-        if self._ticking is not None:
-            self._ticking.take_torque(data)
-            return
-        assert self._run is not None
-        with self._lock:
-            self._run.take_torque(data)
+        self._driver.take_torque(data)
 
     def _on_reset(self, request: Reset.Request, response: Reset.Response) -> Reset.Response:
         try:
@@ -501,19 +488,43 @@ class PlantNode(Node):
             response.success, response.message = False, f"reset refused: {error}"
             response.epoch = self._epoch
             return response
-        if self._ticking is not None:
-            try:
-                response.message = self._ticking.reset(apex)  # unlocked: the replaying thread takes the lock
-            except TimeoutError as error:
-                response.success, response.message = False, f"reset failed: {error}"
-                response.epoch = self._epoch
-                return response
-        else:
-            assert self._run is not None
-            with self._lock:
-                response.message = self._run.reset(apex)
+        try:
+            response.message = self._driver.reset(apex)  # unlocked: the tick process's replay takes the lock
+        except TimeoutError as error:
+            response.success, response.message = False, f"reset failed: {error}"
+            response.epoch = self._epoch
+            return response
         response.success, response.epoch = True, self._epoch
         return response
+
+
+class _InProcessRun:
+    """Lockstep: the run stepped in the node's process, reached as the tick process is (under the node's
+    lock, which the timers that step it take too)."""
+
+    def __init__(self, run: PlantRun, lock: threading.Lock) -> None:
+        self._run = run
+        self._lock = lock
+
+    def start(self, start_wall_ns: int) -> None:
+        with self._lock:
+            self._run.start(start_wall_ns)
+
+    def take_command(self, data: bytes) -> None:
+        with self._lock:
+            self._run.take_command(data)
+
+    def take_torque(self, data: bytes) -> None:
+        with self._lock:
+            self._run.take_torque(data)
+
+    def end(self, kind: str, reason: str) -> None:
+        with self._lock:
+            self._run.end(kind, reason)
+
+    def reset(self, apex: ApexState) -> str:
+        with self._lock:
+            return self._run.reset(apex)
 
 
 class _NodeSink:
@@ -568,9 +579,10 @@ class _NodeSink:
         self._node.command_latencies_ns.append((epoch, stride, applied_ns - self._node._apex_wall_ns))
 
     def counted(self, counts: RunCounts) -> None:
-        if counts.tick_timing is None:  # sent only at the end of a run
-            counts = dataclasses.replace(counts, tick_timing=self._node.counts.tick_timing)
         self._node.counts = counts
+
+    def timed(self, timing: TickTiming) -> None:
+        self._node.tick_timing = timing
 
     def log(self, level: str, text: str) -> None:
         # One call per severity: rclpy fixes a call site's severity at its first call.

@@ -86,8 +86,6 @@ class RunCounts:
     """Realtime: stance ticks that held zero, as no torque within the age bound had come."""
     saturated_strides: int = 0
     """Touchdowns of the current epoch whose |tau0| exceeded tau_max (the hip saturated)."""
-    tick_timing: TickTiming | None = None
-    """Realtime: the tick's wall-clock timing."""
 
 
 @dataclass(frozen=True)
@@ -139,7 +137,10 @@ class PlantSink(Protocol):
         """The first valid answer to apex (epoch, stride), applied at ``applied_ns`` (steady clock)."""
 
     def counted(self, counts: RunCounts) -> None:
-        """The counts, at every apex and at the end of a run."""
+        """The counts, at every apex, every rejection reported and at the end of a run."""
+
+    def timed(self, timing: TickTiming) -> None:
+        """Realtime: the tick's wall-clock timing, once a run is over and its last firing recorded."""
 
     def log(self, level: str, text: str) -> None:
         """A line for the node's log (``info``, ``warning`` or ``error``)."""
@@ -158,13 +159,12 @@ class PlantRun:
     def __init__(self, settings: RunSettings, apex: ApexState, sink: PlantSink) -> None:
         self.settings = settings
         self._sink = sink
-        self.lockstep = settings.lockstep
         self.rejections = RejectionLog()
         self.late_commands = 0
         self.applied_torques = 0  # samples published on tdslip/applied_torque, over resets
-        self.tick_timing = None if self.lockstep else TickTiming(TICK_NS)
+        self.tick_timing = None if self.settings.lockstep else TickTiming(TICK_NS)
         self.torques = TorqueInput(
-            lockstep=self.lockstep,
+            lockstep=self.settings.lockstep,
             max_age_ticks=settings.torque_max_age_ticks,
             max_torque=settings.limits.max_torque,
         )
@@ -173,6 +173,7 @@ class PlantRun:
         self.ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD
         self._tick0 = 0  # the tick at start(), due at start_wall_ns of the steady clock
         self.start_wall_ns = 0
+        self._firing = False  # realtime: advance_to is stepping
         self._restart(apex, time_offset_ticks=0)
 
     @staticmethod
@@ -188,15 +189,13 @@ class PlantRun:
     def stride(self) -> int:
         return self._stepper.stride
 
-    def counts(self, *, timing: bool) -> RunCounts:
-        """The counts so far; with the tick's ``timing`` (a histogram: sent at the end of a run only)."""
+    def counts(self) -> RunCounts:
         return RunCounts(
             self.late_commands,
             self.rejections.total,
             self.torques.late,
             self.torques.stale,
             self._stepper.saturated_strides,
-            self.tick_timing if timing else None,
         )
 
     def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
@@ -232,7 +231,7 @@ class PlantRun:
         self._publish_apex(0, self._stepper.apex_state)
         state = self._stepper.state
         self._sink.tick(state, self._offset + state.t, self.ticks)
-        if self.lockstep:
+        if self.settings.lockstep:
             self._await_command()
         else:
             assert self.tick_timing is not None
@@ -309,7 +308,9 @@ class PlantRun:
             self._sink.log("info", f"run complete at stride {stride}, t = {t:.3f} s: {reason}")
         else:
             self._sink.log("error", f"run ended at stride {stride}, t = {t:.6f} s: {kind}: {reason}")
-        self._sink.counted(self.counts(timing=True))
+        self._sink.counted(self.counts())
+        if self.tick_timing is not None and not self._firing:  # else the firing sends it, recorded
+            self._sink.timed(self.tick_timing)
         self._sink.finished(outcome)
 
     # --- stepping -------------------------------------------------------------------------------
@@ -327,13 +328,15 @@ class PlantRun:
         firing was due at ``deadline_ns`` and its caller idle from ``ready_ns`` (for :class:`TickTiming`)."""
         due = self._tick0 + round((now_ns - self.start_wall_ns) / TICK_NS)
         first = self.ticks
+        self._firing = True
         while self.ticks < due and self.running:
             self._tick_or_fail()
+        self._firing = False
         assert self.tick_timing is not None
         self.tick_timing.record(now_ns, self.ticks - first, deadline_ns, ready_ns)
-        if first < self.ticks and not self.running:  # it ended in this firing: the timing with its last
+        if first < self.ticks and not self.running:  # it ended in this firing
             self.tick_timing.close_window()
-            self._sink.counted(self.counts(timing=True))
+            self._sink.timed(self.tick_timing)
 
     def _tick_or_fail(self) -> bool:
         """:meth:`_tick`; a publication that fails ends the run with ``publish_failed``."""
@@ -345,7 +348,7 @@ class PlantRun:
 
     def _tick(self) -> bool:
         stepper = self._stepper
-        if not self.lockstep and stepper.torque_due:  # lockstep: the awaited torque is held already
+        if not self.settings.lockstep and stepper.torque_due:  # lockstep: the awaited torque is held already
             stepper.hold_torque(self.torques.held(stepper.stride, self.ticks))
         events = stepper.step()
         self.ticks += 1
@@ -369,7 +372,7 @@ class PlantRun:
         self._sink.tick(state, self._offset + state.t, self.ticks)
         self._publish_applied_torques()
         if apex is None:
-            if self.lockstep and stepper.torque_due:
+            if self.settings.lockstep and stepper.torque_due:
                 self.torques.await_tick(self.epoch, stepper.stride, self.ticks)
                 self._sink.awaiting()
                 return True
@@ -379,7 +382,7 @@ class PlantRun:
             reason = f"reached max_strides = {max_strides}"
             self._finish(Status.KIND_RUN_COMPLETE, reason, self._offset + state.t)
             return True
-        if self.lockstep:
+        if self.settings.lockstep:
             self._await_command()
             return True
         return self._count_stale_stride(apex.stride)
@@ -435,7 +438,7 @@ class PlantRun:
         if msg.stride != self._answered:
             self._sink.command_applied(msg.epoch, msg.stride, time.monotonic_ns())
             self._answered = msg.stride
-        if self.lockstep:
+        if self.settings.lockstep:
             self._awaiting = None
             self._sink.resumed()
 
@@ -453,7 +456,7 @@ class PlantRun:
                 msg,
                 epoch=self.epoch,
                 stride=stride,
-                lockstep=self.lockstep,
+                lockstep=self.settings.lockstep,
                 awaiting=self._awaiting,
                 past_touchdown=self._stepper.past_touchdown,
                 limits=self.settings.limits,
@@ -490,7 +493,7 @@ class PlantRun:
                 Status.KIND_TORQUE_REJECTED,
             )
             return
-        if self.lockstep:  # the awaited torque: hold it and step on
+        if self.settings.lockstep:  # the awaited torque: hold it and step on
             stepper.hold_torque(fields.torque)
             self._sink.resumed()
 
@@ -500,7 +503,7 @@ class PlantRun:
         if prefix is not None:
             self._sink.log("warning", prefix + reason)
             self._status(kind, prefix + reason, self._offset + self._stepper.t, fatal=False)
-            self._sink.counted(self.counts(timing=False))
+            self._sink.counted(self.counts())
 
     # --- output ---------------------------------------------------------------------------------
 
@@ -511,7 +514,7 @@ class PlantRun:
             self.epoch, stride, self._offset + state.t, state, stepper.measured_apex, stepper.ground, flows
         )
         self._sink.apex(report)
-        self._sink.counted(self.counts(timing=False))
+        self._sink.counted(self.counts())
 
     def _publish_applied_torques(self) -> None:
         """The stance's torques sampled since the last call, as held (tdslip/applied_torque): the record

@@ -589,7 +589,7 @@ def run(
             recorded=dict(sorted(recorded.items())),
             command_latencies_ns=plant.command_latencies_ns,
             delivery_time=delivery_time,
-            tick_timing=plant.counts.tick_timing,
+            tick_timing=plant.tick_timing,
             bag=bag,
             controller_log="" if controller is None else controller.output(),
             saturated_strides=plant.counts.saturated_strides,

@@ -29,8 +29,8 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable
-from typing import IO, Any
+from collections.abc import Callable, Iterator
+from typing import Any
 
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.nodes.plant_run import TICK_NS, PlantRun, PlantSink, PublishFailed, RunSettings
@@ -55,22 +55,37 @@ def framed(message: object) -> bytes:
     return _LENGTH.pack(len(payload)) + payload
 
 
-def _write(fd: int, message: object) -> None:
-    data = memoryview(framed(message))
-    while data:
-        data = data[os.write(fd, data) :]
+def _write(fd: int, data: bytes) -> None:
+    """All of ``data`` (a pipe may take it in parts)."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
 
 
-def _read(stream: IO[bytes]) -> Any:
-    """The next message, or None at the end of the stream."""
-    header = stream.read(_LENGTH.size)
-    if len(header) < _LENGTH.size:
-        return None
-    size = _LENGTH.unpack(header)[0]
-    payload = stream.read(size)
-    if len(payload) < size:  # the writer died in the middle of it
-        return None
-    return pickle.loads(payload)
+class FrameReader:
+    """The messages in what arrives on a pipe (a message may come in pieces; one cut short by the writer's
+    end is never complete, and is not read)."""
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+
+    def feed(self, data: bytes) -> list[Any]:
+        self._buffer += data
+        messages = []
+        while len(self._buffer) >= _LENGTH.size:
+            end = _LENGTH.size + _LENGTH.unpack_from(self._buffer)[0]
+            if len(self._buffer) < end:
+                break
+            messages.append(pickle.loads(self._buffer[_LENGTH.size : end]))
+            del self._buffer[:end]
+        return messages
+
+
+def received(fd: int) -> Iterator[Any]:
+    """The messages that arrive on ``fd``, until the writer closes its end."""
+    frames = FrameReader()
+    while data := os.read(fd, 1 << 16):
+        yield from frames.feed(data)
 
 
 def _enlarge(fd: int) -> None:
@@ -107,6 +122,7 @@ class PipeSink:
             elif name not in _ROUTINE_CALLS:
                 self._urgent = True
 
+        setattr(self, name, send)  # found directly from now on: several calls a tick
         return send
 
     def flush(self, *, unless_routine: bool = False) -> None:
@@ -114,12 +130,11 @@ class PipeSink:
         gathered are due)."""
         if unless_routine and not (self._urgent or self.live or self._ticks_pending >= OUTBOX_TICKS):
             return
-        data = memoryview(b"".join(self._pending))
+        data = b"".join(self._pending)
         self._pending.clear()
         self._ticks_pending, self._urgent = 0, False
         try:
-            while data:
-                data = data[os.write(self._fd, data) :]
+            _write(self._fd, data)
         except BrokenPipeError:  # the node's process is gone: nobody is left to tick for
             os._exit(0)
 
@@ -158,16 +173,19 @@ class TickProcess:
         )
         os.close(inbox_read)
         os.close(outbox_write)
-        self._outbox = os.fdopen(outbox_read, "rb")
+        self._outbox = outbox_read
+        self._received = received(outbox_read)
         self._send_lock = threading.Lock()
         self._send("settings", settings, apex, priority, cpu)
         # Its imports take the process about a second.
-        ready = select.select([self._outbox], [], [], READY_TIMEOUT)[0] and _read(self._outbox) == ("ready",)
+        ready = select.select([outbox_read], [], [], READY_TIMEOUT)[0] and next(self._received, None) == (
+            "ready",
+        )
         if not ready:
             self._process.kill()
             status = self._process.wait()
             os.close(self._inbox)
-            self._outbox.close()
+            os.close(outbox_read)
             raise RuntimeError(
                 f"the tick process did not start within {READY_TIMEOUT:g} s (exit status {status})"
             )
@@ -188,7 +206,7 @@ class TickProcess:
             if self._inbox < 0:  # closed: what still reaches the node after the run is not for the tick
                 return
             try:
-                _write(self._inbox, message)
+                _write(self._inbox, framed(message))
             except OSError:  # the process has ended (a broken pipe): _replay says why
                 pass
 
@@ -243,9 +261,8 @@ class TickProcess:
 
     def _replay_until_the_end(self, sink: PlantSink, lock: threading.Lock) -> None:
         live, epoch, failed = False, 0, False
-        with self._outbox:
-            while (message := _read(self._outbox)) is not None:
-                name, args, kwargs = message
+        try:
+            for name, args, kwargs in self._received:
                 with lock:
                     try:
                         getattr(sink, name)(*args, **kwargs)
@@ -261,24 +278,8 @@ class TickProcess:
                     epoch, failed = args[0], False
                     self._reset_message = args[1]
                     self._restarted.set()
-
-
-class FrameReader:
-    """The messages in what arrives on a pipe read without blocking (a message may come in pieces)."""
-
-    def __init__(self) -> None:
-        self._buffer = bytearray()
-
-    def feed(self, data: bytes) -> list[Any]:
-        self._buffer += data
-        messages = []
-        while len(self._buffer) >= _LENGTH.size:
-            end = _LENGTH.size + _LENGTH.unpack_from(self._buffer)[0]
-            if len(self._buffer) < end:
-                break
-            messages.append(pickle.loads(self._buffer[_LENGTH.size : end]))
-            del self._buffer[:end]
-        return messages
+        finally:
+            os.close(self._outbox)
 
 
 class _TickServer:
@@ -349,16 +350,17 @@ class _TickServer:
 def main(argv: list[str]) -> int:
     """``python -m tdslip_ros.nodes.tick_process INBOX_FD OUTBOX_FD``, as TickProcess starts it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node decides when to stop
-    inbox, frames = int(argv[1]), FrameReader()
-    sink = PipeSink(int(argv[2]))
-    received: list[Any] = []
-    while not received:
+    inbox, outbox = int(argv[1]), int(argv[2])
+    sink = PipeSink(outbox)
+    frames = FrameReader()
+    first: list[Any] = []
+    while not first:
         data = os.read(inbox, 1 << 16)
         if not data:
             return 0
-        received = frames.feed(data)
-    kind, settings, apex, priority, cpu = received[0]
-    assert kind == "settings" and len(received) == 1  # the node waits for "ready" before it sends more
+        first = frames.feed(data)
+    kind, settings, apex, priority, cpu = first[0]
+    assert kind == "settings" and len(first) == 1  # the node waits for "ready" before it sends more
     refusals = schedule_realtime(priority, cpu)
     server = _TickServer(PlantRun(settings, apex, sink), sink)
     PlantRun.load_message_support()
@@ -366,7 +368,7 @@ def main(argv: list[str]) -> int:
     # walks only what the run allocates, not the whole process.
     gc.collect()
     gc.freeze()
-    _write(int(argv[2]), ("ready",))
+    _write(outbox, framed(("ready",)))
     for refusal in refusals:
         sink.log("warning", refusal)
     sink.flush()
