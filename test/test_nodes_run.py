@@ -142,18 +142,30 @@ def test_an_apex_the_leg_cannot_be_placed_from_is_refused_before_anything_starts
 @pytest.mark.parametrize(
     ("arguments", "reason"),
     [
-        (["--policy", "deadbeat", "--target-speed", "400"], "target_speed must lie in [0, 100], got 400.0"),
-        (["--policy", "stance_pd_speed_energy", "--target-height", "-3"], "target_height must lie in [0.001"),
+        (
+            ["--policy", "deadbeat", "--target-speed", "400"],
+            "controller parameters: target_speed must lie in [0, 100], got 400.0",
+        ),
+        (
+            ["--policy", "stance_pd_speed_energy", "--target-height", "-3"],
+            "controller parameters: target_height must lie in [0.001",
+        ),
+        # The plant's own value is named, not the controller's target energy that derives from it.
+        (["--height", "1e9"], "plant parameters: initial_height must lie in [0.001, 100], got 1000000000.0"),
+        (
+            ["--mode", "realtime", "--realtime-priority", "500"],
+            "plant parameters: realtime_priority must lie",
+        ),
     ],
 )
-def test_a_controller_setting_out_of_range_is_refused_before_anything_starts(
+def test_a_setting_out_of_range_is_refused_before_anything_starts(
     tmp_path: Path, arguments: list[str], reason: str
 ) -> None:
     """As the plant's are: it used to start the recorder, let the controller exit and leave an empty bag."""
     bag = tmp_path / "far"
     result = tdslip_run("--strides", "3", *arguments, "--out", str(bag))
     assert result.returncode == 2 and result.stdout == ""
-    assert result.stderr.startswith(f"tdslip run: controller parameters: {reason}")
+    assert result.stderr.startswith(f"tdslip run: {reason}")
     assert result.stderr.count("\n") == 1
     assert not bag.exists()
 

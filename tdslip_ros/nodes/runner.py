@@ -80,7 +80,14 @@ from tdslip_ros.model.policies import (
     PolicyError,
     check_policy_file,
 )
-from tdslip_ros.nodes import controller_node, isolation, parameters, stance_controller_node, topics
+from tdslip_ros.nodes import (
+    controller_node,
+    isolation,
+    parameters,
+    plant_parameters,
+    stance_controller_node,
+    topics,
+)
 from tdslip_ros.nodes.entry import (
     PARENT_PID_VARIABLE,
     spin_until,
@@ -406,6 +413,10 @@ def check_options(options: RunOptions) -> None:
         check_output_directory(bag)
     except OutputError as error:
         raise RunOptionError(str(error)) from None
+    try:  # the plant's first: the controller's values derive from them (--height sets its target energy)
+        parameters.check_values(plant_parameters.SPECS, plant_overrides(options))
+    except ParameterError as error:
+        raise RunOptionError(f"plant parameters: {error}") from None
     hopper = hopper_from_parameters(installed_parameters("plant.yaml"))
     check_placement(options, hopper)
     if not options.own_controller:
