@@ -10,7 +10,8 @@ offered profiles when the first one appears, and a subscription that has recorde
 best-effort or transient-local if every publisher is.
 The messages are taken raw (the CDR bytes go to :class:`~tdslip_ros.bag.RosbagMcapWriter`
 untouched) by a thread, in batches, without a Python callback per message (see
-:class:`RecorderNode`); the log time is the system time [ns] at which the message was taken, the
+:class:`RecorderNode`); the thread sleeps in a wait set until messages arrive, so a quiet stream
+costs no wake-ups; the log time is the system time [ns] at which the message was taken, the
 publish time the publisher's source timestamp.
 
 The plant's 1 kHz state and force (:data:`~tdslip_ros.nodes.topics.BATCHED_TOPICS`) are recorded from
@@ -37,6 +38,7 @@ Run it in a process of its own next to a 1 kHz plant: every message written cost
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
@@ -45,6 +47,8 @@ from pathlib import Path
 from typing import Any
 
 from rclpy.executors import Executor
+from rclpy.guard_condition import GuardCondition
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
@@ -58,7 +62,11 @@ from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.wire import grf_encoder, sample_rows, serialized, state_encoder
 
 DISCOVERY_PERIOD = 0.05  # s between two looks for new publishers (and status reports)
-TAKE_PERIOD = 0.001  # s the taker thread sleeps when it found nothing to take
+TAKE_PERIOD = 0.001
+"""s the taker thread pauses after a take that found messages, before it waits for the next ones: under a
+fast stream (lockstep) each take then finds a batch of them, and a slow one (realtime, ~200 messages a
+second) wakes it about twice per burst instead of every TAKE_PERIOD."""
+WAIT_LIMIT_NS = 50_000_000  # the longest the taker sleeps in its wait set before it looks at its stop flag
 STATUS_MESSAGES = 100
 """Recorded messages between two status reports: a lockstep plant's flow control sees progress
 every ~50 ticks."""
@@ -110,16 +118,19 @@ class RecorderNode(Node):
     """Records into ``bag`` from construction until :meth:`close`.
 
     The subscriptions live on a second node (``<name>_reader``) that no executor spins: a thread of
-    this node takes their messages in batches every TAKE_PERIOD, with the MessageInfo of each, at
-    about two thirds of the cost of a callback per message. The log time is when the message was
-    taken (in DDS's order, so each topic's log times rise with its messages even when one was
-    repaired after a loss in transport), the publish time the publisher's source timestamp.
+    this node sleeps in a wait set of them until one has messages, then takes every subscription's in
+    a batch, with the MessageInfo of each, at about two thirds of the cost of a callback per message.
+    The log time is when the message was taken (in DDS's order, so each topic's log times rise with its
+    messages even when one was repaired after a loss in transport), the publish time the publisher's
+    source timestamp.
     """
 
     def __init__(self, **node_options: object) -> None:
         super().__init__("recorder", **node_options)  # type: ignore[arg-type]
         self._taker: threading.Thread | None = None  # first: destroy_node must work if the rest raises
         self._reader: Node | None = None
+        self._wake_taker = GuardCondition(None, None, context=self.context)
+        """Triggered when the subscriptions change or taking stops: the taker leaves its wait set."""
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
         values = parameters.declare(self, SPECS)
         output = str(values["output"]) or f"rosbag2_{datetime.now():%Y_%m_%d-%H_%M_%S}"
@@ -189,8 +200,7 @@ class RecorderNode(Node):
             if name in self._batched and batches:
                 if subscription is not None:  # a plant with batches came after a replay
                     with self._subscriptions_lock:
-                        assert self._reader is not None
-                        self._reader.destroy_subscription(self._topic_subscriptions.pop(name))
+                        self._unsubscribe(name)
                 continue
             wanted = topics.adapted_qos(offered)
             if subscription is None:  # a batched topic published without batches
@@ -202,8 +212,7 @@ class RecorderNode(Node):
                 continue
             if self.bag.message_counts.get(name, 0) == 0:
                 with self._subscriptions_lock:
-                    assert self._reader is not None
-                    self._reader.destroy_subscription(subscription)
+                    self._unsubscribe(name)
                     self._subscribe(name, wanted)
             elif name not in self._warned and not _compatible(subscription.qos_profile, offered):
                 self._warned.add(name)
@@ -224,11 +233,41 @@ class RecorderNode(Node):
         self._topic_subscriptions[name] = self._reader.create_subscription(
             self._message_classes[name], name, lambda message: None, qos, raw=True
         )
+        self._wake_taker.trigger()
+
+    def _unsubscribe(self, name: str) -> None:
+        assert self._reader is not None
+        self._reader.destroy_subscription(self._topic_subscriptions.pop(name))
+        self._wake_taker.trigger()
 
     def _take_loop(self) -> None:
-        while not self._stop_taking.is_set():
-            if not self.take_and_write():
-                self._stop_taking.wait(TAKE_PERIOD)
+        try:
+            while not self._stop_taking.is_set():
+                if self.take_and_write():
+                    time.sleep(TAKE_PERIOD)
+                self._wait_for_messages()
+        except Exception as error:  # the recording cannot go on: say so, and let the node stop (exit 1)
+            if not self._stop_taking.is_set():
+                self.write_error = f"the recorder's taker failed: {error!r}"
+                self.get_logger().error(self.write_error)
+
+    def _wait_for_messages(self) -> None:
+        """Sleep until a subscription has messages, the subscriptions change, taking stops, or
+        WAIT_LIMIT_NS has passed."""
+        with contextlib.ExitStack() as held:
+            # Held in use, a subscription the discovery timer destroys meanwhile stays valid until the wait
+            # ends (rclpy defers its destruction); the timer then wakes the taker.
+            with self._subscriptions_lock:
+                handles = [s.handle for s in self._topic_subscriptions.values()]
+                for handle in handles:
+                    held.enter_context(handle)
+            wake = self._wake_taker.handle
+            held.enter_context(wake)
+            wait_set = _rclpy.WaitSet(len(handles), 1, 0, 0, 0, 0, self.context.handle)
+            for handle in handles:
+                wait_set.add_subscription(handle)
+            wait_set.add_guard_condition(wake)
+            wait_set.wait(WAIT_LIMIT_NS)
 
     def take_and_write(self) -> int:
         """Take every message waiting on the subscriptions and write them, each topic in the order
@@ -318,6 +357,7 @@ class RecorderNode(Node):
         """Take what has arrived, stop taking and finalise the bag (idempotent)."""
         if self._taker is not None:
             self._stop_taking.set()
+            self._wake_taker.trigger()
             self._taker.join()
             self._taker = None
             self.take_and_write()
@@ -333,6 +373,7 @@ class RecorderNode(Node):
         if self._reader is not None:
             self._reader.destroy_node()
             self._reader = None
+        self._wake_taker.destroy()
         super().destroy_node()
 
 
