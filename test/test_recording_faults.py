@@ -9,6 +9,8 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
+from rclpy.parameter import Parameter
 from ros_harness import RosGraph
 from tdslip_msgs.msg import RecorderStatus
 from test_nodes_recorder import RECORDER, published_counts, start_hopping
@@ -20,6 +22,7 @@ from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW
+from tdslip_ros.nodes.recorder_node import RecorderNode
 from tdslip_ros.nodes.replay import checked_bag
 from tdslip_ros.nodes.runner import RunOptions, run_custom_data
 
@@ -103,3 +106,24 @@ def test_a_full_disk_stops_the_recording_with_a_finalised_readable_bag(
     print(f"\ndisk full: published {published}, not recorded {lost}")
     assert (bag / "metadata.yaml").is_file()
     check_readable(bag, published)
+
+
+def test_a_taker_that_fails_stops_the_recording_with_one_line_and_a_finalised_bag(
+    ros: RosGraph, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The thread that takes the messages fails (in-process here, its wait made to raise): the recorder says
+    why once and asks to stop (its exit status 1), instead of recording nothing more while it looks alive."""
+
+    def broken_wait(recorder: RecorderNode) -> None:
+        raise RuntimeError("wait set lost")
+
+    monkeypatch.setattr(RecorderNode, "_wait_for_messages", broken_wait)
+    bag = tmp_path / "bag"
+    recorder = RecorderNode(context=ros.context, parameter_overrides=[Parameter("output", value=str(bag))])
+    try:
+        ros.spin_until(lambda: recorder.write_error is not None, "the taker to fail")
+        assert recorder.write_error == "the recorder's taker failed: RuntimeError('wait set lost')"
+    finally:
+        recorder.destroy_node()
+    assert (bag / "metadata.yaml").is_file()
+    assert open_bag(bag).topics == {}
