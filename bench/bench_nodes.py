@@ -192,7 +192,7 @@ def percentiles_ms(values_s: Sequence[float]) -> tuple[float, float]:
     return float(p50), float(p99)
 
 
-def planning_times(options: RunOptions, report: RunReport, policy: str) -> tuple[list[float], list[float]]:
+def planning_times(options: RunOptions, report: RunReport) -> tuple[list[float], list[float]]:
     """The controller node's planning, timed here on the run's apexes with the run's parameters: back to
     back, and (on at most SPACED_APEXES of them) each after a pause as long as the run's mean time between
     apexes, as the node plans: its code and data no longer in the CPU's caches."""
@@ -213,7 +213,7 @@ def planning_times(options: RunOptions, report: RunReport, policy: str) -> tuple
                 time.sleep(pause)
                 start = time.perf_counter()
                 try:
-                    controller.plan(policy, apex.height, apex.forward_speed)
+                    controller.plan(apex.height, apex.forward_speed)
                 except ParameterError:
                     continue
                 times.append(time.perf_counter() - start)
@@ -343,7 +343,7 @@ def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
                 probe_process.kill()
                 probed, _ = probe_process.communicate()
         latency = percentiles_ms([ns * 1e-9 for _, _, ns in report.command_latencies_ns])
-        back_to_back, spaced = (percentiles_ms(times) for times in planning_times(options, report, policy))
+        back_to_back, spaced = (percentiles_ms(times) for times in planning_times(options, report))
         print(
             f"  {policy:<10}{len(report.command_latencies_ns):>8d}{latency[0]:>12.3f} / {latency[1]:<7.3f}"
             f"{back_to_back[0]:>13.3f} / {back_to_back[1]:<7.3f}{spaced[0]:>11.3f} / {spaced[1]:<7.3f}"

@@ -53,7 +53,7 @@ from tdslip_ros.model.policies import (
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, wait_to_answer
 from tdslip_ros.nodes.parameters import ParameterSpec
-from tdslip_ros.nodes.wire import serialized
+from tdslip_ros.nodes.wire import command_encoder
 
 MATCH_TIMEOUT = 1.0  # s an answer waits for its publisher to match a subscriber the graph already shows
 
@@ -82,16 +82,22 @@ class ControllerNode(Node):
         check_hopper(self.hopper)
         self.published = 0
         self._previous_speed: float | None = None
+        self._policy: PolicySpec | None = None
+        """The policy with the current parameters; built again at the first apex after a parameter changed."""
         self._publisher = self.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
         # The policies' compiled kernels load (or compile) before the first apex can arrive, not at it.
         controllers.warm_up(self.hopper, complex_step=False, exact_plant=False)
         self.exact_plant_ready = False
         """energy_exact's compiled exact stride is loaded (see :meth:`_ready_exact_plant`)."""
         self._ready_exact_plant()
-        self.add_post_set_parameters_callback(lambda changed: self._ready_exact_plant())
+        self.add_post_set_parameters_callback(self._parameters_changed)
         self._apex_topic = self.create_subscription(
             ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS
         ).topic_name
+
+    def _parameters_changed(self, changed: object) -> None:
+        self._policy = None
+        self._ready_exact_plant()
 
     def _ready_exact_plant(self) -> None:
         """Load energy_exact's compiled exact stride once the policy plans on it, directly or as a learned
@@ -109,12 +115,19 @@ class ControllerNode(Node):
             controllers.warm_up(self.hopper, complex_step=False, exact_plant=True)
             self.exact_plant_ready = True
 
-    def plan(self, policy: str, y: float, xdot: float) -> ModelCommand:
-        """The command of ``policy`` for the apex (y [m], xdot [m/s]) with the current parameters;
-        ParameterError if the policy has none (e.g. the leg cannot be placed from this apex), PolicyError if
-        its settings cannot serve (the learned policy's file unreadable)."""
+    def plan(self, y: float, xdot: float) -> ModelCommand:
+        """The command of the current policy for the apex (y [m], xdot [m/s]); ParameterError if the policy
+        has none (e.g. the leg cannot be placed from this apex), PolicyError if its settings cannot serve (the
+        learned policy's file unreadable)."""
         previous = xdot if self._previous_speed is None else self._previous_speed
-        return self.policy_spec(policy).commands(self.hopper, y, xdot, previous).command()
+        return self.current_policy().commands(self.hopper, y, xdot, previous).command()
+
+    def current_policy(self) -> PolicySpec:
+        """The parameter ``policy`` with the current values of the settings (PolicyError if they cannot make
+        one); kept until a parameter changes, as an apex's answer is due within a millisecond or two."""
+        if self._policy is None:
+            self._policy = self.policy_spec(str(self.get_parameter("policy").value))
+        return self._policy
 
     def policy_spec(self, policy: str) -> PolicySpec:
         """``policy`` with the current values of the settings."""
@@ -126,12 +139,12 @@ class ControllerNode(Node):
     def _on_apex(self, apex: ApexEvent) -> None:
         if apex.stride == 0:
             self._previous_speed = None  # a new run: no previous apex for the PD's derivative term
-        policy = str(self.get_parameter("policy").value)
         # What the controller can know: the measured apex, its height above the ground it last stood on.
         height, speed = apex.measured_height - apex.ground_height, apex.measured_forward_speed
         try:
-            command = self.plan(policy, height, speed)
+            command = self.plan(height, speed)
         except (ParameterError, PolicyError) as error:
+            policy = self.get_parameter("policy").value
             self.get_logger().error(
                 f"{policy}: no command for apex {apex.stride} (y = {height:.6g} m above the ground, "
                 f"xdot = {speed:.6g} m/s): {error}"
@@ -139,18 +152,22 @@ class ControllerNode(Node):
             return
         finally:
             self._previous_speed = speed
-        msg = StanceCommand(
-            epoch=apex.epoch,
-            stride=apex.stride,
-            touchdown_angle=command.touchdown_angle,
-            tau0=command.tau0,
-            t_f=command.t_f,
-            policy=policy,
+        stamp = apex.header.stamp
+        encoder = command_encoder(self.current_policy().name, apex.header.frame_id)  # the apex's frame
+        data = encoder.encode(
+            (
+                stamp.sec,
+                stamp.nanosec,
+                apex.epoch,
+                apex.stride,
+                command.touchdown_angle,
+                command.tau0,
+                command.t_f,
+            )
         )
-        msg.header = apex.header
         # A recorder or plant this publisher has not matched (or discovered) yet would miss it.
         wait_to_answer(self, self._publisher, self._apex_topic, first=apex.stride == 0, timeout=MATCH_TIMEOUT)
-        self._publisher.publish(serialized(msg))
+        self._publisher.publish(data)
         self.published += 1
 
 

@@ -16,13 +16,13 @@ publishes live.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from functools import cache
+from functools import cache, lru_cache
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import WrenchStamped
 from mcap.records import Schema
 from rclpy.serialization import deserialize_message, serialize_message
-from tdslip_msgs.msg import HopperSamples, HopperState
+from tdslip_msgs.msg import HopperSamples, HopperState, StanceCommand
 
 from tdslip_ros.bag.cdr import FixedLayoutEncoder, SequenceColumns
 from tdslip_ros.bag.padding import PaddingZeroer, padded_to_4
@@ -103,6 +103,18 @@ def fixed_layout_encoder(
     name, text = _definition(message_class)
     schema = Schema(id=0, name=name, encoding="ros2msg", data=text.encode())
     return FixedLayoutEncoder(schema, serialize_message(template), fields)
+
+
+COMMAND_FIELDS = (*STAMP_FIELDS, "epoch", "stride", "touchdown_angle", "tau0", "t_f")
+
+
+@lru_cache(maxsize=16)
+def command_encoder(policy: str, frame_id: str) -> FixedLayoutEncoder:
+    """A ramp StanceCommand of ``policy`` in frame ``frame_id`` from the values of :data:`COMMAND_FIELDS`
+    (the layout after the policy's name depends on its length)."""
+    template = StanceCommand(policy=policy)
+    template.header.frame_id = frame_id
+    return fixed_layout_encoder(StanceCommand, COMMAND_FIELDS, template)
 
 
 @cache
