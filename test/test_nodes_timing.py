@@ -52,6 +52,18 @@ def test_a_new_run_is_not_timed_against_the_previous_one() -> None:
     assert (timing.firings, timing.missed) == (4, 0)
 
 
+def test_a_tick_is_missed_only_when_the_next_one_was_due_before_it_was_stepped() -> None:
+    """Firings at their deadlines plus 0.3, 0.7, 1.2 and 1.6 ms: the plant steps 1, 1, 2 and 2 ticks (none
+    before its time), so 2 ticks are missed; counted as until December 2026 (more than half a period late
+    is missed), 0 + 1 + 1 + 2 = 4."""
+    timing = TickTiming(PERIOD, ScriptedClocks())
+    deadline = 0
+    for late, ticks in ((300_000, 1), (700_000, 1), (1_200_000, 2), (1_600_000, 2)):
+        deadline += 3 * PERIOD
+        timing.record(deadline + late, ticks, deadline, ready_ns=deadline - PERIOD // 2)
+    assert (timing.missed, timing.missed_by_half_period) == (2, 4)
+
+
 def test_no_firings_no_statistics() -> None:
     assert math.isnan(TickTiming(PERIOD).period_error(0.5))
 
@@ -93,35 +105,39 @@ def test_missed_ticks_are_told_apart_by_what_the_machine_was_doing() -> None:
 
 
 def test_a_wait_for_a_cpu_explains_only_the_lateness_it_caused() -> None:
-    """A firing 0.9 ms late after a 0.3 ms wait would have missed anyway (0.6 ms late): ours."""
+    """A firing 1.4 ms late after a 0.3 ms wait would have missed anyway (1.1 ms, more than a period, late):
+    ours."""
     clocks = ScriptedClocks()
     timing = TickTiming(PERIOD, clocks)
     timing.record(0, 1)
     clocks.increments.append((0, 300_000))
-    timing.record(PERIOD + 900_000, 2)
+    timing.record(PERIOD + 1_400_000, 2)
     clocks.increments.append((0, 800_000))
-    timing.record(3 * PERIOD + 800_000, 2)  # 0.9 ms late again, after a 0.8 ms wait: the machine's
+    timing.record(3 * PERIOD + 1_400_000, 2)  # 1.4 ms late again, after a 0.8 ms wait: the machine's
     timing.close_window()
     assert (timing.missed, timing.missed_waiting, timing.missed_unexplained) == (2, 1, 1)
 
 
 def test_a_ticker_that_says_when_it_was_idle_tells_its_own_lateness_from_a_late_wake_up() -> None:
     """With the deadline and the time the ticker was ready to wait for it: a firing whose process worked
-    past the deadline by more than half a period is ours; one that slept past it without waiting for a CPU
-    was woken late by the kernel."""
+    past the deadline by more than half a period is ours, unless a wait for a CPU in that work explains the
+    miss; one that slept past it without waiting for a CPU was woken late by the kernel."""
     clocks = ScriptedClocks()
     timing = TickTiming(PERIOD, clocks)
     timing.record(0, 1, 0, 0)
     deadline = 2 * PERIOD
     timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline + 700_000)  # busy until 0.7 ms late
+    clocks.increments.append((0, 600_000))
+    deadline = 3 * PERIOD
+    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline + 700_000)  # 0.6 ms of it queued
     deadline = 4 * PERIOD
     timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline - 800_000)  # idle, asleep 1.2 ms late
     clocks.increments.append((0, 1_000_000))
     deadline = 6 * PERIOD
     timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline - 800_000)  # 1 ms of it queued
     timing.close_window()
-    assert timing.missed == 3
-    assert (timing.missed_unexplained, timing.missed_woken_late, timing.missed_waiting) == (1, 1, 1)
+    assert timing.missed == 4
+    assert (timing.missed_unexplained, timing.missed_woken_late, timing.missed_waiting) == (1, 1, 2)
     assert "1 woken late by the kernel" in timing.summary()
 
 

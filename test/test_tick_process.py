@@ -10,9 +10,15 @@ import pytest
 from ros_harness import RosGraph, overrides
 from tdslip_msgs.msg import ApexEvent, Status
 
+from tdslip_ros.model.limits import PlausibilityLimits
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState
+from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode
+from tdslip_ros.nodes.plant_run import TICK_NS, PlantRun, PlantSink, RunSettings
 from tdslip_ros.nodes.tick_process import OUTBOX_TICKS, FrameReader, PipeSink, framed
 
 
@@ -26,6 +32,55 @@ def written(fd: int) -> bytes:
         return os.read(fd, 1 << 20)
     except BlockingIOError:
         return b""
+
+
+class TickTimes(PlantSink):
+    """A sink that keeps the simulated time of every sample."""
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+
+    @property
+    def live(self) -> bool:
+        return False
+
+    def tick(self, state: object, t: float, tick: int) -> None:
+        self.times.append(t)
+
+
+def test_a_late_firing_catches_up_without_stepping_a_tick_before_its_time() -> None:
+    """Firings 0.3, 0.7 (more than half a period), 1.2 and 2.6 ms late step every tick due by then and none
+    after: simulated time never leads wall time, and a tick is missed only once its successor was due. The
+    next firing is due at the next tick's deadline, none skipped."""
+    sink = TickTimes()
+    hopper = PAPER_PARAMS
+    settings = RunSettings(
+        hopper,
+        PlausibilityLimits.for_hopper(hopper),
+        Perturbations(),
+        ModelCommand(0.35, 0.0, 0.2),
+        lockstep=False,
+        max_strides=0,
+        max_stale_strides=0,
+        torque_max_age_ticks=10,
+    )
+    run = PlantRun(settings, ApexState(1.0, 5.0), sink)
+    start = 10**12
+    run.start(start)
+    for deadline_ticks, late_ns, stepped in (
+        (1, 300_000, 1),
+        (2, 700_000, 1),
+        (3, 1_200_000, 2),
+        (5, 2_600_000, 3),
+    ):
+        before = len(sink.times)
+        now = start + deadline_ticks * TICK_NS + late_ns
+        run.advance_to(now, start + deadline_ticks * TICK_NS, now - late_ns - TICK_NS // 2)
+        assert len(sink.times) - before == stepped
+        assert sink.times[-1] <= sink.times[0] + (now - start) * 1e-9  # no sample ahead of the wall clock
+        assert run.next_deadline_ns == start + len(sink.times) * TICK_NS  # the initial sample: tick 0
+    assert run.tick_timing is not None
+    assert (run.tick_timing.missed, run.tick_timing.missed_by_half_period) == (3, 1 + 1 + 3)
 
 
 def test_messages_fed_in_pieces_come_out_whole_and_in_order() -> None:

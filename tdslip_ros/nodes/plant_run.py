@@ -324,9 +324,10 @@ class PlantRun:
         return False
 
     def advance_to(self, now_ns: int, deadline_ns: int | None = None, ready_ns: int | None = None) -> None:
-        """Realtime: step up to the tick due at ``now_ns`` of the steady clock (a late call catches up); the
-        firing was due at ``deadline_ns`` and its caller idle from ``ready_ns`` (for :class:`TickTiming`)."""
-        due = self._tick0 + round((now_ns - self.start_wall_ns) / TICK_NS)
+        """Realtime: step up to the latest tick due by ``now_ns`` of the steady clock (a late call catches up;
+        none is stepped before its time, so simulated time never leads wall time); the firing was due at
+        ``deadline_ns`` and its caller idle from ``ready_ns`` (for :class:`TickTiming`)."""
+        due = self._tick0 + (now_ns - self.start_wall_ns) // TICK_NS
         first = self.ticks
         self._firing = True
         while self.ticks < due and self.running:
@@ -337,6 +338,11 @@ class PlantRun:
         if first < self.ticks and not self.running:  # it ended in this firing
             self.tick_timing.close_window()
             self._sink.timed(self.tick_timing)
+
+    @property
+    def next_deadline_ns(self) -> int:
+        """Realtime: when the next tick to step is due (steady clock); past already if the run is behind."""
+        return self.start_wall_ns + (self.ticks - self._tick0 + 1) * TICK_NS
 
     def _tick_or_fail(self) -> bool:
         """:meth:`_tick`; a publication that fails ends the run with ``publish_failed``."""

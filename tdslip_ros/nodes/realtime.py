@@ -63,18 +63,20 @@ class TickTiming:
     """Wall-clock timing of the tick, in constant memory (a 1 us histogram), and why ticks were missed.
 
     ``period_error`` is |interval between two firings - tick period|; a tick is ``missed`` when it
-    had to be computed in a later firing than its own (the firing came more than half a period
-    late, or not at all, and the plant caught up).
+    had to be computed in a later firing than its own: its firing came a whole period late or more (the next
+    tick was already due), or not at all, and the plant caught up. ``missed_by_half_period`` counts the
+    ticks more than half a period late as missed too, as this class did until December 2026 (the plant then
+    stepped such a firing's next tick half a period early): the count to compare older measurements with.
 
     A missed tick is explained by the CPU clocks (:data:`CpuClocks`), read at every firing, and, where the
     ticker says when it was ready to wait for the firing (``ready_ns``), by that:
 
     - ``missed_stolen``: the hypervisor stole CPU time from the machine in the firing's window of
       WINDOW_FIRINGS firings (steal is counted in clock ticks of 10 ms: finer windows would not see more);
-    - ``missed_unexplained``: the tick's own process was still at work more than half a period after the
-      firing's deadline (the firing before, the messages it took, the garbage collector): ours;
-    - ``missed_waiting``: else, the tick thread waited for a CPU (other work on this machine) so long since
-      the firing before that it would have come in time without that wait;
+    - ``missed_waiting``: the tick thread waited for a CPU (other work on this machine) so long since the
+      firing before that it would have come within the period without that wait;
+    - ``missed_unexplained``: else, the tick's own process was still at work more than half a period after
+      the firing's deadline (the firing before, the messages it took, the garbage collector): ours;
     - ``missed_woken_late``: else, the thread slept in the kernel past its deadline without waiting for a
       CPU: the kernel's timer, or the hypervisor's, woke it late (only with ``ready_ns``, which says that the
       process was idle; without, these count as unexplained).
@@ -100,6 +102,7 @@ class TickTiming:
         self.firings = 0
         self.ticks = 0
         self.missed = 0
+        self.missed_by_half_period = 0
         self.missed_stolen = 0
         self.missed_waiting = 0
         self.missed_woken_late = 0
@@ -139,13 +142,14 @@ class TickTiming:
         self._clocks = clocks
         self.firings += 1
         self.ticks += ticks
+        half = self._period_ns // 2
+        self.missed_by_half_period += max(0, (late + half) // self._period_ns)
         if ticks > 1:
             self.missed += ticks - 1
-            half = self._period_ns // 2
-            if deadline_ns is not None and ready_ns is not None and ready_ns - deadline_ns >= half:
-                self._window_ours += ticks - 1
-            elif late - waited < half:  # without the wait it would have come in time
+            if late - waited < self._period_ns:  # without the wait it would have come in time
                 self._window_waiting += ticks - 1
+            elif deadline_ns is not None and ready_ns is not None and ready_ns - deadline_ns >= half:
+                self._window_ours += ticks - 1
             elif deadline_ns is not None and ready_ns is not None:
                 self._window_woken_late += ticks - 1
             else:

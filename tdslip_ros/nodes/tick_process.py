@@ -33,7 +33,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from tdslip_ros.model.params import ApexState
-from tdslip_ros.nodes.plant_run import TICK_NS, PlantRun, PlantSink, PublishFailed, RunSettings
+from tdslip_ros.nodes.plant_run import PlantRun, PlantSink, PublishFailed, RunSettings
 from tdslip_ros.nodes.realtime import schedule_realtime
 
 _LENGTH = struct.Struct("<I")
@@ -316,13 +316,9 @@ class _TickServer:
         run = self._run
         run.advance_to(now, self._deadline, self._ready_ns)
         self._sink.flush(unless_routine=True)
-        if not run.running:
-            self._deadline = None
-            return
-        assert self._deadline is not None
-        # A late firing caught up by wall time: the next is at the next deadline still ahead.
-        behind = time.monotonic_ns() - self._deadline
-        self._deadline += (behind // TICK_NS + 1) * TICK_NS
+        # The next firing is the next tick's deadline, at once if that has passed meanwhile: a late firing
+        # skips no deadline (its successor would step two ticks at the next one, a tick missed).
+        self._deadline = run.next_deadline_ns if run.running else None
 
     def _handle(self, kind: str, *args: Any) -> None:
         run = self._run
@@ -344,7 +340,7 @@ class _TickServer:
         if not run.running:
             self._deadline = None
         elif kind in ("start", "reset"):
-            self._deadline = run.start_wall_ns + TICK_NS
+            self._deadline = run.next_deadline_ns
 
 
 def main(argv: list[str]) -> int:
