@@ -1,12 +1,13 @@
 """Benchmarks of the node suite as ``tdslip run`` runs it (plant here, controller and recorder in
 child processes, every run recorded and its counts checked). One command each:
 
-    .venv/bin/python bench/bench_nodes.py realtime [--duration 60] [--priority 50] [--busy-core 1]
+    .venv/bin/python bench/bench_nodes.py realtime [--duration 60] [--priority 50] [--cpu 1] [--busy-core 1]
         1 kHz tick against wall time: missed ticks (stepped after the next tick was due), split into
         those the machine explains (CPU time the hypervisor stole, the tick waiting for a CPU, the tick
         woken late by the kernel) and the unexplained ones (ours; target 0), and the |period error| of
         the plant's tick, p50 and p99 (target p99 < 0.3 ms); optionally with the tick process at a
-        SCHED_FIFO priority (root). With --busy-core: target < 0.1% of the ticks missed.
+        SCHED_FIFO priority (root) or pinned to a CPU. With --busy-core: target < 0.1% of the ticks
+        missed.
     .venv/bin/python bench/bench_nodes.py lockstep [--strides 100] [--record-clock]
         simulated time over wall time with every 1 kHz sample recorded (target >= 20x), both until
         the end of the run and until the recorder had acknowledged every message.
@@ -129,8 +130,9 @@ def run_checked(options: RunOptions, fatal: bool = True) -> RunReport:
 
 def bench_realtime(arguments: argparse.Namespace, scratch: Path) -> None:
     priority = f"SCHED_FIFO {arguments.priority}" if arguments.priority else "normal scheduling"
+    pinned = "" if arguments.cpu is None else f", the tick on CPU {arguments.cpu}"
     print(
-        f"realtime, {arguments.duration:g} s, plant + controller + recorder, {priority}"
+        f"realtime, {arguments.duration:g} s, plant + controller + recorder, {priority}{pinned}"
         f" ({conditions(arguments)})"
     )
     options = RunOptions(
@@ -139,6 +141,7 @@ def bench_realtime(arguments: argparse.Namespace, scratch: Path) -> None:
         mode="realtime",
         duration=arguments.duration,
         realtime_priority=arguments.priority,
+        realtime_cpu=arguments.cpu,
     )
     report = run_checked(options)
     timing = report.tick_timing
@@ -335,6 +338,7 @@ def bench_latency(arguments: argparse.Namespace, scratch: Path) -> None:
             target_height=arguments.target_height,
             target_speed=arguments.target_speed,
             realtime_priority=arguments.priority,
+            realtime_cpu=arguments.cpu,
             domain_id=domain_id,
         )
         try:
@@ -391,6 +395,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         command.add_argument(
             "--priority", type=int, default=0, help="SCHED_FIFO priority of the tick (0: none)"
         )
+        command.add_argument("--cpu", type=int, help="pin the tick to this CPU (default: any)")
     arguments = parser.parse_args(argv)
     if arguments.command == "probe":
         probe()

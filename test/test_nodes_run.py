@@ -156,6 +156,7 @@ def test_an_apex_the_leg_cannot_be_placed_from_is_refused_before_anything_starts
             ["--mode", "realtime", "--realtime-priority", "500"],
             "plant parameters: realtime_priority must lie",
         ),
+        (["--mode", "realtime", "--realtime-cpu", "4096"], "plant parameters: realtime_cpu must lie"),
     ],
 )
 def test_a_setting_out_of_range_is_refused_before_anything_starts(

@@ -152,6 +152,11 @@ def parser() -> argparse.ArgumentParser:
         type=int,
         help="SCHED_FIFO priority 1-99 of the realtime tick, needs root (default: normal scheduling)",
     )
+    parser.add_argument(
+        "--realtime-cpu",
+        type=int,
+        help="pin the realtime tick to this CPU, one the machine's busy programs avoid (default: any)",
+    )
     parser.add_argument("--record-clock", action="store_true", help="also record /clock")
     parser.add_argument("--domain-id", type=int, help="ROS domain id (default: a free one from 120-229)")
     parser.add_argument(
@@ -249,6 +254,7 @@ def main(argv: list[str]) -> int:
         policy_file=policy_file(args),
         command_timeout=args.timeout,
         realtime_priority=args.realtime_priority,
+        realtime_cpu=args.realtime_cpu,
         record_clock=args.record_clock,
         duration=args.duration,
         domain_id=domain_id,

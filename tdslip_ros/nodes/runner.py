@@ -144,6 +144,8 @@ class RunOptions:
     command_timeout: float | None = None
     realtime_priority: int | None = None
     """SCHED_FIFO priority of the realtime plant's tick (0: normal scheduling)."""
+    realtime_cpu: int | None = None
+    """The CPU the realtime plant's tick is pinned to (-1: any)."""
     record_clock: bool = False
     duration: float | None = None
     """Wall-time limit [s]: the run ends as complete when it is reached."""
@@ -296,6 +298,7 @@ def plant_overrides(options: RunOptions) -> dict[str, object]:
         "initial_touchdown_angle": options.touchdown_angle,
         "command_timeout": options.command_timeout,
         "realtime_priority": options.realtime_priority,
+        "realtime_cpu": options.realtime_cpu,
         "wait_for_recorder": True,
     }
 
