@@ -22,7 +22,7 @@ from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW
-from tdslip_ros.nodes.recorder_node import RecorderNode
+from tdslip_ros.nodes.recorder_node import TAKER_THREAD, RecorderNode
 from tdslip_ros.nodes.replay import checked_bag
 from tdslip_ros.nodes.runner import RunOptions, run_custom_data
 
@@ -114,7 +114,10 @@ def test_a_taker_that_fails_stops_the_recording_with_one_line_and_a_finalised_ba
     """The thread that takes the messages fails (in-process here, its wait made to raise): the recorder says
     why once and asks to stop (its exit status 1), instead of recording nothing more while it looks alive."""
 
+    names: list[str] = []
+
     def broken_wait(recorder: RecorderNode) -> None:
+        names.append(Path("/proc/thread-self/comm").read_text())
         raise RuntimeError("wait set lost")
 
     monkeypatch.setattr(RecorderNode, "_wait_for_messages", broken_wait)
@@ -123,6 +126,7 @@ def test_a_taker_that_fails_stops_the_recording_with_one_line_and_a_finalised_ba
     try:
         ros.spin_until(lambda: recorder.write_error is not None, "the taker to fail")
         assert recorder.write_error == "the recorder's taker failed: RuntimeError('wait set lost')"
+        assert names == [f"{TAKER_THREAD}\n"]  # as ps -L and top -H show the thread
     finally:
         recorder.destroy_node()
     assert (bag / "metadata.yaml").is_file()

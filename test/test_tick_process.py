@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+from pathlib import Path
 
 import pytest
 from ros_harness import RosGraph, overrides
@@ -19,7 +20,14 @@ from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode
 from tdslip_ros.nodes.plant_run import TICK_NS, PlantRun, PlantSink, RunSettings
-from tdslip_ros.nodes.tick_process import OUTBOX_TICKS, FrameReader, PipeSink, framed
+from tdslip_ros.nodes.tick_process import (
+    OUTBOX_TICKS,
+    REPLAY_THREAD,
+    TICK_THREAD,
+    FrameReader,
+    PipeSink,
+    framed,
+)
 
 
 def state(t: float) -> tuple[float, ...]:
@@ -145,6 +153,9 @@ def test_a_tick_process_that_dies_ends_the_run_instead_of_hanging_it(ros: RosGra
     apexes = ros.collect(ApexEvent, topics.APEX)
     ros.spin_until(lambda: len(apexes) >= 2, "two apexes")
     assert plant.tick_process_id is not None
+    # Named where ps -L and top -H show threads: the tick process, and the node's thread that replays it.
+    assert Path(f"/proc/{plant.tick_process_id}/comm").read_text() == f"{TICK_THREAD}\n"
+    assert f"{REPLAY_THREAD}\n" in {task.read_text() for task in Path("/proc/self/task").glob("*/comm")}
     os.kill(plant.tick_process_id, signal.SIGKILL)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome.kind == Status.KIND_PUBLISH_FAILED

@@ -59,6 +59,7 @@ from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.realtime import name_this_thread
 from tdslip_ros.nodes.wire import grf_encoder, sample_rows, serialized, state_encoder
 
 DISCOVERY_PERIOD = 0.05  # s between two looks for new publishers (and status reports)
@@ -66,6 +67,7 @@ TAKE_PERIOD = 0.001
 """s the taker thread pauses after a take that found messages, before it waits for the next ones: under a
 fast stream (lockstep) each take then finds a batch of them, and a slow one (realtime, ~200 messages a
 second) wakes it about twice per burst instead of every TAKE_PERIOD."""
+TAKER_THREAD = "tdslip-take"  # the taker thread's name, as ps -L and top -H show it
 WAIT_LIMIT_NS = 50_000_000  # the longest the taker sleeps in its wait set before it looks at its stop flag
 STATUS_MESSAGES = 100
 """Recorded messages between two status reports: a lockstep plant's flow control sees progress
@@ -178,7 +180,7 @@ class RecorderNode(Node):
             if name not in self._batched:
                 self._subscribe(name, topics.adapted_qos([]))
         self._stop_taking = threading.Event()
-        self._taker = threading.Thread(target=self._take_loop, name="tdslip-recorder-take", daemon=True)
+        self._taker = threading.Thread(target=self._take_loop, name=TAKER_THREAD, daemon=True)
         self._taker.start()
         self.create_timer(DISCOVERY_PERIOD, self._discover)
         self._discover()
@@ -241,6 +243,7 @@ class RecorderNode(Node):
         self._wake_taker.trigger()
 
     def _take_loop(self) -> None:
+        name_this_thread(TAKER_THREAD)
         try:
             while not self._stop_taking.is_set():
                 if self.take_and_write():

@@ -34,7 +34,7 @@ from typing import Any
 
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.nodes.plant_run import PlantRun, PlantSink, PublishFailed, RunSettings
-from tdslip_ros.nodes.realtime import schedule_realtime
+from tdslip_ros.nodes.realtime import name_this_thread, schedule_realtime
 
 _LENGTH = struct.Struct("<I")
 PIPE_BYTES = 1 << 20
@@ -43,6 +43,8 @@ node's process may fall ~2 s behind before the tick would wait for it."""
 SINK_CALLS = frozenset(name for name, value in vars(PlantSink).items() if callable(value) and name[0] != "_")
 _ROUTINE_CALLS = frozenset({"tick", "check_graph", "counted"})
 """Sink calls that may wait for the next write (the rest are events, wanted at once)."""
+TICK_THREAD = "tdslip-tick"  # the names ps -L and top -H show: the tick process,
+REPLAY_THREAD = "tdslip-replay"  # and the node's thread that publishes what it steps
 OUTBOX_TICKS = 10
 """Ticks gathered at most before they are written to the node (as the node batches them for recorders)."""
 CLOSE_TIMEOUT = 5.0  # s the process is given to end after "stop" before it is killed
@@ -193,7 +195,7 @@ class TickProcess:
         self._restarted = threading.Event()
         self._reset_message = ""
         self._replayer = threading.Thread(
-            target=self._replay, args=(sink, lock, on_lost), name="tdslip-tick-replay", daemon=True
+            target=self._replay, args=(sink, lock, on_lost), name=REPLAY_THREAD, daemon=True
         )
         self._replayer.start()
 
@@ -248,6 +250,7 @@ class TickProcess:
             self._inbox = -1
 
     def _replay(self, sink: PlantSink, lock: threading.Lock, on_lost: Callable[[str], None]) -> None:
+        name_this_thread(REPLAY_THREAD)
         try:
             self._replay_until_the_end(sink, lock)
         except Exception as error:  # a bug of this side: say so, and end the run rather than hang
@@ -346,6 +349,7 @@ class _TickServer:
 def main(argv: list[str]) -> int:
     """``python -m tdslip_ros.nodes.tick_process INBOX_FD OUTBOX_FD``, as TickProcess starts it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node decides when to stop
+    name_this_thread(TICK_THREAD)
     inbox, outbox = int(argv[1]), int(argv[2])
     sink = PipeSink(outbox)
     frames = FrameReader()
