@@ -15,7 +15,7 @@ from geometry_msgs.msg import WrenchStamped
 from mcap.records import Schema
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
-from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperSamples, HopperState
+from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperSamples, HopperState, StanceCommand
 from visualization_msgs.msg import Marker, MarkerArray
 
 from tdslip_ros.bag.cdr import FixedLayoutEncoder, SequenceColumns
@@ -28,6 +28,7 @@ from tdslip_ros.nodes.plant_output import APEX_FIELDS, CONTACT_FIELDS
 from tdslip_ros.nodes.wire import (
     SAMPLE_COLUMNS,
     SAMPLE_FIELDS,
+    command_encoder,
     fixed_layout_encoder,
     grf_encoder,
     sample_batch,
@@ -235,3 +236,22 @@ def test_apex_and_contact_events_encode_to_the_bytes_of_serialize_message() -> N
             (sec, nanosec, kind, epoch, stride, t, numbers[0], *state_values(state, t))
         )
         assert encoded == serialized(contact)
+
+
+@pytest.mark.parametrize("frame_id", ["world", "", "odom_of_a_longer_frame"])
+@pytest.mark.parametrize("policy", ["energy", "deadbeat", "apex_foot_placement", "x"])
+def test_stance_commands_encode_to_the_bytes_of_serialize_message(policy: str, frame_id: str) -> None:
+    """The controller's answers: the frame's length moves the fields after it, the policy's the byte after
+    its name; both are the encoder's key."""
+    rng = random.Random(23)
+    encoder = command_encoder(policy, frame_id)
+    for _ in range(50):
+        sec, nanosec = rng.randrange(2**31), rng.randrange(10**9)
+        epoch, stride = rng.randrange(2**32), rng.randrange(2**32)
+        angle, tau0, t_f = (rng.uniform(-1e3, 1e3) for _ in range(3))
+        msg = StanceCommand(
+            epoch=epoch, stride=stride, touchdown_angle=angle, tau0=tau0, t_f=t_f, policy=policy
+        )
+        msg.header.frame_id = frame_id
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        assert encoder.encode((sec, nanosec, epoch, stride, angle, tau0, t_f)) == serialized(msg)

@@ -156,7 +156,7 @@ def test_an_apex_the_leg_cannot_be_placed_from_is_refused_before_anything_starts
             ["--mode", "realtime", "--realtime-priority", "500"],
             "plant parameters: realtime_priority must lie",
         ),
-        (["--mode", "realtime", "--realtime-cpu", "4096"], "plant parameters: realtime_cpu must lie"),
+        (["--mode", "realtime", "--realtime-cpu", "4096"], "realtime CPU 4096 is not one this run may use"),
     ],
 )
 def test_a_setting_out_of_range_is_refused_before_anything_starts(

@@ -53,9 +53,9 @@ def test_a_new_run_is_not_timed_against_the_previous_one() -> None:
 
 
 def test_a_tick_is_missed_only_when_the_next_one_was_due_before_it_was_stepped() -> None:
-    """Firings at their deadlines plus 0.3, 0.7, 1.2 and 1.6 ms: the plant steps 1, 1, 2 and 2 ticks (none
-    before its time), so 2 ticks are missed; counted as until December 2026 (more than half a period late
-    is missed), 0 + 1 + 1 + 2 = 4."""
+    """Firings at their deadlines plus 0.3, 0.7, 1.2 and 1.6 ms, which step 1, 1, 2 and 2 ticks (as the plant
+    does, none before its time: test_tick_process.py), miss 2 ticks; counted as until December 2026 (more than
+    half a period late is missed), 0 + 1 + 1 + 2 = 4."""
     timing = TickTiming(PERIOD, ScriptedClocks())
     deadline = 0
     for late, ticks in ((300_000, 1), (700_000, 1), (1_200_000, 2), (1_600_000, 2)):
@@ -89,8 +89,8 @@ def test_missed_ticks_are_told_apart_by_what_the_machine_was_doing() -> None:
     now = 0
     timing.record(now, 1)
     # In each window one firing comes 2.6 ms late and catches up: the hypervisor stole 10 ms in the first
-    # window; in the second the tick thread waited 2.5 ms for a CPU before it (2.6 - 2.5 < half a period: it
-    # would have come in time); in the third only 1 ms (it would still have missed); the fourth is quiet.
+    # window; in the second the tick thread waited 2.5 ms for a CPU before it (2.6 - 2.5 < a period: it would
+    # have come in time); in the third only 1 ms (it would still have missed); the fourth is quiet.
     for steal, wait, missed in ((10_000_000, 0, 2), (0, 2_500_000, 3), (0, 1_000_000, 4), (0, 0, 0)):
         for firing in range(window):
             late = 2_600_000 if firing == 0 and missed else 0
@@ -106,14 +106,15 @@ def test_missed_ticks_are_told_apart_by_what_the_machine_was_doing() -> None:
 
 def test_a_wait_for_a_cpu_explains_only_the_lateness_it_caused() -> None:
     """A firing 1.4 ms late after a 0.3 ms wait would have missed anyway (1.1 ms, more than a period, late):
-    ours."""
+    ours; one 1.4 ms late after a 0.7 ms wait would have come within its period (0.7 ms late): the
+    machine's."""
     clocks = ScriptedClocks()
     timing = TickTiming(PERIOD, clocks)
     timing.record(0, 1)
     clocks.increments.append((0, 300_000))
     timing.record(PERIOD + 1_400_000, 2)
-    clocks.increments.append((0, 800_000))
-    timing.record(3 * PERIOD + 1_400_000, 2)  # 1.4 ms late again, after a 0.8 ms wait: the machine's
+    clocks.increments.append((0, 700_000))
+    timing.record(2 * PERIOD + 2_800_000, 2)  # 1.4 ms after its due time again
     timing.close_window()
     assert (timing.missed, timing.missed_waiting, timing.missed_unexplained) == (2, 1, 1)
 

@@ -155,7 +155,7 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--realtime-cpu",
         type=int,
-        help="pin the realtime tick to this CPU, one the machine's busy programs avoid (default: any)",
+        help="realtime: pin the tick to this CPU, one the machine's busy programs avoid (default: any)",
     )
     parser.add_argument("--record-clock", action="store_true", help="also record /clock")
     parser.add_argument("--domain-id", type=int, help="ROS domain id (default: a free one from 120-229)")

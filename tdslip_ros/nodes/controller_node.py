@@ -115,12 +115,13 @@ class ControllerNode(Node):
             controllers.warm_up(self.hopper, complex_step=False, exact_plant=True)
             self.exact_plant_ready = True
 
-    def plan(self, y: float, xdot: float) -> ModelCommand:
-        """The command of the current policy for the apex (y [m], xdot [m/s]); ParameterError if the policy
-        has none (e.g. the leg cannot be placed from this apex), PolicyError if its settings cannot serve (the
-        learned policy's file unreadable)."""
+    def plan(self, y: float, xdot: float, policy: PolicySpec | None = None) -> ModelCommand:
+        """The command of ``policy`` (default: the current one) for the apex (y [m], xdot [m/s]);
+        ParameterError if the policy has none (e.g. the leg cannot be placed from this apex), PolicyError if
+        its settings cannot serve (the learned policy's file unreadable)."""
         previous = xdot if self._previous_speed is None else self._previous_speed
-        return self.current_policy().commands(self.hopper, y, xdot, previous).command()
+        spec = self.current_policy() if policy is None else policy
+        return spec.commands(self.hopper, y, xdot, previous).command()
 
     def current_policy(self) -> PolicySpec:
         """The parameter ``policy`` with the current values of the settings (PolicyError if they cannot make
@@ -142,18 +143,19 @@ class ControllerNode(Node):
         # What the controller can know: the measured apex, its height above the ground it last stood on.
         height, speed = apex.measured_height - apex.ground_height, apex.measured_forward_speed
         try:
-            command = self.plan(height, speed)
+            policy = self.current_policy()  # once: the command and its label come from the same policy
+            command = self.plan(height, speed, policy)
         except (ParameterError, PolicyError) as error:
-            policy = self.get_parameter("policy").value
+            name = self.get_parameter("policy").value
             self.get_logger().error(
-                f"{policy}: no command for apex {apex.stride} (y = {height:.6g} m above the ground, "
+                f"{name}: no command for apex {apex.stride} (y = {height:.6g} m above the ground, "
                 f"xdot = {speed:.6g} m/s): {error}"
             )
             return
         finally:
             self._previous_speed = speed
         stamp = apex.header.stamp
-        encoder = command_encoder(self.current_policy().name, apex.header.frame_id)  # the apex's frame
+        encoder = command_encoder(policy.name, apex.header.frame_id)  # in the apex's frame
         data = encoder.encode(
             (
                 stamp.sec,

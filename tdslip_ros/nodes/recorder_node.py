@@ -250,7 +250,7 @@ class RecorderNode(Node):
                     time.sleep(TAKE_PERIOD)
                 self._wait_for_messages()
         except Exception as error:  # the recording cannot go on: say so, and let the node stop (exit 1)
-            if not self._stop_taking.is_set():
+            if not self._stop_taking.is_set() and self.context.ok():  # (a shut-down context: a stop)
                 self.write_error = f"the recorder's taker failed: {error!r}"
                 self.get_logger().error(self.write_error)
 
@@ -266,6 +266,7 @@ class RecorderNode(Node):
                     held.enter_context(handle)
             wake = self._wake_taker.handle
             held.enter_context(wake)
+            held.enter_context(self.context.handle)
             wait_set = _rclpy.WaitSet(len(handles), 1, 0, 0, 0, 0, self.context.handle)
             for handle in handles:
                 wait_set.add_subscription(handle)

@@ -145,7 +145,8 @@ class RunOptions:
     realtime_priority: int | None = None
     """SCHED_FIFO priority of the realtime plant's tick (0: normal scheduling)."""
     realtime_cpu: int | None = None
-    """The CPU the realtime plant's tick is pinned to (-1: any)."""
+    """The CPU the realtime plant's tick is pinned to (None: the plant's default, -1, any); one of this
+    machine's."""
     record_clock: bool = False
     duration: float | None = None
     """Wall-time limit [s]: the run ends as complete when it is reached."""
@@ -416,6 +417,9 @@ def check_options(options: RunOptions) -> None:
         check_output_directory(bag)
     except OutputError as error:
         raise RunOptionError(str(error)) from None
+    if options.realtime_cpu not in (None, -1) and options.realtime_cpu not in os.sched_getaffinity(0):
+        cpus = ", ".join(map(str, sorted(os.sched_getaffinity(0))))
+        raise RunOptionError(f"realtime CPU {options.realtime_cpu} is not one this run may use ({cpus})")
     try:  # the plant's first: the controller's values derive from them (--height sets its target energy)
         parameters.check_values(plant_parameters.SPECS, plant_overrides(options))
     except ParameterError as error:

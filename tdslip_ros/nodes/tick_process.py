@@ -303,6 +303,7 @@ class _TickServer:
             self._ready_ns = time.monotonic_ns()  # idle from now on, unless a message comes first
             timeout = None if deadline is None else max(0.0, (deadline - self._ready_ns) * 1e-9)
             if select.select([inbox], [], [], timeout)[0]:
+                woke = time.monotonic_ns()
                 data = os.read(inbox, 1 << 16)
                 if not data:
                     return
@@ -310,7 +311,8 @@ class _TickServer:
                     if message[0] == "stop":
                         return
                     self._handle(*message)
-                self._ready_ns = time.monotonic_ns()
+                # Idle again: handling the messages was ours, a wake-up past the deadline the kernel's.
+                self._ready_ns = time.monotonic_ns() - (0 if deadline is None else max(0, woke - deadline))
             if self._deadline is not None and time.monotonic_ns() >= self._deadline:
                 self._fire()
 

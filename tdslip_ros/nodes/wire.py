@@ -111,7 +111,7 @@ COMMAND_FIELDS = (*STAMP_FIELDS, "epoch", "stride", "touchdown_angle", "tau0", "
 @lru_cache(maxsize=16)
 def command_encoder(policy: str, frame_id: str) -> FixedLayoutEncoder:
     """A ramp StanceCommand of ``policy`` in frame ``frame_id`` from the values of :data:`COMMAND_FIELDS`
-    (the layout after the policy's name depends on its length)."""
+    (the frame's length places the fields after it, the policy's the byte after its name)."""
     template = StanceCommand(policy=policy)
     template.header.frame_id = frame_id
     return fixed_layout_encoder(StanceCommand, COMMAND_FIELDS, template)
