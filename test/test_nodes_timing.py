@@ -60,7 +60,7 @@ def test_a_tick_is_missed_only_when_the_next_one_was_due_before_it_was_stepped()
     deadline = 0
     for late, ticks in ((300_000, 1), (700_000, 1), (1_200_000, 2), (1_600_000, 2)):
         deadline += 3 * PERIOD
-        timing.record(deadline + late, ticks, deadline, ready_ns=deadline - PERIOD // 2)
+        timing.record(deadline + late, ticks, deadline, busy_ns=0)
     assert (timing.missed, timing.missed_by_half_period) == (2, 4)
 
 
@@ -120,22 +120,22 @@ def test_a_wait_for_a_cpu_explains_only_the_lateness_it_caused() -> None:
 
 
 def test_a_ticker_that_says_when_it_was_idle_tells_its_own_lateness_from_a_late_wake_up() -> None:
-    """With the deadline and the time the ticker was ready to wait for it: a firing whose process worked
+    """With the deadline and how long the ticker worked past it: a firing whose process worked
     past the deadline by more than half a period is ours, unless a wait for a CPU in that work explains the
     miss; one that slept past it without waiting for a CPU was woken late by the kernel."""
     clocks = ScriptedClocks()
     timing = TickTiming(PERIOD, clocks)
     timing.record(0, 1, 0, 0)
     deadline = 2 * PERIOD
-    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline + 700_000)  # busy until 0.7 ms late
+    timing.record(deadline + 1_200_000, 2, deadline, busy_ns=700_000)  # busy until 0.7 ms late
     clocks.increments.append((0, 600_000))
     deadline = 3 * PERIOD
-    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline + 700_000)  # 0.6 ms of it queued
+    timing.record(deadline + 1_200_000, 2, deadline, busy_ns=700_000)  # 0.6 ms of it queued
     deadline = 4 * PERIOD
-    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline - 800_000)  # idle, asleep 1.2 ms late
+    timing.record(deadline + 1_200_000, 2, deadline, busy_ns=0)  # idle, asleep 1.2 ms late
     clocks.increments.append((0, 1_000_000))
     deadline = 6 * PERIOD
-    timing.record(deadline + 1_200_000, 2, deadline, ready_ns=deadline - 800_000)  # 1 ms of it queued
+    timing.record(deadline + 1_200_000, 2, deadline, busy_ns=0)  # 1 ms of it queued
     timing.close_window()
     assert timing.missed == 4
     assert (timing.missed_unexplained, timing.missed_woken_late, timing.missed_waiting) == (1, 1, 2)

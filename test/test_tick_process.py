@@ -19,9 +19,8 @@ from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode
-from tdslip_ros.nodes.plant_run import TICK_NS, PlantRun, PlantSink, RunSettings
+from tdslip_ros.nodes.plant_run import SAMPLES_PER_BATCH, TICK_NS, PlantRun, PlantSink, RunSettings
 from tdslip_ros.nodes.tick_process import (
-    OUTBOX_TICKS,
     REPLAY_THREAD,
     TICK_THREAD,
     FrameReader,
@@ -83,7 +82,8 @@ def test_a_late_firing_catches_up_without_stepping_a_tick_before_its_time() -> N
     ):
         before = len(sink.times)
         now = start + deadline_ticks * TICK_NS + late_ns
-        run.advance_to(now, start + deadline_ticks * TICK_NS, now - late_ns - TICK_NS // 2)
+        assert run.next_deadline_ns == start + deadline_ticks * TICK_NS
+        run.advance_to(now, busy_ns=0)
         assert len(sink.times) - before == stepped
         assert sink.times[-1] <= sink.times[0] + (now - start) * 1e-9  # no sample ahead of the wall clock
         assert run.next_deadline_ns == start + len(sink.times) * TICK_NS  # the initial sample: tick 0
@@ -107,21 +107,21 @@ def test_the_pipe_sink_writes_events_at_once_and_routine_ticks_every_few() -> No
     os.set_blocking(read, False)
     try:
         sink = PipeSink(write)
-        for k in range(OUTBOX_TICKS - 1):
+        for k in range(SAMPLES_PER_BATCH - 1):
             sink.tick(state(k * 1e-3), k * 1e-3, k)
             sink.check_graph()
             sink.flush(unless_routine=True)
         assert written(read) == b""  # routine calls wait for the batch
-        sink.tick(state(0.009), 0.009, OUTBOX_TICKS - 1)
+        sink.tick(state(0.009), 0.009, SAMPLES_PER_BATCH - 1)
         sink.flush(unless_routine=True)
         received = FrameReader().feed(written(read))
-        assert [name for name, _, _ in received].count("tick") == OUTBOX_TICKS
-        sink.tick(state(0.010), 0.010, OUTBOX_TICKS)
+        assert [name for name, _, _ in received].count("tick") == SAMPLES_PER_BATCH
+        sink.tick(state(0.010), 0.010, SAMPLES_PER_BATCH)
         sink.log("warning", "an event")
         sink.flush(unless_routine=True)
         assert [name for name, _, _ in FrameReader().feed(written(read))] == ["tick", "log"]
         sink.live = True  # someone takes the samples live: every tick goes out at once
-        sink.tick(state(0.011), 0.011, OUTBOX_TICKS + 1)
+        sink.tick(state(0.011), 0.011, SAMPLES_PER_BATCH + 1)
         sink.flush(unless_routine=True)
         assert len(FrameReader().feed(written(read))) == 1
         with pytest.raises(AttributeError):

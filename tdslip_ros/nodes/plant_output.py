@@ -29,7 +29,7 @@ from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.markers import HopperMarkers
-from tdslip_ros.nodes.plant_run import ApexReport
+from tdslip_ros.nodes.plant_run import SAMPLES_PER_BATCH, ApexReport
 from tdslip_ros.nodes.torque_stream import tick_stamp
 from tdslip_ros.nodes.wire import (
     SAMPLE_FIELDS,
@@ -64,10 +64,6 @@ CONTACT_FIELDS = (*STAMP_FIELDS, "kind", "epoch", "stride", "sim_time", "ground_
 CONTACT_FIELDS += tuple(f"state.{field}" for field in SAMPLE_FIELDS)
 """The fields of a ContactEvent that the plant sets, in the message's order (its state's as a sample's)."""
 
-SAMPLES_PER_BATCH = 10
-"""Ticks per tdslip/samples message at most: a realtime recording trails the plant by up to 10 ms. Larger
-batches cost the tick that sends them more (50: p99 period error 0.35-0.38 ms in 30 s realtime runs, against
-0.26-0.27 ms with 10) and gain little in lockstep (27.5-27.8x with 50, 28.0x with 10)."""
 
 _CONTACT_KINDS = {
     EventKind.TOUCHDOWN: ContactEvent.TOUCHDOWN,

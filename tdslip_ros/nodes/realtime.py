@@ -70,7 +70,7 @@ class TickTiming:
     stepped such a firing's next tick half a period early): the count to compare older measurements with.
 
     A missed tick is explained by the CPU clocks (:data:`CpuClocks`), read at every firing, and, where the
-    ticker says when it was ready to wait for the firing (``ready_ns``), by that:
+    ticker says how long its process was at its own work past the deadline (``busy_ns``), by that:
 
     - ``missed_stolen``: the hypervisor stole CPU time from the machine in the firing's window of
       WINDOW_FIRINGS firings (steal is counted in clock ticks of 10 ms: finer windows would not see more);
@@ -79,7 +79,7 @@ class TickTiming:
     - ``missed_unexplained``: else, the tick's own process was still at work more than half a period after
       the firing's deadline (the firing before, the messages it took, the garbage collector): ours;
     - ``missed_woken_late``: else, the thread slept in the kernel past its deadline without waiting for a
-      CPU: the kernel's timer, or the hypervisor's, woke it late (only with ``ready_ns``, which says that the
+      CPU: the kernel's timer, or the hypervisor's, woke it late (only with ``busy_ns``, which says that the
       process was idle; without, these count as unexplained).
 
     All but the unexplained are the machine's.
@@ -125,11 +125,11 @@ class TickTiming:
         self._window_steal = None
 
     def record(
-        self, now_ns: int, ticks: int, deadline_ns: int | None = None, ready_ns: int | None = None
+        self, now_ns: int, ticks: int, deadline_ns: int | None = None, busy_ns: int | None = None
     ) -> None:
         """One firing at ``now_ns`` (steady clock) that computed ``ticks`` ticks (on the tick thread:
-        the waits are that thread's); due at ``deadline_ns``, for which the thread was ready to wait from
-        ``ready_ns`` on (its work done), if the ticker knows."""
+        the waits are that thread's); due at ``deadline_ns``, its process at its own work for ``busy_ns`` past
+        that deadline before it fired (0: idle at the deadline), if the ticker knows."""
         clocks = self._cpu_clocks()
         late = (ticks - 1) * self._period_ns
         if self._last_ns is not None:
@@ -149,9 +149,9 @@ class TickTiming:
             self.missed += ticks - 1
             if late - waited < self._period_ns:  # without the wait it would have come in time
                 self._window_waiting += ticks - 1
-            elif deadline_ns is not None and ready_ns is not None and ready_ns - deadline_ns >= half:
+            elif busy_ns is not None and busy_ns >= half:
                 self._window_ours += ticks - 1
-            elif deadline_ns is not None and ready_ns is not None:
+            elif busy_ns is not None:
                 self._window_woken_late += ticks - 1
             else:
                 self._window_ours += ticks - 1

@@ -33,7 +33,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from tdslip_ros.model.params import ApexState
-from tdslip_ros.nodes.plant_run import PlantRun, PlantSink, PublishFailed, RunSettings
+from tdslip_ros.nodes.plant_run import SAMPLES_PER_BATCH, PlantRun, PlantSink, PublishFailed, RunSettings
 from tdslip_ros.nodes.realtime import name_this_thread, schedule_realtime
 
 _LENGTH = struct.Struct("<I")
@@ -45,8 +45,6 @@ _ROUTINE_CALLS = frozenset({"tick", "check_graph", "counted"})
 """Sink calls that may wait for the next write (the rest are events, wanted at once)."""
 TICK_THREAD = "tdslip-tick"  # the names ps -L and top -H show: the tick process,
 REPLAY_THREAD = "tdslip-replay"  # and the node's thread that publishes what it steps
-OUTBOX_TICKS = 10
-"""Ticks gathered at most before they are written to the node (as the node batches them for recorders)."""
 CLOSE_TIMEOUT = 5.0  # s the process is given to end after "stop" before it is killed
 RESET_TIMEOUT = 5.0  # s a reset waits for the process to have restarted the run
 READY_TIMEOUT = 60.0  # s the process is given to start (a cold cache of compiled kernels: tens of seconds)
@@ -101,7 +99,7 @@ class PipeSink:
     """A :class:`PlantSink` that writes each call down a pipe, as (name, args, kwargs).
 
     The calls are gathered and written at the end of a firing of the tick when one of them must go out at
-    once (an event, or samples someone takes live: :attr:`live`), else every :data:`OUTBOX_TICKS` ticks:
+    once (an event, or samples someone takes live: :attr:`live`), else every :data:`SAMPLES_PER_BATCH` ticks:
     the node's process then wakes a tenth as often, and competes less with the tick for the CPU.
     """
 
@@ -130,7 +128,7 @@ class PipeSink:
     def flush(self, *, unless_routine: bool = False) -> None:
         """Write what was gathered (``unless_routine``: only if a call must go out now, or the ticks
         gathered are due)."""
-        if unless_routine and not (self._urgent or self.live or self._ticks_pending >= OUTBOX_TICKS):
+        if unless_routine and not (self._urgent or self.live or self._ticks_pending >= SAMPLES_PER_BATCH):
             return
         data = b"".join(self._pending)
         self._pending.clear()
@@ -293,15 +291,21 @@ class _TickServer:
     def __init__(self, run: PlantRun, sink: PipeSink) -> None:
         self._run = run
         self._sink = sink
-        self._deadline: int | None = None  # of the next firing (steady clock), while the run runs
-        self._ready_ns = 0  # since when the process has had nothing to do but wait for the deadline
+        self._busy_ns = 0  # the process's own work past the deadline of the coming firing
+
+    @property
+    def _deadline(self) -> int | None:
+        """The next firing (steady clock), while the run runs: the next tick's deadline, past already after a
+        late firing (the next then comes at once, and no deadline is skipped)."""
+        return self._run.next_deadline_ns if self._run.running else None
 
     def serve(self, inbox: int, frames: FrameReader) -> None:
         """Until "stop", or until the node's process is gone."""
         while True:
             deadline = self._deadline
-            self._ready_ns = time.monotonic_ns()  # idle from now on, unless a message comes first
-            timeout = None if deadline is None else max(0.0, (deadline - self._ready_ns) * 1e-9)
+            now = time.monotonic_ns()  # idle from now on, unless a message comes first
+            self._busy_ns = 0 if deadline is None else max(0, now - deadline)  # the firing before ended late
+            timeout = None if deadline is None else max(0.0, (deadline - now) * 1e-9)
             if select.select([inbox], [], [], timeout)[0]:
                 woke = time.monotonic_ns()
                 data = os.read(inbox, 1 << 16)
@@ -311,19 +315,19 @@ class _TickServer:
                     if message[0] == "stop":
                         return
                     self._handle(*message)
-                # Idle again: handling the messages was ours, a wake-up past the deadline the kernel's.
-                self._ready_ns = time.monotonic_ns() - (0 if deadline is None else max(0, woke - deadline))
-            if self._deadline is not None and time.monotonic_ns() >= self._deadline:
+                if (
+                    deadline is not None
+                ):  # handling them past the deadline was ours, waking past it the kernel's
+                    self._busy_ns += max(0, time.monotonic_ns() - max(woke, deadline))
+            deadline = self._deadline
+            if deadline is not None and time.monotonic_ns() >= deadline:
                 self._fire()
 
     def _fire(self) -> None:
         now = time.monotonic_ns()
         run = self._run
-        run.advance_to(now, self._deadline, self._ready_ns)
+        run.advance_to(now, self._busy_ns)
         self._sink.flush(unless_routine=True)
-        # The next firing is the next tick's deadline, at once if that has passed meanwhile: a late firing
-        # skips no deadline (its successor would step two ticks at the next one, a tick missed).
-        self._deadline = run.next_deadline_ns if run.running else None
 
     def _handle(self, kind: str, *args: Any) -> None:
         run = self._run
@@ -342,10 +346,6 @@ class _TickServer:
         else:
             raise ValueError(f"unknown message {kind!r}")
         self._sink.flush()
-        if not run.running:
-            self._deadline = None
-        elif kind in ("start", "reset"):
-            self._deadline = run.next_deadline_ns
 
 
 def main(argv: list[str]) -> int:

@@ -35,7 +35,7 @@ from tdslip_ros.nodes.command_admission import not_yet
 _CDR_LITTLE_ENDIAN = 1
 _UINT32_PAIR = struct.Struct("<II")
 _UINT64_FLOAT64 = struct.Struct("<Qd")
-_NS_PER_TICK = 1_000_000  # the plant's 1 ms tick
+TICK_NS = 1_000_000  # the plant's 1 ms tick, here for all of the nodes
 _NS_PER_S = 1_000_000_000
 
 
@@ -50,12 +50,12 @@ class TorqueFields(NamedTuple):
 
 def tick_of(sec: int, nanosec: int) -> int:
     """The plant tick of a state sample stamped (sec, nanosec): its stamp in milliseconds."""
-    return round((sec * _NS_PER_S + nanosec) / _NS_PER_TICK)
+    return round((sec * _NS_PER_S + nanosec) / TICK_NS)
 
 
 def tick_stamp(tick: int) -> tuple[int, int]:
     """The stamp (sec, nanosec) of plant ``tick``: the inverse of :func:`tick_of`."""
-    sec, nanosec = divmod(tick * _NS_PER_TICK, _NS_PER_S)
+    sec, nanosec = divmod(tick * TICK_NS, _NS_PER_S)
     return sec, nanosec
 
 
