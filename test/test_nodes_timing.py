@@ -69,17 +69,20 @@ def test_no_firings_no_statistics() -> None:
 
 
 class ScriptedClocks:
-    """CpuClocks that advance as the test says: (steal, wait) added at each reading."""
+    """CpuClocks that advance as the test says: (steal, wait) added at each firing's reading."""
 
     def __init__(self) -> None:
         self.increments: list[tuple[int, int]] = []
         self._steal = self._wait = 0
 
-    def __call__(self) -> tuple[int, int]:
+    def waited(self) -> int:
         steal, wait = self.increments.pop(0) if self.increments else (0, 0)
         self._steal += steal
         self._wait += wait
-        return self._steal, self._wait
+        return self._wait
+
+    def stolen(self) -> int:
+        return self._steal
 
 
 def test_missed_ticks_are_told_apart_by_what_the_machine_was_doing() -> None:
@@ -144,7 +147,7 @@ def test_a_ticker_that_says_when_it_was_idle_tells_its_own_lateness_from_a_late_
 
 def test_the_proc_clocks_see_this_thread_wait_for_a_cpu_that_others_take() -> None:
     clocks = ProcCpuClocks()
-    steal_before, wait_before = clocks()
+    steal_before, wait_before = clocks.stolen(), clocks.waited()
     # More busy processes than CPUs, while this thread wants a CPU too: it must queue for one.
     crowd = [
         subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range((os.cpu_count() or 1) * 2)
@@ -157,7 +160,7 @@ def test_the_proc_clocks_see_this_thread_wait_for_a_cpu_that_others_take() -> No
         for process in crowd:
             process.kill()
             process.wait()
-    steal_after, wait_after = clocks()
+    steal_after, wait_after = clocks.stolen(), clocks.waited()
     assert wait_after - wait_before > 20_000_000  # ns: at least 20 ms of the 0.5 s spent queueing
     assert steal_after >= steal_before >= 0
 
@@ -168,13 +171,18 @@ def test_the_proc_clocks_outlive_the_thread_they_time() -> None:
     clocks = ProcCpuClocks()
     first: list[tuple[int, int]] = []
     ids: list[int] = []
-    thread = threading.Thread(target=lambda: (ids.append(threading.get_native_id()), first.append(clocks())))
+    thread = threading.Thread(
+        target=lambda: (
+            ids.append(threading.get_native_id()),
+            first.append((clocks.stolen(), clocks.waited())),
+        )
+    )
     thread.start()
     thread.join()
     deadline = time.monotonic() + 5.0
     while Path(f"/proc/self/task/{ids[0]}").exists() and time.monotonic() < deadline:
         time.sleep(0.01)  # the system thread outlives join() by a moment
-    steal, wait = clocks()  # on this thread, the timed one gone
+    steal, wait = clocks.stolen(), clocks.waited()  # on this thread, the timed one gone
     assert wait == first[0][1]
     assert steal >= first[0][0]
-    assert clocks()[1] == wait
+    assert clocks.waited() == wait

@@ -13,44 +13,54 @@ import ctypes
 import math
 import os
 import struct
-from collections.abc import Callable
+from typing import Protocol
 
-CpuClocks = Callable[[], tuple[int, int]]
-"""(CPU time the hypervisor stole from this machine [ns], time the calling thread waited for a CPU
-of this machine while runnable [ns]), both cumulative."""
+
+class CpuClocks(Protocol):
+    """Two cumulative clocks [ns]: read at every firing, ``waited``; at the end of a window, ``stolen``."""
+
+    def waited(self) -> int:
+        """Time the timed thread waited for a CPU of this machine while runnable."""
+
+    def stolen(self) -> int:
+        """CPU time the hypervisor stole from this machine."""
 
 
 class ProcCpuClocks:
-    """:data:`CpuClocks` from Linux's /proc: the ``steal`` column of /proc/stat (all CPUs, in clock
-    ticks) and the run-queue wait of /proc/thread-self/schedstat. The files stay open and are re-read
-    with pread (a few microseconds); the thread's file is opened by the first call, on the thread
-    whose waits it then reports. Where /proc lacks them, both read 0 (no explanation is given). Once that
-    thread has ended (if a window is closed after it), its wait stays at the last value read: an ended
-    thread waits no more."""
+    """:data:`CpuClocks` from Linux's /proc: the run-queue wait of /proc/thread-self/schedstat (0.4 us a
+    read) and the ``steal`` column of /proc/stat (all CPUs, in clock ticks; 2.5 us on two CPUs, more with
+    more). The files stay open and are re-read with pread; the thread's file is opened by the first
+    :meth:`waited`, on the thread whose waits it then reports. Where /proc lacks them, both read 0 (no
+    explanation is given). Once that thread has ended (if a window is closed after it), its wait stays at
+    the last value read: an ended thread waits no more."""
 
     def __init__(self) -> None:
         self._tick_ns = 1_000_000_000 // os.sysconf("SC_CLK_TCK")
         self._stat: int | None = None
         self._schedstat: int | None = None
-        self._opened = False
+        self._stat_opened = self._schedstat_opened = False
         self._wait = 0
 
-    def __call__(self) -> tuple[int, int]:
-        if not self._opened:
-            self._opened = True
-            self._stat = self._open("/proc/stat")
+    def waited(self) -> int:
+        if not self._schedstat_opened:
+            self._schedstat_opened = True
             self._schedstat = self._open("/proc/thread-self/schedstat")
-        steal = 0
-        if self._stat is not None:
-            first_line = os.pread(self._stat, 256, 0).split(b"\n", 1)[0].split()
-            steal = int(first_line[8]) * self._tick_ns if len(first_line) > 8 else 0
         if self._schedstat is not None:
             try:
                 self._wait = int(os.pread(self._schedstat, 128, 0).split()[1])
             except ProcessLookupError:  # the thread has ended
                 os.close(self._schedstat)
                 self._schedstat = None
-        return steal, self._wait
+        return self._wait
+
+    def stolen(self) -> int:
+        if not self._stat_opened:
+            self._stat_opened = True
+            self._stat = self._open("/proc/stat")
+        if self._stat is None:
+            return 0
+        first_line = os.pread(self._stat, 256, 0).split(b"\n", 1)[0].split()
+        return int(first_line[8]) * self._tick_ns if len(first_line) > 8 else 0
 
     @staticmethod
     def _open(path: str) -> int | None:
@@ -69,7 +79,8 @@ class TickTiming:
     ticks more than half a period late as missed too, as this class did until December 2026 (the plant then
     stepped such a firing's next tick half a period early): the count to compare older measurements with.
 
-    A missed tick is explained by the CPU clocks (:data:`CpuClocks`), read at every firing, and, where the
+    A missed tick is explained by the CPU clocks (:class:`CpuClocks`: the wait at every firing, the steal per
+    window), and, where the
     ticker says how long its process was at its own work past the deadline (``busy_ns``), by that:
 
     - ``missed_stolen``: the hypervisor stole CPU time from the machine in the firing's window of
@@ -94,7 +105,7 @@ class TickTiming:
         self._histogram = [0] * (self.BINS + 1)
         self._last_ns: int | None = None
         self._cpu_clocks = ProcCpuClocks() if cpu_clocks is None else cpu_clocks
-        self._clocks: tuple[int, int] | None = None  # as read at the latest firing
+        self._waited: int | None = None  # the wait clock as read at the latest firing
         self._window_steal: int | None = None  # the steal clock at the start of the window
         self._window_firings = 0
         self._window_waiting = 0  # missed in the window, in time but for a wait for a CPU
@@ -121,7 +132,7 @@ class TickTiming:
     def resume(self) -> None:
         """A new run: the next firing has no previous one to be timed against."""
         self._last_ns = None
-        self._clocks = None
+        self._waited = None
         self._window_steal = None
 
     def record(
@@ -130,7 +141,7 @@ class TickTiming:
         """One firing at ``now_ns`` (steady clock) that computed ``ticks`` ticks (on the tick thread:
         the waits are that thread's); due at ``deadline_ns``, its process at its own work for ``busy_ns`` past
         that deadline before it fired (0: idle at the deadline), if the ticker knows."""
-        clocks = self._cpu_clocks()
+        waited_total = self._cpu_clocks.waited()
         late = (ticks - 1) * self._period_ns
         if self._last_ns is not None:
             error = abs(now_ns - self._last_ns - self._period_ns)
@@ -138,9 +149,9 @@ class TickTiming:
             late = now_ns - self._last_ns - self._period_ns
         if deadline_ns is not None:
             late = now_ns - deadline_ns
-        waited = clocks[1] - self._clocks[1] if self._clocks is not None else 0
+        waited = waited_total - self._waited if self._waited is not None else 0
         self._last_ns = now_ns
-        self._clocks = clocks
+        self._waited = waited_total
         self.firings += 1
         self.ticks += ticks
         half = self._period_ns // 2
@@ -157,13 +168,11 @@ class TickTiming:
                 self._window_ours += ticks - 1
         self._window_firings += 1
         if self._window_steal is None or self._window_firings >= self.WINDOW_FIRINGS:
-            self._close_window(clocks[0])
+            self.close_window()
 
     def close_window(self) -> None:
         """Explain the misses of the firings since the last window (also at the end of a run)."""
-        self._close_window(self._cpu_clocks()[0])
-
-    def _close_window(self, steal: int) -> None:
+        steal = self._cpu_clocks.stolen()
         if self._window_steal is not None and steal > self._window_steal:
             self.stolen_ns += steal - self._window_steal
             self.missed_stolen += self._window_waiting + self._window_woken_late + self._window_ours
