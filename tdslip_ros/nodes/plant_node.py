@@ -98,7 +98,7 @@ from tdslip_ros.model.params import StanceCommand as ModelCommand
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
-from tdslip_ros.nodes.plant_output import PlantOutput
+from tdslip_ros.nodes.plant_output import GRAPH_CHECK_TICKS, PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.plant_run import (
     TICK_PERIOD,
@@ -547,6 +547,8 @@ class _NodeSink:
             raise PublishFailed(str(error).split(",", 1)[0]) from error
 
     def tick(self, state: ModelState, t: float, tick: int) -> None:
+        if tick % GRAPH_CHECK_TICKS == 0:  # here, not in the run: who listens is the node's question
+            self._out.check_graph()
         self._publishing(self._out.sample, state, t)
         self._publishing(self._out.markers, state, t, tick)
         self._node._ticks = tick
@@ -564,9 +566,6 @@ class _NodeSink:
 
     def applied_torque(self, *args: Any) -> None:
         self._publishing(self._out.applied_torque, *args)
-
-    def check_graph(self) -> None:
-        self._out.check_graph()
 
     def awaiting(self) -> None:
         self._node._timeout_timer.reset()

@@ -43,6 +43,10 @@ from tdslip_ros.nodes.wire import (
     state_values,
 )
 
+GRAPH_CHECK_TICKS = 50
+"""Ticks between two looks at who subscribes to the live state and force, /clock and the markers (a graph
+query costs ~20 us); the plant also looks after every apex and touchdown it publishes."""
+
 APEX_FIELDS = (
     *STAMP_FIELDS,
     "epoch",

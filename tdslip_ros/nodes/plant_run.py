@@ -37,9 +37,6 @@ SAMPLES_PER_BATCH = 10
 realtime recording trails the plant by up to 10 ms. Larger batches cost the tick that sends them more (50: p99
 period error 0.35-0.38 ms in 30 s realtime runs, against 0.26-0.27 ms with 10) and gain little in lockstep
 (27.5-27.8x with 50, 28.0x with 10)."""
-GRAPH_CHECK_TICKS = 50
-"""Ticks between two looks at who subscribes to the live state and force, /clock and the markers (a graph
-query costs ~20 us); the plant also looks at every apex and touchdown."""
 
 
 @dataclass(frozen=True)
@@ -125,9 +122,6 @@ class PlantSink(Protocol):
     def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None: ...
 
     def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None: ...
-
-    def check_graph(self) -> None:
-        """Look who subscribes (every GRAPH_CHECK_TICKS ticks and at the start of a run)."""
 
     def awaiting(self) -> None:
         """Lockstep: stepping paused for a command or a torque (the driver times the wait)."""
@@ -225,7 +219,6 @@ class PlantRun:
         self.running = True
         self.start_wall_ns = start_wall_ns
         self._tick0 = self.ticks
-        self._sink.check_graph()
         self._publish_apex(0, self._stepper.apex_state)
         state = self._stepper.state
         self._sink.tick(state, self._offset + state.t, self.ticks)
@@ -357,8 +350,6 @@ class PlantRun:
             stepper.hold_torque(self.torques.held(stepper.stride, self.ticks))
         events = stepper.step()
         self.ticks += 1
-        if self.ticks % GRAPH_CHECK_TICKS == 0:
-            self._sink.check_graph()
         apex: Event | None = None
         for event in events:
             if event.kind is EventKind.APEX:

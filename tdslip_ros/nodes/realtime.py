@@ -80,8 +80,8 @@ class TickTiming:
     stepped such a firing's next tick half a period early): the count to compare older measurements with.
 
     A missed tick is explained by the CPU clocks (:class:`CpuClocks`: the wait at every firing, the steal per
-    window), and, where the
-    ticker says how long its process was at its own work past the deadline (``busy_ns``), by that:
+    window) and, where the ticker says how long its process was at its own work past the deadline
+    (``busy_ns``), by that:
 
     - ``missed_stolen``: the hypervisor stole CPU time from the machine in the firing's window of
       WINDOW_FIRINGS firings (steal is counted in clock ticks of 10 ms: finer windows would not see more);

@@ -41,7 +41,7 @@ PIPE_BYTES = 1 << 20
 """Each pipe's capacity asked for (Linux's default limit for a user): a tick's message is ~0.5 kB, so the
 node's process may fall ~2 s behind before the tick would wait for it."""
 SINK_CALLS = frozenset(name for name, value in vars(PlantSink).items() if callable(value) and name[0] != "_")
-_ROUTINE_CALLS = frozenset({"tick", "check_graph", "counted"})
+_ROUTINE_CALLS = frozenset({"tick", "counted"})
 """Sink calls that may wait for the next write (the rest are events, wanted at once)."""
 TICK_THREAD = "tdslip-tick"  # the names ps -L and top -H show: the tick process,
 REPLAY_THREAD = "tdslip-replay"  # and the node's thread that publishes what it steps
