@@ -167,7 +167,6 @@ class PlantRun:
         self.running = False
         self.epoch = 0
         self.ticks = 0  # since construction, over resets: simulated time = ticks * TICK_PERIOD
-        self._tick0 = 0  # the tick at start(), due at start_wall_ns of the steady clock
         self.start_wall_ns = 0
         self._firing = False  # realtime: advance_to is stepping
         self._restart(apex, time_offset_ticks=0)
@@ -201,8 +200,8 @@ class PlantRun:
             perturbations=settings.perturbations,
             trajectory=self.epoch,
         )
+        self._offset_ticks = time_offset_ticks  # the run's first tick, due at start_wall_ns once it starts
         self._offset = time_offset_ticks * TICK_PERIOD
-        self._offset_ticks = time_offset_ticks
         self._applied_published = 0  # samples of the current stance published on tdslip/applied_torque
         self.torques.restart()
         self._awaiting: int | None = None
@@ -218,7 +217,6 @@ class PlantRun:
             return
         self.running = True
         self.start_wall_ns = start_wall_ns
-        self._tick0 = self.ticks
         self._publish_apex(0, self._stepper.apex_state)
         state = self._stepper.state
         self._sink.tick(state, self._offset + state.t, self.ticks)
@@ -279,8 +277,8 @@ class PlantRun:
         outcome = RunOutcome(kind, reason, self._stepper.stride, t, wall_time)
         stride = self._stepper.stride
         if self.tick_timing is not None:
-            self.tick_timing.close_window()
-            self._sink.log("info", f"realtime: {self.tick_timing.summary()}")
+            if not self._firing:  # else the firing ends the timing once it is recorded
+                self._end_timing()
             if self.applied_torques:
                 self._sink.log(
                     "info",
@@ -300,8 +298,6 @@ class PlantRun:
         else:
             self._sink.log("error", f"run ended at stride {stride}, t = {t:.6f} s: {kind}: {reason}")
         self._sink.counted(self.counts())
-        if self.tick_timing is not None and not self._firing:  # else the firing sends it, recorded
-            self._sink.timed(self.tick_timing)
         self._sink.finished(outcome)
 
     # --- stepping -------------------------------------------------------------------------------
@@ -319,7 +315,7 @@ class PlantRun:
         none is stepped before its time, so simulated time never leads wall time), the caller at its own work
         for ``busy_ns`` past the deadline before (for :class:`TickTiming`)."""
         deadline_ns = self.next_deadline_ns
-        due = self._tick0 + (now_ns - self.start_wall_ns) // TICK_NS
+        due = self._offset_ticks + (now_ns - self.start_wall_ns) // TICK_NS
         first = self.ticks
         self._firing = True
         while self.ticks < due and self.running:
@@ -328,13 +324,19 @@ class PlantRun:
         assert self.tick_timing is not None
         self.tick_timing.record(now_ns, self.ticks - first, deadline_ns, busy_ns)
         if first < self.ticks and not self.running:  # it ended in this firing
-            self.tick_timing.close_window()
-            self._sink.timed(self.tick_timing)
+            self._end_timing()
+
+    def _end_timing(self) -> None:
+        """Realtime, the run over: the tick's timing, logged and told."""
+        assert self.tick_timing is not None
+        self.tick_timing.close_window()
+        self._sink.log("info", f"realtime: {self.tick_timing.summary()}")
+        self._sink.timed(self.tick_timing)
 
     @property
     def next_deadline_ns(self) -> int:
         """Realtime: when the next tick to step is due (steady clock); past already if the run is behind."""
-        return self.start_wall_ns + (self.ticks - self._tick0 + 1) * TICK_NS
+        return self.start_wall_ns + (self.ticks - self._offset_ticks + 1) * TICK_NS
 
     def _tick_or_fail(self) -> bool:
         """:meth:`_tick`; a publication that fails ends the run with ``publish_failed``."""
