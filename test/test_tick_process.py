@@ -91,6 +91,11 @@ def test_a_late_firing_catches_up_without_stepping_a_tick_before_its_time() -> N
     assert (run.tick_timing.missed, run.tick_timing.missed_by_half_period) == (3, 1 + 1 + 3)
 
 
+def calls(data: bytes) -> list[tuple[str, tuple[object, ...], dict[str, object]]]:
+    """The sink calls in what a PipeSink wrote, in order (it writes them in lists)."""
+    return [call for batch in FrameReader().feed(data) for call in batch]
+
+
 def test_messages_fed_in_pieces_come_out_whole_and_in_order() -> None:
     messages = [("tick", (state(0.001 * k), 0.001 * k, k), {}) for k in range(20)] + [("stop",)]
     data = b"".join(framed(message) for message in messages)
@@ -114,16 +119,16 @@ def test_the_pipe_sink_writes_events_at_once_and_routine_ticks_every_few() -> No
         assert written(read) == b""  # routine calls wait for the batch
         sink.tick(state(0.009), 0.009, SAMPLES_PER_BATCH - 1)
         sink.flush(unless_routine=True)
-        received = FrameReader().feed(written(read))
+        received = calls(written(read))
         assert [name for name, _, _ in received].count("tick") == SAMPLES_PER_BATCH
         sink.tick(state(0.010), 0.010, SAMPLES_PER_BATCH)
         sink.log("warning", "an event")
         sink.flush(unless_routine=True)
-        assert [name for name, _, _ in FrameReader().feed(written(read))] == ["tick", "log"]
+        assert [name for name, _, _ in calls(written(read))] == ["tick", "log"]
         sink.live = True  # someone takes the samples live: every tick goes out at once
         sink.tick(state(0.011), 0.011, SAMPLES_PER_BATCH + 1)
         sink.flush(unless_routine=True)
-        assert len(FrameReader().feed(written(read))) == 1
+        assert [name for name, _, _ in calls(written(read))] == ["tick"]
         with pytest.raises(AttributeError):
             sink.not_a_sink_call  # noqa: B018
     finally:

@@ -4,15 +4,16 @@ Why a process: in the node's process the 1 kHz tick shared the GIL with rclpy. A
 holds the GIL for milliseconds, and the executor's callbacks woke in the tick's way; about half of the ticks
 missed were these, the other half late wake-ups (docs/realtime.md). Here a process with no executor and no
 DDS participant steps the model (:class:`~tdslip_ros.nodes.plant_run.PlantRun`, its ``advance_to`` at each
-deadline of the steady clock, on the process's only thread) and writes every call of its sink down a pipe;
+deadline of the steady clock, on the process's only thread) and writes the calls of its sink down a pipe;
 the node's process replays them on its own sink, which publishes. What reaches the node (commands, hip
 torques, a reset, the end of a run) goes up another pipe, and the process takes it between two ticks.
 
-Measured on the 2-core development VM (``bench/bench_nodes.py realtime --duration 60``, docs/realtime.md): no
-tick missed by this process's own doing, where a third to a half of the misses were the node process's before;
-0.08 % missed at SCHED_FIFO 50 with the other core busy.
+Measured on the 2-core development VM (``bench/bench_nodes.py realtime --duration 60``; docs/realtime.md has
+the numbers and a scheduler trace of the misses): a third to a half of the misses were the node process's
+before; now nearly all are the machine's.
 
-Each message is a length-prefixed pickle: both ends are this module, in one Python installation.
+Each message is a length-prefixed pickle (from the process, a list of sink calls): both ends are this
+module, in one Python installation.
 """
 
 from __future__ import annotations
@@ -96,16 +97,17 @@ def _enlarge(fd: int) -> None:
 
 
 class PipeSink:
-    """A :class:`PlantSink` that writes each call down a pipe, as (name, args, kwargs).
+    """A :class:`PlantSink` that writes its calls down a pipe, as lists of (name, args, kwargs).
 
-    The calls are gathered and written at the end of a firing of the tick when one of them must go out at
-    once (an event, or samples someone takes live: :attr:`live`), else every :data:`SAMPLES_PER_BATCH` ticks:
-    the node's process then wakes a tenth as often, and competes less with the tick for the CPU.
+    A list is written at the end of a firing of the tick when one of its calls must go out at once (an event,
+    or samples someone takes live: :attr:`live`), else every :data:`SAMPLES_PER_BATCH` ticks: the node's
+    process then wakes a tenth as often, and competes less with the tick for the CPU. One pickle a list costs
+    less than one a call (the classes of a tick's state are named once).
     """
 
     def __init__(self, fd: int) -> None:
         self._fd = fd
-        self._pending: list[bytes] = []
+        self._pending: list[tuple[str, tuple[object, ...], dict[str, object]]] = []
         self._ticks_pending = 0
         self._urgent = False
         self.live = False
@@ -116,7 +118,7 @@ class PipeSink:
             raise AttributeError(name)
 
         def send(*args: object, **kwargs: object) -> None:
-            self._pending.append(framed((name, args, kwargs)))
+            self._pending.append((name, args, kwargs))
             if name == "tick":
                 self._ticks_pending += 1
             elif name not in _ROUTINE_CALLS:
@@ -128,10 +130,12 @@ class PipeSink:
     def flush(self, *, unless_routine: bool = False) -> None:
         """Write what was gathered (``unless_routine``: only if a call must go out now, or the ticks
         gathered are due)."""
-        if unless_routine and not (self._urgent or self.live or self._ticks_pending >= SAMPLES_PER_BATCH):
+        if not self._pending or (
+            unless_routine and not (self._urgent or self.live or self._ticks_pending >= SAMPLES_PER_BATCH)
+        ):
             return
-        data = b"".join(self._pending)
-        self._pending.clear()
+        data = framed(self._pending)
+        self._pending = []
         self._ticks_pending, self._urgent = 0, False
         try:
             _write(self._fd, data)
@@ -263,22 +267,23 @@ class TickProcess:
     def _replay_until_the_end(self, sink: PlantSink, lock: threading.Lock) -> None:
         live, epoch, failed = False, 0, False
         try:
-            for name, args, kwargs in self._received:
+            for calls in self._received:
                 with lock:
-                    try:
-                        getattr(sink, name)(*args, **kwargs)
-                    except PublishFailed as error:
-                        if not failed:  # the run ends once
-                            failed = True
-                            self._send("end", "publish_failed", str(error), epoch)
-                    now_live = sink.live  # the node looks at the graph itself at every apex and touchdown
+                    for name, args, kwargs in calls:
+                        try:
+                            getattr(sink, name)(*args, **kwargs)
+                        except PublishFailed as error:
+                            if not failed:  # the run ends once
+                                failed = True
+                                self._send("end", "publish_failed", str(error), epoch)
+                        if name == "restarted":
+                            epoch, failed = args[0], False
+                            self._reset_message = args[1]
+                            self._restarted.set()
+                    now_live = sink.live  # the node looks at the graph itself, e.g. after an apex
                 if now_live != live:
                     live = now_live
                     self._send("live", live)
-                if name == "restarted":
-                    epoch, failed = args[0], False
-                    self._reset_message = args[1]
-                    self._restarted.set()
         finally:
             os.close(self._outbox)
 
