@@ -128,7 +128,7 @@ ensure_kernels() {
     key="$(inputs_hash "${model_sources[@]}" -- "$(cat "$STAMPS/tdslip_ros")")"
     stamp_is_current kernels "$key" && return 0
     say "compiling the model's kernels (numba; about a minute the first time)"
-    logged "$VENV/bin/python" -c 'from tdslip_ros.model.controllers import warm_up; warm_up()'
+    logged "$VENV/bin/python" -c 'from tdslip_ros.model.policies.controllers import warm_up; warm_up()'
     write_stamp kernels "$key"
 }
 

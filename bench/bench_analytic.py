@@ -37,8 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tdslip_ros.model.analytic import SpeedSource, approximate_map
-from tdslip_ros.model.analytic_accuracy import (
+from tdslip_ros.model.analytic.apex_map import SpeedSource, approximate_map
+from tdslip_ros.model.analytic.map_kernels import STRIDE_ROWS, stride_lanes
+from tdslip_ros.model.arrays import CommandArrays, Lanes, ParamArrays
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.stability.analytic_accuracy import (
     BROAD_GRID,
     DOMAIN_GRID,
     ERROR_LEVELS,
@@ -56,11 +61,6 @@ from tdslip_ros.model.analytic_accuracy import (
     exact_strides,
     first_mismatches,
 )
-from tdslip_ros.model.arrays import CommandArrays, Lanes, ParamArrays
-from tdslip_ros.model.exact_map import apex_return_map
-from tdslip_ros.model.map_kernels import STRIDE_ROWS, stride_lanes
-from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import ApexState
 
 PARAMS = PAPER_PARAMS
 

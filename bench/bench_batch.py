@@ -23,10 +23,10 @@ import time
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.batch import simulate_strides
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.plant.batch import simulate_strides
+from tdslip_ros.model.plant.exact_map import apex_return_map
 
 PARAMS = PAPER_PARAMS
 BETA = math.radians(20.0)

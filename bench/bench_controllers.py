@@ -34,7 +34,7 @@ import numpy as np
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies.registry import PolicySpec
 
 PARAMS = PAPER_PARAMS
 TARGET_MS = 0.2

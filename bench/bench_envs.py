@@ -11,7 +11,8 @@ blocks with every lane on its own ground:
 1. ``ApexHopVectorEnv``: all lanes in one engine call per step;
 2. ``gymnasium.vector.SyncVectorEnv`` of ``ApexHopEnv``: one engine call per lane and step (``--sync-steps``
    steps, as it is slow);
-3. the batched engine called directly (:func:`~tdslip_ros.model.batch.simulate_strides` with the policy), no
+3. the batched engine called directly (:func:`~tdslip_ros.model.plant.batch.simulate_strides` with the
+policy), no
    environment around it.
 
 Rates are per second of the process's CPU time (one thread: what the core spent on it, whatever else shares
@@ -37,12 +38,12 @@ import numpy as np  # noqa: E402
 
 from tdslip_ros.envs import ApexHopEnv, ApexHopVectorEnv  # noqa: E402
 from tdslip_ros.envs.lanes import terrain_seed  # noqa: E402
-from tdslip_ros.model.basins import EXACT_TOLERANCE  # noqa: E402
-from tdslip_ros.model.batch import simulate_strides  # noqa: E402
 from tdslip_ros.model.paper import PAPER_PARAMS  # noqa: E402
-from tdslip_ros.model.perturbations import Perturbations  # noqa: E402
-from tdslip_ros.model.policies import PolicySpec  # noqa: E402
-from tdslip_ros.model.terrain import Blocks  # noqa: E402
+from tdslip_ros.model.plant.batch import simulate_strides  # noqa: E402
+from tdslip_ros.model.plant.perturbations import Perturbations  # noqa: E402
+from tdslip_ros.model.plant.terrain import Blocks  # noqa: E402
+from tdslip_ros.model.policies.registry import PolicySpec  # noqa: E402
+from tdslip_ros.model.stability.basins import EXACT_TOLERANCE  # noqa: E402
 
 POLICY = PolicySpec.default("energy")
 SEED = 0

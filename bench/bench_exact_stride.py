@@ -27,10 +27,10 @@ import numpy as np
 from bench_controllers import EXACT_TARGET_MS, measure
 
 from tdslip_ros.model import units
-from tdslip_ros.model.exact_kernels import apex_stride
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stride_kernels import apex_stride
 
 PARAMS = PAPER_PARAMS
 TOLERANCE = 1e-12

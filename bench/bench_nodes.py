@@ -56,7 +56,7 @@ from tdslip_msgs.msg import ApexEvent, StanceCommand
 from tdslip_ros.commands.run import counts_table
 from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
-from tdslip_ros.model.policies import LEARNED, POLICIES
+from tdslip_ros.model.policies.registry import LEARNED, POLICIES
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.command_admission import command_key
 from tdslip_ros.nodes.controller_node import ControllerNode

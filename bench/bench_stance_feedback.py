@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from tdslip_ros.model.batch import simulate_strides
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
-from tdslip_ros.model.stance_laws import StancePDSpeedEnergy
+from tdslip_ros.model.plant.batch import simulate_strides
+from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
 
 PARAMS = PAPER_PARAMS
 TARGET_ENERGY = ApexState(1.2, 4.0).energy(PARAMS)

@@ -21,7 +21,7 @@ import numpy as np
 from tdslip_ros.model.events import EventKind, Phase
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
-from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.plant.stepper import FixedStepStepper
 
 PARAMS = PAPER_PARAMS
 BETA = math.radians(20.0)

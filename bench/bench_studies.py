@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 from tdslip_ros.commands.sweep import grid_size
-from tdslip_ros.model import basins
+from tdslip_ros.model.stability import basins
 from tdslip_ros.studies import engine, sweep
 from tdslip_ros.studies.chunk import lane_policy
 from tdslip_ros.studies.design import CHOICE_SETTINGS, POLICY_PARAMETERS, Study

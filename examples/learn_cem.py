@@ -8,7 +8,8 @@ The setting is the robustness study's operating point (``tdslip robustness``: be
 regulation's flat-ground fixed point as the initial apex, ``studies/robustness.py``), on random blocks of
 standard deviation ``--sigma`` [m] (0.5 m long, from x = 1 m), the task ``energy`` (hold Ebar 3.5). The action
 is a residual on energy regulation's command: a = clip(W f + b, -1, 1), the features f the measured apex's
-deviation from the operating point (per 0.1 m, 0.5 m/s; :mod:`tdslip_ros.model.learned`, the evaluation the
+deviation from the operating point (per 0.1 m, 0.5 m/s; :mod:`tdslip_ros.model.policies.learned`, the
+evaluation the
 ``learned`` policy shares). No ground ahead: the controller node, which runs the saved policy, senses none.
 
 Each generation draws ``--population`` candidates (W, b) from a diagonal Gaussian, runs each on the same
@@ -29,11 +30,12 @@ from pathlib import Path
 import numpy as np
 
 from tdslip_ros.envs import ApexHopVectorEnv, Task
-from tdslip_ros.model import learned, units
+from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import PolicySpec, settings_of
-from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.terrain import Blocks
+from tdslip_ros.model.policies import learned
+from tdslip_ros.model.policies.registry import PolicySpec, settings_of
 from tdslip_ros.studies.robustness import operating_point
 
 BETA = math.radians(26.0)

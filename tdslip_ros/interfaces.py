@@ -15,8 +15,8 @@ import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.bag.schema import package_share_directory
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.terrain import parse_terrain
+from tdslip_ros.model.plant.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.plant.terrain import parse_terrain
 
 # Relative names: the nodes create their topics and service with these, so a node's namespace
 # (``--ros-args -r __ns:=/hopper1``) and remapping apply as in any ROS 2 package. /clock is global.

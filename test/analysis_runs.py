@@ -33,8 +33,8 @@ from tdslip_msgs.msg import StanceCommand
 from tdslip_ros.bag import RosbagMcapWriter
 from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import custom_data_key, resolve
-from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.terrain import Blocks, Step
+from tdslip_ros.model.plant.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.plant.terrain import Blocks, Step
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunOptions, RunReport, run
 

@@ -9,8 +9,8 @@ from typing import NamedTuple
 
 from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
-from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes
-from tdslip_ros.model.terrain import Step
+from tdslip_ros.model.plant.perturbations import Perturbations, PlacementNoise, Pushes
+from tdslip_ros.model.plant.terrain import Step
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 LOSSLESS = HopperParams.from_dimensionless(36.0, 0.0)

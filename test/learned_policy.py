@@ -11,8 +11,8 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.envs.config import DEFAULT_COMMAND_HIGH, DEFAULT_COMMAND_LOW, DEFAULT_RESIDUAL_HALF_WIDTH
-from tdslip_ros.model import learned
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
+from tdslip_ros.model.policies import learned
+from tdslip_ros.model.policies.registry import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
 
 WEIGHTS = np.array([[-0.3, 0.2, 0.1], [0.4, -0.2, 0.05], [0.0, 0.1, -0.2]])
 """W | b of a residual that moves every command field at and around the default apex."""

@@ -20,16 +20,24 @@ from tdslip_ros.analysis.compare import (
     recorded_fixed_point,
 )
 from tdslip_ros.analysis.reader import Run, read_run
-from tdslip_ros.model import controllers, stability, units
-from tdslip_ros.model.analytic import approximate_return_map
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import approximate_return_map
+from tdslip_ros.model.analytic.closed_loop import closed_loop_map, eigenvalues, map_jacobian
 from tdslip_ros.model.arrays import CommandArrays, ParamArrays
-from tdslip_ros.model.closed_loop import closed_loop_map, eigenvalues, map_jacobian
 from tdslip_ros.model.events import EventKind
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams
-from tdslip_ros.model.policies import LEARNED, STANCE_PD_SPEED_ENERGY, PolicyError, PolicySpec, settings_of
-from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import (
+    LEARNED,
+    STANCE_PD_SPEED_ENERGY,
+    PolicyError,
+    PolicySpec,
+    settings_of,
+)
+from tdslip_ros.model.stability import analytic_fixed_points
 from tdslip_ros.nodes.runner import RunReport
 
 
@@ -326,7 +334,9 @@ def test_energy_regulation_fixed_point_and_eigenvalues_match_the_models_jacobian
     assert abs(fixed.dominant) == pytest.approx(abs(reference[0]), abs=1e-6)
     assert abs(fixed.dominant) < 1.0
     # The model's bracketed search over the whole energy-regulated height map finds it too.
-    found = stability.regulated_fixed_points(PAPER_PARAMS, spec.touchdown_angle, [spec.target_energy])
+    found = analytic_fixed_points.regulated_fixed_points(
+        PAPER_PARAMS, spec.touchdown_angle, [spec.target_energy]
+    )
     nearest = int(np.nanargmin(np.abs(found.y[0] - fixed.y)))
     assert found.y[0, nearest] == pytest.approx(fixed.y, rel=1e-9)
     assert found.spectral_radius[0, nearest] == pytest.approx(abs(fixed.dominant), abs=1e-6)

@@ -14,10 +14,12 @@ from tdslip_ros.analysis import controller_comparison as cc
 from tdslip_ros.analysis.figures.tracking import BASELINE, baseline_law, baseline_touchdown_angles
 from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.commands import compare
-from tdslip_ros.model import basins, controllers, units
-from tdslip_ros.model.batch import simulate_strides
+from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
+from tdslip_ros.model.plant.batch import simulate_strides
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
+from tdslip_ros.model.stability import basins
 
 SPEEDS = (0.75, 1.5)  # in 8 strides the baseline converges towards 1.5 but not yet towards 0.75
 STRIDES = 8

@@ -19,7 +19,7 @@ from tdslip_ros.commands import terrain as terrain_command
 from tdslip_ros.commands.analyze import main as analyze
 from tdslip_ros.interfaces import PERTURBATION_PARAMETERS, perturbation_parameters, stored_parameters
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.perturbations import Perturbations
+from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.nodes import runner
 from tdslip_ros.nodes.parameters import PERTURBATIONS
 from tdslip_ros.nodes.runner import RunReport

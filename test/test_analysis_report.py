@@ -16,7 +16,7 @@ from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.commands import cli
 from tdslip_ros.commands.analyze import main
 from tdslip_ros.interfaces import config_file, resolve
-from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.analytic.apex_map import approximate_map
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
 

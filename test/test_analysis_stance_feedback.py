@@ -21,9 +21,9 @@ from tdslip_ros.analysis.reader import (
 )
 from tdslip_ros.analysis.report import analyze
 from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import STANCE_PD_SPEED_ENERGY
-from tdslip_ros.model.stance_laws import RecordedTorques
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.stance_laws import RecordedTorques
+from tdslip_ros.model.policies.registry import STANCE_PD_SPEED_ENERGY
 from tdslip_ros.nodes.runner import RunReport
 
 REPRODUCED = 1e-9

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import pytest
 
-from tdslip_ros.model.analytic_accuracy import OPERATING_GRID, ExactStrides, accuracy, exact_strides
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.stability.analytic_accuracy import OPERATING_GRID, ExactStrides, accuracy, exact_strides
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 

@@ -18,8 +18,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from tdslip_ros.model.analytic import SpeedSource, approximate_map
-from tdslip_ros.model.analytic_accuracy import (
+from tdslip_ros.model.analytic.apex_map import SpeedSource, approximate_map
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.stability.analytic_accuracy import (
     DOMAIN_GRID,
     ERROR_LEVELS,
     FINE_DOMAIN_GRID,
@@ -35,9 +38,6 @@ from tdslip_ros.model.analytic_accuracy import (
     exact_strides,
     first_mismatches,
 )
-from tdslip_ros.model.exact_map import apex_return_map
-from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import ApexState, StanceCommand
 
 PARAMS = PAPER_PARAMS
 PAPER_MD = Path(__file__).resolve().parents[1] / "docs" / "paper.md"

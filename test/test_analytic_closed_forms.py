@@ -13,7 +13,7 @@ import pytest
 from scipy.integrate import quad, solve_ivp
 from scipy.optimize import brentq
 
-from tdslip_ros.model.analytic import (
+from tdslip_ros.model.analytic.apex_map import (
     StanceApproximation,
     gravity_momentum_correction,
     torque_momentum_correction,

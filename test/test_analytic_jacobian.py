@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tdslip_ros.model.analytic import LiftoffMethod
-from tdslip_ros.model.closed_loop import (
+from tdslip_ros.model.analytic.apex_map import LiftoffMethod
+from tdslip_ros.model.analytic.closed_loop import (
     Coordinates,
     Policy,
     closed_loop_map,
@@ -14,8 +14,8 @@ from tdslip_ros.model.closed_loop import (
     fixed_command,
     map_jacobian,
 )
-from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.params import HopperParams, StanceCommand
+from tdslip_ros.model.policies.controllers import energy_regulation, fixed_power
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 Y = np.array([1.02, 1.1, 1.25])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tdslip_ros.model.analytic import (
+from tdslip_ros.model.analytic.apex_map import (
     approximate_map,
     approximate_map_energy,
     approximate_return_map,
@@ -14,11 +14,11 @@ from tdslip_ros.model.analytic import (
     stance_map,
     torque_momentum_correction,
 )
+from tdslip_ros.model.analytic.map_kernels import CORRECTION_TOLERANCE, NO_LIFTOFF
 from tdslip_ros.model.arrays import CommandArrays, ParamArrays
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
-from tdslip_ros.model.exact_map import apex_return_map
-from tdslip_ros.model.map_kernels import CORRECTION_TOLERANCE, NO_LIFTOFF
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 

@@ -9,14 +9,19 @@ import math
 import numpy as np
 import pytest
 
-from tdslip_ros.model.analytic import approximate_map, approximate_return_map, descent_map, stance_map
+from tdslip_ros.model.analytic.apex_map import (
+    approximate_map,
+    approximate_return_map,
+    descent_map,
+    stance_map,
+)
 from tdslip_ros.model.arrays import CommandArrays, ParamArrays
-from tdslip_ros.model.controllers import deadbeat, energy_regulation, fixed_power
 from tdslip_ros.model.events import FailureKind, failure_code
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, StanceCommand
-from tdslip_ros.model.stability import open_loop_fixed_points
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.policies.controllers import deadbeat, energy_regulation, fixed_power
+from tdslip_ros.model.stability.analytic_fixed_points import open_loop_fixed_points
 
 # Apexes (y [m], xdot [m/s]) and touchdown angles [deg] in the paper's running range.
 APEXES = [(1.0, 4.0), (1.05, 5.0), (1.1, 4.5), (1.2, 6.0)]

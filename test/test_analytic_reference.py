@@ -23,17 +23,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.analytic.apex_map import approximate_map
+from tdslip_ros.model.analytic.closed_loop import map_jacobian
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, ParamArrays, no_command_code
-from tdslip_ros.model.closed_loop import map_jacobian
-from tdslip_ros.model.controllers import (
+from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies.controllers import (
     apex_foot_placement,
     deadbeat,
     energy_regulation,
     fixed_power,
     ramp_to_liftoff,
 )
-from tdslip_ros.model.params import HopperParams
 
 RECORD = np.load(Path(__file__).parent / "data" / "analytic_reference.npz")
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)

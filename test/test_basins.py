@@ -12,14 +12,16 @@ import math
 import numpy as np
 import pytest
 
-from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model import units
 from tdslip_ros.model.arrays import CommandArrays
-from tdslip_ros.model.controllers import deadbeat, energy_regulation
 from tdslip_ros.model.events import FailureKind
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams
-from tdslip_ros.model.stance_laws import StanceFeedback, StancePDSpeedEnergy
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stance_laws import StanceFeedback
+from tdslip_ros.model.policies.controllers import deadbeat, energy_regulation
+from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
+from tdslip_ros.model.stability import analytic_fixed_points, basins
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 BETA = math.radians(26.0)
@@ -61,7 +63,7 @@ def test_the_exact_plant_reaches_fixed_points_of_itself_close_to_the_analytic_on
     regulated: basins.Basin,
 ) -> None:
     goals = regulated.energy0[:, 0]
-    analytic = stability.regulated_fixed_points(PARAMS, BETA, goals)
+    analytic = analytic_fixed_points.regulated_fixed_points(PARAMS, BETA, goals)
     for row, goal in enumerate(goals):
         reached = np.isfinite(regulated.y[row])
         assert reached.any()
@@ -106,10 +108,10 @@ def test_open_loop_exact_plant_settles_near_the_high_robust_fixed_point() -> Non
     """Paper, fig. 7: the high fixed points are robustly stable on the exact plant too, "despite the small
     discrepancy in the prediction of the actual fixed point location"."""
     alpha, y0 = 1.0, np.array([1.7, 2.0, 2.3]) * PARAMS.r0
-    energy0 = stability.energy_fixed_point(PARAMS, BETA, alpha, y0)
+    energy0 = analytic_fixed_points.energy_fixed_point(PARAMS, BETA, alpha, y0)
     basin = basins.open_loop_basin(PARAMS, BETA, alpha, y0, energy0, strides=40)
     assert np.all(basin.outcome == basins.CONVERGED)
-    analytic = stability.open_loop_fixed_points(PARAMS, BETA, [alpha])
+    analytic = analytic_fixed_points.open_loop_fixed_points(PARAMS, BETA, [alpha])
     np.testing.assert_allclose(basin.y, analytic.y[0, 0], rtol=0.05)
     np.testing.assert_allclose(basin.energy, analytic.energy[0, 0], rtol=0.05)
 

@@ -13,7 +13,7 @@ from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.stance_laws import StanceFeedback, TorqueStream
+from tdslip_ros.model.plant.stance_laws import StanceFeedback, TorqueStream
 from tdslip_ros.nodes.command_admission import (
     REJECTION_REPORT_PERIOD,
     REJECTION_REPORTS,

@@ -16,9 +16,13 @@ import pytest
 from learned_policy import learned_file
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import ANALYTIC_MAPS, approximate_map, speed_from_energy
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, approximate_map, speed_from_energy
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, NoCommandError, ParamArrays
-from tdslip_ros.model.controllers import (
+from tdslip_ros.model.events import EventKind
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.policies.controllers import (
     admissible_angles,
     apex_foot_placement,
     deadbeat,
@@ -28,11 +32,7 @@ from tdslip_ros.model.controllers import (
     neutral_angle,
     ramp_to_liftoff,
 )
-from tdslip_ros.model.events import EventKind
-from tdslip_ros.model.exact_map import apex_return_map
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.policies import POLICIES, PolicySpec
-from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.policies.registry import POLICIES, PolicySpec
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 Y, XDOT = np.meshgrid([1.0, 1.05, 1.15, 1.3], [2.5, 4.0, 5.5, 7.0], indexing="ij")

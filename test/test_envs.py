@@ -18,14 +18,14 @@ from learned_policy import learned_file, malformed_file
 
 from tdslip_ros.envs import ENV_ID, ApexHopEnv, ApexHopVectorEnv, Task
 from tdslip_ros.envs.lanes import terrain_seed
-from tdslip_ros.model import learned
-from tdslip_ros.model.controllers import ramp_to_liftoff
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError, StanceCommand
-from tdslip_ros.model.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import LEARNED, PolicyError, PolicySpec, check_policy_file
-from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.plant.terrain import Blocks
+from tdslip_ros.model.policies import learned
+from tdslip_ros.model.policies.controllers import ramp_to_liftoff
+from tdslip_ros.model.policies.registry import LEARNED, PolicyError, PolicySpec, check_policy_file
 
 PERTURBED = Perturbations(
     terrain=Blocks(sigma=0.04, length=0.5, start=1.0),

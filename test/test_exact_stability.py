@@ -13,11 +13,12 @@ import math
 import numpy as np
 import pytest
 
-from tdslip_ros.model import basins, stability, units
 from tdslip_ros.model import exact_stability as xs
-from tdslip_ros.model.controllers import exact_energy_regulation
-from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model import units
 from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.policies.controllers import exact_energy_regulation
+from tdslip_ros.model.stability import analytic_fixed_points, basins
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 BETA = math.radians(26.0)
@@ -95,7 +96,7 @@ def test_beta_32_analytic_fixed_points_are_classified_on_the_exact_plant() -> No
     exact plant (open loop, the paper's t_f) has one, near 1.05 r0, stable: the two upper ones are the
     approximation's artifact."""
     beta = math.radians(32.0)
-    analytic = stability.open_loop_fixed_points(PARAMS, beta, [2.47])
+    analytic = analytic_fixed_points.open_loop_fixed_points(PARAMS, beta, [2.47])
     exact = xs.fixed_points(xs.ExactLoop.of(PARAMS, beta, "open_loop", [2.47]))
     assert analytic.count[0] == 3 and exact.count[0] == 1
     assert units.height_to_bar(PARAMS, float(exact.y[0, 0])) == pytest.approx(1.05, abs=0.02)

@@ -20,9 +20,9 @@ from tdslip_ros.analysis.figures import ground_reaction
 from tdslip_ros.analysis.figures.catalogue import FIGURES
 from tdslip_ros.analysis.figures.common import DEFAULT, Reporter
 from tdslip_ros.commands import cli
-from tdslip_ros.model.controllers import EXACT_STANCE_TOLERANCE, energy_regulation
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import StanceCommand
+from tdslip_ros.model.policies.controllers import EXACT_STANCE_TOLERANCE, energy_regulation
 from tdslip_ros.studies import engine
 
 ROUNDING = 1e-12

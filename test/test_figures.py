@@ -15,8 +15,9 @@ from tdslip_ros.analysis.figures.common import Reporter, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.commands import cli
 from tdslip_ros.commands import figures as figures_command
-from tdslip_ros.model import basins, exact_stability, stability, units
+from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.stability import analytic_fixed_points, basins, exact_fixed_points
 from tdslip_ros.studies import engine
 
 TINY = Resolution(
@@ -89,7 +90,7 @@ def test_figures_with_the_paper_s_map_draw_that_map(tmp_path: Path, monkeypatch:
     assert found.sum() >= 5
     alpha = np.broadcast_to(np.array(traced["parameter"])[:, None], y.shape)[found]
     for speed, maps_to_itself in (("liftoff", True), ("energy", False)):
-        y_next, energy_next = stability.open_loop_energy_map(
+        y_next, energy_next = analytic_fixed_points.open_loop_energy_map(
             PARAMS, beta, alpha, y[found], energy[found], speed=speed
         )
         closes = np.isclose(y_next, y[found], rtol=1e-7) & np.isclose(energy_next, energy[found], rtol=1e-7)
@@ -107,7 +108,7 @@ def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
         y = units.height_from_bar(PARAMS, np.array(points["ybar"], dtype=float)[:, 0])
         found = np.isfinite(y)
         assert found.sum() >= 6
-        mapped = stability.regulated_height_map(PARAMS, beta, energies[found], y[found])
+        mapped = analytic_fixed_points.regulated_height_map(PARAMS, beta, energies[found], y[found])
         np.testing.assert_allclose(mapped, y[found], rtol=1e-9)
         radius = np.array(points["spectral_radius"], dtype=float)[found, 0]
         assert list(np.array(points["stable"])[found, 0]) == list(radius < 1.0)
@@ -136,7 +137,7 @@ def test_fig04_traces_the_open_loop_fixed_points_and_their_saddle_nodes() -> Non
     beta = math.radians(data["beta_deg"])
     energies = units.energy_from_bar(PARAMS, np.array(section["Ebar_fixed"]))
     heights = units.height_from_bar(PARAMS, np.array(section["ybar"]))
-    _, mapped = stability.open_loop_energy_map(PARAMS, beta, section["alpha"], heights, energies)
+    _, mapped = analytic_fixed_points.open_loop_energy_map(PARAMS, beta, section["alpha"], heights, energies)
     np.testing.assert_allclose(mapped, energies, rtol=1e-10)
 
 
@@ -170,8 +171,8 @@ def test_the_sweeps_run_as_tasks_on_the_engine_and_the_figures_draw_from_their_r
 
     for module, name in (
         (basins, "basin"),
-        (exact_stability, "fixed_points"),
-        (stability, "energy_fixed_point"),
+        (exact_fixed_points, "fixed_points"),
+        (analytic_fixed_points, "energy_fixed_point"),
     ):
         monkeypatch.setattr(module, name, computed_here)
     _, fig10 = exact_basins.fig10(TINY, quiet(), "energy")

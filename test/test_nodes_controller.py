@@ -15,9 +15,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from ros_harness import RosGraph
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
-from tdslip_ros.model import controllers, units
+from tdslip_ros.model import units
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import PolicySpec
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS

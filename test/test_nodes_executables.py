@@ -17,7 +17,7 @@ from mcap_ros2.decoder import DecoderFactory
 from ros_harness import RosGraph, stop_process
 
 from tdslip_ros.interfaces import resolve
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
+from tdslip_ros.model.policies.registry import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.plant_node import TICK_PERIOD
 

@@ -33,9 +33,9 @@ from test_nodes_lockstep import energy_policy, model_loop
 from tdslip_ros.analysis.compare import dimensionless
 from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.interfaces import resolve
-from tdslip_ros.model.analytic import approximate_return_map
-from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model.analytic.apex_map import approximate_return_map
 from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode

@@ -18,18 +18,20 @@ from scipy.optimize import root
 from tdslip_msgs.msg import ApexEvent, ContactEvent, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
-from tdslip_ros.model import arrays, closed_loop, controllers
+from tdslip_ros.model import arrays
+from tdslip_ros.model.analytic import closed_loop
 from tdslip_ros.model.events import EventKind
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.policies import (
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
     DEFAULT_TARGET_ENERGY,
     DEFAULT_TOUCHDOWN_ANGLE,
 )
-from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS

@@ -15,13 +15,13 @@ from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, St
 
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.params import ApexState
-from tdslip_ros.model.policies import (
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
     STANCE_PD_SPEED_ENERGY,
     PolicySpec,
 )
-from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode

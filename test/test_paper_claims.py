@@ -19,13 +19,15 @@ import test_figures
 
 from tdslip_ros.analysis import figure_parameters, paper_comparison
 from tdslip_ros.analysis.figures import exact_basins, open_loop, regulated, tracking
-from tdslip_ros.model import analytic_accuracy, basins, stability, units
-from tdslip_ros.model.analytic import approximate_map
-from tdslip_ros.model.controllers import ramp_to_liftoff
-from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import approximate_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
-from tdslip_ros.model.stance_laws import StanceFeedback, StancePDSpeedEnergy
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stance_laws import StanceFeedback
+from tdslip_ros.model.policies.controllers import ramp_to_liftoff
+from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
+from tdslip_ros.model.stability import analytic_accuracy, analytic_fixed_points, basins
 from tdslip_ros.reporting.output import to_json
 
 PARAMS = PAPER_PARAMS
@@ -112,16 +114,19 @@ def test_eq_27_has_one_solution_and_none_where_the_map_fails_first() -> None:
     """III.A: at 26 deg exactly one sign change of E' - E along E, the root energy_fixed_point finds; at
     20 deg none at some (alpha, y), where the map has no stride before E' falls to E."""
     beta = math.radians(26.0)
-    alphas, heights = np.array([0.5, 1.5, 2.5])[:, None], stability.height_grid(PARAMS, beta, points=6)
-    count, last = stability.energy_fixed_point_count(PARAMS, beta, alphas, heights)
+    alphas, heights = (
+        np.array([0.5, 1.5, 2.5])[:, None],
+        analytic_fixed_points.height_grid(PARAMS, beta, points=6),
+    )
+    count, last = analytic_fixed_points.energy_fixed_point_count(PARAMS, beta, alphas, heights)
     assert np.all(count == 1) and np.all(last < 0)
-    root = stability.energy_fixed_point(PARAMS, beta, alphas, heights)
+    root = analytic_fixed_points.energy_fixed_point(PARAMS, beta, alphas, heights)
     assert np.all(np.isfinite(root))
-    count, last = stability.energy_fixed_point_count(
+    count, last = analytic_fixed_points.energy_fixed_point_count(
         PARAMS,
         math.radians(20.0),
         np.array([0.5, 1.5, 2.5])[:, None],
-        stability.height_grid(PARAMS, math.radians(20.0), points=20),
+        analytic_fixed_points.height_grid(PARAMS, math.radians(20.0), points=20),
     )
     assert set(count.ravel().tolist()) == {0, 1} and np.all(last[count == 0] > 0)
     analytic, _ = paper_comparison._eq27_solutions(PARAMS)
@@ -222,7 +227,9 @@ def test_fig10_cavities_are_leg_placement_failures_and_the_basin_s_other_edges()
     data = documents("fig10")["fig10"]
     outcome = np.array(data["outcome"])
     failed_from = np.array(data["failed_from_ybar"], dtype=float)
-    lowest = units.height_to_bar(PARAMS, stability.lowest_height(PARAMS, math.radians(data["beta_deg"])))
+    lowest = units.height_to_bar(
+        PARAMS, analytic_fixed_points.lowest_height(PARAMS, math.radians(data["beta_deg"]))
+    )
     cavity = outcome == "toe_stubbing"
     assert cavity.any() and np.all(failed_from[cavity] < lowest)
     assert np.all(np.isnan(failed_from[np.isin(outcome, ["converged", "sustained"])]))

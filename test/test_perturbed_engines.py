@@ -16,20 +16,21 @@ from tdslip_ros.interfaces import (
     perturbation_parameters,
     perturbations_from_parameters,
 )
-from tdslip_ros.model import controllers, units
-from tdslip_ros.model.batch import BatchRun, Policy, batch_apex_return_map, simulate_strides
+from tdslip_ros.model import units
 from tdslip_ros.model.events import EventKind, FailureKind, failure_code, failure_from_code
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.perturbations import (
+from tdslip_ros.model.plant.batch import BatchRun, Policy, batch_apex_return_map, simulate_strides
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.perturbations import (
     Mismatch,
     Perturbations,
     PlacementNoise,
     Pushes,
     SensingNoise,
 )
-from tdslip_ros.model.stepper import FixedStepStepper
-from tdslip_ros.model.terrain import FLAT, Blocks, Step
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.plant.terrain import FLAT, Blocks, Step
+from tdslip_ros.model.policies import controllers
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 BETA = math.radians(20.0)

@@ -11,9 +11,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from tdslip_ros.model.events import FailureKind
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.terrain import (
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.terrain import (
     FLAT,
     Blocks,
     Profile,

@@ -11,8 +11,8 @@ from scipy.optimize import brentq
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, Phase
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 LOSSLESS = HopperParams.from_dimensionless(36.0, 0.0)

@@ -12,13 +12,13 @@ import pytest
 
 from tdslip_ros.model import units
 from tdslip_ros.model.arrays import HAS_COMMAND, NoCommand
-from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.controllers import exact_energy_regulation
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
-from tdslip_ros.model.exact_kernels import apex_stride, compiled_apex_return_map
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.stance_kernel import LaneTorque, kink
+from tdslip_ros.model.plant.batch import batch_apex_return_map
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stance_kernel import LaneTorque, kink
+from tdslip_ros.model.plant.stride_kernels import apex_stride, compiled_apex_return_map
+from tdslip_ros.model.policies.controllers import exact_energy_regulation
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 ENERGY_SCALE = units.energy_scale(PARAMS)

@@ -14,18 +14,19 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tdslip_ros.model import dynamics, exact_map, units
-from tdslip_ros.model.analytic import approximate_return_map
-from tdslip_ros.model.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides
-from tdslip_ros.model.batch_stance import feedback_stance
-from tdslip_ros.model.controllers import deadbeat
+from tdslip_ros.model import dynamics, units
+from tdslip_ros.model.analytic.apex_map import approximate_return_map
 from tdslip_ros.model.events import EventKind, FailureKind, HopperState, failure_from_code
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.stance_kernel import STANCE_LIFTOFF, STANCE_STEP_COLLAPSE
-from tdslip_ros.model.stance_laws import StanceSample
-from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.plant import exact_map
+from tdslip_ros.model.plant.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides
+from tdslip_ros.model.plant.batch_stance import feedback_stance
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stance_kernel import STANCE_LIFTOFF, STANCE_STEP_COLLAPSE
+from tdslip_ros.model.plant.stance_laws import StanceSample
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.policies.controllers import deadbeat
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 LIMITS = PlausibilityLimits.for_hopper(PARAMS)

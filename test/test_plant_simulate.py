@@ -8,8 +8,8 @@ import pytest
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
 from tdslip_ros.commands.cli import main as tdslip
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
 
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
 

@@ -1,4 +1,5 @@
-"""The policies' settings are declared once (tdslip_ros.model.policies.POLICY_SETTINGS): the policies use
+"""The policies' settings are declared once (tdslip_ros.model.policies.registry.POLICY_SETTINGS): the
+policies use
 what it says they use, and the controller node's parameters, config/controller.yaml, the study design's
 policy columns and the analysis report's account of a policy agree with it, each checked on the structure
 it really uses."""
@@ -19,10 +20,12 @@ from learned_policy import WEIGHTS, learned_file
 from rclpy.parameter import Parameter
 
 from tdslip_ros.analysis.report import policy_settings_text
-from tdslip_ros.model import controllers, units
-from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import approximate_map
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.policies import (
+from tdslip_ros.model.plant.stance_laws import StanceFeedback
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import (
     ANALYTIC_MAP_POLICIES,
     DEFAULT_POLICY,
     LEARNED,
@@ -34,7 +37,7 @@ from tdslip_ros.model.policies import (
     PolicySpec,
     settings_of,
 )
-from tdslip_ros.model.stance_laws import StanceFeedback, StancePDSpeedEnergy
+from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
 from tdslip_ros.nodes import controller_node, parameters, stance_controller_node
 from tdslip_ros.studies import design, table
 

@@ -17,10 +17,11 @@ import pytest
 
 from tdslip_ros.commands import cli
 from tdslip_ros.commands.robustness import DEFAULT_ENERGY_BAR
-from tdslip_ros.model import controllers, units
-from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model import units
 from tdslip_ros.model.params import ApexState, HopperParams
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import PolicySpec
 from tdslip_ros.studies import robustness
 from tdslip_ros.studies.design import DEFAULTS
 

@@ -1,4 +1,4 @@
-"""Stance feedback (model/stance_laws.py) in the three engines: the exact map, the 1 kHz stepper and the
+"""Stance feedback (model/plant/stance_laws.py) in the three engines: the exact map, the 1 kHz stepper and the
 batched engine agree on strides under a sampled law; the energy balance closes; a stepper stride's
 recorded torques replayed on the exact map give its apex; the torque limits clip; a torque stream fed
 one torque per tick is the law; and a hand-written RK4 of the sampled law, without scipy, agrees.
@@ -15,21 +15,16 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import units
-from tdslip_ros.model.batch import batch_feedback_return_map, simulate_strides
 from tdslip_ros.model.events import EventKind, Phase
-from tdslip_ros.model.exact_map import StrideResult, apex_return_map
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS as PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.stance_laws import (
-    RecordedTorques,
-    StanceFeedback,
-    StancePDSpeedEnergy,
-    StanceSample,
-    TorqueStream,
-)
-from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.plant.batch import batch_feedback_return_map, simulate_strides
+from tdslip_ros.model.plant.exact_map import StrideResult, apex_return_map
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.stance_laws import RecordedTorques, StanceFeedback, StanceSample, TorqueStream
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
 
 BETA = math.radians(22.0)
 LAW = StancePDSpeedEnergy(PARAMS, target_y=1.2, target_xdot=4.0)

@@ -1,6 +1,7 @@
 """Study designs and chunks, in one process: what each trajectory runs, and its row.
 
-Truth used: the closed-loop runs of :mod:`tdslip_ros.model.basins` (the goal regulator of fig. 10, the
+Truth used: the closed-loop runs of :mod:`tdslip_ros.model.stability.basins` (the goal regulator of fig. 10,
+the
 open-loop basin of fig. 7), fig. 13's deadbeat runs (analysis.figures.tracking.deadbeat_runs) and apex foot
 placement's on basins.basin, called directly on the same lanes; numpy's SeedSequence for the draws.
 """
@@ -14,12 +15,14 @@ import numpy as np
 import pytest
 
 from tdslip_ros.analysis.figures import tracking
-from tdslip_ros.model import basins, controllers, stability, units
+from tdslip_ros.model import units
 from tdslip_ros.model.arrays import CommandArrays
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import PolicySpec
+from tdslip_ros.model.stability import analytic_fixed_points, basins
 from tdslip_ros.studies import chunk, perturbed, table
 from tdslip_ros.studies.design import DESIGN_STREAM, Study, StudyError, Uniform
 
@@ -178,7 +181,7 @@ def test_a_chunk_of_the_open_loop_starts_on_the_energy_fixed_point_as_fig7_does(
     )
     rows = chunk.run_chunk(study, 0)
     alpha_grid, height_grid = (a.ravel() for a in np.meshgrid(alphas, heights, indexing="ij"))
-    energy = stability.energy_fixed_point(PARAMS, BETA, alpha_grid, height_grid)
+    energy = analytic_fixed_points.energy_fixed_point(PARAMS, BETA, alpha_grid, height_grid)
     np.testing.assert_allclose(_column(rows, "energy0"), energy, rtol=1e-12)
     expected = basins.open_loop_basin(PARAMS, BETA, alpha_grid, height_grid, energy, strides=20)
     np.testing.assert_array_equal(_column(rows, "outcome"), np.asarray(basins.OUTCOMES)[expected.outcome])
@@ -194,7 +197,8 @@ def test_the_open_loop_starts_on_the_energy_fixed_point_of_its_own_analytic_map(
     )
     lanes = study.lanes(0, study.size)
     paper, ours = (
-        stability.energy_fixed_point(PARAMS, BETA, alpha, heights, speed=s) for s in ("liftoff", "energy")
+        analytic_fixed_points.energy_fixed_point(PARAMS, BETA, alpha, heights, speed=s)
+        for s in ("liftoff", "energy")
     )
     np.testing.assert_allclose(lanes["energy0"], np.concatenate([paper, ours]), rtol=1e-12)
     assert np.all(np.abs(paper - ours) > 1.0)  # J: the maps' fixed points differ

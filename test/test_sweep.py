@@ -15,8 +15,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from tdslip_ros.commands import cli
-from tdslip_ros.model import basins, stability, units
+from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.stability import analytic_fixed_points, basins
 from tdslip_ros.reporting.paper_grids import FIG11_STUDIES
 from tdslip_ros.studies import engine, sweep, table
 
@@ -34,7 +35,7 @@ def test_the_sweeps_are_the_figures_grids_at_any_resolution() -> None:
     assert list(lanes["policy"]) == ["open_loop"] * 6
     alpha = units.power_to_alpha(PARAMS, lanes["touchdown_power"])
     np.testing.assert_allclose(alpha, [0.5, 0.5, 1.5, 1.5, 2.5, 2.5])
-    energy = stability.energy_fixed_point(PARAMS, math.radians(26.0), alpha, lanes["y0"])
+    energy = analytic_fixed_points.energy_fixed_point(PARAMS, math.radians(26.0), alpha, lanes["y0"])
     np.testing.assert_array_equal(lanes["energy0"], energy)
     fig11 = sweep.fig11_studies((4, 2), 50, None)
     assert sorted(fig11) == ["beta_deg", "kbar", "zeta0"]
@@ -86,7 +87,7 @@ def test_map_paper_starts_fig07_on_the_paper_s_energy_fixed_point_and_hops_the_e
     alpha = units.power_to_alpha(PARAMS, rows["touchdown_power"].to_numpy())
     heights = rows["y0"].to_numpy()
     paper, ours = (
-        stability.energy_fixed_point(PARAMS, math.radians(26.0), alpha, heights, speed=speed)
+        analytic_fixed_points.energy_fixed_point(PARAMS, math.radians(26.0), alpha, heights, speed=speed)
         for speed in ("liftoff", "energy")
     )
     energy0 = rows["energy0"].to_numpy()

@@ -15,7 +15,7 @@ from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.perturbations import Perturbations
+from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode

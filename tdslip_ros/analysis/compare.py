@@ -1,9 +1,10 @@
 """A recorded run against the paper's analytic apex return map.
 
 * **Per-stride prediction.** From each recorded apex and the command the plant actually applied,
-  the analytic map (:func:`tdslip_ros.model.analytic.approximate_map`, 0 and 1 correction
+  the analytic map (:func:`tdslip_ros.model.analytic.apex_map.approximate_map`, 0 and 1 correction
   iterations; ours or the paper's, ``Comparison.analytic_map``) predicts the next apex; the exact map
-  (batched DOP853, :func:`tdslip_ros.model.batch.batch_apex_return_map`) predicts it too, which separates
+  (batched DOP853, :func:`tdslip_ros.model.plant.batch.batch_apex_return_map`) predicts it too, which
+  separates
   the analytic map's approximation error from the 1 kHz plant's own integration error. On a perturbed run both
   predict what the plant did: the exact map with the run's terrain, torque limit, push and placement
   error (reproduced from the stored seeds), so its error stays at the flat-ground level; the analytic
@@ -63,13 +64,18 @@ from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_su
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource, approximate_map
+from tdslip_ros.model.analytic.apex_map import (
+    ANALYTIC_MAPS,
+    DEFAULT_ANALYTIC_MAP,
+    SpeedSource,
+    approximate_map,
+)
+from tdslip_ros.model.analytic.closed_loop import eigenvalues
 from tdslip_ros.model.arrays import CommandArrays
-from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.closed_loop import eigenvalues
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.policies import (
+from tdslip_ros.model.plant.batch import batch_apex_return_map
+from tdslip_ros.model.policies.registry import (
     FIXED_ANGLE_POLICIES,
     POLICIES,
     POLICY_SETTINGS,

@@ -22,12 +22,13 @@ from typing import Any
 
 import numpy as np
 
-from tdslip_ros.model import analytic_accuracy, stability, units
-from tdslip_ros.model.analytic import SpeedSource
-from tdslip_ros.model.analytic_accuracy import Quantity
-from tdslip_ros.model.controllers import fixed_power
-from tdslip_ros.model.exact_map import apex_return_map
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.policies.controllers import fixed_power
+from tdslip_ros.model.stability import analytic_accuracy, analytic_fixed_points
+from tdslip_ros.model.stability.analytic_accuracy import Quantity
 
 Documents = dict[str, dict[str, Any]]
 
@@ -273,18 +274,18 @@ EQ27_BETAS_DEG = (20.0, 22.0, 24.0, 26.0, 28.0, 30.0, 32.0)
 EQ27_ALPHAS = tuple(float(alpha) for alpha in np.linspace(0.5, 2.5, 11))
 EQ27_HEIGHTS = 20
 """The grid on which the solutions of eq. 27 are counted: fig. 5's angles and powers, EQ27_HEIGHTS apex
-heights per angle (stability.height_grid), energies stability.EQ27_SCAN."""
+heights per angle (analytic_fixed_points.height_grid), energies analytic_fixed_points.EQ27_SCAN."""
 
 
 def _eq27_solutions(params: HopperParams) -> tuple[str, str]:
     counts, falls, betas = [], 0, []
     for beta_deg in EQ27_BETAS_DEG:
         beta = math.radians(beta_deg)
-        count, last = stability.energy_fixed_point_count(
+        count, last = analytic_fixed_points.energy_fixed_point_count(
             params,
             beta,
             np.array(EQ27_ALPHAS)[:, None],
-            stability.height_grid(params, beta, points=EQ27_HEIGHTS)[None, :],
+            analytic_fixed_points.height_grid(params, beta, points=EQ27_HEIGHTS)[None, :],
         )
         counts.append(count.ravel())
         falls += int(np.sum((count == 0) & (last > 0)))
@@ -514,7 +515,9 @@ def _fig10_cavities(documents: Documents, params: HopperParams) -> tuple[str, st
     beta = math.radians(data["beta_deg"])
     energy = units.energy_from_bar(params, np.array(data["Ebar0"]))[:, None]
     y0 = units.height_from_bar(params, np.array(data["ybar0"]))[None, :]
-    below = stability.regulated_height_map(params, beta, energy, y0) < stability.lowest_height(params, beta)
+    below = analytic_fixed_points.regulated_height_map(
+        params, beta, energy, y0
+    ) < analytic_fixed_points.lowest_height(params, beta)
     outcome = np.array(data["outcome"])
     cavity = outcome == "toe_stubbing"
     energies = np.array(data["Ebar0"])
@@ -525,7 +528,7 @@ def _fig10_cavities(documents: Documents, params: HopperParams) -> tuple[str, st
 
     failed_from = np.array(data["failed_from_ybar"], dtype=float)[cavity]
     strides = np.array(data["failure_stride"])[cavity] + 1
-    lowest = float(units.height_to_bar(params, stability.lowest_height(params, beta)))
+    lowest = float(units.height_to_bar(params, analytic_fixed_points.lowest_height(params, beta)))
     return (
         f"1st stride below r0 cos(beta) from {below.sum()} starts ({where(below)}), "
         f"{np.sum(below & cavity)} of them exact cavities",

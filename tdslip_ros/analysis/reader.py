@@ -13,9 +13,9 @@ arrays. Heights are in the world frame, as recorded; each record carries its gro
 A stride under stance feedback (a command with ``stance`` STANCE_FEEDBACK) has no ramp: its record holds
 the stance feedback as applied instead (:attr:`StrideRecord.stance_feedback`), the touchdown angle and the
 torques the plant held, from ``tdslip/applied_torque``, replayable by the model's engines
-(:class:`~tdslip_ros.model.stance_laws.RecordedTorques`).
+(:class:`~tdslip_ros.model.plant.stance_laws.RecordedTorques`).
 
-The perturbations of the run (:class:`~tdslip_ros.model.perturbations.Perturbations`: terrain, sensing
+The perturbations of the run (:class:`~tdslip_ros.model.plant.perturbations.Perturbations`: terrain, sensing
 noise, placement error, torque limit, pushes) come from the plant parameters ``tdslip run`` stores in
 custom_data, and the model the controller planned with from its stored hopper parameters (the plant's
 when none are stored: no mismatch). The per-stride draws (placement error, push) are reproduced from the
@@ -70,8 +70,8 @@ from tdslip_ros.interfaces import (
 )
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.perturbations import Perturbations, placed_angle
-from tdslip_ros.model.stance_laws import DEFAULT_SAMPLE_PERIOD, RecordedTorques, StanceFeedback
+from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.plant.stance_laws import DEFAULT_SAMPLE_PERIOD, RecordedTorques, StanceFeedback
 
 FloatArray = npt.NDArray[np.float64]
 

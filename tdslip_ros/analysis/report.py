@@ -44,10 +44,10 @@ from tdslip_ros.interfaces import (
     perturbation_parameters,
 )
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.perturbations import MISMATCH_FIELDS, Mismatch
-from tdslip_ros.model.policies import POLICIES, PolicySpec, settings_of
+from tdslip_ros.model.plant.perturbations import MISMATCH_FIELDS, Mismatch
+from tdslip_ros.model.policies.registry import POLICIES, PolicySpec, settings_of
 from tdslip_ros.reporting.output import DIMENSIONLESS_SUFFIXES, UNIT_SUFFIXES, to_json, unit_key
 
 FIGURES = {

@@ -1,6 +1,6 @@
 """Energy regulation against open loop over the same rough ground (``tdslip terrain``, the README figure):
-closed-loop hops of the 1 kHz plant (:class:`~tdslip_ros.model.stepper.FixedStepStepper`, the plant node's
-physics) over random blocks, each apex answered as the controller node answers it, from energy
+closed-loop hops of the 1 kHz plant (:class:`~tdslip_ros.model.plant.stepper.FixedStepStepper`, the plant
+node's physics) over random blocks, each apex answered as the controller node answers it, from energy
 regulation's fixed point on flat ground where both policies would hop identically forever; and the figure
 of their centre-of-mass paths and apex energies above the ground.
 """
@@ -22,10 +22,10 @@ from tdslip_ros.interfaces import installed_parameters
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import EventKind, FailureKind
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import POLICY_SETTINGS, PolicySpec
-from tdslip_ros.model.stepper import FixedStepStepper
-from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.stepper import FixedStepStepper
+from tdslip_ros.model.plant.terrain import Blocks
+from tdslip_ros.model.policies.registry import POLICY_SETTINGS, PolicySpec
 from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
 
 LABELS = {"energy": "energy regulation", "open_loop": "open loop (fixed hip power)"}

@@ -10,8 +10,8 @@ import math
 from scipy.optimize import brentq
 
 from tdslip_ros.model import units
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
 
 _CALIBRATION_ROUNDS = 4
 _MAX_THRUST = 3.0  # most forward torque tried by the calibration, in units of m g r0

@@ -23,7 +23,7 @@ from tdslip_ros.commands.options import (
     deprecated,
     policy_file,
 )
-from tdslip_ros.model.policies import POLICIES, PolicyError
+from tdslip_ros.model.policies.registry import POLICIES, PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
 DESCRIPTION = """\

@@ -9,7 +9,8 @@ r0 = 1 m (figs 8-11, 13 and the paper's section V); the open-loop figures 4-7 us
 the paper's m = 65.4 kg (its JSON's params say so), and its JSON is in SI units, which its keys name.
 
 Every analytic fixed point drawn (figs 4-6, 8, 9) is checked on the exact plant
-(:mod:`tdslip_ros.model.exact_stability`, the open-loop rule with the paper's t_f, or the ideal regulator
+(:mod:`tdslip_ros.model.stability.exact_fixed_points`, the open-loop rule with the paper's t_f, or the ideal
+regulator
 energy_exact for the energy-regulated map): red markers are the exact plant's fixed points (filled where
 stable, by their eigenvalues), a red cross marks an analytic fixed point the exact plant does not have.
 At the end the command prints the paper's claims beside ours (:mod:`.paper_comparison`) and writes them to
@@ -72,7 +73,7 @@ from tdslip_ros.analysis.figures.common import DEFAULT, FINE, PARAMS, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.commands.options import add_analytic_map, analytic_map_speed, command_parser
 from tdslip_ros.commands.study_command import add_engine_arguments, where_of
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
 from tdslip_ros.studies import engine
 

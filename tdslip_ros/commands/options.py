@@ -15,9 +15,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.params import ParameterError
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
+from tdslip_ros.model.policies.registry import (
+    DEFAULT_APEX_HEIGHT,
+    DEFAULT_APEX_SPEED,
+    DEFAULT_TOUCHDOWN_ANGLE,
+)
 
 TOUCHDOWN_ANGLE_DEG = round(math.degrees(DEFAULT_TOUCHDOWN_ANGLE), 9)
 """The model's touchdown angle [deg] (20): the default of ``--touchdown-angle-deg`` everywhere."""

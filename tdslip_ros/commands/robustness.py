@@ -50,7 +50,13 @@ from tdslip_ros.commands.options import (
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.policies import DEFAULT_TARGET_ENERGY, LEARNED, POLICIES, PolicyError, check_policy_file
+from tdslip_ros.model.policies.registry import (
+    DEFAULT_TARGET_ENERGY,
+    LEARNED,
+    POLICIES,
+    PolicyError,
+    check_policy_file,
+)
 from tdslip_ros.studies.design import StudyError
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
 from tdslip_ros.studies.robustness import KINDS, write_robustness

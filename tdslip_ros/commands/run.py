@@ -27,9 +27,9 @@ from tdslip_ros.commands.options import (
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import POLICIES, STANCE_FEEDBACK_POLICIES
-from tdslip_ros.model.terrain import TERRAIN_FORMS, parse_terrain
+from tdslip_ros.model.plant.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.plant.terrain import TERRAIN_FORMS, parse_terrain
+from tdslip_ros.model.policies.registry import POLICIES, STANCE_FEEDBACK_POLICIES
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import stop_on_signals
 from tdslip_ros.nodes.plant_parameters import CLOCK_MODES

@@ -26,7 +26,7 @@ from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.plant.stepper import FixedStepStepper
 
 
 def _row(

@@ -1,8 +1,8 @@
 """``tdslip terrain``: energy regulation against open loop over the same rough ground (the README figure).
 
-Both policies hop the 1 kHz plant (:class:`~tdslip_ros.model.stepper.FixedStepStepper`, the plant node's
-physics) over the same random blocks (:class:`~tdslip_ros.model.terrain.Blocks`), each apex answered as the
-controller node answers it: the policy planned on the measured apex above the ground of the last stance.
+Both policies hop the 1 kHz plant (:class:`~tdslip_ros.model.plant.stepper.FixedStepStepper`, the plant node's
+physics) over the same random blocks (:class:`~tdslip_ros.model.plant.terrain.Blocks`), each apex answered as
+the controller node answers it: the policy planned on the measured apex above the ground of the last stance.
 Energy regulation (section IV.A) holds the apex energy above the ground at that of ``--height`` and
 ``--speed``; both start at its fixed point on flat ground, and open loop (section III) applies the fixed
 hip power C at touchdown that energy regulation applies there. On flat ground the two would therefore hop
@@ -33,8 +33,8 @@ from tdslip_ros.commands.options import (
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.terrain import Blocks
 from tdslip_ros.reporting.output import OutputError, output_directory, write_failed
 
 DESCRIPTION = """\

@@ -1,5 +1,5 @@
 """``tdslip_ros/ApexHop-v0``: the TD-SLIP hopper as a Gymnasium environment, one step one stride of the
-exact plant (the batched engine, :mod:`tdslip_ros.model.batch`, with one lane).
+exact plant (the batched engine, :mod:`tdslip_ros.model.plant.batch`, with one lane).
 
 The settings are the fields of :class:`~tdslip_ros.envs.config.HopConfig` as keyword arguments (``task`` may
 be a task's name); observation, action, rewards and seeding are documented in :mod:`.config`,

@@ -7,14 +7,15 @@ clipped to [command_low, command_high]
 (touchdown angle [rad], tau0 [N m], t_f [s]; the ramp of eq. 18, tau(s) = tau0 (1 - s / t_f)).
 
 * direct (``policy`` None): centre and half-width are those of [command_low, command_high];
-* residual (``policy`` a :class:`~tdslip_ros.model.policies.PolicySpec`): the centre is the policy's command
+* residual (``policy`` a :class:`~tdslip_ros.model.policies.registry.PolicySpec`): the centre is the policy's
+command
   at the measured apex (planned with the controller's model, the mismatch of the perturbations), the
   half-width ``residual_half_width``. Where the policy has no command, its last one is kept (at the first
   stride: the middle of the command range).
 * ``ramp_duration``: None, t_f is acted on; a number [s], t_f held at it; ``"liftoff"``, the paper's rule: t_f
   the liftoff time the analytic map predicts for the command's angle and tau0 at the measured apex
-  (:func:`~tdslip_ros.model.controllers.ramp_to_liftoff`, the controller's model), the middle of the t_f range
-  where it predicts none. Either way clipped to the t_f range, and the action has no t_f component.
+  (:func:`~tdslip_ros.model.policies.controllers.ramp_to_liftoff`, the controller's model), the middle of the
+  t_f range where it predicts none. Either way clipped to the t_f range, and the action has no t_f component.
 
 The action is normalised (a linear rescaling of SI bounds, not the paper's nondimensionalisation); the
 observation stays SI.
@@ -35,12 +36,12 @@ import numpy as np
 from gymnasium import spaces
 
 from tdslip_ros.envs.tasks import Task
-from tdslip_ros.model.basins import EXACT_TOLERANCE
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, POLICIES, PolicySpec
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.policies.registry import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, POLICIES, PolicySpec
+from tdslip_ros.model.stability.basins import EXACT_TOLERANCE
 
 COMMAND_FIELDS = ("touchdown_angle", "tau0", "t_f")
 LIFTOFF_RULE = "liftoff"

@@ -6,7 +6,8 @@ code, so a lane of the vector environment hops exactly as a single environment w
 **Seeding.** A lane's episodes are numbered from its last seeded reset: ``reset(seed=s)`` starts episode 0
 of stream seed s, each reset without a seed the next episode (a lane never seeded draws its stream seed from
 its generator at its first reset). Episode e of stream seed s takes the model's random streams
-(:mod:`tdslip_ros.model.perturbations`) of seed s, trajectory e, stride k for sensing, placement and pushes,
+(:mod:`tdslip_ros.model.plant.perturbations`) of seed s, trajectory e, stride k for sensing, placement and
+pushes,
 and random blocks of seed :func:`terrain_seed` (s, e); the initial apex is drawn from the lane's generator
 (Gymnasium's ``np_random``). An episode is therefore a function of (seed, episode, actions) only.
 """
@@ -21,14 +22,14 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.envs.config import COMMAND_FIELDS, LIFTOFF_RULE, HopConfig
-from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
-from tdslip_ros.model.learned import residual_command
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.perturbations import DRAW_BLOCK, Perturbations
-from tdslip_ros.model.terrain import Blocks, IntArray, Terrain
+from tdslip_ros.model.plant.batch import batch_apex_return_map
+from tdslip_ros.model.plant.perturbations import DRAW_BLOCK, Perturbations
+from tdslip_ros.model.plant.terrain import Blocks, IntArray, Terrain
+from tdslip_ros.model.policies.controllers import ramp_to_liftoff
+from tdslip_ros.model.policies.learned import residual_command
 
 SEED_BOUND = 2**31
 """Stream seeds drawn for unseeded lanes, and terrain seeds, lie below this (the model's terrain seeds do)."""

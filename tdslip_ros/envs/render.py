@@ -1,6 +1,6 @@
 """The picture of a stride (``render_mode="rgb_array"``): body path, leg at touchdown and liftoff, ground.
 
-The stride is run again on the exact map (:func:`tdslip_ros.model.exact_map.apex_return_map`) from the
+The stride is run again on the exact map (:func:`tdslip_ros.model.plant.exact_map.apex_return_map`) from the
 inputs the batched engine was given, for its events. Flight is drawn exactly (a parabola); the stance as the
 chord through touchdown, bottom and liftoff (the map locates these events, not the path between them).
 Matplotlib's Agg canvas, no pyplot state.
@@ -16,9 +16,9 @@ from matplotlib.figure import Figure
 
 from tdslip_ros.envs.config import HopConfig
 from tdslip_ros.model.events import HopperState
-from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.params import ApexState, StanceCommand
-from tdslip_ros.model.terrain import Terrain
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.terrain import Terrain
 
 FRAME_INCHES, FRAME_DPI = (6.0, 3.0), 80
 """A frame of 480 x 240 pixels."""

@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TARGET_ENERGY
+from tdslip_ros.model.policies.registry import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TARGET_ENERGY
 
 TASKS = ("speed", "height", "energy", "survive")
 UNITS = {"speed": "m/s", "height": "m", "energy": "J", "survive": ""}

@@ -165,7 +165,7 @@ class CommandArrays:
     """The fields of :class:`StanceCommand` as broadcastable arrays (rad, N m, s).
 
     Iterates (and unpacks) as (touchdown_angle, tau0, t_f). ``no_command`` is set by the policies
-    (:mod:`tdslip_ros.model.controllers`): per lane HAS_COMMAND, or the code of the reason
+    (:mod:`tdslip_ros.model.policies.controllers`): per lane HAS_COMMAND, or the code of the reason
     (:class:`NoCommand`) why the policy has none there, where the fields are NaN.
     """
 

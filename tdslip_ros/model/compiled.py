@@ -1,8 +1,9 @@
 """Compilation of the model's scalar kernels (numba), where the compiled code is cached, and the few
 primitives a kernel needs to run both in real and in complex-step arithmetic.
 
-The analytic map (:mod:`tdslip_ros.model.map_kernels`) and the policies' solvers
-(:mod:`tdslip_ros.model.controller_kernels`, :mod:`tdslip_ros.model.deadbeat_kernels`) are written once,
+The analytic map (:mod:`tdslip_ros.model.analytic.map_kernels`) and the policies' solvers
+(:mod:`tdslip_ros.model.policies.controller_kernels`, :mod:`tdslip_ros.model.policies.deadbeat_kernels`) are
+written once,
 as scalar functions of one lane, and compiled with :func:`kernel`. The controller calls them for one apex;
 the vectorised API loops over the lanes of a batch in compiled code; the complex step
 (``closed_loop.map_jacobian``) runs the very same source in complex128 (numba compiles one specialisation
@@ -11,7 +12,8 @@ compiled with :func:`inlined_kernel`, which copies them into their callers.
 
 Cache. Compiling every kernel takes about a minute (once for float64 and once for complex128 arguments),
 so the machine code is kept on disk and a new process only loads it (about 0.4 s). It goes to a folder
-``model-<hash>``, the hash of every source file of ``tdslip_ros.model`` (kernels call kernels and use
+``model-<hash>``, the hash of every source file of ``tdslip_ros.model`` and its sub-packages (kernels call
+kernels and use
 constants of other modules, so any change to the model recompiles; numba alone would only watch each
 kernel's own file), in the first of these that is writable:
 
@@ -46,14 +48,22 @@ F = TypeVar("F", bound=Callable[..., Any])
 MODEL_DIR = Path(__file__).resolve().parent
 
 
-@cache
-def model_source_stamp() -> str:
-    """sha256 over the names and contents of the model package's source files."""
+def source_stamp(package_dir: Path) -> str:
+    """sha256 over the paths (relative to ``package_dir``) and contents of every Python source file in it and
+    its sub-packages: a file of the same name in two sub-packages, or a file moved between them, changes
+    it."""
     digest = hashlib.sha256()
-    for path in sorted(MODEL_DIR.glob("*.py")):
-        digest.update(path.name.encode())
+    for path in sorted(package_dir.rglob("*.py")):
+        digest.update(path.relative_to(package_dir).as_posix().encode())
+        digest.update(b"\0")
         digest.update(path.read_bytes())
     return digest.hexdigest()
+
+
+@cache
+def model_source_stamp() -> str:
+    """:func:`source_stamp` of the model package, the key of the kernels' cache folder."""
+    return source_stamp(MODEL_DIR)
 
 
 def _cache_bases() -> list[str]:

@@ -19,7 +19,7 @@ from tdslip_msgs.msg import StanceCommand
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.stance_laws import StanceFeedback, TorqueStream
+from tdslip_ros.model.plant.stance_laws import StanceFeedback, TorqueStream
 
 REJECTION_REPORTS = 10
 REJECTION_REPORT_PERIOD = 1.0
@@ -68,7 +68,8 @@ def admit(
     limits: PlausibilityLimits,
 ) -> ModelCommand | StanceFeedback:
     """The model's command of ``msg`` for the apex of ``epoch`` and ``stride``: a ramp, or stance feedback
-    on a :class:`~tdslip_ros.model.stance_laws.TorqueStream`. ParameterError with the reason to reject it if
+    on a :class:`~tdslip_ros.model.plant.stance_laws.TorqueStream`. ParameterError with the reason to reject
+    it if
     it answers another apex, repeats an answered stride in lockstep (``awaiting``: the stride waiting for
     its command), comes after the touchdown (``past_touchdown``: LateCommand) or holds values the model or
     ``limits`` refuse (stance feedback with a ramp's tau0 or t_f: which one was meant?)."""

@@ -1,6 +1,6 @@
 """The apex controller node: answers every apex event with a stance command from a model policy.
 
-The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.model.controllers`):
+The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.model.policies.controllers`):
 
 * ``open_loop``: fixed touchdown angle and fixed hip power at touchdown (section III, eq. 26),
   ``touchdown_angle`` [rad] and ``touchdown_power`` [W] (the paper's alpha = C / (m g sqrt(g r0)));
@@ -15,8 +15,8 @@ The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.m
 All but ``energy_exact`` plan on the analytic map ``analytic_map``: ``ours`` (the default) or ``paper``
 (the next apex speed of eq. 7 as printed).
 
-Each setting of the policies (:data:`tdslip_ros.model.policies.POLICY_SETTINGS`) is the parameter of the
-same name, with its default, range (or choices) and description. Policy, targets and gains are read at
+Each setting of the policies (:data:`tdslip_ros.model.policies.registry.POLICY_SETTINGS`) is the parameter of
+the same name, with its default, range (or choices) and description. Policy, targets and gains are read at
 every apex, so ``ros2 param set`` changes them at runtime (values are checked against their ranges and
 choices first; a value outside them is refused, at start-up too).
 The controller plans with its own SI hopper parameters (``mass``, ``stiffness``, ``rest_length``,
@@ -37,11 +37,11 @@ from rclpy.node import Node
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.interfaces import hopper_from_parameters
-from tdslip_ros.model import controllers
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.policies import (
+from tdslip_ros.model.policies import controllers
+from tdslip_ros.model.policies.registry import (
     DEFAULT_POLICY,
     LEARNED,
     POLICIES,

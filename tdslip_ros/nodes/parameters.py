@@ -23,7 +23,7 @@ from rclpy.parameter import Parameter
 
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
-from tdslip_ros.model.terrain import TERRAIN_FORMS
+from tdslip_ros.model.plant.terrain import TERRAIN_FORMS
 
 ParameterValue = bool | int | float | str
 

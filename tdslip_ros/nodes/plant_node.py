@@ -8,7 +8,7 @@ contact (``tdslip/contact``) and failure (``tdslip/status``) events; ``tdslip/ma
 hopper for Foxglove and RViz at ``marker_rate`` Hz of simulated time, and /clock carries the
 simulated time while someone subscribes to it (``publish_clock``). Every stamp is simulated time,
 in both clock modes; nodes that should follow it run with ``use_sim_time``. All physics is the
-model's (:class:`~tdslip_ros.model.stepper.FixedStepStepper`), and the run's rules (admission, torques,
+model's (:class:`~tdslip_ros.model.plant.stepper.FixedStepStepper`), and the run's rules (admission, torques,
 when it ends) are :class:`~tdslip_ros.nodes.plant_run.PlantRun`'s; this node only schedules and converts
 what the run emits to messages. Names are relative, so ``__ns`` puts a hopper in a
 namespace of its own; QoS is :mod:`tdslip_ros.nodes.topics`'s contract.
@@ -26,7 +26,7 @@ Clock modes (parameter ``clock_mode``):
   so runs with equal parameters give bit-identical results. No valid command within
   ``command_timeout`` seconds of wall time ends the run (Status ``command_timeout``).
 
-Perturbations (:mod:`tdslip_ros.model.perturbations`; parameters ``terrain``, ``apex_height_noise``,
+Perturbations (:mod:`tdslip_ros.model.plant.perturbations`; parameters ``terrain``, ``apex_height_noise``,
 ``apex_speed_noise``, ``apex_noise_seed``, ``angle_noise``, ``angle_noise_seed``, ``tau_max``, ``pushes``:
 :data:`tdslip_ros.interfaces.PERTURBATION_PARAMETERS`)
 are the stepper's: the hopper hops over the terrain (``terrain``: ``flat``, ``step:height=H,x=X``,
@@ -36,8 +36,8 @@ state samples carry the ground height under the body, each contact event the gro
 stance, each apex event the ground of the stance before it (the initial one: under the body; the initial
 apex ``initial_height`` and a reset's height are above that ground) and, beside the true apex, the
 measured one the controller's sensor reports (the true one without sensing noise). The random draws of
-a run are those of trajectory ``epoch`` (:meth:`~tdslip_ros.model.perturbations.Perturbations.draws`), so a
-run is reproduced by its parameters. A command is judged admissible on the apex the controller was given
+a run are those of trajectory ``epoch`` (:meth:`~tdslip_ros.model.plant.perturbations.Perturbations.draws`),
+so a run is reproduced by its parameters. A command is judged admissible on the apex the controller was given
 (measured, above the ground of the last stance); a toe placed below the ground is toe stubbing, a failure.
 
 A command answers one apex: it carries the apex's ``epoch`` (0 for the first run, one more at

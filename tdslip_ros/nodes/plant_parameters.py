@@ -8,7 +8,11 @@ the two alike). The hopper's (:data:`~tdslip_ros.nodes.parameters.HOPPER`) and t
 
 from __future__ import annotations
 
-from tdslip_ros.model.policies import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED, DEFAULT_TOUCHDOWN_ANGLE
+from tdslip_ros.model.policies.registry import (
+    DEFAULT_APEX_HEIGHT,
+    DEFAULT_APEX_SPEED,
+    DEFAULT_TOUCHDOWN_ANGLE,
+)
 from tdslip_ros.nodes import parameters
 from tdslip_ros.nodes.parameters import ParameterSpec
 

@@ -24,9 +24,9 @@ from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.stance_laws import StanceFeedback
-from tdslip_ros.model.stepper import FixedStepStepper
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.stance_laws import StanceFeedback
+from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
 from tdslip_ros.nodes.realtime import TickTiming
 from tdslip_ros.nodes.torque_stream import TICK_NS, LateTorque, TorqueInput, torque_fields

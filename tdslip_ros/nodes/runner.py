@@ -11,8 +11,8 @@ and a Fast DDS profile with prompt acknowledgements):
   hold the GIL against the plant's publishing (in one process with the tick: thousands of missed ticks
   in 15 s and a slower answer, measured); apart, an answer costs a DDS round trip (~1-2 ms on the
   development VM) on top of the planning; a stance-feedback policy
-  (:data:`~tdslip_ros.model.policies.STANCE_FEEDBACK_POLICIES`) runs in ``stance_controller_node`` instead,
-  which answers the apexes and streams a hip torque per stance tick;
+  (:data:`~tdslip_ros.model.policies.registry.STANCE_FEEDBACK_POLICIES`) runs in ``stance_controller_node``
+  instead, which answers the apexes and streams a hip torque per stance tick;
 * ``recorder_node`` in a child process: a Python callback per message would otherwise share one
   interpreter with the plant; on two cores the plant and the recorder each get one.
 
@@ -64,11 +64,11 @@ from tdslip_ros.interfaces import (
     resolve,
 )
 from tdslip_ros.model import dynamics
-from tdslip_ros.model.analytic import ANALYTIC_MAPS
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.perturbations import Perturbations
-from tdslip_ros.model.policies import (
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
     DEFAULT_STANCE_TOUCHDOWN_ANGLE,

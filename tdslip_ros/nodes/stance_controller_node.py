@@ -1,7 +1,9 @@
 """The stance controller node: a stance-feedback policy at 1 kHz on the plant's torque interface.
 
-Its policy is :data:`~tdslip_ros.model.policies.STANCE_PD_SPEED_ENERGY`, the baseline of the paper's ref. 36
-(:class:`~tdslip_ros.model.stance_laws.StancePDSpeedEnergy`: an energy term toward the target apex, PD on
+Its policy is :data:`~tdslip_ros.model.policies.registry.STANCE_PD_SPEED_ENERGY`, the baseline of the paper's
+ref. 36
+(:class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy`: an energy term toward the target apex, PD
+on
 forward speed). It answers every apex with stance feedback (StanceCommand ``stance`` STANCE_FEEDBACK) at the
 policy's fixed touchdown angle ``stance_touchdown_angle``, and every state sample in stance
 (``tdslip/state``, phase STANCE) with the law's torque for that sample's tick on ``tdslip/hip_torque``
@@ -14,8 +16,8 @@ does not read). The torque is clipped at this hopper's plausible torque, as the 
 output (the plant refuses a torque beyond it).
 
 Parameters: the hopper the law computes with (``mass``, ...: the plant's, or others for model mismatch) and
-the policy's settings (:data:`~tdslip_ros.model.policies.POLICY_SETTINGS`, those of the policy), read at
-every apex, so ``ros2 param set`` changes them at runtime. Defaults: config/controller.yaml.
+the policy's settings (:data:`~tdslip_ros.model.policies.registry.POLICY_SETTINGS`, those of the policy),
+read at every apex, so ``ros2 param set`` changes them at runtime. Defaults: config/controller.yaml.
 """
 
 from __future__ import annotations
@@ -28,8 +30,13 @@ from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, Sta
 
 from tdslip_ros.interfaces import STAMP_FIELDS, hopper_from_parameters
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
-from tdslip_ros.model.policies import SETTING_DEFAULTS, STANCE_PD_SPEED_ENERGY, PolicySpec, settings_of
-from tdslip_ros.model.stance_laws import StanceFeedback, StanceSample, clip_torque
+from tdslip_ros.model.plant.stance_laws import StanceFeedback, StanceSample, clip_torque
+from tdslip_ros.model.policies.registry import (
+    SETTING_DEFAULTS,
+    STANCE_PD_SPEED_ENERGY,
+    PolicySpec,
+    settings_of,
+)
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
 from tdslip_ros.nodes.entry import run_node, wait_to_answer

@@ -6,8 +6,8 @@ plant ``tick`` of the state sample it answers (the sample's stamp in millisecond
 count on over resets, like simulated time, so nothing of an earlier epoch can pass for the current one.
 :func:`torque_fields` reads all four from the bytes, without deserialising.
 
-At each tick of a streamed stance (:attr:`~tdslip_ros.model.stepper.FixedStepStepper.torque_due`) the plant
-holds a torque from that tick on:
+At each tick of a streamed stance (:attr:`~tdslip_ros.model.plant.stepper.FixedStepStepper.torque_due`) the
+plant holds a torque from that tick on:
 
 * **lockstep**: it waits for the torque of exactly that (epoch, stride, tick) and holds it: the run is
   decided by the torques alone, as a lockstep run is by its commands;

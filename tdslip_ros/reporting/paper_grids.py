@@ -9,9 +9,9 @@ import math
 
 import numpy as np
 
-from tdslip_ros.model import stability
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.stability import analytic_fixed_points
 
 BASIN_BETA_DEG = 26.0
 """Touchdown angle [deg] of figs 7 and 10."""
@@ -28,7 +28,7 @@ def fig07_grid(alphas: int, heights: int) -> tuple[Array, Array]:
     2.4 m (each start on the energy fixed point E*(y0) of eq. 27)."""
     beta = math.radians(BASIN_BETA_DEG)
     return np.linspace(0.5, 2.5, alphas), np.linspace(
-        stability.infeasible_height(PAPER_PARAMS, beta) + 0.005, 2.4, heights
+        analytic_fixed_points.infeasible_height(PAPER_PARAMS, beta) + 0.005, 2.4, heights
     )
 
 
@@ -37,7 +37,7 @@ def fig10_grid(energies: int, heights: int) -> tuple[Array, Array]:
     to 2.4 m."""
     beta = math.radians(BASIN_BETA_DEG)
     return np.linspace(2.0, 6.0, energies), np.linspace(
-        stability.infeasible_height(PAPER_PARAMS, beta) + 0.002, 2.4, heights
+        analytic_fixed_points.infeasible_height(PAPER_PARAMS, beta) + 0.002, 2.4, heights
     )
 
 

@@ -7,8 +7,8 @@ import matplotlib
 import numpy as np
 from matplotlib.colors import ListedColormap
 
-from tdslip_ros.model import basins
 from tdslip_ros.model.arrays import Array
+from tdslip_ros.model.stability import basins
 
 DPI = 120
 """Dots per inch of every PNG the commands write."""

@@ -2,7 +2,7 @@
 
 A chunk is a pure function of (study, chunk index): the lanes' parameters come from the design
 (:meth:`~tdslip_ros.studies.design.Study.lanes`), the lanes of each hopper and policy hop together on the
-batched engine with per-stride policy calls (:func:`~tdslip_ros.model.basins.run_strides`, DOP853 at
+batched engine with per-stride policy calls (:func:`~tdslip_ros.model.stability.basins.run_strides`, DOP853 at
 basins.EXACT_TOLERANCE), and the chunk's row order is the trajectory order. Lanes share a policy call, and
 the policies' Newton iterations run until every lane of a call has converged, so a trajectory's last bits
 depend on the chunk it is in: the chunking is part of the design (``chunk_size``), never of where or how
@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from tdslip_ros.model import basins
 from tdslip_ros.model.arrays import Array, CommandArrays
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies.registry import PolicySpec
+from tdslip_ros.model.stability import basins
 from tdslip_ros.studies import perturbed, table
 from tdslip_ros.studies.design import CHOICE_SETTINGS, GROUP_PARAMETERS, POLICY_PARAMETERS, Lanes, Study
 from tdslip_ros.studies.outcomes import reduce_history

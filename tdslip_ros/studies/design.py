@@ -7,10 +7,10 @@ spawn_key=(i, DESIGN_STREAM))``, so they depend on the seed and the index only, 
 chunked or which worker runs it. Parameters named in neither the grid nor the draws take ``fixed`` values or
 the :data:`DEFAULTS`.
 
-The parameters (SI, the names of :data:`~tdslip_ros.model.policies.POLICY_SETTINGS` where they are a
+The parameters (SI, the names of :data:`~tdslip_ros.model.policies.registry.POLICY_SETTINGS` where they are a
 policy's settings):
 
-* ``policy``: one of :data:`~tdslip_ros.model.policies.POLICIES`;
+* ``policy``: one of :data:`~tdslip_ros.model.policies.registry.POLICIES`;
 * the hopper, ``kbar`` and ``zeta0`` (eq. 24; m, r0 and g are the study's ``mass``, ``rest_length`` and
   ``gravity``). The batched engine runs one hopper per call, so these are grid axes or fixed, never drawn;
 * the policy's settings (:data:`POLICY_PARAMETERS`, each with its unit and default from the declaration),
@@ -37,10 +37,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from tdslip_ros.model import stability, units
-from tdslip_ros.model.analytic import ANALYTIC_MAPS, speed_from_energy
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, speed_from_energy
 from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
-from tdslip_ros.model.policies import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS, SETTING_DEFAULTS
+from tdslip_ros.model.policies.registry import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS, SETTING_DEFAULTS
+from tdslip_ros.model.stability import analytic_fixed_points
 from tdslip_ros.studies import perturbed
 
 HOPPER_PARAMETERS = ("kbar", "zeta0")
@@ -372,7 +373,7 @@ class Study:
                 for beta, name in sorted(set(zip(angles[mask], maps[mask], strict=True))):
                     lanes = mask & (angles == beta) & (maps == name)
                     alpha = units.power_to_alpha(params, columns["touchdown_power"][lanes])
-                    columns["energy0"][lanes] = stability.energy_fixed_point(
+                    columns["energy0"][lanes] = analytic_fixed_points.energy_fixed_point(
                         params,
                         float(beta),
                         alpha,

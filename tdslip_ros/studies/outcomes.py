@@ -6,9 +6,9 @@ import warnings
 
 import numpy as np
 
-from tdslip_ros.model import basins
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.stability import basins
 
 
 def reduce_history(

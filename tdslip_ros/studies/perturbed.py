@@ -1,6 +1,7 @@
 """Perturbed studies: the design's perturbation parameters, and the closed loop that holds its command.
 
-The parameters (SI; each a field of :class:`~tdslip_ros.model.perturbations.Perturbations`, per trajectory):
+The parameters (SI; each a field of :class:`~tdslip_ros.model.plant.perturbations.Perturbations`, per
+trajectory):
 
 * terrain, one per trajectory: random blocks (``terrain_sigma`` [m] the standard deviation of the block
   heights, ``terrain_block`` [m] their length, ``terrain_start`` [m] where they begin; each trajectory on
@@ -16,10 +17,11 @@ The parameters (SI; each a field of :class:`~tdslip_ros.model.perturbations.Pert
   ``mismatch_rest_length``, factors on the plant's parameters (grid axes or fixed: one model per call).
 
 Random draws come from the study's seed and the trajectory's index (the model's streams, see
-:mod:`tdslip_ros.model.perturbations`), never from the chunking.
+:mod:`tdslip_ros.model.plant.perturbations`), never from the chunking.
 
 :func:`run_held` is the closed loop of a study with ``hold_commands``: the batched engine
-(:func:`~tdslip_ros.model.batch.simulate_strides`, DOP853 at basins.EXACT_TOLERANCE) with the perturbations,
+(:func:`~tdslip_ros.model.plant.batch.simulate_strides`, DOP853 at basins.EXACT_TOLERANCE) with the
+perturbations,
 the policy planning on the measured apex with the controller's model, and, as the plant node does, the
 command in force kept for a stride the policy has no command for (counted). The first command in force is
 the policy's at the true initial apex; a trajectory without one is ``no_command`` at stride 0.
@@ -33,14 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from tdslip_ros.model import basins
 from tdslip_ros.model.arrays import Array
-from tdslip_ros.model.batch import simulate_strides
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
-from tdslip_ros.model.policies import PolicySpec
-from tdslip_ros.model.terrain import FLAT, Blocks, Step, Terrain
+from tdslip_ros.model.plant.batch import simulate_strides
+from tdslip_ros.model.plant.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
+from tdslip_ros.model.plant.terrain import FLAT, Blocks, Step, Terrain
+from tdslip_ros.model.policies.registry import PolicySpec
+from tdslip_ros.model.stability import basins
 from tdslip_ros.studies.outcomes import reduce_history
 
 MISMATCH_PARAMETERS = ("mismatch_mass", "mismatch_stiffness", "mismatch_damping", "mismatch_rest_length")

@@ -25,10 +25,10 @@ import pyarrow as pa
 from matplotlib.figure import Figure
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import DEFAULT_ANALYTIC_MAP
+from tdslip_ros.model.analytic.apex_map import DEFAULT_ANALYTIC_MAP
 from tdslip_ros.model.events import FAILURE_KINDS
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.policies import PolicySpec
+from tdslip_ros.model.policies.registry import PolicySpec
 from tdslip_ros.reporting.output import output_directory, to_json
 from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
 from tdslip_ros.studies import chunk, engine, table

@@ -20,9 +20,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from matplotlib.figure import Figure
 
-from tdslip_ros.model import basins, stability, units
-from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.stability import analytic_fixed_points, basins
 from tdslip_ros.reporting.output import output_directory, to_json
 from tdslip_ros.reporting.paper_grids import (
     BASIN_BETA_DEG,
@@ -135,7 +136,7 @@ def fig10_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
     axes.plot(energies_bar, fixed, "-", color=EXACT, lw=2, label="exact plant, fixed point reached (median)")
     fine = np.linspace(energies_bar[0], energies_bar[-1], 4 * energies_bar.size)
     analytic_map = str(study.values_of("analytic_map")[0])
-    analytic = stability.regulated_fixed_points(
+    analytic = analytic_fixed_points.regulated_fixed_points(
         PARAMS,
         math.radians(BASIN_BETA_DEG),
         units.energy_from_bar(PARAMS, fine),

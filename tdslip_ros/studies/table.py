@@ -31,8 +31,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from tdslip_ros.model import basins
 from tdslip_ros.model.arrays import Array
+from tdslip_ros.model.stability import basins
 from tdslip_ros.studies.design import (
     CHOICE_SETTINGS,
     CHOICES,

@@ -15,17 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
-from tdslip_ros.model.analytic import approximate_map
+from tdslip_ros.model.analytic.apex_map import approximate_map
+from tdslip_ros.model.analytic.closed_loop import map_jacobian
 from tdslip_ros.model.arrays import CommandArrays, ParamArrays
-from tdslip_ros.model.closed_loop import map_jacobian
-from tdslip_ros.model.controllers import (
+from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies.controllers import (
     apex_foot_placement,
     deadbeat,
     energy_regulation,
     fixed_power,
     ramp_to_liftoff,
 )
-from tdslip_ros.model.params import HopperParams
 
 OUT = Path(__file__).with_name("analytic_reference.npz")
 PARAMS = HopperParams.from_dimensionless(36.0, 0.08)

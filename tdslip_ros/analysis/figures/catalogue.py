@@ -19,7 +19,7 @@ from tdslip_ros.analysis.figures import (
 )
 from tdslip_ros.analysis.figures.common import PARAMS, FigureFunction, Reporter, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED, SharedKey
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.reporting.output import to_json
 from tdslip_ros.reporting.style import DPI
 
@@ -91,7 +91,7 @@ def write_figure(
     name: str, out: Path, resolution: Resolution, speed: SpeedSource = "energy"
 ) -> dict[str, Any]:
     """Compute, draw and save one figure as OUT/<name>.png and OUT/<name>.json, with the analytic map of
-    next-apex ``speed`` (:data:`~tdslip_ros.model.analytic.SpeedSource`); returns its data."""
+    next-apex ``speed`` (:data:`~tdslip_ros.model.analytic.apex_map.SpeedSource`); returns its data."""
     reporter = Reporter(name)
     started = time.process_time()
     figure, data = FIGURES[name](resolution, reporter, speed)

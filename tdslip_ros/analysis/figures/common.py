@@ -14,10 +14,11 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from tdslip_ros.model import basins, exact_stability, stability, units
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.stability import analytic_fixed_points, basins, exact_fixed_points
 from tdslip_ros.reporting.style import EXACT, STABLE, UNSTABLE
 
 PARAMS = PAPER_PARAMS
@@ -83,7 +84,7 @@ def plot_fixed_points(axes: Axes, x: Array, values: Array, stable: Array, label:
     axes.plot(x_[unstable], values_[unstable], "o", color=UNSTABLE, markersize=3, mfc="none")
 
 
-def fixed_points_json(points: stability.FixedPoints, parameter: Array) -> dict[str, Any]:
+def fixed_points_json(points: analytic_fixed_points.FixedPoints, parameter: Array) -> dict[str, Any]:
     return {
         "parameter": parameter.tolist(),
         "ybar": bar_height(points.y).tolist(),
@@ -98,9 +99,9 @@ def fixed_points_json(points: stability.FixedPoints, parameter: Array) -> dict[s
 @dataclass(frozen=True)
 class ExactCheck:
     """The exact plant's fixed points for the members of an analytic trace, and per analytic fixed point
-    whether the exact plant has it (exact_stability.exists_on_exact_plant)."""
+    whether the exact plant has it (exact_fixed_points.exists_on_exact_plant)."""
 
-    exact: stability.FixedPoints
+    exact: analytic_fixed_points.FixedPoints
     exists: Array
 
     def json(self, parameter: Array) -> dict[str, Any]:
@@ -111,14 +112,17 @@ class ExactCheck:
 
 
 def exact_check(
-    beta: float, regulator: exact_stability.Regulator, analytic: stability.FixedPoints, resolution: Resolution
+    beta: float,
+    regulator: exact_fixed_points.Regulator,
+    analytic: analytic_fixed_points.FixedPoints,
+    resolution: Resolution,
 ) -> ExactCheck:
     """Every analytic fixed point of ``analytic`` (members: its parameter, alpha or the energy [J])
     checked on the exact plant under ``regulator``."""
-    loop = exact_stability.ExactLoop.of(PARAMS, beta, regulator, analytic.parameter)
-    heights = stability.height_grid(PARAMS, beta, points=resolution.exact_heights)
-    exact = exact_stability.fixed_points(loop, heights)
-    return ExactCheck(exact, exact_stability.exists_on_exact_plant(analytic, exact))
+    loop = exact_fixed_points.ExactLoop.of(PARAMS, beta, regulator, analytic.parameter)
+    heights = analytic_fixed_points.height_grid(PARAMS, beta, points=resolution.exact_heights)
+    exact = exact_fixed_points.fixed_points(loop, heights)
+    return ExactCheck(exact, exact_fixed_points.exists_on_exact_plant(analytic, exact))
 
 
 def plot_exact_check(
@@ -139,4 +143,4 @@ FigureData = tuple[Figure, dict[str, Any]]
 """A drawn figure and the numbers drawn (dimensionless, eq. 24), as its JSON document holds them."""
 FigureFunction = Callable[[Resolution, Reporter, SpeedSource], FigureData]
 """What computes and draws one figure at a resolution with the analytic map of a next-apex speed (ours or
-the paper's, :data:`~tdslip_ros.model.analytic.SpeedSource`), reporting its progress."""
+the paper's, :data:`~tdslip_ros.model.analytic.apex_map.SpeedSource`), reporting its progress."""

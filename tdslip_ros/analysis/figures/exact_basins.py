@@ -24,9 +24,10 @@ from tdslip_ros.analysis.figures.common import (
 )
 from tdslip_ros.analysis.figures.open_loop import open_loop_trace
 from tdslip_ros.analysis.figures.shared import SHARED
-from tdslip_ros.model import basins, exact_stability, stability, units
-from tdslip_ros.model.analytic import SpeedSource, speed_from_energy
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import SpeedSource, speed_from_energy
 from tdslip_ros.model.arrays import Array
+from tdslip_ros.model.stability import analytic_fixed_points, basins, exact_fixed_points
 from tdslip_ros.reporting.paper_grids import BASIN_BETA_DEG, fig07_grid, fig10_grid, row_median
 from tdslip_ros.reporting.style import EXACT, START, basin_colour_map, basin_colours
 
@@ -41,7 +42,7 @@ def _outcome_counts(basin: basins.Basin) -> dict[str, int]:
 
 FIG07_CROSSES = {1.0: 2.0, 1.5: 1.05}
 """(alpha, ybar0) of fig07's panels (b) and (c)."""
-FIG07_REGULATORS: tuple[exact_stability.Regulator, ...] = ("open_loop", "open_loop_stance_tf")
+FIG07_REGULATORS: tuple[exact_fixed_points.Regulator, ...] = ("open_loop", "open_loop_stance_tf")
 
 
 def _fig07_grid(resolution: Resolution) -> tuple[Array, Array]:
@@ -56,9 +57,13 @@ def fig07_basin(resolution: Resolution, speed: SpeedSource) -> basins.Basin:
     beta = math.radians(BASIN_BETA_DEG)
     alphas, heights = _fig07_grid(resolution)
     alpha_grid, height_grid = (a.ravel() for a in np.meshgrid(alphas, heights, indexing="ij"))
-    start_energy = stability.energy_fixed_point(PARAMS, beta, alpha_grid, height_grid, speed=speed)
+    start_energy = analytic_fixed_points.energy_fixed_point(
+        PARAMS, beta, alpha_grid, height_grid, speed=speed
+    )
     cross_alpha, cross_height = np.array(list(FIG07_CROSSES)), np.array(list(FIG07_CROSSES.values()))
-    cross_energy = stability.energy_fixed_point(PARAMS, beta, cross_alpha, cross_height, speed=speed)
+    cross_energy = analytic_fixed_points.energy_fixed_point(
+        PARAMS, beta, cross_alpha, cross_height, speed=speed
+    )
     return basins.open_loop_basin(
         PARAMS,
         beta,
@@ -70,13 +75,13 @@ def fig07_basin(resolution: Resolution, speed: SpeedSource) -> basins.Basin:
 
 @SHARED.register
 def fig07_by_eigenvalue(
-    regulator: exact_stability.Regulator, resolution: Resolution
-) -> stability.FixedPoints:
+    regulator: exact_fixed_points.Regulator, resolution: Resolution
+) -> analytic_fixed_points.FixedPoints:
     """The open-loop exact plant's fixed points and eigenvalues at fig07's alphas."""
     beta = math.radians(BASIN_BETA_DEG)
-    return exact_stability.fixed_points(
-        exact_stability.ExactLoop.of(PARAMS, beta, regulator, _fig07_grid(resolution)[0]),
-        stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
+    return exact_fixed_points.fixed_points(
+        exact_fixed_points.ExactLoop.of(PARAMS, beta, regulator, _fig07_grid(resolution)[0]),
+        analytic_fixed_points.height_grid(PARAMS, beta, points=resolution.exact_heights),
     )
 
 
@@ -189,13 +194,13 @@ def fig10_basin(resolution: Resolution) -> basins.Basin:
 
 
 @SHARED.register
-def fig10_by_eigenvalue(resolution: Resolution) -> stability.FixedPoints:
+def fig10_by_eigenvalue(resolution: Resolution) -> analytic_fixed_points.FixedPoints:
     """The goal regulator's exact fixed points and eigenvalues at fig10's energies."""
     beta = math.radians(BASIN_BETA_DEG)
     energies = units.energy_from_bar(PARAMS, _fig10_grid(resolution)[0])
-    return exact_stability.fixed_points(
-        exact_stability.ExactLoop.of(PARAMS, beta, "energy", energies),
-        stability.height_grid(PARAMS, beta, points=resolution.exact_heights),
+    return exact_fixed_points.fixed_points(
+        exact_fixed_points.ExactLoop.of(PARAMS, beta, "energy", energies),
+        analytic_fixed_points.height_grid(PARAMS, beta, points=resolution.exact_heights),
     )
 
 
@@ -213,7 +218,7 @@ def fig10(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
     exact = fig10_basin(resolution)
     fine_energies = np.linspace(2.0, 6.0, 4 * resolution.energies)
     fine = units.energy_from_bar(PARAMS, fine_energies)
-    analytic = stability.regulated_fixed_points(PARAMS, beta, fine, speed=speed)
+    analytic = analytic_fixed_points.regulated_fixed_points(PARAMS, beta, fine, speed=speed)
     reporter.stage("the exact plant's fixed points and eigenvalues")
     by_eigenvalue = fig10_by_eigenvalue(resolution)
     exact_y, exact_xdot, exact_energy = (row_median(values) for values in (exact.y, exact.xdot, exact.energy))

@@ -8,7 +8,8 @@ Panel (a) cannot be reproduced (the data are not in the paper). (b) and (c) come
 * the hopper: the paper's m = 65.4 kg and r0 = 1 m; kbar = 36 and zeta0 = 0.08 are our choice, the paper's
   hopper of sections III-IV (:mod:`tdslip_ros.model.paper`) at this mass;
 * TD-SLIP (left): the exact plant under the ideal energy regulator ``energy_exact``
-  (:func:`~tdslip_ros.model.controllers.exact_energy_regulation`, whose ramp ends at the exact liftoff:
+  (:func:`~tdslip_ros.model.policies.controllers.exact_energy_regulation`, whose ramp ends at the exact
+  liftoff:
   t_f = t_lo, as section II.D assumes) at the touchdown angle BETA_DEG (our choice), at its fixed point with
   the apex speed SPEED: the apex height y* that the regulated stride maps onto itself
   (:func:`regulated_gait`);
@@ -40,16 +41,21 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from tdslip_ros.analysis.figures.common import FigureData, Reporter, Resolution
-from tdslip_ros.model import dynamics, exact_stability
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model import dynamics
+from tdslip_ros.model.analytic.apex_map import SpeedSource
+from tdslip_ros.model.analytic.closed_loop import eigenvalues
 from tdslip_ros.model.arrays import Array
-from tdslip_ros.model.batch import batch_apex_return_map
-from tdslip_ros.model.closed_loop import eigenvalues
-from tdslip_ros.model.controllers import admissible_angles, energy_regulation, exact_energy_regulation
 from tdslip_ros.model.events import HopperState
-from tdslip_ros.model.exact_map import StrideResult, apex_return_map
 from tdslip_ros.model.paper import PAPER_KBAR, PAPER_ZETA0
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
+from tdslip_ros.model.plant.batch import batch_apex_return_map
+from tdslip_ros.model.plant.exact_map import StrideResult, apex_return_map
+from tdslip_ros.model.policies.controllers import (
+    admissible_angles,
+    energy_regulation,
+    exact_energy_regulation,
+)
+from tdslip_ros.model.stability import exact_fixed_points
 
 MASS, LEG_LENGTH, SPEED = 65.4, 1.0, 3.0
 """The paper's fig. 12: m [kg], r0 [m], and its "approximately 3 m/s" as the apex speed [m/s] exactly."""
@@ -225,11 +231,11 @@ def regulated_gait(params: HopperParams, speed: float, beta: float) -> tuple[Ape
 
 
 def regulated_eigenvalue(params: HopperParams, apex: ApexState, beta: float) -> complex:
-    """The largest eigenvalue of the energy_exact loop at its fixed point ``apex`` (exact_stability.jacobian;
-    the other is 0, the regulator putting the goal energy back every stride)."""
+    """The largest eigenvalue of the energy_exact loop at its fixed point ``apex``
+    (exact_fixed_points.jacobian; the other is 0, the regulator putting the goal energy back every stride)."""
     energy = apex.energy(params)
-    loop = exact_stability.ExactLoop.of(params, beta, "energy_exact", [energy])
-    return complex(eigenvalues(exact_stability.jacobian(loop, apex.y, energy, 0))[0, 0])
+    loop = exact_fixed_points.ExactLoop.of(params, beta, "energy_exact", [energy])
+    return complex(eigenvalues(exact_fixed_points.jacobian(loop, apex.y, energy, 0))[0, 0])
 
 
 def symmetric_angle(params: HopperParams, apex: ApexState) -> float:

@@ -25,9 +25,10 @@ from tdslip_ros.analysis.figures.common import (
     plot_fixed_points,
 )
 from tdslip_ros.analysis.figures.shared import SHARED
-from tdslip_ros.model import stability, units
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array
+from tdslip_ros.model.stability import analytic_fixed_points
 from tdslip_ros.reporting.style import EXACT
 
 
@@ -39,10 +40,10 @@ def fig04(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
 
     heights_a = np.array([1.0, 1.2, 1.4, 1.6, 1.8, 2.0])
     energies = np.linspace(0.0, 12.0, 241)[None, :] + heights_a[:, None]
-    _, next_energy = stability.open_loop_energy_map(
+    _, next_energy = analytic_fixed_points.open_loop_energy_map(
         PARAMS, beta, alpha_a, heights_a[:, None], energies * scale, speed=speed
     )
-    fixed_energy = stability.energy_fixed_point(PARAMS, beta, alpha_a, heights_a, speed=speed)
+    fixed_energy = analytic_fixed_points.energy_fixed_point(PARAMS, beta, alpha_a, heights_a, speed=speed)
     for y, e, e_next, e_star in zip(
         heights_a, energies, bar_energy(next_energy), bar_energy(fixed_energy), strict=True
     ):
@@ -60,8 +61,8 @@ def fig04(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
 
     reporter.stage("height sections (eq. 28)")
     alphas_b = np.array([1.0, 1.25, 1.5, 1.75, 2.0])
-    heights = stability.height_grid(PARAMS, beta, points=resolution.heights)
-    section_energy, section_next = stability.height_section(
+    heights = analytic_fixed_points.height_grid(PARAMS, beta, points=resolution.heights)
+    section_energy, section_next = analytic_fixed_points.height_section(
         PARAMS, beta, alphas_b[:, None], heights[None, :], speed=speed
     )
     for alpha, y_next in zip(alphas_b, section_next, strict=True):
@@ -125,12 +126,12 @@ def open_loop_exact(beta_deg: float, resolution: Resolution, speed: SpeedSource)
 @SHARED.register
 def open_loop_trace(
     beta_deg: float, resolution: Resolution, speed: SpeedSource
-) -> tuple[Array, stability.FixedPoints, Array]:
+) -> tuple[Array, analytic_fixed_points.FixedPoints, Array]:
     beta = math.radians(beta_deg)
     alphas = np.linspace(0.5, 2.5, resolution.alphas)
-    heights = stability.height_grid(PARAMS, beta, points=resolution.heights)
-    traced = stability.open_loop_fixed_points(PARAMS, beta, alphas, heights, speed=speed)
-    return alphas, traced, stability.saddle_nodes(PARAMS, beta, traced, heights, speed=speed)
+    heights = analytic_fixed_points.height_grid(PARAMS, beta, points=resolution.heights)
+    traced = analytic_fixed_points.open_loop_fixed_points(PARAMS, beta, alphas, heights, speed=speed)
+    return alphas, traced, analytic_fixed_points.saddle_nodes(PARAMS, beta, traced, heights, speed=speed)
 
 
 def fig05(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:
@@ -199,14 +200,14 @@ def _fig05_alphas(resolution: Resolution) -> Array:
 @SHARED.register
 def open_loop_row(
     beta_deg: float, resolution: Resolution, speed: SpeedSource
-) -> tuple[stability.FixedPoints, ExactCheck]:
+) -> tuple[analytic_fixed_points.FixedPoints, ExactCheck]:
     """fig05's row at beta: the open-loop fixed points over its alphas, checked on the exact plant."""
     beta = math.radians(beta_deg)
-    points = stability.open_loop_fixed_points(
+    points = analytic_fixed_points.open_loop_fixed_points(
         PARAMS,
         beta,
         _fig05_alphas(resolution),
-        stability.height_grid(PARAMS, beta, points=resolution.heights),
+        analytic_fixed_points.height_grid(PARAMS, beta, points=resolution.heights),
         speed=speed,
     )
     return points, exact_check(beta, "open_loop", points, resolution)

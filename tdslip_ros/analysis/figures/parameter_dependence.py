@@ -12,10 +12,11 @@ from matplotlib.figure import Figure
 from tdslip_ros.analysis.figures.common import FigureData, Reporter, Resolution
 from tdslip_ros.analysis.figures.regulated import stable_range
 from tdslip_ros.analysis.figures.shared import SHARED
-from tdslip_ros.model import stability, units
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.stability import analytic_fixed_points
 from tdslip_ros.reporting.paper_grids import FIG11_STUDIES, fig11_energies_bar
 
 
@@ -41,11 +42,11 @@ def _fig11_energies_bar(resolution: Resolution) -> Array:
 @SHARED.register
 def fig11_fixed_points(
     kbar: float, zeta0: float, beta_deg: float, resolution: Resolution, speed: SpeedSource
-) -> stability.FixedPoints:
+) -> analytic_fixed_points.FixedPoints:
     """The analytic regulated map's fixed points over fig11's energies for the hopper (kbar, zeta0)."""
     params = HopperParams.from_dimensionless(kbar, zeta0)
     energies = units.energy_from_bar(params, _fig11_energies_bar(resolution))
-    return stability.regulated_fixed_points(params, math.radians(beta_deg), energies, speed=speed)
+    return analytic_fixed_points.regulated_fixed_points(params, math.radians(beta_deg), energies, speed=speed)
 
 
 def fig11(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> FigureData:

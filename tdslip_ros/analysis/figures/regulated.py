@@ -24,23 +24,24 @@ from tdslip_ros.analysis.figures.common import (
     plot_fixed_points,
 )
 from tdslip_ros.analysis.figures.shared import SHARED
-from tdslip_ros.model import exact_stability, stability, units
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.stability import analytic_fixed_points, exact_fixed_points
 from tdslip_ros.reporting.style import EXACT, STABLE
 
 
 @SHARED.register
 def regulated_with_exact_check(
     beta_deg: float, resolution: Resolution, speed: SpeedSource
-) -> tuple[Array, stability.FixedPoints, ExactCheck]:
+) -> tuple[Array, analytic_fixed_points.FixedPoints, ExactCheck]:
     """Regulated fixed points over Ebar in [1, 8] (figs 8, 9), checked on the exact plant held at each
     energy exactly (energy_exact, the exact counterpart of the map's energy conservation)."""
     energies_bar = np.linspace(1.0, 8.0, resolution.energies)
     beta = math.radians(beta_deg)
     energies = units.energy_from_bar(PARAMS, energies_bar)
-    points = stability.regulated_fixed_points(PARAMS, beta, energies, speed=speed)
+    points = analytic_fixed_points.regulated_fixed_points(PARAMS, beta, energies, speed=speed)
     return energies_bar, points, exact_check(beta, "energy_exact", points, resolution)
 
 
@@ -58,11 +59,11 @@ def fig08(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fig
     for (left, right), beta_deg in zip(rows, (22.0, 30.0), strict=True):
         reporter.stage(f"beta = {beta_deg} deg, analytic and exact plant (energy_exact)")
         beta = math.radians(beta_deg)
-        bottom = stability.infeasible_height(PARAMS, beta)
+        bottom = analytic_fixed_points.infeasible_height(PARAMS, beta)
         curves: dict[str, Any] = {}
         for energy_bar in range(1, 9):
             heights = np.linspace(bottom * (1 + 1e-6), energy_bar, 200)
-            y_next = stability.regulated_height_map(
+            y_next = analytic_fixed_points.regulated_height_map(
                 PARAMS, beta, units.energy_from_bar(PARAMS, energy_bar), heights, speed=speed
             )
             left.plot(heights, y_next, lw=1, label=f"Ebar = {energy_bar}")
@@ -132,20 +133,21 @@ def stable_range(
     kbar: float, zeta0: float, beta_deg: float, source: str, resolution: Resolution, speed: SpeedSource
 ) -> tuple[float, float]:
     """Stable Ebar range of ``source`` (RANGE_SOURCES) for the hopper (kbar, zeta0) at beta [deg]: the
-    analytic map's (its next-apex ``speed``) from its fixed points (stability.stable_energy_range), the exact
-    plant's from its fixed points and eigenvalues (exact_stability.stable_energy_range, planned on the
+    analytic map's (its next-apex ``speed``) from its fixed points
+    (analytic_fixed_points.stable_energy_range), the exact
+    plant's from its fixed points and eigenvalues (exact_fixed_points.stable_energy_range, planned on the
     default map); (NaN, NaN) where none is stable."""
     params = HopperParams.from_dimensionless(kbar, zeta0)
     beta = math.radians(beta_deg)
     energies = units.energy_from_bar(params, np.linspace(*RANGE_EBAR, resolution.exact_energies))
     if source == "analytic":
-        ends = stability.stable_energy_range(
+        ends = analytic_fixed_points.stable_energy_range(
             params, beta, energies, bisections=resolution.bisections + 6, speed=speed
         )
     else:
-        heights = stability.height_grid(params, beta, points=resolution.exact_heights)
-        regulator: exact_stability.Regulator = "energy" if source == "energy" else "energy_exact"
-        ends = exact_stability.stable_energy_range(
+        heights = analytic_fixed_points.height_grid(params, beta, points=resolution.exact_heights)
+        regulator: exact_fixed_points.Regulator = "energy" if source == "energy" else "energy_exact"
+        ends = exact_fixed_points.stable_energy_range(
             params, beta, regulator, energies, resolution.bisections, heights
         )
     low, high = (float(units.energy_to_bar(params, end)) for end in ends)

@@ -3,10 +3,12 @@ plant, tracking desired speeds from one apex, and deadbeat towards an apex below
 
 Both hop 50 strides per target speed from the same apex towards (target_y, xdot*). Deadbeat plans a ramp at
 each apex on the analytic map (:func:`deadbeat_runs`). The baseline decides the hip torque during stance,
-:class:`~tdslip_ros.model.stance_laws.StancePDSpeedEnergy` (an energy term for the height, PD on the forward
+:class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy` (an energy term for the height, PD on the
+forward
 speed, its default gains) sampled at 1 kHz on the batched engine, at one touchdown angle per target speed:
 the angle at which one stride from the target apex ends at the target speed
-(:func:`~tdslip_ros.model.basins.speed_matching_angle`; the paper gives no rule, see docs/paper.md, "The
+(:func:`~tdslip_ros.model.stability.basins.speed_matching_angle`; the paper gives no rule, see docs/paper.md,
+"The
 baseline of ref. 36"). The baseline plans on no analytic map, so ``--map`` changes deadbeat's runs alone. A
 target loses stability where the runs fail, or do not converge (apex changes below 1e-4) within the 50
 strides; for the baseline also where no angle matches its speed.
@@ -21,12 +23,13 @@ import numpy.typing as npt
 from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.figures.common import PARAMS, FigureData, Reporter, Resolution
-from tdslip_ros.model import basins, units
-from tdslip_ros.model.analytic import SpeedSource
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array, CommandArrays
-from tdslip_ros.model.controllers import deadbeat
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.stance_laws import StancePDSpeedEnergy
+from tdslip_ros.model.policies.controllers import deadbeat
+from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
+from tdslip_ros.model.stability import basins
 from tdslip_ros.reporting.style import CONTROLLER_STYLE
 
 BASELINE = "stance_pd_speed_energy"
@@ -71,7 +74,8 @@ def baseline_law(params: HopperParams, target_y: float, target_speeds: Array) ->
 
 def baseline_touchdown_angles(params: HopperParams, target_y: float, target_speeds: Array) -> Array:
     """The baseline's touchdown angle [rad] per target speed [m/s] towards target_y [m] (NaN: none), by the
-    rule of :func:`~tdslip_ros.model.basins.speed_matching_angle`; ``tdslip compare`` runs it by this rule."""
+    rule of :func:`~tdslip_ros.model.stability.basins.speed_matching_angle`; ``tdslip compare`` runs it by
+    this rule."""
     speeds = np.asarray(target_speeds, dtype=float)
     law_of = baseline_law(params, target_y, speeds)
     return basins.speed_matching_angle(params, np.full(speeds.shape, target_y), speeds, law_of)

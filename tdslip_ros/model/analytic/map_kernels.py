@@ -1,7 +1,7 @@
 """The equations of the approximate apex return map as compiled kernels of one lane, and its lane loop.
 
-The closed forms, corrections and energy balance that :mod:`tdslip_ros.model.analytic` derives (its module
-docstring) are written here once, as scalar kernels of one lane (``lane_*``, compiled by
+The closed forms, corrections and energy balance that :mod:`tdslip_ros.model.analytic.apex_map` derives (its
+module docstring) are written here once, as scalar kernels of one lane (``lane_*``, compiled by
 :mod:`tdslip_ros.model.compiled`), float or complex: the policies' solvers (:mod:`.controller_kernels`) call
 them for one apex, :func:`stride_lanes` runs the whole map over the lanes of a batch, and a batch with any
 complex input runs their complex128 specialisation (the complex step of :mod:`.closed_loop`; imaginary parts

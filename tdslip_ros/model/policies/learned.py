@@ -1,6 +1,6 @@
 """A learned linear residual on a base policy: the one evaluation shared by the environments' residual mode
 (``tdslip_ros.envs``), the trainer (``examples/learn_cem.py``) and the ``learned`` policy
-(:class:`~tdslip_ros.model.policies.PolicySpec`) that the controller node and the studies run.
+(:class:`~tdslip_ros.model.policies.registry.PolicySpec`) that the controller node and the studies run.
 
 At a measured apex (y [m], xdot [m/s]) the residual acts
 

@@ -1,7 +1,7 @@
 """Exact-plant studies with the batched engine: basins of attraction and fixed points reached (figs 7, 10).
 
 Every lane of a grid of initial apex states hops on the exact plant
-(:func:`~tdslip_ros.model.batch.batch_apex_return_map`, DOP853 at EXACT_TOLERANCE) under a stance policy
+(:func:`~tdslip_ros.model.plant.batch.batch_apex_return_map`, DOP853 at EXACT_TOLERANCE) under a stance policy
 that the analytic map plans, stride by stride, until it fails or the strides run out. Outcomes:
 
 * ``converged``: every apex change from some stride n on is below CONVERGENCE_TOLERANCE in the
@@ -20,14 +20,14 @@ and, for the exact plant, energy regulation that takes the energy of the first s
 (section IV.B): each stride's torque aims the analytic map's next apex energy at that goal rather than at
 the current apex energy, so that the map's errors do not accumulate from stride to stride.
 
-Under stance feedback (:mod:`~tdslip_ros.model.stance_laws`: a hip torque a sampled law decides during
+Under stance feedback (:mod:`~tdslip_ros.model.plant.stance_laws`: a hip torque a sampled law decides during
 stance, as ref. 36's baseline of fig. 13 does) the lanes hop on
-:func:`~tdslip_ros.model.batch.simulate_strides` at a fixed touchdown angle per lane
+:func:`~tdslip_ros.model.plant.batch.simulate_strides` at a fixed touchdown angle per lane
 (:func:`feedback_basin`), classified alike; :func:`speed_matching_angle` is a rule for that angle.
 
 A horizon says what happens within its strides: a slow but stable fixed point (|lambda| near 1) looks
 ``sustained``. Stability verdicts come from the fixed points and their eigenvalues
-(:mod:`tdslip_ros.model.exact_stability`); the basins are figures and the cross-check.
+(:mod:`tdslip_ros.model.stability.exact_fixed_points`); the basins are figures and the cross-check.
 """
 
 from __future__ import annotations
@@ -39,13 +39,13 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.model.analytic.apex_map import speed_from_energy
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays, NoCommand, no_command_code
-from tdslip_ros.model.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides
-from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw
+from tdslip_ros.model.plant.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides
+from tdslip_ros.model.plant.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw
+from tdslip_ros.model.policies.controllers import energy_regulation, fixed_power
 
 CONVERGENCE_TOLERANCE = 1e-4
 """Apex change (max of |d ybar|, |d xdotbar|) below which a lane counts as settled (the paper's 1e-4)."""
@@ -248,7 +248,7 @@ def speed_matching_angle(
     speed; NaN where there is none.
 
     A stance law that regulates energy and speed through the hip torque (ref. 36's baseline,
-    :class:`~.stance_laws.StancePDSpeedEnergy`) leaves the touchdown angle to its designer, and the angle
+    :class:`~.stance_pd.StancePDSpeedEnergy`) leaves the touchdown angle to its designer, and the angle
     decides how the law's energy splits between height and speed. This one makes the target apex a fixed
     point of one stride in speed, a calibration from the target alone, not from the closed loop. The next
     speed falls as the angle grows (the leg brakes over a longer sweep), so each target's bracket is the first
@@ -403,7 +403,7 @@ def exact_regulated_fixed_points(
     """The fixed points the energy-regulated exact plant reaches within ``strides``: a basin over the grid
     (energies [J]) x (heights [m]), whose converged lanes give, per goal energy, the fixed point(s) reached.
     A horizon verdict: the stability verdict itself comes from the fixed points and their eigenvalues
-    (:mod:`tdslip_ros.model.exact_stability`)."""
+    (:mod:`tdslip_ros.model.stability.exact_fixed_points`)."""
     energy_grid, height_grid = np.meshgrid(
         np.asarray(energies, float), np.asarray(heights, float), indexing="ij"
     )

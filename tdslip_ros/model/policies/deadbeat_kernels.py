@@ -1,6 +1,7 @@
 """Deadbeat's search for the touchdown angle, as compiled kernels of one lane, and its loop over the lanes.
 
-The inversion of the analytic map of :func:`tdslip_ros.model.controllers.deadbeat` (its docstring gives the
+The inversion of the analytic map of :func:`tdslip_ros.model.policies.controllers.deadbeat` (its docstring
+gives the
 method): a scan of energy regulation at angles across the admissible interval, then Newton's method on
 (theta, tau0, t_f) at once (:func:`linearise`, :func:`lane_deadbeat`), on the policies' kernels
 (:mod:`.controller_kernels`). Not complex-step safe: the search works on real parts.
@@ -13,9 +14,11 @@ from typing import NamedTuple
 import numpy as np
 
 from tdslip_ros.model import dynamics
+from tdslip_ros.model.analytic.map_kernels import LaneStride, apex_energy, converged, lane_ascent, lane_stance
 from tdslip_ros.model.arrays import HAS_COMMAND, Array
 from tdslip_ros.model.compiled import kernel, real
-from tdslip_ros.model.controller_kernels import (
+from tdslip_ros.model.events import NO_FAILURE_CODE
+from tdslip_ros.model.policies.controller_kernels import (
     ENERGY_RULE,
     FIXED_POINT_ITERATIONS,
     FIXED_POINT_TOLERANCE,
@@ -36,8 +39,6 @@ from tdslip_ros.model.controller_kernels import (
     torque_scales,
     write_command,
 )
-from tdslip_ros.model.events import NO_FAILURE_CODE
-from tdslip_ros.model.map_kernels import LaneStride, apex_energy, converged, lane_ascent, lane_stance
 
 DEADBEAT_SCAN_ITERATIONS = 10
 """Newton steps of the deadbeat scan's solves (from a cold start most solvable angles need 5-8)."""

@@ -19,7 +19,8 @@ angular rate, is close to quadratic in tau0 because the torque's own momentum co
 root the policies return is the *forward* one, where the body swings forward on average (e < 0, so forward
 thrust tau0 < 0 does positive work). The other root drives the body backward and the map rejects it.
 
-The torque-based policies are complex-step safe (for :func:`~tdslip_ros.model.closed_loop.map_jacobian`).
+The torque-based policies are complex-step safe (for
+:func:`~tdslip_ros.model.analytic.closed_loop.map_jacobian`).
 
 Implementation. Each analytic policy is a compiled kernel of one lane (:mod:`.controller_kernels`,
 :mod:`.deadbeat_kernels`) on the analytic map's own lane kernels; the functions here broadcast their inputs
@@ -35,7 +36,7 @@ from functools import lru_cache
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import (
+from tdslip_ros.model.analytic.apex_map import (
     LiftoffMethod,
     SpeedSource,
     approximate_map,
@@ -43,6 +44,7 @@ from tdslip_ros.model.analytic import (
     map_variant_code,
     validate_angle,
 )
+from tdslip_ros.model.analytic.closed_loop import fixed_command, map_jacobian
 from tdslip_ros.model.arrays import (
     HAS_COMMAND,
     Array,
@@ -52,8 +54,9 @@ from tdslip_ros.model.arrays import (
     ParamArrays,
     elementwise,
 )
-from tdslip_ros.model.closed_loop import fixed_command, map_jacobian
-from tdslip_ros.model.controller_kernels import (
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.policies.controller_kernels import (
     COMMAND_ROWS,
     FIXED_POINT_ITERATIONS,
     POWER_RULE,
@@ -64,9 +67,7 @@ from tdslip_ros.model.controller_kernels import (
     planned_lanes,
     regulated_lanes,
 )
-from tdslip_ros.model.deadbeat_kernels import deadbeat_lanes
-from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.policies.deadbeat_kernels import deadbeat_lanes
 
 EXACT_ENERGY_TOLERANCE = 1e-11
 """Dimensionless energy E/(m g r0) to which energy_exact meets its target on the exact map."""
@@ -213,7 +214,7 @@ def exact_energy_regulation(
     stance duration the plant itself produces with that command (the ramp ends at the exact liftoff).
 
     Newton's method on the exact map (DOP853 at EXACT_MAP_TOLERANCE, one lane at a time in compiled code:
-    :func:`~.exact_kernels.exact_regulation_lanes`) for x = (tau0, t_f) scaled as in
+    :func:`~.exact_regulation_kernels.exact_regulation_lanes`) for x = (tau0, t_f) scaled as in
     :func:`~.controller_kernels.lane_plan` and the residuals ((E' - E*)/(m g r0), T_stance/sqrt(m/k) - x_1);
     its Jacobian by forward differences. It starts from :func:`energy_regulation`'s forward root
     (``corrections`` of its map) and returns a command only where the exact map, evaluated with that very
@@ -223,10 +224,11 @@ def exact_energy_regulation(
     An apex the analytic plan has no command for, one beyond the hopper's limits among them, keeps its reason
     (no exception). The gap between ``energy`` and ``energy_exact`` is what the analytic approximation costs.
     """
-    # Imported here: the exact kernels import scipy.integrate (0.6 s), which only this policy needs; a
-    # controller node of the others starts as fast as before (its DDS discovery races the recorder's).
-    from tdslip_ros.model.batch import validate_lanes
-    from tdslip_ros.model.exact_kernels import Newton, default_limits, exact_regulation_lanes, kernel_rows
+    # Imported here: the exact kernels import scipy.integrate, which only this policy needs, so that a
+    # controller node of the other policies starts without it (its DDS discovery races the recorder's).
+    from tdslip_ros.model.plant.batch import validate_lanes
+    from tdslip_ros.model.plant.stride_kernels import default_limits, kernel_rows
+    from tdslip_ros.model.policies.exact_regulation_kernels import Newton, exact_regulation_lanes
 
     arrays = ParamArrays.of(params)
     y_, xdot_, beta_ = (np.asarray(value) for value in (y, xdot, beta))
@@ -350,7 +352,7 @@ def apex_foot_placement(
     """Apex-level foot placement: the touchdown angle steers the speed, the ramp torque the energy, both
     decided once per stride at the apex (no feedback in stance). It is not the baseline of the paper's
     ref. 36, which acts on speed through the hip torque during stance
-    (:class:`~tdslip_ros.model.stance_laws.StancePDSpeedEnergy`).
+    (:class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy`).
 
     * Speed, through the touchdown angle (Raibert-style foot placement, discrete PD over strides)::
 
@@ -393,7 +395,7 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True, exact
     deadbeat(params, y, xdot, y, xdot)
     apex_foot_placement(params, y, xdot, xdot, y, xdot)
     if exact_plant:
-        from tdslip_ros.model.exact_kernels import (
+        from tdslip_ros.model.plant.stride_kernels import (
             apex_stride,
         )  # scipy.integrate: only here (see energy_exact)
 

@@ -1,6 +1,6 @@
 """The policies' solvers as compiled kernels of one lane, and their loops over the lanes of a batch.
 
-Each analytic policy of :mod:`tdslip_ros.model.controllers` is a kernel of one lane (``lane_*``,
+Each analytic policy of :mod:`tdslip_ros.model.policies.controllers` is a kernel of one lane (``lane_*``,
 :mod:`tdslip_ros.model.compiled`) on the analytic map's own lane kernels (:mod:`.map_kernels`):
 :func:`lane_plan` solves a rule's (tau0, t_f) = (rule(stance), t_lo) by Newton's method,
 :func:`lane_regulated_plan` finds energy regulation's forward root and :func:`lane_checked` keeps only a
@@ -18,10 +18,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from tdslip_ros.model import dynamics
-from tdslip_ros.model.arrays import HAS_COMMAND, REASON_OF_FAILURE, Array, NoCommand, no_command_code
-from tdslip_ros.model.compiled import kernel, real
-from tdslip_ros.model.events import NO_FAILURE_CODE
-from tdslip_ros.model.map_kernels import (
+from tdslip_ros.model.analytic.map_kernels import (
     LaneStance,
     LaneStride,
     StanceStart,
@@ -33,6 +30,9 @@ from tdslip_ros.model.map_kernels import (
     lane_stance,
     lane_stance_start,
 )
+from tdslip_ros.model.arrays import HAS_COMMAND, REASON_OF_FAILURE, Array, NoCommand, no_command_code
+from tdslip_ros.model.compiled import kernel, real
+from tdslip_ros.model.events import NO_FAILURE_CODE
 
 FIXED_POINT_TOLERANCE = 1e-13
 """Relative change of t_f and tau0 below which the policies' fixed-point iterations stop."""

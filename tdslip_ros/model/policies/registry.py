@@ -6,7 +6,7 @@ the settings derives from it: the controller node's parameters (a parameter per 
 the study designs' policy columns (:mod:`tdslip_ros.studies.design`), the analysis report's account of a
 policy; config/controller.yaml, which users edit, is checked against it (test/test_policy_settings.py). A
 :class:`PolicySpec` names one of :data:`POLICIES` with a value for each setting and answers apexes with the
-policy's commands (:mod:`tdslip_ros.model.controllers`).
+policy's commands (:mod:`tdslip_ros.model.policies.controllers`).
 
 The policies of :data:`POLICIES` answer an apex with a ramp (a touchdown angle, tau0 and t_f). Those of
 :data:`STANCE_FEEDBACK_POLICIES` answer it with stance feedback instead (:mod:`.stance_laws`): a touchdown
@@ -24,10 +24,14 @@ from typing import Any
 
 import numpy.typing as npt
 
-from tdslip_ros.model import learned, units
-from tdslip_ros.model.analytic import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
+from tdslip_ros.model import units
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.arrays import CommandArrays
-from tdslip_ros.model.controllers import (
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.plant.stance_laws import StanceFeedback
+from tdslip_ros.model.policies import learned
+from tdslip_ros.model.policies.controllers import (
     FOOT_PLACEMENT_KD,
     FOOT_PLACEMENT_KP,
     apex_foot_placement,
@@ -36,13 +40,10 @@ from tdslip_ros.model.controllers import (
     exact_energy_regulation,
     fixed_power,
 )
-from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.stance_laws import (
+from tdslip_ros.model.policies.stance_pd import (
     DEFAULT_ENERGY_GAIN,
     DEFAULT_SPEED_GAIN,
     DEFAULT_SPEED_RATE_GAIN,
-    StanceFeedback,
     StancePDSpeedEnergy,
 )
 
@@ -52,7 +53,7 @@ POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "apex_foot_placem
 """The policies that answer an apex with a ramp command (:meth:`PolicySpec.commands`)."""
 STANCE_PD_SPEED_ENERGY = "stance_pd_speed_energy"
 """The baseline of the paper's ref. 36: an energy term for height and PD on forward speed, fed back at every
-tick of the stance (:class:`.stance_laws.StancePDSpeedEnergy`), at a fixed touchdown angle."""
+tick of the stance (:class:`.stance_pd.StancePDSpeedEnergy`), at a fixed touchdown angle."""
 STANCE_FEEDBACK_POLICIES = (STANCE_PD_SPEED_ENERGY,)
 """The policies that answer an apex with stance feedback (:meth:`PolicySpec.stance_feedback`)."""
 FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
@@ -208,7 +209,7 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         None,
         None,
         "",
-        "the learned policy's file (JSON, model/learned.py)",
+        "the learned policy's file (JSON, model/policies/learned.py)",
         (LEARNED,),
     ),
     PolicySetting(

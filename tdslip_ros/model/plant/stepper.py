@@ -53,9 +53,9 @@ from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.perturbations import Perturbations, placed_angle
-from tdslip_ros.model.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
-from tdslip_ros.model.terrain import Terrain, touchdown
+from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.plant.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
+from tdslip_ros.model.plant.terrain import Terrain, touchdown
 
 DEFAULT_SUBSTEPS = 4
 MAX_RATE_STEP = 0.5

@@ -44,7 +44,7 @@ from tdslip_ros.model.arrays import ParamArrays
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.terrain import FLAT, IntArray, Terrain, spec_fields
+from tdslip_ros.model.plant.terrain import FLAT, IntArray, Terrain, spec_fields
 
 SENSING_STREAM, PLACEMENT_STREAM, PUSH_STREAM = 1, 2, 3
 DRAW_BLOCK = 64

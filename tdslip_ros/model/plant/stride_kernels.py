@@ -1,7 +1,8 @@
 """The exact stride of one lane under a torque ramp, compiled: the batched engine's stride without numpy's
 cost per call, for callers that hop a few apexes at a time. :func:`apex_stride` hops one apex (the exact
 map's arguments), :func:`compiled_apex_return_map` a few lanes (the batched engine's), and
-:func:`exact_regulation_lanes` is ``energy_exact``'s whole Newton iteration on it.
+:func:`lane_stride` is the kernel
+that ``energy_exact``'s planner (:mod:`tdslip_ros.model.policies.exact_regulation_kernels`) iterates on.
 
 The stride is the one of :func:`.batch.batch_apex_return_map` on flat ground: descent and ascent in closed
 form; stance (eq. 2, the ramp of eq. 18 saturated at tau_max) by the batched engine's own integrator,
@@ -29,14 +30,13 @@ import numpy.typing as npt
 from numba.extending import register_jitable
 
 from tdslip_ros.model import dynamics
-from tdslip_ros.model.arrays import HAS_COMMAND, REASON_OF_FAILURE, Array
-from tdslip_ros.model.batch import BatchStrideResult, check_lanes, ramp_checks, validate_lanes
+from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.compiled import kernel
-from tdslip_ros.model.controller_kernels import NO_SOLUTION_REASON, solve2, torque_scales
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, failure_from_code
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.stance_kernel import (
+from tdslip_ros.model.plant.batch import BatchStrideResult, check_lanes, ramp_checks, validate_lanes
+from tdslip_ros.model.plant.stance_kernel import (
     STANCE_FAILURES,
     STANCE_LIFTOFF,
     LaneHopper,
@@ -291,90 +291,3 @@ def apex_stride(
         row[X_ROW],
         bool(row[SATURATED_ROW]),
     )
-
-
-class Newton(NamedTuple):
-    """energy_exact's Newton settings (controllers.EXACT_*): the tolerances on the scaled energy and stance
-    residuals, the bound on the steps and the forward-difference step."""
-
-    energy_tolerance: float
-    stance_tolerance: float
-    iterations: int
-    jacobian_step: float
-
-
-@kernel
-def exact_regulation_lanes(
-    hopper: Array,
-    limits: Array,
-    y: Array,
-    xdot: Array,
-    angle: Array,
-    goal_bar: Array,
-    tau0: Array,
-    t_f: Array,
-    tolerance: float,
-    newton: Newton,
-    reason: Array,
-) -> None:
-    """energy_exact's Newton iteration (:func:`.controllers.exact_energy_regulation`) for every lane, from
-    the start (tau0 [N m], t_f [s]) of the lanes whose ``reason`` is HAS_COMMAND: the command into tau0 and
-    t_f where it converged, else NaN, and the reason into ``reason``. goal_bar: the goal energy / (m g r0);
-    tolerance: the exact map's rtol = atol. The steps and their rounding are those of the numpy version."""
-    lane_hopper = LaneHopper(hopper[0], hopper[1], hopper[2], hopper[3], hopper[4])
-    lane_limits = LaneLimits(limits[0], limits[1], limits[2], limits[3])
-    m, g = lane_hopper.m, lane_hopper.g
-    energy_scale = m * g * lane_hopper.r0
-    torque_scale, time_scale = torque_scales(m, lane_hopper.k, lane_hopper.r0, g)
-    block = np.empty((STRIDE_ROWS, 3))  # the point and its shifts along tau0 and t_f
-    energy_residual, stance_residual = np.empty(3), np.empty(3)
-    for lane in range(y.size):
-        x0, x1 = tau0[lane] / torque_scale, t_f[lane] / time_scale
-        solved = False
-        for _ in range(newton.iterations if reason[lane] == HAS_COMMAND else 0):
-            if not (math.isfinite(x0) and math.isfinite(x1) and x1 > 0.0):
-                break
-            for point in range(3):
-                p0 = x0 + (newton.jacobian_step if point == 1 else 0.0)
-                p1 = x1 + (newton.jacobian_step if point == 2 else 0.0)
-                ramp = LaneTorque(p0 * torque_scale, p1 * time_scale, math.inf, math.inf)
-                lane_stride(
-                    lane_hopper,
-                    lane_limits,
-                    y[lane],
-                    xdot[lane],
-                    angle[lane],
-                    ramp,
-                    tolerance,
-                    tolerance,
-                    block,
-                    point,
-                )
-                energy = m * (g * block[Y_ROW, point] + 0.5 * block[XDOT_ROW, point] ** 2)
-                energy_residual[point] = energy / energy_scale - goal_bar[lane]
-                stance_residual[point] = block[STANCE_TIME_ROW, point] / time_scale - p1
-            failure = int(block[FAILURE_ROW, 0])
-            if failure != NO_FAILURE_CODE:
-                reason[lane] = REASON_OF_FAILURE[failure]
-                break
-            if (
-                abs(energy_residual[0]) <= newton.energy_tolerance
-                and abs(stance_residual[0]) <= newton.stance_tolerance
-            ):
-                solved = True
-                break
-            step = newton.jacobian_step
-            step0, step1 = solve2(
-                (energy_residual[1] - energy_residual[0]) / step,
-                (energy_residual[2] - energy_residual[0]) / step,
-                (stance_residual[1] - stance_residual[0]) / step,
-                (stance_residual[2] - stance_residual[0]) / step,
-                energy_residual[0],
-                stance_residual[0],
-            )
-            x0, x1 = x0 + -step0, x1 + -step1
-        if not solved and reason[lane] == HAS_COMMAND:
-            reason[lane] = NO_SOLUTION_REASON
-        has_command = reason[lane] == HAS_COMMAND
-        tau0[lane] = x0 * torque_scale if has_command else math.nan
-        t_f[lane] = x1 * time_scale if has_command else math.nan

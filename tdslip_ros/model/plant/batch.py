@@ -21,15 +21,15 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.model import dynamics
-from tdslip_ros.model.batch_stance import IntArray, feedback_stance, ramp_stance
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import HopperParams, ParameterError
-from tdslip_ros.model.perturbations import Perturbations, placed_angle
-from tdslip_ros.model.stance_kernel import STANCE_FAILURES, STANCE_LIFTOFF, STATE_SIZE
-from tdslip_ros.model.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw, TorqueStream, torque_limit
-from tdslip_ros.model.terrain import FLAT, Terrain, touchdown
+from tdslip_ros.model.plant.batch_stance import IntArray, feedback_stance, ramp_stance
+from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.plant.stance_kernel import STANCE_FAILURES, STANCE_LIFTOFF, STATE_SIZE
+from tdslip_ros.model.plant.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw, TorqueStream, torque_limit
+from tdslip_ros.model.plant.terrain import FLAT, Terrain, touchdown
 
 Policy = Callable[..., tuple[Any, ...]]
 """policy(stride, y, xdot[, lanes]) -> (touchdown_angle, tau0, t_f) for ramps, or (touchdown_angle, law)

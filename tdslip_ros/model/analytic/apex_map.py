@@ -74,13 +74,15 @@ variant ``speed="liftoff"`` of :func:`approximate_map`; both are one kernel with
 (:func:`map_variant_code`).
 
 Implementation. The equations are written once, as compiled scalar kernels of one lane
-(:mod:`tdslip_ros.model.map_kernels`): the one-apex controller calls them directly and the vectorised API
+(:mod:`tdslip_ros.model.analytic.map_kernels`): the one-apex controller calls them directly and the
+vectorised API
 here runs them in a compiled loop over the lanes of a batch. The public functions broadcast over arrays
 of states, parameters and commands (:mod:`tdslip_ros.model.arrays`) and are complex-step safe (the
 imaginary parts are treated as infinitesimal perturbations; a batch with any complex input runs the
-complex128 specialisation of the same kernels) so that :func:`~tdslip_ros.model.closed_loop.map_jacobian`
-can differentiate them, including the controllers of :mod:`tdslip_ros.model.controllers`. A lane's result
-does not depend on the other lanes of its batch.
+complex128 specialisation of the same kernels) so that
+:func:`~tdslip_ros.model.analytic.closed_loop.map_jacobian`
+can differentiate them, including the controllers of :mod:`tdslip_ros.model.policies.controllers`. A lane's
+result does not depend on the other lanes of its batch.
 """
 
 from __future__ import annotations
@@ -92,18 +94,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from tdslip_ros.model.arrays import (
-    Array,
-    ArrayLike,
-    CommandArrays,
-    Lanes,
-    ParamArrays,
-    command_arrays,
-    elementwise,
-)
-from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_from_code
-from tdslip_ros.model.limits import PlausibilityLimits
-from tdslip_ros.model.map_kernels import (
+from tdslip_ros.model.analytic.map_kernels import (
     ENERGY_SPEED,
     FORCE_ROOT_LIFTOFF,
     LANE_STANCE_VALUES,
@@ -130,6 +121,17 @@ from tdslip_ros.model.map_kernels import (
     lane_wave,
     stride_lanes,
 )
+from tdslip_ros.model.arrays import (
+    Array,
+    ArrayLike,
+    CommandArrays,
+    Lanes,
+    ParamArrays,
+    command_arrays,
+    elementwise,
+)
+from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_from_code
+from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 
 LiftoffMethod = Literal["paper", "force_root"]

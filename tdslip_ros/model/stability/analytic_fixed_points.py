@@ -1,17 +1,17 @@
 """Fixed points of the analytic apex return map and their stability (paper sections III and IV).
 
 Open loop (section III). theta_td = beta and tau0 = C/thetadot_td, alpha = C/(m g sqrt(g r0)) (eq. 26),
-t_f = the predicted liftoff time (:func:`~tdslip_ros.model.controllers.fixed_power`). The map is 2-D in
-(y, E) (eq. 23). Following the paper, for each apex height y the energy fixed point E*(y) solves
+t_f = the predicted liftoff time (:func:`~tdslip_ros.model.policies.controllers.fixed_power`). The map is 2-D
+in (y, E) (eq. 23). Following the paper, for each apex height y the energy fixed point E*(y) solves
 E' (y, E*) = E* (eq. 27; the energy map is unimodal, so there is one sign change of E' - E along E); the
 fixed points of the whole map are then the zeros of the 1-D section h(y) = y'(y, E*(y)) - y (eq. 28).
 Zeros are bracketed on a grid of heights and polished by Newton's method on the 2-D map, whose Jacobian
-(complex step, :func:`~tdslip_ros.model.analytic.map_jacobian`) also gives the eigenvalues. Tracing over
-alpha counts the fixed points; where the count changes by two, a saddle-node bifurcation is located by
+(complex step, :func:`~tdslip_ros.model.analytic.apex_map.map_jacobian`) also gives the eigenvalues. Tracing
+over alpha counts the fixed points; where the count changes by two, a saddle-node bifurcation is located by
 bisection in alpha (one eigenvalue passes through 1 there).
 
 Energy regulation (section IV). theta_td = beta and tau0 with E_tau = E_loss (eq. 32,
-:func:`~tdslip_ros.model.controllers.energy_regulation`), so the analytic map keeps the apex energy
+:func:`~tdslip_ros.model.policies.controllers.energy_regulation`), so the analytic map keeps the apex energy
 exactly and reduces to the 1-D apex-height map y -> y'(y; E) for each energy. Its fixed points are zeros
 of y' - y on a grid of heights in (r0 cos beta, E/(m g)), polished by bracketed Newton; the eigenvalue is
 dy'/dy (complex step). Heights below r0 cos(beta) are kinematically infeasible: the leg cannot be placed.
@@ -27,11 +27,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic import LiftoffMethod, SpeedSource, speed_from_energy
+from tdslip_ros.model.analytic.apex_map import LiftoffMethod, SpeedSource, speed_from_energy
+from tdslip_ros.model.analytic.closed_loop import (
+    COMPLEX_STEP,
+    Policy,
+    closed_loop_map,
+    eigenvalues,
+    map_jacobian,
+)
 from tdslip_ros.model.arrays import Array, ArrayLike
-from tdslip_ros.model.closed_loop import COMPLEX_STEP, Policy, closed_loop_map, eigenvalues, map_jacobian
-from tdslip_ros.model.controllers import energy_regulation, fixed_power
 from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.policies.controllers import energy_regulation, fixed_power
 
 ENERGY_SCAN = np.geomspace(0.005, 14.0, 30)
 """Dimensionless kinetic apex energies Ebar - ybar scanned to bracket the energy fixed point E*(y)

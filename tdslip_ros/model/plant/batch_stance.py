@@ -17,8 +17,8 @@ import numpy.typing as npt
 
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.stance_kernel import STANCE_STOP, first_step, hopper_row, integrate_lanes
-from tdslip_ros.model.stance_laws import StanceLaw, StanceSample, clip_torque, first_sample
+from tdslip_ros.model.plant.stance_kernel import STANCE_STOP, first_step, hopper_row, integrate_lanes
+from tdslip_ros.model.plant.stance_laws import StanceLaw, StanceSample, clip_torque, first_sample
 
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]

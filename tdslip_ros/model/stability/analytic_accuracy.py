@@ -24,13 +24,13 @@ from typing import Literal
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import LiftoffMethod, SpeedSource, approximate_map
+from tdslip_ros.model.analytic.apex_map import LiftoffMethod, SpeedSource, approximate_map
+from tdslip_ros.model.analytic.map_kernels import CORRECTION_TOLERANCE
 from tdslip_ros.model.arrays import Array, CommandArrays
-from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.events import failure_code
-from tdslip_ros.model.exact_map import apex_return_map
-from tdslip_ros.model.map_kernels import CORRECTION_TOLERANCE
 from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.policies.controllers import ramp_to_liftoff
 
 
 @dataclass(frozen=True)

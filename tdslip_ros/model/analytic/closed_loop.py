@@ -2,7 +2,7 @@
 the loop's Jacobian by complex step, with its eigenvalues (the stability analyses of :mod:`.stability`).
 
 The Jacobian runs the map and the policy in complex arithmetic (the complex step: no subtraction, so exact
-to rounding); the policies of :mod:`tdslip_ros.model.controllers` that plan on the map's torque are
+to rounding); the policies of :mod:`tdslip_ros.model.policies.controllers` that plan on the map's torque are
 complex-step safe.
 """
 
@@ -13,7 +13,13 @@ from typing import Literal
 
 import numpy as np
 
-from tdslip_ros.model.analytic import LiftoffMethod, SpeedSource, Stride, approximate_map, speed_from_energy
+from tdslip_ros.model.analytic.apex_map import (
+    LiftoffMethod,
+    SpeedSource,
+    Stride,
+    approximate_map,
+    speed_from_energy,
+)
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays, ParamArrays, command_arrays
 from tdslip_ros.model.params import HopperParams, StanceCommand
 

@@ -1,17 +1,19 @@
 """Fixed points of the exact plant's closed-loop apex return map and their eigenvalues (issue 10).
 
-The analytic map's fixed points (:mod:`tdslip_ros.model.stability`) say what the paper's approximation
+The analytic map's fixed points (:mod:`tdslip_ros.model.stability.analytic_fixed_points`) say what the
+paper's approximation
 predicts; this module says what the exact plant does, by the same construction on the exact map (the
 batched engine's DOP853 stride, compiled lane by lane:
-:func:`~tdslip_ros.model.exact_kernels.compiled_apex_return_map`), so that every stability verdict on the
-exact plant comes from a fixed point and its eigenvalue, not from a stride horizon:
+:func:`~tdslip_ros.model.plant.stride_kernels.compiled_apex_return_map`), so that every stability verdict on
+the exact plant comes from a fixed point and its eigenvalue, not from a stride horizon:
 
 * the closed loop (:class:`ExactLoop`): a stance policy at the fixed touchdown angle beta answers each apex
   (y, E) and the exact plant hops the stride, P(y, E) = (y', E'). A loop is a family of such maps, one per
   member value: the touchdown power alpha (``open_loop``, section III, t_f the analytic map's predicted
   liftoff, as the paper; or ``open_loop_stance_tf``, t_f the stance duration the plant produces), or the
   goal energy [J] of an energy regulator (``energy``: the torque planned on the analytic map, section IV.B;
-  ``energy_exact``: planned on the exact map, :func:`~tdslip_ros.model.controllers.exact_energy_regulation`,
+  ``energy_exact``: planned on the exact map,
+  :func:`~tdslip_ros.model.policies.controllers.exact_energy_regulation`,
   which keeps E' = goal exactly, so that the loop is the exact counterpart of the analytic regulated map);
 * for each height y the energy fixed point E*(y) of E'(y, E) = E (eq. 27), bracketed (for the open loop on
   the energies of stability.ENERGY_SCAN, for a regulator within ENERGY_BRACKET of its goal) and solved by
@@ -21,7 +23,7 @@ exact plant comes from a fixed point and its eigenvalue, not from a stride horiz
   the policy planning again at every shifted apex) and its eigenvalues; stable means every modulus < 1.
 
 The exact map is deterministic and accurate to ~1e-12, so the differences resolve eigenvalues to ~1e-5.
-Stride horizons (:mod:`tdslip_ros.model.basins`) remain the figures' basins and a cross-check.
+Stride horizons (:mod:`tdslip_ros.model.stability.basins`) remain the figures' basins and a cross-check.
 :func:`exists_on_exact_plant` pairs the analytic map's fixed points with the exact plant's.
 """
 
@@ -34,15 +36,15 @@ from typing import Literal
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic import speed_from_energy
+from tdslip_ros.model.analytic.apex_map import speed_from_energy
+from tdslip_ros.model.analytic.closed_loop import eigenvalues
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays
-from tdslip_ros.model.batch import BatchStrideResult
-from tdslip_ros.model.closed_loop import eigenvalues
-from tdslip_ros.model.controllers import energy_regulation, exact_energy_regulation, fixed_power
 from tdslip_ros.model.events import NO_FAILURE_CODE
-from tdslip_ros.model.exact_kernels import compiled_apex_return_map
 from tdslip_ros.model.params import HopperParams
-from tdslip_ros.model.stability import (
+from tdslip_ros.model.plant.batch import BatchStrideResult
+from tdslip_ros.model.plant.stride_kernels import compiled_apex_return_map
+from tdslip_ros.model.policies.controllers import energy_regulation, exact_energy_regulation, fixed_power
+from tdslip_ros.model.stability.analytic_fixed_points import (
     EDGE_BISECTIONS,
     ENERGY_SCAN,
     FixedPoints,

@@ -14,7 +14,7 @@ the first sample is the first grid instant at or after it (:func:`first_sample`)
 was decided while the body flew, where the hip moves a massless leg, so no stance torque can have been
 decided for it (a touchdown exactly on a grid instant is sampled at once). A one-stride engine is put on
 the grid by the absolute time of the apex it starts from (``apex_time`` of the exact map and the batched
-engine); :func:`tdslip_ros.model.batch.simulate_strides` keeps each lane's apex times itself.
+engine); :func:`tdslip_ros.model.plant.batch.simulate_strides` keeps each lane's apex times itself.
 
 **What a law sees** at a sample: the absolute time t and the time since touchdown s [s], the leg's polar
 state about the toe (r [m], theta [rad], rdot [m/s], thetadot [rad/s], in the convention of
@@ -33,7 +33,8 @@ apex only, and a noisy stance sensor would be a perturbation kind of its own.
 
 **Laws.**
 
-* :class:`StancePDSpeedEnergy`, the baseline of the paper's ref. 36 (below);
+* the baseline of the paper's ref. 36, a policy:
+:class:`tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy`;
 * :class:`RecordedTorques`, the held torques of a recording, replayed: the exact map reproduces a
   recorded stride from its apex, its apex time and these;
 * :class:`TorqueStream`: the torques come from outside, one per sample, through
@@ -41,43 +42,6 @@ apex only, and a noisy stance sensor would be a perturbation kind of its own.
 
 The maths of a law is written once, in arithmetic that takes floats (the scalar engines) and arrays over
 lanes (the batched engine) alike; a law's fields may be arrays over the lanes of a batched stride.
-
-**The baseline of ref. 36.** What the paper says of it (section V, fig. 13), all we have of it:
-
-    "Among notable exceptions is recent work on locomotion over mildly rough terrain [36] where the
-    authors use TD-SLIP equations of motion to derive an approximate energy controller to regulate hopping
-    height, and a PD-based torque policy to regulate forward speed."
-
-    "Note that parameters used by Papadopoulos et al. [36] were also not substantially different from
-    ours when converted to dimensionless units."
-
-    "Finally, our controller does not require any feedback or sensory measurements during stance [...]
-    compared to the active PD control strategy since high-bandwidth feedback is usually very challenging
-    for fast legged robots."
-
-So: one hip torque during stance, with an energy term for height and a PD term on forward speed, computed
-from feedback during stance. Where we had to choose (:func:`pd_speed_energy_torque`):
-
-* the energy term drives the stance's mechanical energy E (kinetic, gravitational above the stance's
-  ground, spring) toward the target apex's energy E* = m g y* + m xdot*^2 / 2, in proportion to the error:
-  tau_E = k_E (E - E*). In stance thetadot < 0, so its power tau_E thetadot = k_E (E* - E) |thetadot|
-  pumps energy in below the target and takes it out above (negative work is allowed, unlike the ramp's);
-* the speed term is PD on the body's forward speed xdot: tau_v = k_p (xdot - xdot*) + k_d xddot. Forward
-  thrust needs tau < 0, so a slow body is pushed. The error's rate xddot is the body's horizontal
-  acceleration F_x / m from the ground reaction force (:func:`.dynamics.ground_reaction_force`) of the
-  sampled state and the held torque: the model's derivative, not a finite difference, so the law needs no
-  memory of past samples;
-* the touchdown angle is not the law's: :class:`StanceFeedback` takes it per stride, from whoever plans the
-  stride. It matters: the torque puts energy mostly into forward speed, and the angle nearly pins the apex
-  height at a given speed. On the paper's hopper with the default gains, target 1.2 m at 4 m/s, from
-  1.3 m at 3.5 m/s, 50 strides settle at 1.03 m and 4.10 m/s with the angle at 20 deg, 1.218 m and
-  3.967 m/s at 22 deg, 1.40 m and 3.84 m/s at 23 deg. At 22 deg, targets of 1.2 m and 4 to 7 m/s
-  settle within 2.1 % of their speeds, of 3.5 down to 2 m/s 6 % to 19 % slow, at heights between
-  0.95 m and 1.64 m;
-* the defaults (:data:`DEFAULT_ENERGY_GAIN`, :data:`DEFAULT_SPEED_GAIN`, :data:`DEFAULT_SPEED_RATE_GAIN`)
-  hold the paper's hopper within 2 % of the target 1.2 m at 4 m/s with the angle at 22 deg
-  (``test/test_stance_laws.py``). Sampled, the law's apexes jitter by some 5e-5 m from stride to stride
-  about that point, as the touchdown's phase in the tick changes.
 """
 
 from __future__ import annotations
@@ -89,19 +53,11 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model import dynamics
 from tdslip_ros.model.dynamics import FloatArray
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.params import ParameterError
 
 DEFAULT_SAMPLE_PERIOD = 1e-3
 """s: the plant node's tick, the period at which a ROS controller sends torques."""
-DEFAULT_ENERGY_GAIN = 3.0
-"""N m/J: k_E of :func:`pd_speed_energy_torque`; 100 J below the target pushes with 300 N m."""
-DEFAULT_SPEED_GAIN = 3000.0
-"""N m/(m/s) = N s: k_p; 0.1 m/s too slow pushes with 300 N m."""
-DEFAULT_SPEED_RATE_GAIN = 20.0
-"""N m/(m/s^2) = N s^2: k_d. The sampled law feeds its held torque back through xddot with the gain
-k_d cos(theta) / (m r) per sample (0.25 on the paper's hopper); below 1 that loop decays."""
 RECORD_TIME_TOLERANCE = 1e-9
 """s: a recorded torque stamped this little after a sample instant counts as held from it (a recording's
 clock may be rounded, e.g. to nanoseconds)."""
@@ -128,7 +84,7 @@ class StanceLaw(Protocol):
     def torque(self, sample: StanceSample, lanes: npt.NDArray[np.int64] | None = None) -> Any: ...
 
 
-def _lane_values(value: Any, lanes: npt.NDArray[np.int64] | None) -> Any:
+def lane_values(value: Any, lanes: npt.NDArray[np.int64] | None) -> Any:
     """A law's field for the sampled lanes: itself when scalar, else indexed by ``lanes``."""
     if np.ndim(value) == 0:
         return value
@@ -137,88 +93,12 @@ def _lane_values(value: Any, lanes: npt.NDArray[np.int64] | None) -> Any:
     return np.asarray(value, dtype=np.float64)[lanes]
 
 
-def _finite(name: str, value: Any) -> Any:
+def finite_field(name: str, value: Any) -> Any:
     """A law's numeric field, a float or an array of floats; ParameterError naming it."""
     array = np.asarray(value, dtype=np.float64)
     if not np.all(np.isfinite(array)):
         raise ParameterError(f"{name} must be finite, got {value!r}")
     return float(array) if array.ndim == 0 else array
-
-
-def pd_speed_energy_torque(
-    model: HopperParams,
-    target_energy: Any,
-    target_xdot: Any,
-    energy_gain: Any,
-    speed_gain: Any,
-    speed_rate_gain: Any,
-    r: Any,
-    sin_t: Any,
-    cos_t: Any,
-    rdot: Any,
-    thetadot: Any,
-    held: Any,
-) -> Any:
-    """The torque [N m] of :class:`StancePDSpeedEnergy` (module docstring), floats or arrays:
-
-        tau = k_E (E - E*) + k_p (xdot - xdot*) + k_d F_x / m
-
-    E the stance energy of the sampled state, xdot its forward speed, F_x the horizontal ground reaction
-    force under the held torque, all in ``model``'s parameters; sin and cos of theta from the caller.
-    """
-    energy = dynamics.stance_energy(model, r, cos_t, rdot, thetadot)
-    xdot, _ = dynamics.cartesian_velocity(r, sin_t, cos_t, rdot, thetadot)
-    force_x, _ = dynamics.ground_reaction_force(model, r, sin_t, cos_t, rdot, held)
-    return (
-        energy_gain * (energy - target_energy)
-        + speed_gain * (xdot - target_xdot)
-        + speed_rate_gain * force_x / model.m
-    )
-
-
-@dataclass(frozen=True, eq=False)
-class StancePDSpeedEnergy:
-    """The baseline of the paper's ref. 36 as a sampled law (module docstring): an energy term toward the
-    target apex (target_y [m] above the stance's ground, target_xdot [m/s]) and PD on forward speed.
-
-    model: the hopper the law computes with (the plant's, or the controller's under mismatch);
-    energy_gain [N m/J], speed_gain [N s], speed_rate_gain [N s^2]. Targets and gains may be arrays over
-    the lanes of a batched stride.
-    """
-
-    model: HopperParams
-    target_y: Any
-    target_xdot: Any
-    energy_gain: Any = DEFAULT_ENERGY_GAIN
-    speed_gain: Any = DEFAULT_SPEED_GAIN
-    speed_rate_gain: Any = DEFAULT_SPEED_RATE_GAIN
-
-    def __post_init__(self) -> None:
-        for name in ("target_y", "target_xdot", "energy_gain", "speed_gain", "speed_rate_gain"):
-            object.__setattr__(self, name, _finite(name, getattr(self, name)))
-
-    def torque(self, sample: StanceSample, lanes: npt.NDArray[np.int64] | None = None) -> Any:
-        model = self.model
-        target_y, target_xdot = _lane_values(self.target_y, lanes), _lane_values(self.target_xdot, lanes)
-        target_energy = model.m * (model.g * target_y + 0.5 * target_xdot * target_xdot)
-        if isinstance(sample.theta, float):  # the scalar engines: math is faster than numpy on floats
-            sin_t, cos_t = math.sin(sample.theta), math.cos(sample.theta)
-        else:
-            sin_t, cos_t = np.sin(sample.theta), np.cos(sample.theta)
-        return pd_speed_energy_torque(
-            model,
-            target_energy,
-            target_xdot,
-            _lane_values(self.energy_gain, lanes),
-            _lane_values(self.speed_gain, lanes),
-            _lane_values(self.speed_rate_gain, lanes),
-            sample.r,
-            sin_t,
-            cos_t,
-            sample.rdot,
-            sample.thetadot,
-            sample.held,
-        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,10 +149,10 @@ class StanceFeedback:
     sample_period: float = DEFAULT_SAMPLE_PERIOD
 
     def __post_init__(self) -> None:
-        angle = _finite("touchdown_angle", self.touchdown_angle)
+        angle = finite_field("touchdown_angle", self.touchdown_angle)
         if not 0.0 < angle < math.pi / 2:
             raise ParameterError(f"touchdown_angle must lie in (0, pi/2) rad, got {angle!r}")
-        period = _finite("sample_period", self.sample_period)
+        period = finite_field("sample_period", self.sample_period)
         if not period > 0.0:
             raise ParameterError(f"sample_period must be positive, got {period!r}")
         object.__setattr__(self, "touchdown_angle", angle)

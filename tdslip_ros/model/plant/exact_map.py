@@ -27,9 +27,9 @@ from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.perturbations import placed_angle
-from tdslip_ros.model.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
-from tdslip_ros.model.terrain import FLAT, Terrain, touchdown
+from tdslip_ros.model.plant.perturbations import placed_angle
+from tdslip_ros.model.plant.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
+from tdslip_ros.model.plant.terrain import FLAT, Terrain, touchdown
 
 Torque = Callable[[float], float]
 """The hip torque [N m] of one stance segment as a function of the time s since touchdown [s]."""
