@@ -16,8 +16,9 @@ import pytest
 from learned_policy import learned_file
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, approximate_map, speed_from_energy
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, approximate_map
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, NoCommandError, ParamArrays
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map

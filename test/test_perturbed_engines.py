@@ -27,6 +27,7 @@ from tdslip_ros.model.plant.perturbations import (
     PlacementNoise,
     Pushes,
     SensingNoise,
+    StrideConditions,
 )
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.plant.terrain import FLAT, Blocks, Step
@@ -80,12 +81,14 @@ def exact_trajectory(
             PARAMS,
             apex,
             StanceCommand(angle, tau0, t_f),
-            x=x,
-            ground=ground,
-            terrain=perturbations.terrain,
-            tau_max=tau_max,
-            push=float(draws.push[0, 0]),
-            angle_error=float(draws.angle_error[0, 0]),
+            conditions=StrideConditions(
+                x=x,
+                ground=ground,
+                terrain=perturbations.terrain,
+                tau_max=tau_max,
+                push=float(draws.push[0, 0]),
+                angle_error=float(draws.angle_error[0, 0]),
+            ),
         )
         if result.apex is None:
             return apexes, result.failure
@@ -212,7 +215,12 @@ def test_nothing_perturbs_bit_for_bit() -> None:
     assert np.all(zero_sized.ground[np.isfinite(zero_sized.y)] == 0.0)
     command = StanceCommand(BETA, -273.0, 0.13)
     for engine_result in (
-        apex_return_map(PARAMS, ApexState(1.0, 5.0), command, terrain=FLAT, push=0.0, angle_error=0.0),
+        apex_return_map(
+            PARAMS,
+            ApexState(1.0, 5.0),
+            command,
+            conditions=StrideConditions(terrain=FLAT, push=0.0, angle_error=0.0),
+        ),
         apex_return_map(PARAMS, ApexState(1.0, 5.0), command),
     ):
         assert engine_result.apex == apex_return_map(PARAMS, ApexState(1.0, 5.0), command).apex
@@ -224,7 +232,12 @@ def test_nothing_perturbs_bit_for_bit() -> None:
     # Zero-sized blocks through the terrain walk: numpy's square root against the flat path's float power
     # may differ in the last bit, no more.
     flat = apex_return_map(PARAMS, ApexState(1.0, 5.0), command)
-    level = apex_return_map(PARAMS, ApexState(1.0, 5.0), command, terrain=Blocks(0.0, 0.3, 1), tau_max=1e6)
+    level = apex_return_map(
+        PARAMS,
+        ApexState(1.0, 5.0),
+        command,
+        conditions=StrideConditions(terrain=Blocks(0.0, 0.3, 1), tau_max=1e6),
+    )
     assert flat.apex is not None and level.apex is not None and level.ground == 0.0
     assert level.apex.y == pytest.approx(flat.apex.y, rel=1e-14)
     assert level.apex.xdot == pytest.approx(flat.apex.xdot, rel=1e-14)
@@ -281,12 +294,14 @@ def test_a_push_changes_the_energy_by_its_kinetic_energy() -> None:
     command = StanceCommand(BETA, -273.0, 0.13)
     for push in (-0.8, 0.5):
         start = ApexState(1.0, 5.0)
-        result = apex_return_map(PARAMS, start, command, push=push)
+        result = apex_return_map(PARAMS, start, command, conditions=StrideConditions(push=push))
         assert result.apex is not None and result.energy is not None
         kick = 0.5 * PARAMS.m * ((start.xdot + push) ** 2 - start.xdot**2)
         gain = result.apex.energy(PARAMS) - start.energy(PARAMS)
         assert gain == pytest.approx(result.energy.net_gain + kick, abs=1e-9 * start.energy(PARAMS))
-        batch = batch_apex_return_map(PARAMS, 1.0, 5.0, BETA, -273.0, 0.13, push=push)
+        batch = batch_apex_return_map(
+            PARAMS, 1.0, 5.0, BETA, -273.0, 0.13, conditions=StrideConditions(push=push)
+        )
         assert batch.y == pytest.approx(result.apex.y, abs=1e-9)
 
 
@@ -319,10 +334,12 @@ def test_each_perturbed_failure_in_every_engine(case: PerturbedFailureCase) -> N
         case.params,
         case.apex,
         case.command,
-        terrain=p.terrain,
-        tau_max=float(p.tau_max),
-        push=float(draws.push[0, 0]),
-        angle_error=float(draws.angle_error[0, 0]),
+        conditions=StrideConditions(
+            terrain=p.terrain,
+            tau_max=float(p.tau_max),
+            push=float(draws.push[0, 0]),
+            angle_error=float(draws.angle_error[0, 0]),
+        ),
     )
     assert exact.failure is case.kind and case.phrase in exact.reason, exact.reason
     stepper = FixedStepStepper(case.params, case.apex, case.command, perturbations=p)
@@ -394,4 +411,6 @@ def test_per_lane_perturbations_are_refused_by_the_single_trajectory_engines() -
     with pytest.raises(ParameterError, match="per-lane"):
         FixedStepStepper(PARAMS, ApexState(1.0, 5.0), StanceCommand(BETA, -273.0, 0.13), perturbations=lanes)
     with pytest.raises(ParameterError, match="push must be finite"):
-        batch_apex_return_map(PARAMS, 1.0, 5.0, BETA, -273.0, 0.13, push=[0.0, np.nan])
+        batch_apex_return_map(
+            PARAMS, 1.0, 5.0, BETA, -273.0, 0.13, conditions=StrideConditions(push=[0.0, np.nan])
+        )

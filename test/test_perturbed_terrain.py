@@ -13,6 +13,7 @@ from scipy.integrate import solve_ivp
 from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.plant.terrain import (
     FLAT,
     Blocks,
@@ -182,11 +183,13 @@ def test_touchdown_is_the_first_contact_of_the_falling_toe(terrain: Terrain) -> 
 def test_a_toe_placed_below_the_ground_stubs() -> None:
     """A step up just ahead of the body: the leg placed at the apex puts its toe inside the step."""
     step = Step(0.12, 0.2)
-    result = apex_return_map(PARAMS, ApexState(1.0, 4.0), COMMAND, terrain=step)
+    result = apex_return_map(PARAMS, ApexState(1.0, 4.0), COMMAND, conditions=StrideConditions(terrain=step))
     assert result.failure is FailureKind.TOE_STUBBING and result.touchdown is None
     assert "below the ground" in result.reason and "x = 0.342" in result.reason
     # The same step farther ahead is met on its face.
-    result = apex_return_map(PARAMS, ApexState(1.0, 4.0), COMMAND, terrain=Step(0.12, 0.5))
+    result = apex_return_map(
+        PARAMS, ApexState(1.0, 4.0), COMMAND, conditions=StrideConditions(terrain=Step(0.12, 0.5))
+    )
     assert result.failure is None and result.edge and result.ground is not None
     assert result.touchdown is not None and result.touchdown.toe_x == 0.5
     assert 0.0 < result.ground < 0.12
@@ -285,7 +288,14 @@ def test_stride_over_a_step_matches_an_independent_integration(terrain: Terrain,
     height and the energy flows agree with a Cartesian integration, and the energy balance holds per
     stride with the potential energy of the step, m g dh, to 1e-9 relative."""
     start = ApexState(1.0, 5.0)
-    result = apex_return_map(PARAMS, start, COMMAND, terrain=terrain, tau_max=tau_max, rtol=1e-13, atol=1e-13)
+    result = apex_return_map(
+        PARAMS,
+        start,
+        COMMAND,
+        rtol=1e-13,
+        atol=1e-13,
+        conditions=StrideConditions(terrain=terrain, tau_max=tau_max),
+    )
     assert result.apex is not None and result.energy is not None and result.ground is not None
     assert result.apex_x is not None
     truth = _cartesian_stride(terrain, (0.0, start.y, start.xdot), COMMAND, tau_max)
@@ -306,5 +316,5 @@ def test_stride_over_a_step_matches_an_independent_integration(terrain: Terrain,
     net = truth["hip_work"] - truth["damping_loss"] - truth["spring_loss"]
     assert truth_gain == pytest.approx(net, abs=1e-9 * start.energy(PARAMS))
     if tau_max < math.inf:  # the saturated hip did less work than the full ramp
-        free = apex_return_map(PARAMS, start, COMMAND, terrain=terrain)
+        free = apex_return_map(PARAMS, start, COMMAND, conditions=StrideConditions(terrain=terrain))
         assert free.energy is not None and result.energy.hip_work < free.energy.hip_work

@@ -16,6 +16,7 @@ from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.batch import batch_apex_return_map
 from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.plant.stance_kernel import LaneTorque, kink
 from tdslip_ros.model.plant.stride_kernels import apex_stride, compiled_apex_return_map
 from tdslip_ros.model.policies.controllers import exact_energy_regulation
@@ -41,14 +42,16 @@ def _random_lanes(count: int, seed: int) -> tuple[np.ndarray, ...]:
 
 def test_random_strides_match_the_exact_map_to_its_accuracy_with_the_same_failures() -> None:
     y, xdot, angle, tau0, t_f, tau_max = _random_lanes(300, 5)
-    compiled = compiled_apex_return_map(PARAMS, y, xdot, angle, tau0, t_f, tau_max=tau_max)
+    compiled = compiled_apex_return_map(
+        PARAMS, y, xdot, angle, tau0, t_f, conditions=StrideConditions(tau_max=tau_max)
+    )
     kinds = set()
     for lane in range(y.size):
         exact = apex_return_map(
             PARAMS,
             ApexState(y[lane], xdot[lane]),
             StanceCommand(angle[lane], tau0[lane], t_f[lane]),
-            tau_max=tau_max[lane],
+            conditions=StrideConditions(tau_max=tau_max[lane]),
         )
         kinds.add(exact.failure)
         assert compiled.failure[lane] == failure_code(exact.failure), lane
@@ -74,8 +77,8 @@ def test_random_strides_are_the_batched_engine_s_to_rounding() -> None:
     """The same algorithm: every field within rounding (numpy's pow and libm's differ in the last bit,
     so the step sizes, and the states by ~1e-15 relative)."""
     lanes = _random_lanes(2000, 6)
-    compiled = compiled_apex_return_map(PARAMS, *lanes[:5], tau_max=lanes[5])
-    batch = batch_apex_return_map(PARAMS, *lanes[:5], tau_max=lanes[5])
+    compiled = compiled_apex_return_map(PARAMS, *lanes[:5], conditions=StrideConditions(tau_max=lanes[5]))
+    batch = batch_apex_return_map(PARAMS, *lanes[:5], conditions=StrideConditions(tau_max=lanes[5]))
     np.testing.assert_array_equal(compiled.failure, batch.failure)
     np.testing.assert_array_equal(compiled.saturated, batch.saturated)
     for field in fields(batch):
@@ -91,9 +94,11 @@ def test_random_strides_are_the_batched_engine_s_to_rounding() -> None:
 
 def test_a_saturated_ramp_is_the_exact_map_s() -> None:
     apex, command = ApexState(1.1, 4.0), StanceCommand(math.radians(24.0), -900.0, 0.2)
-    exact = apex_return_map(PARAMS, apex, command, tau_max=300.0)
+    exact = apex_return_map(PARAMS, apex, command, conditions=StrideConditions(tau_max=300.0))
     ramp = (command.touchdown_angle, command.tau0, command.t_f)
-    compiled = compiled_apex_return_map(PARAMS, apex.y, apex.xdot, *ramp, tau_max=300.0)
+    compiled = compiled_apex_return_map(
+        PARAMS, apex.y, apex.xdot, *ramp, conditions=StrideConditions(tau_max=300.0)
+    )
     assert exact.apex is not None and bool(compiled.saturated)
     assert abs(units.height_to_bar(PARAMS, float(compiled.y) - exact.apex.y)) <= APEX_TOLERANCE
     unsaturated = compiled_apex_return_map(PARAMS, apex.y, apex.xdot, *ramp)
@@ -116,22 +121,24 @@ def test_invalid_lanes_raise_the_batch_s_parameter_error(
     inputs: tuple[float, ...], tau_max: float, message: str
 ) -> None:
     with pytest.raises(ParameterError, match=message) as batch_error:
-        batch_apex_return_map(PARAMS, *inputs, tau_max=tau_max)
+        batch_apex_return_map(PARAMS, *inputs, conditions=StrideConditions(tau_max=tau_max))
     with pytest.raises(ParameterError) as compiled_error:
-        compiled_apex_return_map(PARAMS, *inputs, tau_max=tau_max)
+        compiled_apex_return_map(PARAMS, *inputs, conditions=StrideConditions(tau_max=tau_max))
     assert str(compiled_error.value) == str(batch_error.value)
 
 
 def test_one_apex_is_its_lane_of_the_lanes() -> None:
     """apex_stride, the one-apex API, is the lane of compiled_apex_return_map, bit for bit."""
     y, xdot, angle, tau0, t_f, tau_max = _random_lanes(60, 7)
-    lanes = compiled_apex_return_map(PARAMS, y, xdot, angle, tau0, t_f, tau_max=tau_max)
+    lanes = compiled_apex_return_map(
+        PARAMS, y, xdot, angle, tau0, t_f, conditions=StrideConditions(tau_max=tau_max)
+    )
     for lane in range(y.size):
         one = apex_stride(
             PARAMS,
             ApexState(y[lane], xdot[lane]),
             StanceCommand(angle[lane], tau0[lane], t_f[lane]),
-            tau_max=tau_max[lane],
+            conditions=StrideConditions(tau_max=tau_max[lane]),
         )
         assert failure_code(one.failure) == lanes.failure[lane]
         assert (one.apex is None) == np.isnan(lanes.y[lane])
@@ -157,7 +164,7 @@ def test_one_apex_beyond_the_limits_raises_the_exact_map_s_parameter_error() -> 
         apex_stride(PARAMS, apex, command)
     assert str(compiled_error.value) == str(exact_error.value)
     with pytest.raises(ParameterError, match="tau_max"):
-        apex_stride(PARAMS, ApexState(1.2, 4.0), command, tau_max=0.0)
+        apex_stride(PARAMS, ApexState(1.2, 4.0), command, conditions=StrideConditions(tau_max=0.0))
 
 
 def test_energy_exact_over_many_lanes_meets_its_target_on_scipy_s_exact_map_or_says_why_not() -> None:

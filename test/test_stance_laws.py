@@ -21,7 +21,7 @@ from tdslip_ros.model.paper import PAPER_PARAMS as PARAMS
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.plant.batch import batch_feedback_return_map, simulate_strides
 from tdslip_ros.model.plant.exact_map import StrideResult, apex_return_map
-from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.perturbations import Perturbations, StrideConditions
 from tdslip_ros.model.plant.stance_laws import RecordedTorques, StanceFeedback, StanceSample, TorqueStream
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
@@ -178,7 +178,9 @@ def test_replaying_a_stepper_strides_recorded_torques_on_the_exact_map_gives_its
 
 def test_the_torque_limits_clip_the_law_in_every_engine() -> None:
     tau_max = 150.0
-    exact = apex_return_map(PARAMS, START, FEEDBACK, tau_max=tau_max, rtol=1e-13, atol=1e-13)
+    exact = apex_return_map(
+        PARAMS, START, FEEDBACK, rtol=1e-13, atol=1e-13, conditions=StrideConditions(tau_max=tau_max)
+    )
     held = np.array([tau for _, tau in exact.stance_torques])
     assert np.all(np.abs(held) <= tau_max) and np.any(held == -tau_max)
     stepper = FixedStepStepper(PARAMS, START, FEEDBACK, perturbations=Perturbations(tau_max=tau_max))
@@ -186,7 +188,9 @@ def test_the_torque_limits_clip_the_law_in_every_engine() -> None:
     assert stepper.saturated_strides == 1
     assert [tau for _, tau in stride.torques] == pytest.approx(list(held), abs=1e-6)
     assert_same_apex(stride.next_apex.y, stride.next_apex.xdot, exact.apex)
-    batch = batch_feedback_return_map(PARAMS, START.y, START.xdot, BETA, LAW, tau_max=[tau_max, math.inf])
+    batch = batch_feedback_return_map(
+        PARAMS, START.y, START.xdot, BETA, LAW, conditions=StrideConditions(tau_max=[tau_max, math.inf])
+    )
     assert batch.saturated.tolist() == [True, False]
     assert_same_apex(float(batch.y[0]), float(batch.xdot[0]), exact.apex)
     # The plausibility limit max_torque is an actuator limit too for a law (a ramp's tau0 beyond it fails).

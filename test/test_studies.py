@@ -20,6 +20,7 @@ from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.policies import controllers
 from tdslip_ros.model.policies.registry import PolicySpec
 from tdslip_ros.model.stability import analytic_fixed_points, basins
@@ -352,9 +353,7 @@ def test_a_perturbed_trajectory_is_the_exact_map_s_stride_by_stride() -> None:
                 in_force,
                 rtol=1e-10,
                 atol=1e-10,
-                x=x,
-                ground=ground,
-                terrain=perturbations.terrain,
+                conditions=StrideConditions(x=x, ground=ground, terrain=perturbations.terrain),
             )
             if result.apex is None:
                 survived = stride

@@ -75,6 +75,7 @@ from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.plant.batch import batch_apex_return_map
+from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.policies.registry import (
     FIXED_ANGLE_POLICIES,
     POLICIES,
@@ -318,12 +319,14 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
             column("y") - column("ground"),
             column("xdot"),
             *command,
-            x=column("x"),
-            ground=column("ground"),
-            terrain=perturbations.terrain,
-            tau_max=tau_max,
-            push=column("push"),
-            angle_error=column("angle_error"),
+            conditions=StrideConditions(
+                x=column("x"),
+                ground=column("ground"),
+                terrain=perturbations.terrain,
+                tau_max=tau_max,
+                push=column("push"),
+                angle_error=column("angle_error"),
+            ),
         )
         exact_next = np.stack([exact.ground + exact.y, exact.xdot], axis=-1)
     else:

@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from tdslip_ros.analysis.compare import Comparison, closed_loop_step, dimensionless
 from tdslip_ros.analysis.reader import Run
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic.apex_map import speed_from_energy
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.reporting.style import DPI
 
 MAP_CURVE_POINTS = 200

@@ -23,6 +23,7 @@ import numpy.typing as npt
 from tdslip_ros.analysis.reader import Run
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.perturbations import StrideConditions
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -58,13 +59,15 @@ def predict_stance_feedback(run: Run) -> FeedbackPredictions:
             run.params,
             ApexState(stride.height, stride.xdot),
             stride.stance_feedback,
-            x=stride.x,
-            ground=stride.ground,
-            terrain=perturbations.terrain,
-            tau_max=tau_max,
-            push=stride.push,
-            angle_error=stride.angle_error,
             apex_time=stride.t,
+            conditions=StrideConditions(
+                x=stride.x,
+                ground=stride.ground,
+                terrain=perturbations.terrain,
+                tau_max=tau_max,
+                push=stride.push,
+                angle_error=stride.angle_error,
+            ),
         )
         rows.append(stride.stride)
         recorded.append((after.y, after.xdot))

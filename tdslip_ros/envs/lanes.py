@@ -26,7 +26,7 @@ from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.plant.batch import batch_apex_return_map
-from tdslip_ros.model.plant.perturbations import DRAW_BLOCK, Perturbations
+from tdslip_ros.model.plant.perturbations import DRAW_BLOCK, Perturbations, StrideConditions
 from tdslip_ros.model.plant.terrain import Blocks, IntArray, Terrain
 from tdslip_ros.model.policies.controllers import ramp_to_liftoff
 from tdslip_ros.model.policies.learned import residual_command
@@ -245,12 +245,14 @@ class HopperLanes:
             *command,
             rtol=config.tolerance,
             atol=config.tolerance,
-            x=self.x[index],
-            ground=self.ground[index],
-            terrain=self.terrain(index),
-            tau_max=config.perturbations.tau_max,
-            push=errors[3],
-            angle_error=errors[2],
+            conditions=StrideConditions(
+                x=self.x[index],
+                ground=self.ground[index],
+                terrain=self.terrain(index),
+                tau_max=config.perturbations.tau_max,
+                push=errors[3],
+                angle_error=errors[2],
+            ),
         )
         failed = result.failure != NO_FAILURE_CODE
         survived = index[~failed]

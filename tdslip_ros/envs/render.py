@@ -18,6 +18,7 @@ from tdslip_ros.envs.config import HopConfig
 from tdslip_ros.model.events import HopperState
 from tdslip_ros.model.params import ApexState, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.plant.terrain import Terrain
 
 FRAME_INCHES, FRAME_DPI = (6.0, 3.0), 80
@@ -54,12 +55,14 @@ def draw_stride(
             StanceCommand(inputs["touchdown_angle"], inputs["tau0"], inputs["t_f"]),
             rtol=config.tolerance,
             atol=config.tolerance,
-            x=x0,
-            ground=ground0,
-            terrain=terrain,
-            tau_max=float(config.perturbations.tau_max),
-            push=inputs["push"],
-            angle_error=inputs["angle_error"],
+            conditions=StrideConditions(
+                x=x0,
+                ground=ground0,
+                terrain=terrain,
+                tau_max=float(config.perturbations.tau_max),
+                push=inputs["push"],
+                angle_error=inputs["angle_error"],
+            ),
         )
         speed = inputs["xdot"] + inputs["push"]
         end = stride.touchdown or stride.failure_state

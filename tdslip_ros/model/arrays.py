@@ -22,7 +22,14 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.model.events import FAILURE_KINDS, FailureKind
-from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.params import (
+    HUMAN_LIKE_LEG_LENGTH,
+    HUMAN_LIKE_MASS,
+    STANDARD_GRAVITY,
+    HopperParams,
+    ParameterError,
+    StanceCommand,
+)
 
 Array = npt.NDArray[Any]
 ArrayLike = npt.ArrayLike
@@ -81,9 +88,9 @@ class ParamArrays:
         cls,
         kbar: ArrayLike,
         zeta0: ArrayLike,
-        m: ArrayLike = 80.0,
-        r0: ArrayLike = 1.0,
-        g: ArrayLike = 9.81,
+        m: ArrayLike = HUMAN_LIKE_MASS,
+        r0: ArrayLike = HUMAN_LIKE_LEG_LENGTH,
+        g: ArrayLike = STANDARD_GRAVITY,
     ) -> ParamArrays:
         """Arrays from the paper's kbar = k r0/(m g) and zeta0 = c/(2 sqrt(m k)) (eq. 24), broadcast."""
         m_, r0_, g_ = (np.asarray(v, dtype=float) for v in (m, r0, g))

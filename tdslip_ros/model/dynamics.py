@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -249,6 +249,31 @@ def stance_energy(params: HopperParams, r: Real, cos_t: Real, rdot: Real, thetad
     """Total mechanical energy [J] in stance: kinetic + gravitational + spring."""
     kinetic = 0.5 * params.m * (rdot * rdot + r * r * thetadot * thetadot)
     return kinetic + params.m * params.g * r * cos_t + spring_energy(params, r)
+
+
+def apex_energy(m: Any, g: Any, y: Any, xdot: Any) -> Any:
+    """Mechanical energy [J] of an apex at height y [m] with forward speed xdot [m/s], m (g y + xdot^2 / 2):
+    the coordinate E of eq. 23. Plain arithmetic, for floats, arrays and complex steps alike; the compiled
+    kernels call this same source (:mod:`tdslip_ros.model.analytic.map_kernels` registers it)."""
+    return m * (g * y + 0.5 * xdot**2)
+
+
+class MassAndGravity(Protocol):
+    """What :func:`speed_from_energy` reads of a hopper: floats (:class:`.params.HopperParams`) or arrays
+    over lanes (:class:`.arrays.ParamArrays`)."""
+
+    @property
+    def m(self) -> npt.ArrayLike: ...
+    @property
+    def g(self) -> npt.ArrayLike: ...
+
+
+def speed_from_energy(params: MassAndGravity, y: npt.ArrayLike, energy: npt.ArrayLike) -> FloatArray:
+    """Forward apex speed [m/s] with apex height y [m] and energy E [J], the inverse of :func:`apex_energy`
+    in xdot >= 0 (eq. 23 coordinates); NaN where E < m g y."""
+    m, g = np.asarray(params.m), np.asarray(params.g)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(np.sqrt(2.0 * (np.asarray(energy) / m - g * np.asarray(y))))
 
 
 def flight_energy(params: HopperParams, y: Real, xdot: Real, ydot: Real) -> Real:

@@ -265,3 +265,48 @@ class PlausibilityLimits:
         if state.energy > self.max_energy:
             return f"energy {state.energy!r} J exceeds max_energy = {self.max_energy:.6g} J"
         return None
+
+
+# The checks of the value objects (params) and of the limits, per lane of a batch: the engines that take
+# arrays (the batched engine, the compiled stride, energy_exact's planner) validate their lanes with these.
+Checks = tuple[tuple[str, FloatArray, npt.NDArray[np.bool_], str], ...]
+"""(field name, values, valid per lane, requirement)."""
+
+
+def check_lanes(checks: Checks) -> None:
+    """ParameterError naming the field and the first lane of the first check that fails."""
+    for name, values, valid, requirement in checks:
+        if not np.all(valid):
+            lane = int(np.flatnonzero(~valid)[0])
+            raise ParameterError(f"{name} must be {requirement}, got {values[lane]!r} in lane {lane}")
+
+
+def validate_lanes(
+    limits: PlausibilityLimits,
+    y: FloatArray,
+    xdot: FloatArray,
+    angle: FloatArray,
+    stance: Checks,
+) -> None:
+    """The checks of ApexState, of the stance (``stance``: those of StanceCommand for ramps) and
+    limits.check_apex, per lane; the message names the field and a lane."""
+    check_lanes(
+        (
+            ("apex height y", y, np.isfinite(y) & (y > 0.0), "a positive finite number"),
+            ("apex speed xdot", xdot, np.isfinite(xdot), "finite"),
+            ("touchdown_angle", angle, (angle > 0.0) & (angle < math.pi / 2), "in (0, pi/2) rad"),
+            *stance,
+        )
+    )
+    beyond = limits.apex_exceeded(y, xdot)
+    if np.any(beyond):
+        lane = int(np.flatnonzero(beyond)[0])
+        raise ParameterError(f"{limits.apex_violation(float(y[lane]), float(xdot[lane]))} in lane {lane}")
+
+
+def ramp_checks(tau0: FloatArray, t_f: FloatArray) -> Checks:
+    """The checks of StanceCommand's ramp (tau0, t_f), per lane, for :func:`validate_lanes`."""
+    return (
+        ("tau0", tau0, np.isfinite(tau0), "finite"),
+        ("t_f", t_f, np.isfinite(t_f) & (t_f > 0.0), "a positive finite number"),
+    )

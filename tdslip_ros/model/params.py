@@ -21,6 +21,10 @@ from dataclasses import dataclass
 _SQRT_MAX_FLOAT = math.sqrt(sys.float_info.max)
 STANDARD_GRAVITY = 9.81
 """m/s^2, the value the paper's human-like examples use."""
+HUMAN_LIKE_MASS = 80.0
+"""kg, the body mass of the paper's human-like examples (figs 4-11)."""
+HUMAN_LIKE_LEG_LENGTH = 1.0
+"""m, the leg's rest length r0 of the paper's examples."""
 
 
 class ParameterError(ValueError):
@@ -94,8 +98,8 @@ class HopperParams:
         cls,
         kbar: float,
         zeta0: float,
-        m: float = 80.0,
-        r0: float = 1.0,
+        m: float = HUMAN_LIKE_MASS,
+        r0: float = HUMAN_LIKE_LEG_LENGTH,
         g: float = STANDARD_GRAVITY,
     ) -> HopperParams:
         """Build from the paper's kbar = k r0/(m g) and zeta0 = c/(2 sqrt(m k)) (eq. 24)."""

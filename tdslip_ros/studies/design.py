@@ -38,7 +38,8 @@ from typing import Any, Literal
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, speed_from_energy
+from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
 from tdslip_ros.model.policies.registry import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS, SETTING_DEFAULTS
 from tdslip_ros.model.stability import analytic_fixed_points

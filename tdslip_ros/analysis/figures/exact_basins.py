@@ -25,8 +25,9 @@ from tdslip_ros.analysis.figures.common import (
 from tdslip_ros.analysis.figures.open_loop import open_loop_trace
 from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic.apex_map import SpeedSource, speed_from_energy
+from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.stability import analytic_fixed_points, basins, exact_fixed_points
 from tdslip_ros.reporting.paper_grids import BASIN_BETA_DEG, fig07_grid, fig10_grid, row_median
 from tdslip_ros.reporting.style import EXACT, START, basin_colour_map, basin_colours

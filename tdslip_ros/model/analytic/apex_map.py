@@ -94,6 +94,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from tdslip_ros.model import dynamics
 from tdslip_ros.model.analytic.map_kernels import (
     ENERGY_SPEED,
     FORCE_ROOT_LIFTOFF,
@@ -458,13 +459,6 @@ def validate_command(angle: Array, t_f: Array) -> None:
         raise ParameterError("t_f (ramp duration) must be positive on every lane")
 
 
-def speed_from_energy(params: HopperParams | ParamArrays, y: ArrayLike, energy: ArrayLike) -> Array:
-    """Forward apex speed with apex height y and energy E (eq. 23 coordinates); NaN where E < m g y."""
-    params = ParamArrays.of(params)
-    with np.errstate(invalid="ignore"):
-        return np.asarray(np.sqrt(2.0 * (np.asarray(energy) / params.m - params.g * np.asarray(y))))
-
-
 def approximate_map_energy(
     params: HopperParams | ParamArrays,
     y: ArrayLike,
@@ -476,7 +470,7 @@ def approximate_map_energy(
     speed: SpeedSource = "energy",
 ) -> Stride:
     """The same map from apex (y, E) coordinates (eq. 23); read ``.y`` and ``.energy`` of the result."""
-    xdot = speed_from_energy(params, y, energy)
+    xdot = dynamics.speed_from_energy(ParamArrays.of(params), y, energy)
     return approximate_map(params, y, xdot, command, corrections, liftoff, speed=speed)
 
 

@@ -13,14 +13,9 @@ from typing import Literal
 
 import numpy as np
 
-from tdslip_ros.model.analytic.apex_map import (
-    LiftoffMethod,
-    SpeedSource,
-    Stride,
-    approximate_map,
-    speed_from_energy,
-)
+from tdslip_ros.model.analytic.apex_map import LiftoffMethod, SpeedSource, Stride, approximate_map
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays, ParamArrays, command_arrays
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.params import HopperParams, StanceCommand
 
 Coordinates = Literal["speed", "energy"]

@@ -14,9 +14,11 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.compiled import atan2, inlined_kernel, is_complex, kernel, real
+from tdslip_ros.model.dynamics import apex_energy
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
 
 CORRECTION_TOLERANCE = 1e-12
@@ -25,6 +27,9 @@ FORCE_ROOT_TOLERANCE = 1e-14
 """Relative step in t below which the safeguarded Newton search for the force root stops."""
 FORCE_ROOT_ITERATIONS = 100
 """Bound on the steps of the force-root search (bisection alone needs about 50)."""
+
+# The apex energy's one source (dynamics), compiled where a kernel calls it.
+register_jitable(apex_energy)
 
 
 # Failure codes per lane, shared with the exact plant (tdslip_ros.model.events): NO_FAILURE_CODE (-1) or the
@@ -467,11 +472,6 @@ class LaneStride(NamedTuple):
     failure: int
     touchdown: Touchdown
     stance: LaneStance
-
-
-@kernel
-def apex_energy(m: float, g: float, y: complex, xdot: complex) -> complex:
-    return m * (g * y + 0.5 * xdot**2)
 
 
 @inlined_kernel

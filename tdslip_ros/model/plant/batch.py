@@ -23,10 +23,17 @@ import numpy.typing as npt
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
-from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
+from tdslip_ros.model.limits import (
+    Checks,
+    PlausibilityLimits,
+    check_lanes,
+    check_tolerances,
+    ramp_checks,
+    validate_lanes,
+)
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.plant.batch_stance import IntArray, feedback_stance, ramp_stance
-from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
+from tdslip_ros.model.plant.perturbations import UNPERTURBED, Perturbations, StrideConditions, placed_angle
 from tdslip_ros.model.plant.stance_kernel import STANCE_FAILURES, STANCE_LIFTOFF, STATE_SIZE
 from tdslip_ros.model.plant.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw, TorqueStream, torque_limit
 from tdslip_ros.model.plant.terrain import FLAT, Terrain, touchdown
@@ -90,12 +97,7 @@ def batch_apex_return_map(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
-    x: npt.ArrayLike = 0.0,
-    ground: npt.ArrayLike | None = None,
-    terrain: Terrain = FLAT,
-    tau_max: npt.ArrayLike = math.inf,
-    push: npt.ArrayLike = 0.0,
-    angle_error: npt.ArrayLike = 0.0,
+    conditions: StrideConditions = UNPERTURBED,
 ) -> BatchStrideResult:
     """The exact return map of :func:`.exact_map.apex_return_map` for broadcastable arrays of apex
     states (y [m], xdot [m/s]) and commands (touchdown_angle [rad], tau0 [N m], t_f [s]).
@@ -105,21 +107,10 @@ def batch_apex_return_map(
     the hopper's), max_stance_time among them. ParameterError names the field and the first lane of
     an invalid input, an apex beyond the limits included, or the invalid tolerance.
 
-    Perturbations as in the exact map, per lane (broadcast with the lanes): the apex at x [m], y above
-    ``ground`` [m] (default: the ground under the body), ``terrain`` (its per-lane fields in the lanes'
-    shape), tau_max [N m], push [m/s], angle_error [rad].
+    ``conditions`` as in the exact map, per lane: each field a float or an array broadcast with the lanes
+    (the terrain's per-lane fields in the lanes' shape).
     """
-    return _return_map(
-        params,
-        (y, xdot, touchdown_angle, x, tau_max, push, angle_error),
-        (tau0, t_f),
-        None,
-        rtol,
-        atol,
-        limits,
-        ground,
-        terrain,
-    )
+    return _return_map(params, (y, xdot, touchdown_angle), (tau0, t_f), None, rtol, atol, limits, conditions)
 
 
 def batch_feedback_return_map(
@@ -134,12 +125,7 @@ def batch_feedback_return_map(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
-    x: npt.ArrayLike = 0.0,
-    ground: npt.ArrayLike | None = None,
-    terrain: Terrain = FLAT,
-    tau_max: npt.ArrayLike = math.inf,
-    push: npt.ArrayLike = 0.0,
-    angle_error: npt.ArrayLike = 0.0,
+    conditions: StrideConditions = UNPERTURBED,
 ) -> BatchStrideResult:
     """The exact map of :func:`.exact_map.apex_return_map` under stance feedback
     (:class:`.stance_laws.StanceFeedback`), for broadcastable arrays of apex states, touchdown angles
@@ -153,15 +139,7 @@ def batch_feedback_return_map(
     if not (math.isfinite(sample_period) and sample_period > 0.0):
         raise ParameterError(f"sample_period must be a positive finite number, got {sample_period!r}")
     return _return_map(
-        params,
-        (y, xdot, touchdown_angle, x, tau_max, push, angle_error),
-        (apex_time,),
-        (law, sample_period),
-        rtol,
-        atol,
-        limits,
-        ground,
-        terrain,
+        params, (y, xdot, touchdown_angle), (apex_time,), (law, sample_period), rtol, atol, limits, conditions
     )
 
 
@@ -173,14 +151,17 @@ def _return_map(
     rtol: float,
     atol: float,
     limits: PlausibilityLimits | None,
-    ground: npt.ArrayLike | None,
-    terrain: Terrain,
+    conditions: StrideConditions,
 ) -> BatchStrideResult:
-    """One stride of broadcast lanes: inputs (y, xdot, touchdown_angle, x, tau_max, push, angle_error),
-    and the stance's: (tau0, t_f) of ramps, or (apex_time,) under the law and period of ``feedback``."""
+    """One stride of broadcast lanes: inputs (y, xdot, touchdown_angle), the conditions, and the stance's
+    inputs: (tau0, t_f) of ramps, or (apex_time,) under the law and period of ``feedback``."""
     check_tolerances(rtol, atol)
     limits = PlausibilityLimits.of(params, limits)
-    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (*inputs, *stance_inputs)))
+    ground, terrain = conditions.ground, conditions.terrain
+    per_lane = (conditions.x, conditions.tau_max, conditions.push, conditions.angle_error)
+    arrays = np.broadcast_arrays(
+        *(np.asarray(v, dtype=np.float64) for v in (*inputs, *per_lane, *stance_inputs))
+    )
     shape = arrays[0].shape
     y_a, xdot_a, angle, x_a, tau_max_a, push_a, error_a, *stance_a = (
         np.array(a, dtype=np.float64).ravel() for a in arrays
@@ -426,44 +407,6 @@ def simulate_strides(
         push=push_hist.reshape(n_strides, *shape),
         saturated=saturated.reshape(n_strides, *shape),
         t=t_hist.reshape(n_strides + 1, *shape),
-    )
-
-
-Checks = tuple[tuple[str, FloatArray, npt.NDArray[np.bool_], str], ...]
-"""(field name, values, valid per lane, requirement)."""
-
-
-def check_lanes(checks: Checks) -> None:
-    """ParameterError naming the field and the first lane of the first check that fails."""
-    for name, values, valid, requirement in checks:
-        if not np.all(valid):
-            lane = int(np.flatnonzero(~valid)[0])
-            raise ParameterError(f"{name} must be {requirement}, got {values[lane]!r} in lane {lane}")
-
-
-def validate_lanes(
-    limits: PlausibilityLimits, y: FloatArray, xdot: FloatArray, angle: FloatArray, stance: Checks
-) -> None:
-    """The checks of ApexState, of the stance (``stance``: those of StanceCommand for ramps) and
-    limits.check_apex, per lane; the message names the field and a lane."""
-    check_lanes(
-        (
-            ("apex height y", y, np.isfinite(y) & (y > 0.0), "a positive finite number"),
-            ("apex speed xdot", xdot, np.isfinite(xdot), "finite"),
-            ("touchdown_angle", angle, (angle > 0.0) & (angle < math.pi / 2), "in (0, pi/2) rad"),
-            *stance,
-        )
-    )
-    beyond = limits.apex_exceeded(y, xdot)
-    if np.any(beyond):
-        lane = int(np.flatnonzero(beyond)[0])
-        raise ParameterError(f"{limits.apex_violation(float(y[lane]), float(xdot[lane]))} in lane {lane}")
-
-
-def ramp_checks(tau0: FloatArray, t_f: FloatArray) -> Checks:
-    return (
-        ("tau0", tau0, np.isfinite(tau0), "finite"),
-        ("t_f", t_f, np.isfinite(t_f) & (t_f > 0.0), "a positive finite number"),
     )
 
 

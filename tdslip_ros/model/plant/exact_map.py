@@ -27,9 +27,9 @@ from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.plant.perturbations import placed_angle
+from tdslip_ros.model.plant.perturbations import UNPERTURBED, StrideConditions, placed_angle
 from tdslip_ros.model.plant.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
-from tdslip_ros.model.plant.terrain import FLAT, Terrain, touchdown
+from tdslip_ros.model.plant.terrain import touchdown
 
 Torque = Callable[[float], float]
 """The hip torque [N m] of one stance segment as a function of the time s since touchdown [s]."""
@@ -72,12 +72,7 @@ def apex_return_map(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
-    x: float = 0.0,
-    ground: float | None = None,
-    terrain: Terrain = FLAT,
-    tau_max: float = math.inf,
-    push: float = 0.0,
-    angle_error: float = 0.0,
+    conditions: StrideConditions = UNPERTURBED,
     apex_time: float = 0.0,
 ) -> StrideResult:
     """Next apex from ``apex`` under ``command``, or a named failure (see :mod:`.events`).
@@ -89,11 +84,9 @@ def apex_return_map(
     their max_stance_time [s] is the no_liftoff bound. Raises ParameterError for tolerances outside
     :func:`.limits.check_tolerances` and for an apex beyond the limits.
 
-    Perturbations (:mod:`.perturbations`; the defaults are flat ground and none): the apex is at x [m],
-    its height ``apex.y`` above ``ground`` [m, world frame] (default: the ground under the body); the toe
-    lands on ``terrain`` (:func:`.terrain.touchdown`); the hip torque saturates at tau_max [N m]; a push
-    [m/s] changes the forward speed right after the apex; the leg lands at the commanded angle plus
-    angle_error [rad] (:func:`.perturbations.placed_angle`).
+    ``conditions`` (:class:`.perturbations.StrideConditions`, floats; default flat ground and no
+    perturbation): the apex's x and the ground its height ``apex.y`` is above, the terrain, the torque's
+    saturation tau_max, a push after the apex and the leg's placement error.
 
     Stance feedback (a :class:`.stance_laws.StanceFeedback` command): the apex is at apex_time [s] on the
     sample clock, whose sample instants are the multiples of the command's sample_period; the law's
@@ -102,6 +95,8 @@ def apex_return_map(
     apex_time.
     """
     check_tolerances(rtol, atol)
+    x, ground, terrain = conditions.x, conditions.ground, conditions.terrain
+    tau_max, push, angle_error = conditions.tau_max, conditions.push, conditions.angle_error
     if isinstance(command, StanceFeedback) and isinstance(command.law, TorqueStream):
         raise ParameterError("the exact map cannot run a torque stream: replay it with RecordedTorques")
     if not math.isfinite(apex_time):  # the sample instants would be NaN: the integration would never end

@@ -455,3 +455,28 @@ def placed_angle(angle: Any, error: Any) -> Any:
     placed = np.clip(np.asarray(angle) + error, PLACEMENT_MARGIN, math.pi / 2 - PLACEMENT_MARGIN)
     result = np.where(np.asarray(error) == 0.0, angle, placed)
     return float(result) if result.ndim == 0 else result
+
+
+@dataclass(frozen=True)
+class StrideConditions:
+    """What a stride is hopped under, besides the apex and the command: the per-stride conditions that the
+    exact map (floats), the batched engine (floats or arrays broadcast with the lanes) and the compiled
+    stride (tau_max alone) take as one value. The defaults are flat ground and no perturbation.
+
+    x [m]: where the apex is; ground [m, world frame]: the ground under the apex that its height is above
+    (None: the terrain's height at x); terrain: where the toe lands (:func:`.terrain.touchdown`); tau_max
+    [N m]: the hip torque's saturation (inf: none); push [m/s]: a change of the forward speed right after the
+    apex; angle_error [rad]: the leg lands at the commanded angle plus this (:func:`placed_angle`). The
+    engines check the values per lane and name the first bad one.
+    """
+
+    x: Any = 0.0
+    ground: Any = None
+    terrain: Terrain = FLAT
+    tau_max: Any = math.inf
+    push: Any = 0.0
+    angle_error: Any = 0.0
+
+
+UNPERTURBED = StrideConditions()
+"""Flat ground, no saturation, no push, no placement error: the engines' default conditions."""

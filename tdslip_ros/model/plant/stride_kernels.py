@@ -33,9 +33,16 @@ from tdslip_ros.model import dynamics
 from tdslip_ros.model.arrays import Array
 from tdslip_ros.model.compiled import kernel
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, failure_from_code
-from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
+from tdslip_ros.model.limits import (
+    PlausibilityLimits,
+    check_lanes,
+    check_tolerances,
+    ramp_checks,
+    validate_lanes,
+)
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.plant.batch import BatchStrideResult, check_lanes, ramp_checks, validate_lanes
+from tdslip_ros.model.plant.batch import BatchStrideResult
+from tdslip_ros.model.plant.perturbations import UNPERTURBED, StrideConditions
 from tdslip_ros.model.plant.stance_kernel import (
     STANCE_FAILURES,
     STANCE_LIFTOFF,
@@ -185,6 +192,25 @@ def stride_lanes(
         lane_stride(lane_hopper, lane_limits, y[lane], xdot[lane], angle[lane], ramp, rtol, atol, out, lane)
 
 
+def flat_ground_saturation(conditions: StrideConditions) -> Any:
+    """The conditions' tau_max; ParameterError for any other condition than the defaults, which the compiled
+    stride does not run (the batched engine does)."""
+    defaults = {
+        "x": bool(np.all(np.asarray(conditions.x) == 0.0)),
+        "ground": conditions.ground is None,
+        "terrain": conditions.terrain.is_flat,
+        "push": bool(np.all(np.asarray(conditions.push) == 0.0)),
+        "angle_error": bool(np.all(np.asarray(conditions.angle_error) == 0.0)),
+    }
+    others = [name for name, is_default in defaults.items() if not is_default]
+    if others:
+        raise ParameterError(
+            f"the compiled stride runs flat ground with tau_max alone; got {', '.join(others)}: "
+            "use the batched engine (batch_apex_return_map)"
+        )
+    return conditions.tau_max
+
+
 @lru_cache(maxsize=16)
 def default_limits(params: HopperParams) -> PlausibilityLimits:
     """PlausibilityLimits.for_hopper(params), made once per hopper (about 10 us, a third of a stride)."""
@@ -209,13 +235,14 @@ def compiled_apex_return_map(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
-    tau_max: npt.ArrayLike = math.inf,
+    conditions: StrideConditions = UNPERTURBED,
 ) -> BatchStrideResult:
     """:func:`.batch.batch_apex_return_map` on flat ground, without pushes or placement errors (the same
-    arguments, checks and ParameterError), one lane after the other in compiled code: for a few lanes per
-    call, where the batched engine spends its time in numpy's overhead per call (its descent, ascent and
-    checks are array operations)."""
+    arguments, checks and ParameterError; of the conditions only tau_max), one lane after the other in
+    compiled code: for a few lanes per call, where the batched engine spends its time in numpy's overhead
+    per call (its descent, ascent and checks are array operations)."""
     check_tolerances(rtol, atol)
+    tau_max = flat_ground_saturation(conditions)
     limits = PlausibilityLimits.of(params, limits)
     arrays = np.broadcast_arrays(
         *(np.asarray(v, dtype=np.float64) for v in (y, xdot, touchdown_angle, tau0, t_f, tau_max))
@@ -260,13 +287,14 @@ def apex_stride(
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
-    tau_max: float = math.inf,
+    conditions: StrideConditions = UNPERTURBED,
 ) -> LaneStrideResult:
     """The next apex of :func:`.exact_map.apex_return_map` on flat ground from one apex, compiled (the
     states and commands are validated on construction; ParameterError for tolerances, an apex beyond the
     limits or tau_max <= 0): the exact map at about a fiftieth of its cost, for callers that hop one apex
     at a time."""
     check_tolerances(rtol, atol)
+    tau_max = float(flat_ground_saturation(conditions))
     limits = default_limits(params) if limits is None else PlausibilityLimits.of(params, limits)
     limits.check_apex(apex)
     if not tau_max > 0.0:

@@ -23,7 +23,6 @@ from tdslip_ros.model.analytic.map_kernels import (
     LaneStride,
     StanceStart,
     Touchdown,
-    apex_energy,
     converged,
     lane_ascent,
     lane_descent,
@@ -32,6 +31,7 @@ from tdslip_ros.model.analytic.map_kernels import (
 )
 from tdslip_ros.model.arrays import HAS_COMMAND, REASON_OF_FAILURE, Array, NoCommand, no_command_code
 from tdslip_ros.model.compiled import kernel, real
+from tdslip_ros.model.dynamics import apex_energy
 from tdslip_ros.model.events import NO_FAILURE_CODE
 
 FIXED_POINT_TOLERANCE = 1e-13
@@ -110,7 +110,7 @@ def energy_change(
     m: float, g: float, y: complex, xdot: complex, has_target: bool, target: complex
 ) -> complex:
     """E* - E_a for a target E*; zero without one (E* = E_a)."""
-    energy = apex_energy(m, g, y, xdot)
+    energy: complex = apex_energy(m, g, y, xdot)
     return target - energy if has_target else 0.0 * energy
 
 

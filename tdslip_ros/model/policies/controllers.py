@@ -54,6 +54,7 @@ from tdslip_ros.model.arrays import (
     ParamArrays,
     elementwise,
 )
+from tdslip_ros.model.dynamics import apex_energy
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.policies.controller_kernels import (
@@ -94,10 +95,6 @@ def _require_at_least(name: str, value: int, least: int) -> None:
 def _commands(lanes: Lanes, block: Array) -> CommandArrays:
     angle, tau0, t_f = (lanes.shaped(row) for row in block[:3])
     return CommandArrays(angle, tau0, t_f, no_command=lanes.codes(block[3]))
-
-
-def _apex_energy(params: ParamArrays, y: ArrayLike, xdot: ArrayLike) -> Array:
-    return np.asarray(params.m * (params.g * np.asarray(y) + 0.5 * np.asarray(xdot) ** 2))
 
 
 def _planned(
@@ -226,7 +223,7 @@ def exact_energy_regulation(
     """
     # Imported here: the exact kernels import scipy.integrate, which only this policy needs, so that a
     # controller node of the other policies starts without it (its DDS discovery races the recorder's).
-    from tdslip_ros.model.plant.batch import validate_lanes
+    from tdslip_ros.model.limits import validate_lanes
     from tdslip_ros.model.plant.stride_kernels import default_limits, kernel_rows
     from tdslip_ros.model.policies.exact_regulation_kernels import Newton, exact_regulation_lanes
 
@@ -235,7 +232,9 @@ def exact_energy_regulation(
     start = energy_regulation(arrays, y_, xdot_, beta_, target_energy, corrections)
     shape = np.shape(start.tau0)
     goal = (
-        _apex_energy(arrays, y_, xdot_) if target_energy is None else np.asarray(target_energy, dtype=float)
+        np.asarray(apex_energy(arrays.m, arrays.g, y_, xdot_))
+        if target_energy is None
+        else np.asarray(target_energy, dtype=float)
     )
     y_l, xdot_l, angle, goal_bar, tau0, t_f = (
         np.array(np.broadcast_to(np.real(value), shape), dtype=float).ravel()
@@ -387,7 +386,7 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True, exact
     y, xdot, beta = 1.1, 4.5, np.radians(26.0)
     for liftoff in ("paper", "force_root"):
         approximate_map(params, y, xdot, StanceCommand(beta, -500.0, 0.15), liftoff=liftoff)
-    energy = float(params.m * (params.g * y + 0.5 * xdot**2))
+    energy = float(apex_energy(params.m, params.g, y, xdot))
     energy_regulation(params, y, xdot, beta)
     energy_regulation(params, y, xdot, beta, energy)
     fixed_power(params, y, xdot, beta, 1.5)

@@ -14,9 +14,10 @@ from typing import NamedTuple
 import numpy as np
 
 from tdslip_ros.model import dynamics
-from tdslip_ros.model.analytic.map_kernels import LaneStride, apex_energy, converged, lane_ascent, lane_stance
+from tdslip_ros.model.analytic.map_kernels import LaneStride, converged, lane_ascent, lane_stance
 from tdslip_ros.model.arrays import HAS_COMMAND, Array
 from tdslip_ros.model.compiled import kernel, real
+from tdslip_ros.model.dynamics import apex_energy
 from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.policies.controller_kernels import (
     ENERGY_RULE,

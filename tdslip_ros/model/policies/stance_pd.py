@@ -116,7 +116,7 @@ class StancePDSpeedEnergy:
     def torque(self, sample: StanceSample, lanes: npt.NDArray[np.int64] | None = None) -> Any:
         model = self.model
         target_y, target_xdot = lane_values(self.target_y, lanes), lane_values(self.target_xdot, lanes)
-        target_energy = model.m * (model.g * target_y + 0.5 * target_xdot * target_xdot)
+        target_energy = dynamics.apex_energy(model.m, model.g, target_y, target_xdot)
         if isinstance(sample.theta, float):  # the scalar engines: math is faster than numpy on floats
             sin_t, cos_t = math.sin(sample.theta), math.cos(sample.theta)
         else:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic.apex_map import LiftoffMethod, SpeedSource, speed_from_energy
+from tdslip_ros.model.analytic.apex_map import LiftoffMethod, SpeedSource
 from tdslip_ros.model.analytic.closed_loop import (
     COMPLEX_STEP,
     Policy,
@@ -36,6 +36,7 @@ from tdslip_ros.model.analytic.closed_loop import (
     map_jacobian,
 )
 from tdslip_ros.model.arrays import Array, ArrayLike
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.policies.controllers import energy_regulation, fixed_power
 

@@ -39,8 +39,8 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.model import dynamics, units
-from tdslip_ros.model.analytic.apex_map import speed_from_energy
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays, NoCommand, no_command_code
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.events import FAILURE_KINDS, NO_FAILURE_CODE, FailureKind
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.plant.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides

@@ -36,9 +36,9 @@ from typing import Literal
 import numpy as np
 
 from tdslip_ros.model import units
-from tdslip_ros.model.analytic.apex_map import speed_from_energy
 from tdslip_ros.model.analytic.closed_loop import eigenvalues
 from tdslip_ros.model.arrays import Array, ArrayLike, CommandArrays
+from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.plant.batch import BatchStrideResult
