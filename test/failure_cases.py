@@ -8,11 +8,12 @@ import math
 from typing import NamedTuple
 
 from tdslip_ros.model.events import FailureKind
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
 from tdslip_ros.model.plant.perturbations import Perturbations, PlacementNoise, Pushes
 from tdslip_ros.model.plant.terrain import Step
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 LOSSLESS = HopperParams.from_dimensionless(36.0, 0.0)
 
 

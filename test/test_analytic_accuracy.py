@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import pytest
 
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.stability.analytic_accuracy import OPERATING_GRID, ExactStrides, accuracy, exact_strides
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 
 # corrections: (mean height, max height, mean speed, max speed) bounds on |analytic/exact - 1|.
 BOUNDS = {1: (0.010, 0.035, 0.015, 0.11), 0: (0.035, 0.08, 0.045, 0.13)}

@@ -19,6 +19,7 @@ from tdslip_ros.model.analytic.apex_map import (
     torque_momentum_correction,
 )
 from tdslip_ros.model.arrays import ParamArrays
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_ZETA0
 
 
 def _touchdown_cases() -> list[tuple[float, float, float, float, float]]:
@@ -236,7 +237,7 @@ def test_torque_correction_is_the_time_average_of_the_integrated_ramp(t_f: float
 
 
 def test_gravity_correction_is_the_time_average_of_the_interpolated_gravity_impulse() -> None:
-    params = ParamArrays.from_dimensionless(36.0, 0.08)
+    params = ParamArrays.from_dimensionless(PAPER_KBAR, PAPER_ZETA0)
     m, g, r0 = float(params.m), float(params.g), float(params.r0)
     theta_td, t_lo, r_lo, theta_lo = 0.45, 0.14, 0.97, -0.27
     h0, h1 = r0 * np.sin(theta_td), r_lo * np.sin(theta_lo)

@@ -14,10 +14,11 @@ from tdslip_ros.model.analytic.closed_loop import (
     fixed_command,
     map_jacobian,
 )
-from tdslip_ros.model.params import HopperParams, StanceCommand
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import StanceCommand
 from tdslip_ros.model.policies.controllers import energy_regulation, fixed_power
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 Y = np.array([1.02, 1.1, 1.25])
 XDOT = np.array([3.5, 4.5, 5.5])
 ENERGY = PARAMS.m * (PARAMS.g * Y + 0.5 * XDOT**2)

@@ -17,10 +17,11 @@ from tdslip_ros.model.analytic.apex_map import (
 from tdslip_ros.model.analytic.map_kernels import CORRECTION_TOLERANCE, NO_LIFTOFF
 from tdslip_ros.model.arrays import CommandArrays, ParamArrays
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 
 
 def test_descent_map_keeps_speed_and_energy() -> None:
@@ -37,7 +38,7 @@ def test_descent_map_keeps_speed_and_energy() -> None:
 
 
 def test_map_broadcasts_over_states_parameters_and_commands() -> None:
-    params = [HopperParams.from_dimensionless(36.0, 0.08), HopperParams.from_dimensionless(20.0, 0.2, m=60.0)]
+    params = [PAPER_PARAMS, HopperParams.from_dimensionless(20.0, 0.2, m=60.0)]
     stacked = ParamArrays.of(params)
     lanes = ParamArrays(*(np.asarray(v)[:, None, None] for v in vars(stacked).values()))
     y = np.array([1.0, 1.1, 1.25])[None, :, None]

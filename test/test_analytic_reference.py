@@ -26,7 +26,7 @@ import pytest
 from tdslip_ros.model.analytic.apex_map import approximate_map
 from tdslip_ros.model.analytic.closed_loop import map_jacobian
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, ParamArrays, no_command_code
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.policies.controllers import (
     apex_foot_placement,
     deadbeat,
@@ -36,7 +36,7 @@ from tdslip_ros.model.policies.controllers import (
 )
 
 RECORD = np.load(Path(__file__).parent / "data" / "analytic_reference.npz")
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 AGREEMENT = 1e-12
 
 

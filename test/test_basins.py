@@ -16,14 +16,14 @@ from tdslip_ros.model import units
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.stance_laws import StanceFeedback
 from tdslip_ros.model.policies.controllers import deadbeat, energy_regulation
 from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
 from tdslip_ros.model.stability import analytic_fixed_points, basins
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(26.0)
 
 

@@ -20,6 +20,7 @@ from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, approximate_map
 from tdslip_ros.model.arrays import CommandArrays, NoCommand, NoCommandError, ParamArrays
 from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.model.events import EventKind
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.stepper import FixedStepStepper
@@ -35,7 +36,7 @@ from tdslip_ros.model.policies.controllers import (
 )
 from tdslip_ros.model.policies.registry import POLICIES, PolicySpec
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 Y, XDOT = np.meshgrid([1.0, 1.05, 1.15, 1.3], [2.5, 4.0, 5.5, 7.0], indexing="ij")
 ANGLES = np.radians([[[20.0]], [[26.0]], [[32.0]]])  # broadcasts against the (4, 4) states
 

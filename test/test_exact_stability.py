@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import units
-from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.policies.controllers import exact_energy_regulation
 from tdslip_ros.model.stability import analytic_fixed_points, basins
 from tdslip_ros.model.stability import exact_fixed_points as xs
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(26.0)
 
 

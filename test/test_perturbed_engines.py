@@ -18,6 +18,7 @@ from tdslip_ros.interfaces import (
 )
 from tdslip_ros.model import units
 from tdslip_ros.model.events import EventKind, FailureKind, failure_code, failure_from_code
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.batch import BatchRun, Policy, batch_apex_return_map, simulate_strides
 from tdslip_ros.model.plant.exact_map import apex_return_map
@@ -33,7 +34,7 @@ from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.plant.terrain import FLAT, Blocks, Step
 from tdslip_ros.model.policies import controllers
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(20.0)
 TARGET_ENERGY = ApexState(1.0, 5.0).energy(PARAMS)
 

@@ -11,7 +11,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from tdslip_ros.model.events import FailureKind
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.plant.terrain import (
@@ -25,7 +26,7 @@ from tdslip_ros.model.plant.terrain import (
     touchdown,
 )
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 COMMAND = StanceCommand(math.radians(20.0), -273.0, 0.13)
 PROFILE = Profile((0.5, 0.9, 0.9, 1.4, 2.0, 2.0), (0.0, 0.03, -0.02, 0.04, -0.01, 0.05))
 

@@ -11,12 +11,13 @@ from failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import units
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, failure_from_code
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.batch import BatchStrideResult, batch_apex_return_map, simulate_strides
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.stride_kernels import compiled_apex_return_map
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 ENERGY_SCALE = units.energy_scale(PARAMS)
 
 

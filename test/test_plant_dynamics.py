@@ -14,9 +14,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from tdslip_ros.model import dynamics
-from tdslip_ros.model.params import HopperParams, StanceCommand
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import StanceCommand
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 COMMAND = StanceCommand(touchdown_angle=math.radians(22.0), tau0=-600.0, t_f=0.12)
 
 

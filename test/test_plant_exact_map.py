@@ -11,10 +11,11 @@ from scipy.optimize import brentq
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, Phase
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 LOSSLESS = HopperParams.from_dimensionless(36.0, 0.0)
 # A stable lossless gait: beta = 20 deg at Ebar = 2.5 has a stable fixed point near ybar = 0.97.
 LOSSLESS_COMMAND = StanceCommand(math.radians(20.0), tau0=0.0, t_f=0.1)

@@ -13,7 +13,8 @@ import pytest
 from tdslip_ros.model import units
 from tdslip_ros.model.arrays import HAS_COMMAND, NoCommand
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, ParameterError, StanceCommand
 from tdslip_ros.model.plant.batch import batch_apex_return_map
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.perturbations import StrideConditions
@@ -21,7 +22,7 @@ from tdslip_ros.model.plant.stance_kernel import LaneTorque, kink
 from tdslip_ros.model.plant.stride_kernels import apex_stride, compiled_apex_return_map
 from tdslip_ros.model.policies.controllers import exact_energy_regulation
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 ENERGY_SCALE = units.energy_scale(PARAMS)
 APEX_TOLERANCE = 1e-11
 """Dimensionless apex (y/r0, xdot/sqrt(g r0)): the exact map's accuracy at rtol = atol = 1e-12."""

@@ -18,6 +18,7 @@ from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic.apex_map import approximate_return_map
 from tdslip_ros.model.events import EventKind, FailureKind, HopperState, failure_from_code
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper, check_tolerances
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant import exact_map
 from tdslip_ros.model.plant.batch import batch_apex_return_map, batch_feedback_return_map, simulate_strides
@@ -28,7 +29,7 @@ from tdslip_ros.model.plant.stance_laws import StanceSample
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.policies.controllers import deadbeat
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 LIMITS = PlausibilityLimits.for_hopper(PARAMS)
 GAIT = StanceCommand(math.radians(20.0), -273.0, 0.13)  # the paper's energy-regulated gait
 GAIT_LANES = (GAIT.touchdown_angle, GAIT.tau0, GAIT.t_f)  # the batch's arguments

@@ -8,10 +8,11 @@ import pytest
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
 from tdslip_ros.commands.cli import main as tdslip
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 
 
 def _table(output: str) -> list[list[float]]:

@@ -11,11 +11,12 @@ from failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind, FailureKind, Phase
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(20.0)
 TARGET_ENERGY = ApexState(1.2, 4.0).energy(PARAMS)
 

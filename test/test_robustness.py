@@ -18,14 +18,15 @@ import pytest
 from tdslip_ros.commands import cli
 from tdslip_ros.commands.robustness import DEFAULT_ENERGY_BAR
 from tdslip_ros.model import units
-from tdslip_ros.model.params import ApexState, HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.policies import controllers
 from tdslip_ros.model.policies.registry import PolicySpec
 from tdslip_ros.studies import robustness
 from tdslip_ros.studies.design import DEFAULTS
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(26.0)
 
 

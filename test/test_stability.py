@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from tdslip_ros.model import units
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.stability import analytic_fixed_points
 
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 BETA = math.radians(26.0)
 MG = PARAMS.m * PARAMS.g
 

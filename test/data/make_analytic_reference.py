@@ -18,7 +18,7 @@ import numpy as np
 from tdslip_ros.model.analytic.apex_map import approximate_map
 from tdslip_ros.model.analytic.closed_loop import map_jacobian
 from tdslip_ros.model.arrays import CommandArrays, ParamArrays
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.policies.controllers import (
     apex_foot_placement,
     deadbeat,
@@ -28,7 +28,7 @@ from tdslip_ros.model.policies.controllers import (
 )
 
 OUT = Path(__file__).with_name("analytic_reference.npz")
-PARAMS = HopperParams.from_dimensionless(36.0, 0.08)
+PARAMS = PAPER_PARAMS
 MAP_CASES = (("1_paper", 1, "paper"), ("0_paper", 0, "paper"), ("2_force_root", 2, "force_root"))
 
 
