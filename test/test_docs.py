@@ -146,3 +146,27 @@ def test_table_cells_are_short(page: Path) -> None:
             cells = re.split(r"(?<!\\)\|", line.strip().strip("|"))
             longest = max(cells, key=len).strip()
             assert len(longest) <= TABLE_CELL_MAX, f"{relative(page)}: a cell of {len(longest)} characters"
+
+
+def test_the_architecture_page_draws_every_module_of_the_model(repo_root: Path) -> None:
+    """docs/ARCHITECTURE.md's tree of model/ names every module there is, in its sub-package's branch."""
+    page = (repo_root / "docs" / "ARCHITECTURE.md").read_text()
+    tree = page[page.index("```\nmodel/") : page.index("```", page.index("```\nmodel/") + 3)]
+    branches = {
+        line.split("/")[0].split()[-1]: index for index, line in enumerate(tree.splitlines()) if "/ " in line
+    }
+    model = repo_root / "tdslip_ros" / "model"
+    lines = tree.splitlines()
+    for path in sorted(model.rglob("*.py")):
+        if path.name == "__init__.py":
+            continue
+        package = path.parent.name if path.parent != model else None
+        name = re.compile(rf"(?<![\w/]){re.escape(path.name)}(?!\w)")
+        named = [index for index, line in enumerate(lines) if name.search(line)]
+        assert named, f"docs/ARCHITECTURE.md's tree of model/ leaves out {path.relative_to(model)}"
+        if package is not None:
+            start = branches[package]
+            ends = [index for index in branches.values() if index > start]
+            assert start < named[0] < min(ends, default=len(lines)), (
+                f"{path.relative_to(model)} is drawn elsewhere"
+            )
