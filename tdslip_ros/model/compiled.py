@@ -10,8 +10,8 @@ the vectorised API loops over the lanes of a batch in compiled code; the complex
 per argument type). The few large kernels of the map's hot path are
 compiled with :func:`inlined_kernel`, which copies them into their callers.
 
-Cache. Compiling every kernel takes about a minute (once for float64 and once for complex128 arguments),
-so the machine code is kept on disk and a new process only loads it (about 0.4 s). It goes to a folder
+Cache. Compiling every kernel takes minutes (once for float64 and once for complex128 arguments), so
+the machine code is kept on disk and a new process only loads it. It goes to a folder
 ``model-<hash>``, the hash of every source file of ``tdslip_ros.model`` and its sub-packages (kernels call
 kernels and use
 constants of other modules, so any change to the model recompiles; numba alone would only watch each

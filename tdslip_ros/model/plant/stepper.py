@@ -13,7 +13,7 @@ Why 4 sub-steps per 1 ms tick: RK4's error scales with (omega0 h)^4. Against a D
 rtol 1e-13 over 20 strides (kbar = 36, zeta0 = 0.08, energy-regulated, test_plant_stepper.py), the
 worst event-time error is 2.1e-8 s with 1 sub-step, 1.3e-9 s with 2 and 8e-11 s with 4 (apex
 states 1.4e-9, 9e-11, 5e-12 dimensionless): 1 ms RK4 alone misses the 1e-9 s target, 4 sub-steps
-meet it with margin. A stance tick then costs ~30-55 us (bench/bench_stepper.py).
+meet it with margin. What a stance tick costs: bench/bench_stepper.py (numbers in docs/benchmarks.md).
 
 Plausibility limits (:mod:`.limits`): the stepper refuses to start from an apex beyond them; a touchdown
 under a torque beyond the actuator limit, or a liftoff towards an apex beyond the limits, ends the run as

@@ -213,7 +213,8 @@ def flat_ground_saturation(conditions: StrideConditions) -> Any:
 
 @lru_cache(maxsize=16)
 def default_limits(params: HopperParams) -> PlausibilityLimits:
-    """PlausibilityLimits.for_hopper(params), made once per hopper (about 10 us, a third of a stride)."""
+    """PlausibilityLimits.for_hopper(params), made once per hopper: building it costs a sizeable part of a
+    compiled stride (bench/bench_exact_stride.py)."""
     return PlausibilityLimits.for_hopper(params)
 
 
@@ -299,7 +300,7 @@ def apex_stride(
     limits.check_apex(apex)
     if not tau_max > 0.0:
         raise ParameterError(f"tau_max must be > 0 N m (inf: no saturation), got {tau_max!r}")
-    # One-lane arrays, not named tuples: numba types arrays in C on each call, tuples in Python (~10 us each).
+    # One-lane arrays, not named tuples: numba types arrays in C on each call, tuples in Python.
     hopper, bounds = kernel_rows(limits)
     y, xdot, angle, tau0, t_f, saturation = np.array(
         [[apex.y], [apex.xdot], [command.touchdown_angle], [command.tau0], [command.t_f], [tau_max]]
