@@ -17,7 +17,7 @@ The functions below that an integrator calls inside its steps are plain arithmet
 sin(theta) and cos(theta) from the caller, so the same code serves Python floats (the 1 kHz
 stepper and the exact map, where ``math`` is fastest), numpy arrays (the batched engine's flight,
 the stance laws) and the compiled kernels, which compile it for one lane (:mod:`.stance_kernel`,
-:mod:`.exact_kernels`).
+:mod:`.plant.stride_kernels`).
 """
 
 from __future__ import annotations

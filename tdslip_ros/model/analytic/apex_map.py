@@ -142,7 +142,7 @@ the horizontal liftoff velocity of eq. (7) (``"liftoff"``, the paper's map as pr
 ANALYTIC_MAPS: dict[str, SpeedSource] = {"ours": "energy", "paper": "liftoff"}
 """The analytic maps by name, each with its next apex speed (:data:`SpeedSource`): ours, from the energy
 balance (the default), or the paper's, from the liftoff velocity of eq. 7 as printed. The policies'
-``analytic_map`` setting (:mod:`.policies`) and ``tdslip ... --map`` name them so."""
+``analytic_map`` setting (:mod:`tdslip_ros.model.policies.registry`) and ``tdslip ... --map`` name them so."""
 DEFAULT_ANALYTIC_MAP = "ours"
 
 

@@ -268,7 +268,7 @@ ENERGY_SPEED, LIFTOFF_SPEED = 0, 2
 
 @kernel
 def lane_liftoff(s: LaneApproximation, map_variant: int) -> tuple[complex, bool]:
-    """Liftoff time and whether it exists (both methods: the docstring of :mod:`.analytic`)."""
+    """Liftoff time and whether it exists (both methods: the docstring of :mod:`.apex_map`)."""
     if map_variant & FORCE_ROOT_LIFTOFF:
         return lane_force_root_liftoff(s)
     return lane_paper_liftoff(s)

@@ -1,5 +1,5 @@
 """The exact stance, compiled: the one DOP853 integrator of every exact engine that hops lanes (the batched
-engine, :mod:`.batch`, and the compiled stride, :mod:`.exact_kernels`).
+engine, :mod:`.batch`, and the compiled stride, :mod:`.stride_kernels`).
 
 One lane's stance (eq. 2, :mod:`.dynamics`) is integrated from a state (s, y) by the DOP853 Runge-Kutta
 pair (scipy's coefficients) with scipy's error norm and step-size rule, split at the kinks of the torque.

@@ -26,7 +26,7 @@ Implementation. Each analytic policy is a compiled kernel of one lane (:mod:`.co
 :mod:`.deadbeat_kernels`) on the analytic map's own lane kernels; the functions here broadcast their inputs
 and run it in a compiled loop over the lanes, so one apex costs a call into compiled code and a batch costs
 one loop. A lane's command does not depend on the other lanes of its batch. The policies by name, with
-their settings, are :mod:`.policies`.
+their settings, are :mod:`.registry`.
 """
 
 from __future__ import annotations
@@ -378,7 +378,7 @@ def apex_foot_placement(
 def warm_up(params: HopperParams | None = None, complex_step: bool = True, exact_plant: bool = True) -> None:
     """Load the compiled kernels of the analytic map and of every analytic policy, for one apex at a time
     as the controller node plans (and with ``complex_step`` for the complex step of map_jacobian too; with
-    ``exact_plant`` the compiled exact stride and energy_exact's plan on it, :mod:`.exact_kernels`),
+    ``exact_plant`` the compiled exact stride and energy_exact's plan on it, :mod:`.exact_regulation_kernels`),
     compiling those not yet in the cache (:mod:`tdslip_ros.model.compiled`; about a minute for all of
     them, once). The controller node calls it before it subscribes to the apex, so that its first answer
     is not late; ``./run.sh setup`` calls it so that the first node or test does not compile."""
