@@ -1,4 +1,5 @@
-"""The compiled exact stride (model.plant.stride_kernels) against the scalar exact map and the batched engine: the
+"""The compiled exact stride (model.plant.stride_kernels) against the scalar exact map and the batched
+engine: the
 same failure kinds, the apex to the exact map's accuracy, the batch's numbers to rounding, the same
 ParameterErrors; and energy_exact, which plans on it, over many lanes against the scalar exact map."""
 
@@ -169,7 +170,8 @@ def test_one_apex_beyond_the_limits_raises_the_exact_map_s_parameter_error() -> 
 
 
 def test_energy_exact_over_many_lanes_meets_its_target_on_scipy_s_exact_map_or_says_why_not() -> None:
-    """energy_exact's compiled Newton (policies.exact_regulation_kernels.exact_regulation_lanes), many lanes in one call, checked
+    """energy_exact's compiled Newton (policies.exact_regulation_kernels.exact_regulation_lanes), many lanes
+    in one call, checked
     lane by lane on the scalar exact map (scipy's DOP853, not the kernel it plans on): every command it gives
     ends the stride at the target energy with the ramp ending at liftoff; the lanes it does not answer have a
     reason, both kinds among them: an iterate's failure on the exact plant and Newton finding no solution."""

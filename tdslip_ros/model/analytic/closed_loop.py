@@ -1,5 +1,6 @@
 """The closed loop of the approximate map: a stance policy chooses each stride's command from its apex, and
-the loop's Jacobian by complex step, with its eigenvalues (the stability analyses of :mod:`tdslip_ros.model.stability`).
+the loop's Jacobian by complex step, with its eigenvalues (the stability analyses of
+:mod:`tdslip_ros.model.stability`).
 
 The Jacobian runs the map and the policy in complex arithmetic (the complex step: no subtraction, so exact
 to rounding); the policies of :mod:`tdslip_ros.model.policies.controllers` that plan on the map's torque are

@@ -378,7 +378,8 @@ def apex_foot_placement(
 def warm_up(params: HopperParams | None = None, complex_step: bool = True, exact_plant: bool = True) -> None:
     """Load the compiled kernels of the analytic map and of every analytic policy, for one apex at a time
     as the controller node plans (and with ``complex_step`` for the complex step of map_jacobian too; with
-    ``exact_plant`` the compiled exact stride and energy_exact's plan on it, :mod:`.exact_regulation_kernels`),
+    ``exact_plant`` the compiled exact stride and energy_exact's plan on it,
+    :mod:`.exact_regulation_kernels`),
     compiling those not yet in the cache (:mod:`tdslip_ros.model.compiled`; about a minute for all of
     them, once). The controller node calls it before it subscribes to the apex, so that its first answer
     is not late; ``./run.sh setup`` calls it so that the first node or test does not compile."""
