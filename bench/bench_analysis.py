@@ -26,7 +26,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from tdslip_ros.analysis.compare import compare_run
-from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.analysis.report import analyze
 from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.nodes.runner import RunOptions, run

@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 from tdslip_ros.commands.sweep import grid_size
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_ZETA0
 from tdslip_ros.model.stability import basins
 from tdslip_ros.studies import engine, sweep
 from tdslip_ros.studies.chunk import lane_policy
@@ -45,7 +46,7 @@ def load() -> str:
 
 def direct(study: Study) -> tuple[float, float]:
     """Wall and CPU seconds for the study's chunks through the batched engine in this process."""
-    params = study.params(36.0, 0.08)
+    params = study.params(PAPER_KBAR, PAPER_ZETA0)
     lanes = study.lanes(0, study.size)  # the design's parameters, computed outside the clock
     started, cpu = time.perf_counter(), time.process_time()
     for index in range(study.chunks):

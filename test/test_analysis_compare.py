@@ -19,7 +19,8 @@ from tdslip_ros.analysis.compare import (
     policy_for_run,
     recorded_fixed_point,
 )
-from tdslip_ros.analysis.reader import Run, read_run
+from tdslip_ros.analysis.decoding import read_run
+from tdslip_ros.analysis.records import Run
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import approximate_return_map
 from tdslip_ros.model.analytic.closed_loop import closed_loop_map, eigenvalues, map_jacobian

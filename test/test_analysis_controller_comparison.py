@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from tdslip_ros.analysis import controller_comparison as cc
+from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.analysis.figures.tracking import BASELINE, baseline_law, baseline_touchdown_angles
-from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.commands import compare
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS

@@ -13,7 +13,8 @@ from matplotlib.colors import to_rgb
 from matplotlib.image import imread
 
 from tdslip_ros.analysis.compare import compare_run, dimensionless
-from tdslip_ros.analysis.reader import Run, read_run
+from tdslip_ros.analysis.decoding import read_run
+from tdslip_ros.analysis.records import Run
 from tdslip_ros.commands import run as run_command
 from tdslip_ros.commands import terrain as terrain_command
 from tdslip_ros.commands.analyze import main as analyze

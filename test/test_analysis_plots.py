@@ -13,7 +13,8 @@ from matplotlib.lines import Line2D
 
 from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import Comparison, compare_run, dimensionless
-from tdslip_ros.analysis.reader import Run, read_run
+from tdslip_ros.analysis.decoding import read_run
+from tdslip_ros.analysis.records import Run
 from tdslip_ros.model import units
 from tdslip_ros.nodes.runner import RunReport
 

@@ -15,17 +15,12 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from tdslip_ros import interfaces
-from tdslip_ros.analysis.reader import (
-    CommandRecord,
-    ContactRecord,
-    RunReadError,
-    StateRecord,
-    applied_commands,
-    infer_params,
-    read_run,
-)
+from tdslip_ros.analysis.decoding import RunReadError, infer_params, read_run
+from tdslip_ros.analysis.records import CommandRecord, ContactRecord
+from tdslip_ros.analysis.strides import applied_commands
 from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import resolve
+from tdslip_ros.model.events import HopperState, Phase
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
 
@@ -201,8 +196,11 @@ def test_a_bare_mcap_file_reads_like_its_bag_directory(energy: RunReport, mcap_p
     assert read_run(mcap_path).strides == read_run(energy.bag).strides
 
 
-def _state(theta: float, tau: float) -> StateRecord:
-    return StateRecord(0.1, 0, 1, 0.0, 0.9, 5.0, -1.0, 0.3, 0.0, 1.0, theta, -1.0, -5.0, tau, 1700.0)
+def _state(theta: float, tau: float) -> HopperState:
+    return HopperState(
+        t=0.1, stride=0, phase=Phase.STANCE, x=0.0, y=0.9, xdot=5.0, ydot=-1.0, toe_x=0.3, toe_y=0.0, r=1.0,
+        theta=theta, rdot=-1.0, thetadot=-5.0, hip_torque=tau, energy=1700.0, grf_x=math.nan, grf_y=math.nan,
+    )  # fmt: skip
 
 
 def _command(stride: int, angle: float, tau0: float, log_time: int) -> CommandRecord:

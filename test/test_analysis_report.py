@@ -10,7 +10,7 @@ import pytest
 from analysis_runs import as_if_from_ones_own_controller, rewrite
 
 from tdslip_ros.analysis.compare import compare_run
-from tdslip_ros.analysis.reader import RunReadError, read_run
+from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml
 from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.commands import cli

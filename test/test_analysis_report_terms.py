@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from tdslip_ros.analysis.compare import compare_run
-from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.analysis.report import (
     FIGURES,
     RUN_ENDINGS,

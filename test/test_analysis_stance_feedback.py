@@ -11,16 +11,12 @@ import numpy as np
 import pytest
 
 from tdslip_ros.analysis.compare import compare_run
-from tdslip_ros.analysis.reader import (
-    STANCE_FEEDBACK,
-    CommandRecord,
-    ContactRecord,
-    StateRecord,
-    applied_commands,
-    read_run,
-)
+from tdslip_ros.analysis.decoding import read_run
+from tdslip_ros.analysis.records import STANCE_FEEDBACK, CommandRecord, ContactRecord
 from tdslip_ros.analysis.report import analyze
 from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary
+from tdslip_ros.analysis.strides import applied_commands
+from tdslip_ros.model.events import HopperState, Phase
 from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.model.plant.stance_laws import RecordedTorques
 from tdslip_ros.model.policies.registry import STANCE_PD_SPEED_ENERGY
@@ -61,9 +57,9 @@ def test_a_stance_feedback_command_is_found_applied_with_and_without_a_torque_li
     """Before: with tau_max the reader evaluated the ramp of a command that has none (t_f = 0) and divided
     by zero, so that tdslip analyze crashed on every stance-feedback run recorded with --tau-max."""
     angle = math.radians(22.0)
-    state = StateRecord(
-        t=0.5, stride=0, phase=1, x=0.0, y=0.93, xdot=3.0, ydot=-1.0, toe_x=0.4, toe_y=0.0, r=1.0,
-        theta=angle, rdot=-1.0, thetadot=-3.0, hip_torque=0.0, energy=0.0, ground_height=0.0,
+    state = HopperState(
+        t=0.5, stride=0, phase=Phase.STANCE, x=0.0, y=0.93, xdot=3.0, ydot=-1.0, toe_x=0.4, toe_y=0.0, r=1.0,
+        theta=angle, rdot=-1.0, thetadot=-3.0, hip_torque=0.0, energy=0.0, grf_x=math.nan, grf_y=math.nan,
     )  # fmt: skip
     touchdown = ContactRecord("touchdown", 0, 0.5, state)
     command = CommandRecord(0, angle, 0.0, 0.0, STANCE_PD_SPEED_ENERGY, 1, STANCE_FEEDBACK)

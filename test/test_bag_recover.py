@@ -16,7 +16,7 @@ from analysis_runs import raw_messages
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from tdslip_ros.analysis.reader import RunReadError, read_run
+from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.bag import RosbagMcapWriter, open_bag
 from tdslip_ros.bag.reader import BagReadError, iter_messages, mcap_file, verify
 from tdslip_ros.bag.recover import RecoverError, recover

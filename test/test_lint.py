@@ -77,7 +77,7 @@ def test_import_contracts(repo_root: Path) -> None:
 
 FORBIDDEN_IMPORTS = {
     "model/units.py": "import tdslip_ros.interfaces",  # the model imports upwards
-    "studies/outcomes.py": "import tdslip_ros.analysis.reader",  # studies and analysis are apart
+    "studies/outcomes.py": "import tdslip_ros.analysis.decoding",  # studies and analysis are apart
     "analysis/plots.py": "import rclpy",  # ROS in the offline analysis
     "envs/tasks.py": "import tdslip_ros.studies.outcomes",  # the learning envs and the studies are apart
     "reporting/output.py": "import tdslip_ros.reporting.style",  # with the next: a cycle
@@ -104,7 +104,7 @@ def test_the_import_contracts_refuse_what_they_forbid(repo_root: Path, tmp_path:
     report = " ".join(result.stdout.split())  # long lines are wrapped
     for importer, imported in (
         ("tdslip_ros.model.units", "tdslip_ros.interfaces"),
-        ("tdslip_ros.studies.outcomes", "tdslip_ros.analysis.reader"),
+        ("tdslip_ros.studies.outcomes", "tdslip_ros.analysis.decoding"),
         ("tdslip_ros.analysis.plots", "rclpy"),
         ("tdslip_ros.envs.tasks", "tdslip_ros.studies.outcomes"),
         ("tdslip_ros.model.plant.stride_kernels", "tdslip_ros.model.policies.controller_kernels"),

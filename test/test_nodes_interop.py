@@ -31,7 +31,7 @@ from tdslip_msgs.msg import ApexEvent, HopperState, Status
 from test_nodes_lockstep import energy_policy, model_loop
 
 from tdslip_ros.analysis.compare import dimensionless
-from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.analytic.apex_map import approximate_return_map
 from tdslip_ros.model.params import ApexState, StanceCommand

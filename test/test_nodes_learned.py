@@ -13,7 +13,7 @@ import pytest
 from learned_policy import learned_file, malformed_file
 
 from tdslip_ros.analysis.compare import REPRODUCTION_TOLERANCE, command_deviation, policy_for_run
-from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.analysis.decoding import read_run
 
 pytestmark = pytest.mark.nodes
 

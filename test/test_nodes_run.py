@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from ros_harness import stop_example
 
-from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.nodes import topics

@@ -15,7 +15,7 @@ from ros_harness import RosGraph
 from tdslip_msgs.msg import RecorderStatus
 from test_nodes_recorder import RECORDER, published_counts, start_hopping
 
-from tdslip_ros.analysis.reader import read_run
+from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.bag import open_bag
 from tdslip_ros.bag.recover import recover
 from tdslip_ros.interfaces import resolve

@@ -1,3 +1,3 @@
-"""Offline work, no rclpy: recorded runs against the analytic apex return map (reader, compare, plots,
-report, controller_comparison), and the paper's figures and claims from the model core (figures,
-paper_comparison, simulate, rough_terrain). It does not import the nodes or the studies."""
+"""Offline work, no rclpy: recorded runs against the analytic apex return map (decoding, records, strides,
+compare, plots, report, controller_comparison), and the paper's figures and claims from the model core
+(figures, paper_comparison, simulate, rough_terrain). It does not import the nodes or the studies."""

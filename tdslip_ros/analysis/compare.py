@@ -59,7 +59,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
-from tdslip_ros.analysis.reader import Run, StrideRecord
+from tdslip_ros.analysis.records import Run, StrideRecord
 from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary, predict_stance_feedback
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.interfaces import installed_parameters, stored_parameters

@@ -27,8 +27,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.compare import compare_run, policy_for_run
+from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.figures.tracking import BASELINE
-from tdslip_ros.analysis.reader import RunReadError, read_run
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.policies.registry import POLICIES
 from tdslip_ros.reporting.style import CONTROLLER_STYLE, DPI

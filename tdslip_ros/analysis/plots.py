@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.compare import Comparison, closed_loop_step, dimensionless
-from tdslip_ros.analysis.reader import Run
+from tdslip_ros.analysis.records import Run
 from tdslip_ros.model import units
 from tdslip_ros.model.dynamics import speed_from_energy
 from tdslip_ros.reporting.style import DPI

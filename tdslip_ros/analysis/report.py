@@ -35,7 +35,8 @@ from tdslip_ros.analysis.compare import (
     dimensionless,
     policy_for_run,
 )
-from tdslip_ros.analysis.reader import FAILURE_KINDS, Run, RunReadError
+from tdslip_ros.analysis.decoding import RunReadError
+from tdslip_ros.analysis.records import FAILURE_KINDS, Run
 from tdslip_ros.analysis.stance_feedback import largest_errors
 from tdslip_ros.interfaces import (
     RUN_COMPLETE,

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.analysis.reader import Run
+from tdslip_ros.analysis.records import Run
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.perturbations import StrideConditions

@@ -122,7 +122,8 @@ def padding_positions(schema_name: str, schema_text: str, data: bytes) -> tuple[
 class PaddingZeroer:
     """Zeroes the padding of messages of one schema. A publisher's messages mostly share one layout
     (the same strings and sequence lengths): the last layout is kept and reused for a message whose
-    size and length fields match it, which spares walking the schema (a MarkerArray: 250 us)."""
+    size and length fields match it, which spares walking the schema (dear for a MarkerArray;
+    docs/benchmarks.md)."""
 
     def __init__(self, schema_name: str, schema_text: str) -> None:
         self._schema = (schema_name, schema_text)

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from tdslip_ros.analysis.reader import RunReadError, read_run
+from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
 from tdslip_ros.commands.options import (
     add_analytic_map,

@@ -37,8 +37,8 @@ from tdslip_ros.analysis.controller_comparison import (
     stable_range,
     table,
 )
+from tdslip_ros.analysis.decoding import RunReadError
 from tdslip_ros.analysis.figures.tracking import BASELINE, baseline_touchdown_angles
-from tdslip_ros.analysis.reader import RunReadError
 from tdslip_ros.commands.options import command_parser, deprecated
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS

@@ -25,6 +25,7 @@ from tdslip_ros.commands.options import (
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_PARAMS, PAPER_ZETA0
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 
@@ -51,10 +52,12 @@ best marginally stable, so the run drifts and may end in a named failure (exit s
 def parser() -> argparse.ArgumentParser:
     parser = command_parser("simulate", DESCRIPTION)
     parser.add_argument("--strides", type=int, default=10, help="apexes to simulate")
-    parser.add_argument("--kbar", type=float, default=36.0, help="leg stiffness k r0/(m g) (dimensionless)")
-    parser.add_argument("--zeta0", type=float, default=0.08, help="leg damping ratio (dimensionless)")
-    parser.add_argument("--mass", type=float, default=80.0, help="body mass m [kg]")
-    parser.add_argument("--r0", type=float, default=1.0, help="leg rest length [m]")
+    parser.add_argument(
+        "--kbar", type=float, default=PAPER_KBAR, help="leg stiffness k r0/(m g) (dimensionless)"
+    )
+    parser.add_argument("--zeta0", type=float, default=PAPER_ZETA0, help="leg damping ratio (dimensionless)")
+    parser.add_argument("--mass", type=float, default=PAPER_PARAMS.m, help="body mass m [kg]")
+    parser.add_argument("--r0", type=float, default=PAPER_PARAMS.r0, help="leg rest length [m]")
     add_touchdown_angle(parser, "--beta-deg")
     add_initial_apex(parser)
     parser.add_argument("--tau0", type=float, help="ramp torque [N m] (default: energy-neutral first stride)")

@@ -1,24 +1,13 @@
 """The apex controller node: answers every apex event with a stance command from a model policy.
 
-The policy is chosen by the parameter ``policy`` (policies of :mod:`tdslip_ros.model.policies.controllers`):
+The policy is the parameter ``policy``, one of :data:`~tdslip_ros.model.policies.registry.POLICIES`; what each
+does and plans on: docs/policies.md. Each setting of the policies
+(:data:`tdslip_ros.model.policies.registry.POLICY_SETTINGS`) is the parameter of the same name, with its
+default,
+range (or choices) and description. Policy, targets and gains are read at every apex, so ``ros2 param set``
+changes them at runtime (values are checked against their ranges and choices first; a value outside them is
+refused, at start-up too). How long planning takes: ``bench/bench_controllers.py`` (docs/benchmarks.md).
 
-* ``open_loop``: fixed touchdown angle and fixed hip power at touchdown (section III, eq. 26),
-  ``touchdown_angle`` [rad] and ``touchdown_power`` [W] (the paper's alpha = C / (m g sqrt(g r0)));
-* ``energy``: energy regulation at a fixed ``touchdown_angle`` (section IV.A, eq. 32), the torque
-  planned so that the analytic map's next apex has the energy ``target_energy`` [J];
-* ``energy_exact``: the same, planned on the exact plant's map (the ideal regulator, ~40 ms per apex);
-* ``deadbeat``: inversion of the analytic map towards the apex (``target_height`` [m],
-  ``target_speed`` [m/s]) in one stride (section V.A, eqs. 33-34);
-* ``pd``: the PD baseline, foot placement on speed with gains ``pd_kp``, ``pd_kd`` [rad/(m/s)]
-  and energy towards the target apex.
-
-All but ``energy_exact`` plan on the analytic map ``analytic_map``: ``ours`` (the default) or ``paper``
-(the next apex speed of eq. 7 as printed).
-
-Each setting of the policies (:data:`tdslip_ros.model.policies.registry.POLICY_SETTINGS`) is the parameter of
-the same name, with its default, range (or choices) and description. Policy, targets and gains are read at
-every apex, so ``ros2 param set`` changes them at runtime (values are checked against their ranges and
-choices first; a value outside them is refused, at start-up too).
 The controller plans with its own SI hopper parameters (``mass``, ``stiffness``, ``rest_length``,
 ``damping``, ``gravity``): the plant's, as config/controller.yaml has them for the defaults, or other
 values to study model mismatch (``tdslip run --mismatch`` scales the plant's by factors).
@@ -101,8 +90,9 @@ class ControllerNode(Node):
 
     def _ready_exact_plant(self) -> None:
         """Load energy_exact's compiled exact stride once the policy plans on it, directly or as a learned
-        policy's base: at the start, or as the parameters change to it, not at the next apex (0.2 s, or a
-        compilation, would make its answer late). Only then: it brings scipy.integrate (0.6 s) to the start.
+        policy's base: at the start, or as the parameters change to it, not at the next apex (loading, or a
+        compilation, would make its answer late). Only then: it brings scipy.integrate's import to the start
+        (docs/benchmarks.md).
         """
         if self.exact_plant_ready:
             return

@@ -13,9 +13,8 @@ synchronous publication.
   It is used unless ``FASTDDS_DEFAULT_PROFILES_FILE`` is set already.
 * ``RMW_FASTRTPS_PUBLICATION_MODE=SYNCHRONOUS`` (unless set already): ``publish`` hands the message
   to the transport itself instead of to a sender thread of normal priority. The realtime tick then
-  never waits for that thread (one A/B pair on the loaded development machine, 15 s realtime at
-  SCHED_FIFO 50: 448 -> 48 missed ticks, p99 period error 0.75 -> 0.07 ms); lockstep throughput
-  did not change measurably.
+  never waits for that thread, and misses fewer ticks for it (``bench_nodes.py realtime``;
+  docs/benchmarks.md).
 
 These must be in the environment before a process creates its first participant (rclpy.init
 and the first node): :func:`isolated_environment` for child processes, :func:`process_settings`

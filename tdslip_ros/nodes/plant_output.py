@@ -7,7 +7,8 @@ objects cost the tick more than the bytes do; the event-rate ones serialised wit
 
 The 1 kHz state and force go to recorders in batches (tdslip/samples, :data:`SAMPLES_PER_BATCH` ticks, and
 before every event) and live, a message per tick, only while someone subscribes to them: one reliable write
-to a recorder in another process costs the tick ~28 us, two a tick were a third of a lockstep plant's CPU.
+a tick to a recorder in another process costs the tick more than a batch every few ticks does
+(``bench_nodes.py lockstep``; docs/benchmarks.md).
 Their counts in :attr:`PlantOutput.published` are of the samples that went out in batches.
 /clock and the markers cost a publish even when nobody listens, so they too go out only while someone
 subscribes (:meth:`PlantOutput.check_graph`).
@@ -45,7 +46,8 @@ from tdslip_ros.nodes.wire import (
 
 GRAPH_CHECK_TICKS = 50
 """Ticks between two looks at who subscribes to the live state and force, /clock and the markers (a graph
-query costs ~20 us); the plant also looks after every apex and touchdown it publishes."""
+query is too dear to make every tick; docs/benchmarks.md); the plant also looks after every apex and touchdown
+it publishes."""
 
 APEX_FIELDS = (
     *STAMP_FIELDS,
@@ -110,7 +112,8 @@ class PlantOutput:
         self._applied_torque_encoder = fixed_layout_encoder(
             HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
         )
-        # The event messages too: building and serialising message objects cost the tick 0.1-0.3 ms each.
+        # The event messages too: building and serialising message objects costs the tick more than encoding
+        # their bytes (docs/benchmarks.md).
         self._apex_pub = self._publishers[topics.APEX]
         self._apex_encoder = fixed_layout_encoder(ApexEvent, APEX_FIELDS)
         self._contact_pub = self._publishers[topics.CONTACT]
@@ -134,7 +137,8 @@ class PlantOutput:
 
     def check_graph(self) -> None:
         """Publish the live state and force, /clock and the markers from now on while someone subscribes to
-        them (a graph query costs ~20 us: the plant calls this every few dozen ticks and at every apex)."""
+        them (a graph query is too dear for every tick: the plant calls this every GRAPH_CHECK_TICKS ticks
+        and at every apex)."""
         listened = self._clock_pub is not None and self._clock_pub.get_subscription_count() > 0
         self._clock_out = self._clock_pub if listened else None
         self._state_out = self._state_pub if self._state_pub.get_subscription_count() > 0 else None

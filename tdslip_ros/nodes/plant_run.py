@@ -34,9 +34,8 @@ from tdslip_ros.nodes.torque_stream import TICK_NS, LateTorque, TorqueInput, tor
 TICK_PERIOD = TICK_NS / 1e9  # s, the plant's fixed step
 SAMPLES_PER_BATCH = 10
 """Ticks per tdslip/samples message at most (and per write of the realtime tick process to the node): a
-realtime recording trails the plant by up to 10 ms. Larger batches cost the tick that sends them more (50: p99
-period error 0.35-0.38 ms in 30 s realtime runs, against 0.26-0.27 ms with 10) and gain little in lockstep
-(27.5-27.8x with 50, 28.0x with 10)."""
+realtime recording trails the plant by up to 10 ms. Larger batches cost the tick that sends them more and gain
+little in lockstep (``bench_nodes.py realtime`` and ``lockstep`` measure both; docs/benchmarks.md)."""
 
 
 @dataclass(frozen=True)
@@ -173,7 +172,8 @@ class PlantRun:
 
     @staticmethod
     def load_message_support() -> None:
-        """Load what parsing a command needs now: its first parse loads the type support, ~30 ms."""
+        """Load what parsing a command needs now, not at the first command: its first parse loads the type
+        support (docs/benchmarks.md)."""
         deserialize_message(serialize_message(StanceCommand()), StanceCommand)
 
     @property

@@ -27,11 +27,11 @@ class CpuClocks(Protocol):
 
 
 class ProcCpuClocks:
-    """:data:`CpuClocks` from Linux's /proc: the run-queue wait of /proc/thread-self/schedstat (0.4 us a
-    read) and the ``steal`` column of /proc/stat (all CPUs, in clock ticks; 2.5 us on two CPUs, more with
-    more). The files stay open and are re-read with pread; the thread's file is opened by the first
-    :meth:`waited`, on the thread whose waits it then reports. Where /proc lacks them, both read 0 (no
-    explanation is given). Once that thread has ended (if a window is closed after it), its wait stays at
+    """:data:`CpuClocks` from Linux's /proc: the run-queue wait of /proc/thread-self/schedstat and the
+    ``steal`` column of /proc/stat (all CPUs, in clock ticks; its read takes longer the more CPUs there
+    are; docs/benchmarks.md). The files stay open and are re-read with pread; the thread's file is opened by
+    the first :meth:`waited`, on the thread whose waits it then reports. Where /proc lacks them, both read 0
+    (no explanation is given). Once that thread has ended (if a window is closed after it), its wait stays at
     the last value read: an ended thread waits no more."""
 
     def __init__(self) -> None:

@@ -7,12 +7,11 @@ and a Fast DDS profile with prompt acknowledgements):
 * this one hosts the plant node (so it knows exactly what was published) and a small monitor that
   follows /tdslip/apex for the progress line and the summary table; a realtime plant ticks in a process of
   its own (:mod:`tdslip_ros.nodes.tick_process`);
-* ``controller_node`` in a child process: its planning (milliseconds of numpy per apex) would
-  hold the GIL against the plant's publishing (in one process with the tick: thousands of missed ticks
-  in 15 s and a slower answer, measured); apart, an answer costs a DDS round trip (~1-2 ms on the
-  development VM) on top of the planning; a stance-feedback policy
-  (:data:`~tdslip_ros.model.policies.registry.STANCE_FEEDBACK_POLICIES`) runs in ``stance_controller_node``
-  instead, which answers the apexes and streams a hip torque per stance tick;
+* ``controller_node`` in a child process: in the plant's, its planning would hold the GIL against the
+  plant's publishing, and the plant would miss ticks; apart, an answer costs a DDS round trip on top of
+  the planning (docs/realtime.md, "Why four processes"; ``bench_nodes.py latency``); a stance-feedback
+  policy (:data:`~tdslip_ros.model.policies.registry.STANCE_FEEDBACK_POLICIES`) runs in
+  ``stance_controller_node`` instead, which answers the apexes and streams a hip torque per stance tick;
 * ``recorder_node`` in a child process: a Python callback per message would otherwise share one
   interpreter with the plant; on two cores the plant and the recorder each get one.
 

@@ -170,9 +170,9 @@ class TickProcess:
             [sys.executable, "-m", __name__, str(inbox_read), str(outbox_write)],
             pass_fds=(inbox_read, outbox_write),
             stdin=subprocess.DEVNULL,
-            # A session of its own is a scheduling group of its own (Linux's autogroup): the busy node's
-            # process no longer shares the tick's CPU share (measured: 0.45 % of ticks missed, against 1.3 %).
-            # A Ctrl-C at the terminal no longer reaches it either; the node stops it.
+            # A session of its own is a scheduling group of its own (Linux's autogroup): the tick's CPU share
+            # is not shared with the busy node's process, which misses fewer ticks (bench_nodes.py realtime;
+            # docs/benchmarks.md). A Ctrl-C at the terminal does not reach it; the node stops it.
             start_new_session=True,
         )
         os.close(inbox_read)

@@ -40,7 +40,8 @@ import numpy as np
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS
 from tdslip_ros.model.dynamics import speed_from_energy
-from tdslip_ros.model.params import STANDARD_GRAVITY, HopperParams, ParameterError
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_PARAMS, PAPER_ZETA0
+from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.policies.registry import DEFAULT_POLICY, POLICIES, POLICY_SETTINGS, SETTING_DEFAULTS
 from tdslip_ros.model.stability import analytic_fixed_points
 from tdslip_ros.studies import perturbed
@@ -77,8 +78,8 @@ UNITS = {
 }
 DEFAULTS: dict[str, str | float] = {
     "policy": DEFAULT_POLICY,
-    "kbar": 36.0,
-    "zeta0": 0.08,
+    "kbar": PAPER_KBAR,
+    "zeta0": PAPER_ZETA0,
     **{name: SETTING_DEFAULTS[name] for name in POLICY_PARAMETERS},
     # The studies' own: the figures' angle, and the goal regulator.
     "touchdown_angle": math.radians(26.0),
@@ -146,9 +147,9 @@ class Study:
     seed: int = 0
     corrections: int = 1
     hold_commands: bool = False
-    mass: float = 80.0
-    rest_length: float = 1.0
-    gravity: float = STANDARD_GRAVITY
+    mass: float = PAPER_PARAMS.m
+    rest_length: float = PAPER_PARAMS.r0
+    gravity: float = PAPER_PARAMS.g
 
     @classmethod
     def of(

@@ -95,8 +95,8 @@ def connect(where: Where) -> Iterator[Client]:
     # For the workers started here (a cluster of one's own is its owner's to configure): no statistical
     # profiler sampling the task's thread every 10 ms for a dashboard these commands do not show, and
     # no MALLOC_TRIM_THRESHOLD_ (Dask's default of 64 kB hands freed memory back to the system at once,
-    # so that the batched engine's arrays fault their pages in again: 170,000 page faults and 5-7 % of
-    # the CPU time of a fig. 10 study of 8,000 trajectories; a chunk's memory is bounded anyway).
+    # so that the batched engine's arrays fault their pages in again (the cost: docs/benchmarks.md); a
+    # chunk's memory is bounded anyway).
     environ = dask.config.get("distributed.nanny.pre-spawn-environ")
     with (
         dask.config.set(

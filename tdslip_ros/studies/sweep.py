@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
-from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_PARAMS, PAPER_ZETA0
 from tdslip_ros.model.stability import analytic_fixed_points, basins
 from tdslip_ros.reporting.output import output_directory, to_json
 from tdslip_ros.reporting.paper_grids import (
@@ -196,8 +196,8 @@ def fig11_draw(studies: dict[str, Study], tables: dict[str, pa.Table]) -> tuple[
         shape = (len(values), energies.size, -1)
         data[name] = []
         for position, value in enumerate(values):
-            kbar = value if name == "kbar" else 36.0
-            zeta0 = value if name == "zeta0" else 0.08
+            kbar = value if name == "kbar" else PAPER_KBAR
+            zeta0 = value if name == "zeta0" else PAPER_ZETA0
             params = study.params(kbar, zeta0)
             y = units.height_to_bar(
                 params, row_median(table.column(rows, "y_fixed").reshape(shape)[position])

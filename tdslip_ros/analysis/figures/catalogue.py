@@ -20,6 +20,7 @@ from tdslip_ros.analysis.figures import (
 from tdslip_ros.analysis.figures.common import PARAMS, FigureFunction, Reporter, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED, SharedKey
 from tdslip_ros.model.analytic.apex_map import SpeedSource
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_ZETA0
 from tdslip_ros.reporting.output import to_json
 from tdslip_ros.reporting.style import DPI
 
@@ -48,7 +49,7 @@ def shared_work(
     work: list[tuple[str, tuple[Any, ...]]] = []
     if "ranges" in names:
         work += [
-            ("stable_range", (36.0, 0.08, beta, s, resolution, speed))
+            ("stable_range", (PAPER_KBAR, PAPER_ZETA0, beta, s, resolution, speed))
             for beta in regulated.RANGE_BETAS
             for s in regulated.RANGE_SOURCES
         ]

@@ -15,6 +15,7 @@ from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_ZETA0
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.stability import analytic_fixed_points
 from tdslip_ros.reporting.paper_grids import FIG11_STUDIES, fig11_energies_bar
@@ -26,8 +27,8 @@ def fig11_hoppers() -> list[tuple[str, float, float, float, float]]:
         (
             name,
             value,
-            value if name == "kbar" else 36.0,
-            value if name == "zeta0" else 0.08,
+            value if name == "kbar" else PAPER_KBAR,
+            value if name == "zeta0" else PAPER_ZETA0,
             value if name == "beta_deg" else 26.0,
         )
         for name, values in FIG11_STUDIES.items()

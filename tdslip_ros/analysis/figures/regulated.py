@@ -27,6 +27,7 @@ from tdslip_ros.analysis.figures.shared import SHARED
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.arrays import Array
+from tdslip_ros.model.paper import PAPER_KBAR, PAPER_ZETA0
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.stability import analytic_fixed_points, exact_fixed_points
 from tdslip_ros.reporting.style import EXACT, STABLE
@@ -166,7 +167,7 @@ def ranges(resolution: Resolution, reporter: Reporter, speed: SpeedSource) -> Fi
         found = {"paper": PAPER_RANGES.get(beta_deg)}
         for source in RANGE_SOURCES:
             reporter.stage(f"beta = {beta_deg:g} deg: stable range of {source}")
-            found[source] = stable_range(36.0, 0.08, beta_deg, source, resolution, speed)
+            found[source] = stable_range(PAPER_KBAR, PAPER_ZETA0, beta_deg, source, resolution, speed)
         for offset, (source, ends) in enumerate(found.items()):
             data[source][f"{beta_deg:g}"] = ends
             if ends is None:

@@ -1,6 +1,6 @@
 """The closed loop of the approximate map: a stance policy chooses each stride's command from its apex, and
 the loop's Jacobian by complex step, with its eigenvalues (the stability analyses of
-:mod:`tdslip_ros.model.stability`).
+:mod:`tdslip_ros.model.stability.analytic_fixed_points`).
 
 The Jacobian runs the map and the policy in complex arithmetic (the complex step: no subtraction, so exact
 to rounding); the policies of :mod:`tdslip_ros.model.policies.controllers` that plan on the map's torque are

@@ -5,14 +5,15 @@ chunk CRCs, message counts) and its messages decoded by :mod:`tdslip_ros.bag.cdr
 stored in it; the two 1 kHz topics (state and ground reaction force) take the vectorised path to
 numpy columns.
 
-What comes out (:class:`Run`) is tidy: one :class:`StrideRecord` per recorded apex (its state, the
-command applied in the stance that follows, that stance's energy flows, the failure that ended the
-run in it), the contact events, every command and status message, and the 1 kHz samples as
-arrays. Heights are in the world frame, as recorded; each record carries its ground height.
+What comes out (:class:`~.records.Run`, of the types in :mod:`.records`) is tidy: one
+:class:`~.records.StrideRecord` per recorded apex (its state, the command applied in the stance that
+follows, that stance's energy flows, the failure that ended the run in it; rebuilt by :mod:`.strides`),
+the contact events, every command and status message, and the 1 kHz samples as arrays. Heights are in the
+world frame, as recorded; each record carries its ground height.
 
 A stride under stance feedback (a command with ``stance`` STANCE_FEEDBACK) has no ramp: its record holds
-the stance feedback as applied instead (:attr:`StrideRecord.stance_feedback`), the touchdown angle and the
-torques the plant held, from ``tdslip/applied_torque``, replayable by the model's engines
+the stance feedback as applied instead (:attr:`~.records.StrideRecord.stance_feedback`), the touchdown
+angle and the torques the plant held, from ``tdslip/applied_torque``, replayable by the model's engines
 (:class:`~tdslip_ros.model.plant.stance_laws.RecordedTorques`).
 
 The perturbations of the run (:class:`~tdslip_ros.model.plant.perturbations.Perturbations`: terrain, sensing
@@ -39,15 +40,25 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 from mcap.records import Schema
 
+from tdslip_ros.analysis.records import (
+    ApexRecord,
+    CommandRecord,
+    ContactRecord,
+    FloatArray,
+    Run,
+    Samples,
+    StatusRecord,
+    TorqueRecord,
+)
+from tdslip_ros.analysis.strides import stride_records
 from tdslip_ros.bag.cdr import decoded_columns, decoder
 from tdslip_ros.bag.reader import Bag, BagReadError, iter_messages, open_bag
 from tdslip_ros.interfaces import (
@@ -68,33 +79,20 @@ from tdslip_ros.interfaces import (
     resolve,
     stored_parameters,
 )
-from tdslip_ros.model import dynamics
-from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
-from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
-from tdslip_ros.model.plant.stance_laws import DEFAULT_SAMPLE_PERIOD, RecordedTorques, StanceFeedback
+from tdslip_ros.model.events import HopperState, Phase
+from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.plant.perturbations import Perturbations
 
-FloatArray = npt.NDArray[np.float64]
-
-
-FAILURE_KINDS = (
-    "toe_stubbing",
-    "no_liftoff",
-    "fall",
-    "reversal",
-    "state_limit",
-    "command_timeout",
-    "publish_failed",
-)
-"""Status kinds that end a run as a failure (the model's FailureKind values and the plant's own)."""
 CONTACT_KINDS = {0: "touchdown", 1: "bottom", 2: "liftoff"}
 PARAMETER_CONSISTENCY = 1e-9
 """Largest relative energy mismatch of the recorded events accepted for one set of hopper parameters."""
 DAMPING_CONSISTENCY = 1e-6
 """Largest mismatch of the damping ratio zeta0 = c / (2 sqrt(m k)) with the recorded liftoffs."""
-STANCE_FEEDBACK = 1
-"""StanceCommand.stance of a command answering with stance feedback (0: the ramp)."""
 REQUIRED_TOPICS = (APEX,)
 """The suite topics a run cannot be analysed without; the others may be missing (no messages)."""
+
+PHASES = {0: Phase.FLIGHT, 1: Phase.STANCE}
+"""HopperState.phase of the message (PHASE_FLIGHT, PHASE_STANCE) as the model's."""
 
 _BATCH = 65536  # 1 kHz messages collected before they are converted to columns (bounds memory)
 
@@ -110,9 +108,6 @@ def _as_run_error() -> Iterator[None]:
         yield
     except BagReadError as error:
         raise RunReadError(str(error)) from None
-
-
-# --- the file -----------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -169,217 +164,6 @@ def open_recording(path: Path, namespace: str | None = None) -> Recording:
                 f"expected {type_name}"
             )
     return recording
-
-
-# --- records ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ApexRecord:
-    """An ApexEvent: apex ``stride`` at sim time t [s]; energy flows of the stance before it [J]; ground
-    height of that stance [m] and the apex the controller's sensor reported (world frame)."""
-
-    stride: int
-    t: float
-    x: float
-    y: float
-    xdot: float
-    energy: float
-    hip_work: float
-    damping_loss: float
-    spring_loss: float
-    ground: float = 0.0
-    measured_y: float = math.nan
-    measured_xdot: float = math.nan
-
-
-@dataclass(frozen=True)
-class StateRecord:
-    """A HopperState at one instant (an event's state), SI."""
-
-    t: float
-    stride: int
-    phase: int
-    x: float
-    y: float
-    xdot: float
-    ydot: float
-    toe_x: float
-    toe_y: float
-    r: float
-    theta: float
-    rdot: float
-    thetadot: float
-    hip_torque: float
-    energy: float
-    ground_height: float = 0.0
-
-
-@dataclass(frozen=True)
-class ContactRecord:
-    """A touchdown, bottom or liftoff of the stance after apex ``stride``, on ground [m] (the toe's)."""
-
-    kind: str
-    stride: int
-    t: float
-    state: StateRecord
-    ground: float = 0.0
-
-
-@dataclass(frozen=True)
-class CommandRecord:
-    """A StanceCommand message as received by the recorder (log_time_ns: reception time)."""
-
-    stride: int
-    touchdown_angle: float
-    tau0: float
-    t_f: float
-    policy: str
-    log_time_ns: int
-    stance: int = 0
-    """0: the ramp tau0, t_f; STANCE_FEEDBACK: torques streamed per tick (recordings before it: 0)."""
-
-
-@dataclass(frozen=True)
-class TorqueRecord:
-    """A hip torque the plant applied (tdslip/applied_torque): held from plant tick ``tick`` on in the
-    stance of ``stride``."""
-
-    stride: int
-    tick: int
-    torque: float
-
-
-@dataclass(frozen=True)
-class StatusRecord:
-    stride: int
-    t: float
-    kind: str
-    reason: str
-    fatal: bool
-
-
-@dataclass(frozen=True)
-class StrideRecord:
-    """Stride k: from apex k through the stance after it (to apex k + 1, if recorded).
-
-    ``command`` is the command the plant applied at that stance's touchdown (None if the stance
-    was not reached, or if no recorded command matches the touchdown, see :func:`applied_commands`).
-    Energy flows [J] are those of the stance after apex k (NaN if apex k + 1 was not recorded).
-    ``failure`` is the status kind that ended the run during this stride, with its reason.
-
-    Perturbations: y is the apex height in the world frame, ``ground`` that of the stance before the apex
-    (y - ground the height the maps and policies use), ``stance_ground`` that of this stride's stance (NaN
-    without a touchdown); measured_y, measured_xdot: the apex as the controller's sensor reported it;
-    angle_error [rad]: the placement error drawn for the stride; placed_angle [rad]: where the leg landed
-    (the command's angle plus the placement error, NaN without a command); push [m/s]:
-    applied right after the apex; saturated: |tau0| exceeded tau_max.
-
-    Stance feedback: ``command`` is None and ``stance_feedback`` the stance as applied, its touchdown angle
-    and the torques held (sample times on the plant's clock, :class:`RecordedTorques`); saturated: one of
-    them is at tau_max.
-    """
-
-    stride: int
-    t: float
-    x: float
-    y: float
-    xdot: float
-    energy: float
-    command: StanceCommand | None
-    policy: str
-    touchdown_time: float
-    liftoff_time: float
-    hip_work: float
-    damping_loss: float
-    spring_loss: float
-    failure: str | None
-    failure_reason: str
-    ground: float = 0.0
-    stance_ground: float = math.nan
-    measured_y: float = math.nan
-    measured_xdot: float = math.nan
-    angle_error: float = 0.0
-    placed_angle: float = math.nan
-    push: float = 0.0
-    saturated: bool = False
-    stance_feedback: StanceFeedback | None = None
-
-    @property
-    def height(self) -> float:
-        """The apex height above the ground of the last stance [m]."""
-        return self.y - self.ground
-
-
-@dataclass(frozen=True)
-class Samples:
-    """1 kHz state and ground reaction force, as arrays over the samples (SI; phase 1 = stance)."""
-
-    t: FloatArray
-    stride: npt.NDArray[np.int64]
-    phase: npt.NDArray[np.int64]
-    x: FloatArray
-    y: FloatArray
-    xdot: FloatArray
-    ydot: FloatArray
-    toe_x: FloatArray
-    toe_y: FloatArray
-    r: FloatArray
-    theta: FloatArray
-    rdot: FloatArray
-    thetadot: FloatArray
-    hip_torque: FloatArray
-    energy: FloatArray
-    ground_height: FloatArray
-    grf_t: FloatArray
-    grf_x: FloatArray
-    grf_y: FloatArray
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-
-@dataclass(frozen=True)
-class Run:
-    """A recorded run, tidy. ``params`` are the hopper parameters (given, stored or inferred, see
-    ``params_source``); ``outcome`` the fatal status that ended the run (None if the recording
-    ends before the run did)."""
-
-    path: Path
-    params: HopperParams
-    params_source: str
-    strides: tuple[StrideRecord, ...]
-    apexes: tuple[ApexRecord, ...]
-    contacts: tuple[ContactRecord, ...]
-    commands: tuple[CommandRecord, ...]
-    statuses: tuple[StatusRecord, ...]
-    samples: Samples
-    outcome: StatusRecord | None
-    message_counts: dict[str, int]
-    custom_data: dict[str, str]
-    perturbations: Perturbations = field(default_factory=Perturbations)
-    controller_params: HopperParams | None = None
-    """The hopper the controller planned with (None: the plant's, ``params``)."""
-
-    @property
-    def planner(self) -> HopperParams:
-        """The hopper the controller planned with: controller_params, else the plant's."""
-        return self.params if self.controller_params is None else self.controller_params
-
-    @property
-    def saturated_strides(self) -> int:
-        return sum(s.saturated for s in self.strides)
-
-    @property
-    def policies(self) -> tuple[str, ...]:
-        """Names of the policies whose commands were applied, in order of first use."""
-        applied = (s for s in self.strides if s.command is not None or s.stance_feedback is not None)
-        return tuple(dict.fromkeys(s.policy for s in applied))
-
-    def apex_array(self) -> FloatArray:
-        """(n, 2) apex heights above the ground of the last stance [m] and speeds [m/s] of the recorded
-        strides (on flat ground the recorded heights)."""
-        return np.array([(s.height, s.xdot) for s in self.strides], dtype=float).reshape(-1, 2)
 
 
 def read_run(path: Path, params: HopperParams | None = None, namespace: str | None = None) -> Run:
@@ -454,7 +238,7 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
         path=Path(path),
         params=params,
         params_source=source,
-        strides=_strides(apexes, contacts, commands, outcome, perturbations, torques),
+        strides=stride_records(apexes, contacts, commands, outcome, perturbations, torques),
         apexes=tuple(apexes),
         contacts=tuple(contacts),
         commands=tuple(commands),
@@ -567,11 +351,15 @@ def _apex(msg: Any) -> ApexRecord:
     )
 
 
-def _state(msg: Any) -> StateRecord:
-    return StateRecord(
+def _state(msg: Any) -> HopperState:
+    """The state of a contact event; its message holds no ground reaction force (NaN)."""
+    phase = PHASES.get(int(msg.phase))
+    if phase is None:
+        raise RunReadError(f"topic {CONTACT}: unknown phase {msg.phase} of an event's state")
+    return HopperState(
         t=float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9,
         stride=int(msg.stride),
-        phase=int(msg.phase),
+        phase=phase,
         x=float(msg.x),
         y=float(msg.y),
         xdot=float(msg.xdot),
@@ -584,6 +372,8 @@ def _state(msg: Any) -> StateRecord:
         thetadot=float(msg.leg_angle_rate),
         hip_torque=float(msg.hip_torque),
         energy=float(msg.energy),
+        grf_x=math.nan,
+        grf_y=math.nan,
         ground_height=float(msg.ground_height),
     )
 
@@ -611,129 +401,6 @@ def _command(msg: Any, log_time_ns: int) -> CommandRecord:
 
 def _status(msg: Any) -> StatusRecord:
     return StatusRecord(int(msg.stride), float(msg.sim_time), str(msg.kind), str(msg.reason), bool(msg.fatal))
-
-
-# --- from messages to strides -------------------------------------------------------------------
-
-
-def applied_commands(
-    contacts: Sequence[ContactRecord],
-    commands: Sequence[CommandRecord],
-    perturbations: Perturbations | None = None,
-) -> dict[int, CommandRecord]:
-    """The command applied at each recorded touchdown, by stride.
-
-    The plant applies the latest valid command answering the stride, or keeps the one in force. At
-    touchdown the leg is at the commanded angle (plus the stride's placement error, reproduced from the
-    ``perturbations``) and the hip torque equals tau0 (saturated at tau_max), both copied exactly into
-    the touchdown state, so the applied command is the last command answering the stride that matches
-    them bit for bit, else the command applied before it if that one matches. A touchdown that no
-    recorded command matches (the plant's initial command) gets none.
-    """
-    perturbations = perturbations or Perturbations()
-    by_stride: dict[int, list[CommandRecord]] = {}
-    for command in sorted(commands, key=lambda c: c.log_time_ns):
-        by_stride.setdefault(command.stride, []).append(command)
-    applied: dict[int, CommandRecord] = {}
-    in_force: CommandRecord | None = None
-    touchdowns = [c for c in contacts if c.kind == "touchdown"]
-    errors = _angle_errors(perturbations, max((c.stride for c in touchdowns), default=-1) + 1)
-    for touchdown in touchdowns:
-
-        def matches(command: CommandRecord | None, touchdown: ContactRecord = touchdown) -> bool:
-            return command is not None and _applied_at(command, touchdown, perturbations, errors)
-
-        candidates = [c for c in by_stride.get(touchdown.stride, []) if matches(c)]
-        chosen = candidates[-1] if candidates else in_force if matches(in_force) else None
-        if chosen is not None:
-            applied[touchdown.stride] = chosen
-        in_force = chosen
-    return applied
-
-
-def _angle_errors(perturbations: Perturbations, strides: int) -> FloatArray:
-    """The placement errors of the first ``strides`` strides of the run (trajectory 0: epoch 0)."""
-    return perturbations.draws([0], 0, strides).angle_error[:, 0]
-
-
-def _applied_at(
-    command: CommandRecord, touchdown: ContactRecord, perturbations: Perturbations, errors: FloatArray
-) -> bool:
-    placed = placed_angle(command.touchdown_angle, float(errors[touchdown.stride]))
-    torque = command.tau0  # stance feedback: 0, the hold from touchdown to the first sample instant
-    if perturbations.saturates and command.stance != STANCE_FEEDBACK:
-        torque = float(dynamics.hip_torque(command.tau0, command.t_f, 0.0, float(perturbations.tau_max)))
-    return bool(placed == touchdown.state.theta and torque == touchdown.state.hip_torque)
-
-
-def _strides(
-    apexes: Sequence[ApexRecord],
-    contacts: Sequence[ContactRecord],
-    commands: Sequence[CommandRecord],
-    outcome: StatusRecord | None,
-    perturbations: Perturbations,
-    torques: Sequence[TorqueRecord] = (),
-) -> tuple[StrideRecord, ...]:
-    applied = applied_commands(contacts, commands, perturbations)
-    held: dict[int, list[TorqueRecord]] = {}
-    for torque in torques:
-        held.setdefault(torque.stride, []).append(torque)
-    event_times = {(c.kind, c.stride): c.t for c in contacts}
-    stance_grounds = {c.stride: c.ground for c in contacts if c.kind == "touchdown"}
-    next_apex = {a.stride - 1: a for a in apexes}
-    draws = perturbations.draws([0], 0, max((a.stride for a in apexes), default=-1) + 1)
-    tau_max = float(perturbations.tau_max) if perturbations.saturates else math.inf
-    records = []
-    for apex in apexes:
-        record = applied.get(apex.stride)
-        feedback, command, saturated = None, None, False
-        if record is not None and record.stance == STANCE_FEEDBACK:
-            stance_torques = held.get(apex.stride, [])
-            feedback = _feedback(record, stance_torques)
-            saturated = any(abs(r.torque) >= tau_max for r in stance_torques)
-        elif record is not None:
-            command = StanceCommand(record.touchdown_angle, record.tau0, record.t_f)
-            saturated = abs(command.tau0) > tau_max
-        after = next_apex.get(apex.stride)
-        failed = outcome is not None and outcome.kind in FAILURE_KINDS and outcome.stride == apex.stride
-        error = float(draws.angle_error[apex.stride, 0])
-        records.append(
-            StrideRecord(
-                stride=apex.stride,
-                t=apex.t,
-                x=apex.x,
-                y=apex.y,
-                xdot=apex.xdot,
-                energy=apex.energy,
-                command=command,
-                policy="" if record is None else record.policy,
-                touchdown_time=event_times.get(("touchdown", apex.stride), math.nan),
-                liftoff_time=event_times.get(("liftoff", apex.stride), math.nan),
-                hip_work=math.nan if after is None else after.hip_work,
-                damping_loss=math.nan if after is None else after.damping_loss,
-                spring_loss=math.nan if after is None else after.spring_loss,
-                failure=outcome.kind if failed and outcome is not None else None,
-                failure_reason=outcome.reason if failed and outcome is not None else "",
-                ground=apex.ground,
-                stance_ground=stance_grounds.get(apex.stride, math.nan),
-                measured_y=apex.measured_y,
-                measured_xdot=apex.measured_xdot,
-                angle_error=error,
-                placed_angle=math.nan if record is None else placed_angle(record.touchdown_angle, error),
-                push=float(draws.push[apex.stride, 0]),
-                saturated=saturated,
-                stance_feedback=feedback,
-            )
-        )
-    return tuple(records)
-
-
-def _feedback(command: CommandRecord, torques: Sequence[TorqueRecord]) -> StanceFeedback:
-    """The stance feedback of a stride as applied: the command's touchdown angle, and each torque held from
-    its tick's instant on the plant's clock (tick * the sample period, the stepper's own arithmetic)."""
-    times = np.array([r.tick for r in torques], dtype=float) * DEFAULT_SAMPLE_PERIOD
-    law = RecordedTorques(times, np.array([r.torque for r in torques], dtype=float))
-    return StanceFeedback(command.touchdown_angle, law)
 
 
 # --- hopper parameters --------------------------------------------------------------------------
