@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import RUNS
 from matplotlib.colors import to_rgb
 from matplotlib.image import imread
+from support.analysis_runs import RUNS
 
 from tdslip_ros.analysis.compare import compare_run, dimensionless
 from tdslip_ros.analysis.reader import Run, read_run

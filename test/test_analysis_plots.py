@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from support.helpers import assert_png
 
 from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import Comparison, compare_run, dimensionless
 from tdslip_ros.analysis.reader import Run, read_run
 from tdslip_ros.model import units
 from tdslip_ros.nodes.runner import RunReport
-
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
@@ -36,13 +35,9 @@ def _line(figure: Figure, label: str, axes: int = 0) -> Line2D:
     return matches[0]
 
 
-def _saved(path: Path) -> None:
-    assert path.read_bytes()[:8] == PNG_MAGIC
-
-
 def test_apex_sequence(comparison: Comparison, tmp_path: Path) -> None:
     figure = plots.apex_sequence(comparison, tmp_path / "apex.png")
-    _saved(tmp_path / "apex.png")
+    assert_png(tmp_path / "apex.png")
     run, predictions = comparison.run, comparison.predictions
     recorded = dimensionless(run.params, run.apex_array())
     for axes, column in ((0, 0), (1, 1)):
@@ -66,7 +61,7 @@ def test_apex_sequence(comparison: Comparison, tmp_path: Path) -> None:
 
 def test_return_map_cobweb(comparison: Comparison, tmp_path: Path) -> None:
     figure = plots.return_map(comparison, tmp_path / "map.png")
-    _saved(tmp_path / "map.png")
+    assert_png(tmp_path / "map.png")
     heights = comparison.run.apex_array()[:, 0] / comparison.run.params.r0
     cobweb = _line(figure, "recorded (cobweb)")
     x, y = np.asarray(cobweb.get_xdata()), np.asarray(cobweb.get_ydata())
@@ -92,13 +87,13 @@ def test_without_a_policy_the_figures_draw_what_the_recording_shows(
     """A run of a controller of the user's own: no closed-loop curve, fixed point or target to draw."""
     unknown = dataclasses.replace(comparison, policy=None, command_deviation=None, analytic_fixed_point=None)
     sequence = plots.apex_sequence(unknown, tmp_path / "apex.png")
-    _saved(tmp_path / "apex.png")
+    assert_png(tmp_path / "apex.png")
     labels = {line.get_label() for line in sequence.axes[0].get_lines()}
     assert "recorded" in labels and "analytic map, 1 correction" in labels
     assert not labels & {"analytic fixed point", "target"}
     assert sequence.axes[0].get_title().endswith(f"({', '.join(comparison.run.policies)})")
     cobweb = plots.return_map(unknown, tmp_path / "map.png")
-    _saved(tmp_path / "map.png")
+    assert_png(tmp_path / "map.png")
     labels = {line.get_label() for line in cobweb.axes[0].get_lines()}
     assert "recorded (cobweb)" in labels and not any(label.startswith("analytic map") for label in labels)
 
@@ -106,7 +101,7 @@ def test_without_a_policy_the_figures_draw_what_the_recording_shows(
 def test_com_trajectory_draws_one_stride_with_its_virtual_footfalls(run: Run, tmp_path: Path) -> None:
     stride = 5
     figure = plots.com_trajectory(run, tmp_path / "com.png", stride)
-    _saved(tmp_path / "com.png")
+    assert_png(tmp_path / "com.png")
     samples = run.samples
     start, end = run.strides[stride].t, run.strides[stride + 1].t
     window = (samples.t >= start) & (samples.t <= end)
@@ -137,7 +132,7 @@ def test_com_trajectory_draws_one_stride_with_its_virtual_footfalls(run: Run, tm
 
 def test_energy_flows(comparison: Comparison, tmp_path: Path) -> None:
     figure = plots.energy_flows(comparison, tmp_path / "energy.png")
-    _saved(tmp_path / "energy.png")
+    assert_png(tmp_path / "energy.png")
     run = comparison.run
     complete = run.strides[:-1]
     steps = {patch.get_label(): patch.get_data() for patch in figure.axes[0].patches}

@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from learned_policy import learned_file, malformed_file
+from support.learned_policy import learned_file, malformed_file
 
 from tdslip_ros.envs import ENV_ID, ApexHopEnv, ApexHopVectorEnv, Task
 from tdslip_ros.envs.lanes import terrain_seed

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.helpers import assert_png, strict_json
 
 from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures import catalogue, exact_basins, open_loop, regulated
@@ -48,8 +49,8 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     assert (
         cli.main(["figures", "--out", str(tmp_path), "--only", "fig09", "--scheduler", dask_scheduler]) == 0
     )
-    assert (tmp_path / "fig09.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    document = json.loads((tmp_path / "fig09.json").read_text(), parse_constant=pytest.fail)
+    assert_png(tmp_path / "fig09.png")
+    document = strict_json(tmp_path / "fig09.json")
     assert document["figure"] == "fig09" and document["params"]["kbar"] == pytest.approx(36.0)
     assert document["resolution"] == vars(TINY)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["comparison.md", "fig09.json", "fig09.png"]

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from ros_harness import RosGraph, overrides, stop_example
+from support.ros_harness import RosGraph, overrides, stop_example
 from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, Status
 
 from tdslip_ros.model.events import EventKind

@@ -147,7 +147,7 @@ def draw(name: str) -> dict[str, Any]:
 @functools.cache
 def _document(name: str) -> dict[str, Any]:
     # In one test process the background child draws the documents the selected tests read (conftest.py).
-    background = getattr(sys.modules.get("analysis_runs"), "BACKGROUND", None)
+    background = getattr(sys.modules.get("support.analysis_runs"), "BACKGROUND", None)
     drawn = None if background is None else background.drawn(__name__, name)
     return draw(name) if drawn is None else drawn
 

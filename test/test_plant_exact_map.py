@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from failure_cases import FAILURE_CASES
 from scipy.optimize import brentq
+from support.failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, Phase

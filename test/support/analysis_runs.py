@@ -95,8 +95,8 @@ def record(name: str, directory: Path) -> tuple[RunReport, list[str]]:
 @dataclass
 class Background:
     """Figure documents drawn, runs recorded, then ``tdslip`` processes run, by a child process
-    (``python analysis_runs.py DIRECTORY JOBS``), started when collection ended (conftest.py): what the
-    tests need is made while the fast tests run, mostly on the core those leave idle. The child pickles
+    (``python support/analysis_runs.py DIRECTORY JOBS``), started when collection ended (conftest.py): what
+    the tests need is made while the fast tests run, mostly on the core those leave idle. The child pickles
     each document and each run's report as it is done (one it could not make leaves the error) and each
     ``tdslip`` process's result (:meth:`command`)."""
 
@@ -120,8 +120,10 @@ class Background:
         """Draw ``drawings`` in the child first (the fast tests that read them run before any node test),
         then record the runs ``names`` (of RUNS), then run each of ``commands`` as a process of its own."""
         directory.mkdir(parents=True, exist_ok=True)
-        # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
-        path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
+        # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath), and test/,
+        # whose modules draw the documents (a script's own folder, test/support/, is on its path instead).
+        here = Path(__file__).resolve()
+        path = os.pathsep.join([str(here.parents[2]), str(here.parents[1]), os.environ.get("PYTHONPATH", "")])
         with (directory / "background.log").open("wb") as log:
             process = subprocess.Popen(
                 [sys.executable, __file__, str(directory), json.dumps([names, commands, drawings])],
@@ -209,6 +211,14 @@ def raw_messages(mcap_path: Path) -> Iterator[tuple[str, str, int, int, bytes]]:
         for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
             assert schema is not None
             yield channel.topic, schema.name, message.log_time, message.publish_time, message.data
+
+
+def by_topic(mcap_path: Path) -> dict[str, list[bytes]]:
+    """The data of every message by topic, in file order."""
+    messages: dict[str, list[bytes]] = {}
+    for topic, _, _, _, data in raw_messages(mcap_path):
+        messages.setdefault(topic, []).append(data)
+    return messages
 
 
 def rewrite(
