@@ -104,8 +104,18 @@ def test_the_corrections_converge_on_every_stride_and_one_is_within_the_map_s_ow
         stride = approximate_map(PARAMS, points[lane, 0], points[lane, 1], command, most)
         assert stride.stance.corrections_done == found.iterations[lane]
     analytic, exact = paper_comparison._corrections(PARAMS)
-    assert analytic.startswith("converge: 108 of 108 in ")
-    assert "1 correction 0.57 / 0.90 %" in exact
+    strides = found.index.size
+    assert analytic.startswith(f"converge: {strides} of {strides} in ")  # every stride of the grid
+    # II.D, "a single iteration usually sufficiently accurate": against the exact plant, one correction's mean
+    # errors (height, speed) are within 10 % of the converged corrections' and below half of no correction's.
+    errors = {
+        name: (float(height), float(speed))
+        for name, height, speed in re.findall(r"(none|1 correction|converged) ([\d.]+) / ([\d.]+) %", exact)
+    }
+    assert set(errors) == {"none", "1 correction", "converged"}
+    for quantity in (0, 1):
+        one = errors["1 correction"][quantity]
+        assert one <= 1.1 * errors["converged"][quantity] and one < 0.5 * errors["none"][quantity]
 
 
 def test_eq_27_has_one_solution_and_none_where_the_map_fails_first() -> None:
@@ -170,8 +180,17 @@ def test_fig05_three_fixed_points_are_two_stable_and_one_unstable_and_the_band_o
     analytic, exact = paper_comparison._fig05_counts(documents("fig05"))
     assert re.match(r"1 in \d+ of 44 cells; 3 in \d+ \(\d+ of them 2 stable \+ 1 unstable\)", analytic)
     analytic, exact = paper_comparison._fig05_beta_band(documents("fig05"))
-    # At alpha 0.5 only 20 deg is stable; at 2.5 the steep angles; unstable on both sides in between.
-    assert analytic.startswith("stable beta 20 deg at alpha 0.5, 28-32 at 2.5; unstable below them at ")
+    # The cell's stable angles at the first and the last alpha are the document's; unstable on both sides.
+    betas, alphas = np.array(data["beta_deg"]), np.array(data["alpha"])
+
+    def span(values: np.ndarray) -> str:
+        low, high = f"{values.min():g}", f"{values.max():g}"
+        return low if low == high else f"{low}-{high}"
+
+    first, last = (betas[stable[:, column] > 0] for column in (0, -1))
+    assert analytic.startswith(
+        f"stable beta {span(first)} deg at alpha {alphas[0]:g}, {span(last)} at {alphas[-1]:g}; unstable "
+    )
     below, above = (int(n) for n in re.findall(r"(?:below them|above) at (\d+)", analytic))
     assert below > 0 and above > 0
 
@@ -253,7 +272,15 @@ def test_fig13_deadbeat_tracks_more_targets_than_the_stance_pd_baseline_and_the_
     deadbeat_part, baseline_part, smaller = exact.split("; ")
     assert deadbeat_part.startswith("deadbeat: 0.25-2.75 (3 of 3), max ")
     assert baseline_part.startswith("baseline: 1.5-2.75 (2 of 3), max ")
-    assert smaller == "deadbeat's smaller: 0, 1 of 2"
+    # Deadbeat's error is the smaller in height at the faster target, in speed at neither: the paper's "better
+    # tracking of apex speed and height" holds for the height only (docs/paper.md, fig. 13).
+    both = np.array(deadbeat["stable"]) & np.array(baseline["stable"])
+    counts = [
+        int(np.sum(np.abs(deadbeat[name])[both] < np.abs(baseline[name])[both]))
+        for name in ("speed_error_percent", "height_error_percent")
+    ]
+    assert smaller == f"deadbeat's smaller: {counts[0]}, {counts[1]} of {both.sum()}"
+    assert counts == [0, 1] and both.sum() == 2
 
 
 @pytest.mark.xdist_group("fig13")
