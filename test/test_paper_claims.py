@@ -18,15 +18,16 @@ import pytest
 import test_figures
 
 from tdslip_ros.analysis import figure_parameters, paper_comparison
-from tdslip_ros.analysis.figures import exact_basins, open_loop, regulated, tracking
+from tdslip_ros.analysis.figures import exact_basins, open_loop, parameter_dependence, regulated, tracking
 from tdslip_ros.model import analytic_accuracy, basins, stability, units
 from tdslip_ros.model.analytic import approximate_map
 from tdslip_ros.model.controllers import ramp_to_liftoff
 from tdslip_ros.model.exact_map import apex_return_map
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import ApexState
+from tdslip_ros.model.params import ApexState, HopperParams
 from tdslip_ros.model.stance_laws import StanceFeedback, StancePDSpeedEnergy
 from tdslip_ros.reporting.output import to_json
+from tdslip_ros.reporting.paper_grids import FIG11_STUDIES
 
 PARAMS = PAPER_PARAMS
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -38,8 +39,9 @@ PAPER_TEXT = Path(
 )
 """The paper's text (converted from the PDF; not part of the repository: beside it, in ../shared/paper/)."""
 NUMBER = re.compile(r"\d+(?:\.\d+)?")
-TINY = dataclasses.replace(test_figures.TINY, betas=4)
-"""test_figures.TINY with four touchdown angles in fig05 (20, 24, 28, 32 deg), so that it has a band."""
+TINY = dataclasses.replace(test_figures.TINY, betas=4, exact_energies=12)
+"""test_figures.TINY with four touchdown angles in fig05 (20, 24, 28, 32 deg), so that it has a band, and 12
+goal energies over Ebar 0.8-22 for fig11's exact stable ranges (at 6 the narrowest fall between two)."""
 
 
 def _cells(line: str) -> list[str]:
@@ -145,8 +147,9 @@ FIGURES = {
     "fig08": regulated.fig08,
     "fig10": exact_basins.fig10,
     "fig13": tracking.fig13,
+    "fig11": parameter_dependence.fig11,
 }
-"""The figures whose documents the rows read, drawn here at TINY (fig05 with four angles)."""
+"""The figures whose documents the rows read, drawn here at TINY."""
 
 
 def draw(name: str) -> dict[str, Any]:
@@ -255,6 +258,68 @@ def test_fig10_cavities_are_leg_placement_failures_and_the_basin_s_other_edges()
     analytic, exact = paper_comparison._fig10_basin(documents("fig10"))
     assert analytic.startswith("1 fixed point per Ebar, stable")
     assert exact.startswith(f"{data['outcome_counts']['converged']} of 9 starts converge")
+
+
+def _fig11_ranges(study: str, key: str) -> np.ndarray:
+    """(values, 2) the stable Ebar ranges of fig11's curves varying ``study``, the analytic map's
+    (``stable_Ebar_range``) or the exact plant's (``exact_stable_Ebar_range``)."""
+    curves = documents("fig11")["fig11"][study]
+    assert [curve["value"] for curve in curves] == list(FIG11_STUDIES[study])
+    ends = np.array([curve[key] for curve in curves], dtype=float)
+    assert np.all(np.isfinite(ends)), (study, key, ends)
+    return ends
+
+
+FIG11_RANGES = ("stable_Ebar_range", "exact_stable_Ebar_range")
+
+
+@pytest.mark.xdist_group("fig11")
+@pytest.mark.parametrize("study", ["beta_deg", "kbar"])
+def test_fig11_the_stable_range_grows_with_beta_and_with_the_stiffness(study: str) -> None:
+    """IV.C, fig. 11: the range of stable energies grows with the touchdown angle beta and with the leg
+    stiffness kbar (the others at 26 deg, 36, 0.08), on the analytic map and on the exact plant; its upper end
+    rises with them."""
+    for key in FIG11_RANGES:
+        ends = _fig11_ranges(study, key)
+        assert np.all(np.diff(ends[:, 1] - ends[:, 0]) > 0), (key, ends)
+        assert np.all(np.diff(ends[:, 1]) > 0), (key, ends)
+
+
+@pytest.mark.xdist_group("fig11")
+def test_fig11_more_damping_widens_the_stable_range_where_the_paper_has_it_shrink_slightly() -> None:
+    """The paper (IV.C): "increasing the amount of damping causes a slight decrease in the range of stable
+    energy levels". Ours differ, on the analytic map and on the exact plant alike: more damping widens the
+    range at both ends, its flip moving to higher energies and its low-energy fixed point away from y_max(E)
+    (docs/paper.md, damping, where an independent computation of the exact plant agrees)."""
+    for key in FIG11_RANGES:
+        ends = _fig11_ranges("zeta0", key)
+        assert np.all(np.diff(ends[:, 0]) < 0) and np.all(np.diff(ends[:, 1]) > 0), (key, ends)
+
+
+@pytest.mark.xdist_group("fig11")
+def test_fig11_draws_fixed_points_of_each_hopper_s_regulated_map_over_its_stable_range() -> None:
+    """Each curve of fig11 is its hopper's stable fixed points (ybar*, xdotbar*) over the goal energies: they
+    map to themselves under that hopper's regulated map at its angle, their speed is the energy's
+    (xdotbar^2 = 2 (Ebar - ybar), eq. 24), and they are drawn at the energies inside the legend's stable
+    range and at none outside it."""
+    data = documents("fig11")["fig11"]
+    margin = 0.01  # Ebar: the range's ends are bisected to ~0.008 (RANGE_EBAR over 12 energies, 8 halvings)
+    for study, value, kbar, zeta0, beta_deg in parameter_dependence.fig11_hoppers():
+        curve = next(curve for curve in data[study] if curve["value"] == value)
+        params = HopperParams.from_dimensionless(kbar, zeta0)
+        energy_bar = np.array(curve["Ebar"])
+        y_bar, xdot_bar = (np.array(curve[name], dtype=float) for name in ("ybar", "xdotbar"))
+        drawn = np.isfinite(y_bar)
+        low, high = curve["stable_Ebar_range"]
+        inside = (energy_bar > low + margin) & (energy_bar < high - margin)
+        outside = (energy_bar < low - margin) | (energy_bar > high + margin)
+        assert inside.any() and np.all(drawn[inside]) and not np.any(drawn[outside]), (study, value)
+        y = units.height_from_bar(params, y_bar[drawn])
+        mapped = stability.regulated_height_map(
+            params, math.radians(beta_deg), units.energy_from_bar(params, energy_bar[drawn]), y
+        )
+        np.testing.assert_allclose(mapped, y, rtol=1e-9)
+        np.testing.assert_allclose(xdot_bar[drawn] ** 2, 2.0 * (energy_bar[drawn] - y_bar[drawn]), rtol=1e-9)
 
 
 @pytest.mark.xdist_group("fig13")
