@@ -9,12 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from matplotlib.axes import Axes
 from matplotlib.colors import to_rgb
 from matplotlib.image import imread
 from matplotlib.lines import Line2D
 from support.analysis_runs import RUNS
-from support.helpers import assert_png
+from support.helpers import assert_png, drawn_line
 
 from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import compare_run, dimensionless
@@ -127,12 +126,6 @@ def test_analyze_reports_the_perturbations(
     assert sum(row["saturated"] for row in rows) == saturated
 
 
-def _line(axes: Axes, label: str) -> Line2D:
-    matches = [line for line in axes.get_lines() if line.get_label() == label]
-    assert len(matches) == 1, [line.get_label() for line in axes.get_lines()]
-    return matches[0]
-
-
 def _drawn(line: Line2D) -> tuple[np.ndarray, np.ndarray]:
     x, y = line.get_data()
     return np.asarray(x, dtype=float), np.asarray(y, dtype=float)
@@ -151,18 +144,18 @@ def test_the_perturbation_figures_draw_the_terrain_and_the_true_and_measured_ape
     figure = plots.terrain_path(run, tmp_path / "terrain_path.png")
     body, ground = figure.axes
     for axes in (body, ground):
-        x, y = _drawn(_line(axes, f"ground ({terrain.kind})"))
+        x, y = _drawn(drawn_line(axes, f"ground ({terrain.kind})"))
         np.testing.assert_array_equal(y, terrain.height(x))
         assert x.min() <= run.samples.x.min() and run.samples.x.max() <= x.max()
     assert np.ptp(y) > 0.02  # the blocks of sigma 2 cm: not flat
-    x, y = _drawn(_line(body, "centre of mass"))
+    x, y = _drawn(drawn_line(body, "centre of mass"))
     np.testing.assert_array_equal(x, run.samples.x)
     np.testing.assert_array_equal(y, run.samples.y)
-    x, y = _drawn(_line(ground, "recorded under the body"))
+    x, y = _drawn(drawn_line(ground, "recorded under the body"))
     np.testing.assert_array_equal(y, run.samples.ground_height)
     np.testing.assert_array_equal(y, terrain.height(x))
     touchdowns = [c.state for c in run.contacts if c.kind == "touchdown"]
-    x, y = _drawn(_line(ground, "toe at touchdown"))
+    x, y = _drawn(drawn_line(ground, "toe at touchdown"))
     assert x.tolist() == [state.toe_x for state in touchdowns] and y.tolist() == [s.toe_y for s in touchdowns]
     assert len(set(y.tolist())) == len(touchdowns) > 5  # each on another block
 
@@ -175,10 +168,10 @@ def test_the_perturbation_figures_draw_the_terrain_and_the_true_and_measured_ape
         [s.measured_xdot / scale[1] for s in run.strides],
     ]
     for column, axes in enumerate(figure.axes):
-        x, y = _drawn(_line(axes, "true"))
+        x, y = _drawn(drawn_line(axes, "true"))
         assert x.tolist() == strides
         np.testing.assert_allclose(y, true[column], rtol=1e-12)
-        x, y = _drawn(_line(axes, "measured (the controller's)"))
+        x, y = _drawn(drawn_line(axes, "measured (the controller's)"))
         assert x.tolist() == strides
         np.testing.assert_allclose(y, measured[column], rtol=1e-12)
         assert np.all(np.array(measured[column]) != np.array(true[column]))  # the sensing noise shows

@@ -1,5 +1,5 @@
-"""Small checks and helpers several test files share: a written PNG, strict JSON, a deadline, the apex table
-the commands print, and random ROS messages."""
+"""Small checks and helpers several test files share: a written PNG, a figure's line, strict JSON, a deadline,
+the apex table the commands print, and random ROS messages."""
 
 from __future__ import annotations
 
@@ -11,7 +11,11 @@ import string
 from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.lines import Line2D
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 """The first 8 bytes of every PNG file (the PNG specification, section 5.2)."""
@@ -20,6 +24,13 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def assert_png(path: Path) -> None:
     """``path`` is a PNG file (by its signature)."""
     assert path.read_bytes()[:8] == PNG_SIGNATURE, f"{path} is not a PNG file"
+
+
+def drawn_line(axes: Axes, label: str) -> Line2D:
+    """The one line of ``axes`` with ``label`` (what a figure draws, read back from its artists)."""
+    matches = [line for line in axes.get_lines() if line.get_label() == label]
+    assert len(matches) == 1, [line.get_label() for line in axes.get_lines()]
+    return matches[0]
 
 
 def strict_json(path: Path) -> Any:
