@@ -8,10 +8,10 @@ full suite runs in one process, where the recorded runs below are made once). Te
 they are written. A guard (:func:`node_guard`) fails any test without the marker that inits an rclpy
 context or spawns a node process, in both tiers, so that the marker stays exact.
 
-The fast tier runs first. Meanwhile a background child (analysis_runs.Background) makes the node runs
-the selected tests will use (recorded runs, tdslip compare, some tdslip run processes), and the README's
-colcon build (colcon_workspace.py) compiles at the lowest CPU priority: on a 2-core machine most fast tests
-leave one core idle. The tests that use them wait for them.
+The fast tier runs first. Meanwhile a background child (support/analysis_runs.py: Background) makes the
+node runs the selected tests will use (recorded runs, tdslip compare, some tdslip run processes), and the
+README's colcon build (support/colcon_workspace.py) compiles at the lowest CPU priority: on a 2-core machine
+most fast tests leave one core idle. The tests that use them wait for them.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 if TYPE_CHECKING:
-    from colcon_workspace import ColconBuild
-    from ros_harness import RosGraph
+    from support.colcon_workspace import ColconBuild
+    from support.ros_harness import RosGraph
 
     from tdslip_ros.nodes.runner import RunReport
 
@@ -68,8 +68,8 @@ _colcon_build: ColconBuild | None = None
 
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Start in the background what the selected tests will need: the figure documents they read and the
-    recorded runs they use, in the order they use them (analysis_runs.Background), and the README's colcon
-    build (colcon_workspace.py)."""
+    recorded runs they use, in the order they use them (support/analysis_runs.py: Background), and the
+    README's colcon build (support/colcon_workspace.py)."""
     global _colcon_build
     if session.config.option.collectonly:
         return
@@ -101,13 +101,13 @@ def pytest_collection_finish(session: pytest.Session) -> None:
         )
     )
     if runs or commands or drawings:
-        import analysis_runs
+        from support import analysis_runs
 
         analysis_runs.BACKGROUND = analysis_runs.Background.start(
             factory.getbasetemp() / "analysis_runs", runs, commands, drawings
         )
     if "readme_colcon_build" in used:
-        from colcon_workspace import ColconBuild
+        from support.colcon_workspace import ColconBuild
 
         _colcon_build = ColconBuild.start(REPO_ROOT)
 
@@ -115,8 +115,9 @@ def pytest_collection_finish(session: pytest.Session) -> None:
 def pytest_sessionfinish(session: pytest.Session) -> None:
     if _colcon_build is not None:
         _colcon_build.remove()
-    if "analysis_runs" in sys.modules and sys.modules["analysis_runs"].BACKGROUND is not None:
-        sys.modules["analysis_runs"].BACKGROUND.stop()
+    runs = sys.modules.get("support.analysis_runs")
+    if runs is not None and runs.BACKGROUND is not None:
+        runs.BACKGROUND.stop()
 
 
 def compare_sweep_arguments() -> list[str]:
@@ -131,7 +132,7 @@ def compare_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The output directory of :func:`compare_sweep_arguments`; it exited with status 0. Made by the
     background child after its runs (lockstep, while the fast tests run), else here."""
     out = tmp_path_factory.getbasetemp() / "compare"
-    background = sys.modules["analysis_runs"].BACKGROUND if "analysis_runs" in sys.modules else None
+    background = getattr(sys.modules.get("support.analysis_runs"), "BACKGROUND", None)
     ran = None if background is None else background.command(compare_sweep_arguments(), out)
     if ran is not None:
         assert ran.returncode == 0, ran.stdout[-2000:] + ran.stderr[-2000:]
@@ -144,10 +145,11 @@ def compare_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def readme_colcon_build() -> ColconBuild:
-    """The README's colcon build, started as collection ended (colcon_workspace.py): running or finished."""
+    """The README's colcon build, started as collection ended (support/colcon_workspace.py): running or
+    finished."""
     global _colcon_build
     if _colcon_build is None:  # requested by a test collection did not see
-        from colcon_workspace import ColconBuild
+        from support.colcon_workspace import ColconBuild
 
         _colcon_build = ColconBuild.start(REPO_ROOT)
     return _colcon_build
@@ -184,7 +186,7 @@ def ament_index(monkeypatch: pytest.MonkeyPatch) -> None:
 @pytest.fixture
 def ros(monkeypatch: pytest.MonkeyPatch) -> Iterator[RosGraph]:
     """A private, in-process ROS graph (own context, domain and executor), torn down after the test."""
-    from ros_harness import ros_graph
+    from support.ros_harness import ros_graph
 
     from tdslip_ros.nodes.isolation import process_settings
 
@@ -216,7 +218,7 @@ def tiny_disk(tmp_path: Path) -> Iterator[Path]:
 
 
 def _recorded(name: str, tmp_path_factory: pytest.TempPathFactory) -> RunReport:
-    from analysis_runs import recorded_run
+    from support.analysis_runs import recorded_run
 
     return recorded_run(name, tmp_path_factory)
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import as_if_from_ones_own_controller
+from support.analysis_runs import as_if_from_ones_own_controller
 
 from tdslip_ros.analysis.compare import (
     analytic_fixed_point,

@@ -3,12 +3,12 @@ stride against the model's fig. 13 runs."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from support.helpers import assert_png, strict_json
 
 from tdslip_ros.analysis import controller_comparison as cc
 from tdslip_ros.analysis.decoding import read_run
@@ -61,7 +61,7 @@ def _baseline_model_runs() -> tuple[np.ndarray, basins.Basin]:
 
 
 def test_recorded_sweep_matches_the_model_and_marks_lost_stability(sweep: Path) -> None:
-    results = json.loads((sweep / "comparison.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    results = strict_json(sweep / "comparison.json")
     assert [(r["controller"], r["target_speed_bar"]) for r in results] == [
         (c, s) for c in cc.DEFAULT_CONTROLLERS for s in SPEEDS
     ]
@@ -109,7 +109,7 @@ def test_figure_marks_where_a_controller_loses_stability(sweep: Path, tmp_path: 
     assert cc.stable_range(results, "deadbeat") == (0.75, 1.5)
     assert cc.stable_range(results, BASELINE) == (1.5, 1.5)
     figure = cc.plot_tracking(results, tmp_path / "tracking.png")
-    assert (tmp_path / "tracking.png").read_bytes()[:4] == b"\x89PNG"
+    assert_png(tmp_path / "tracking.png")
     for axes in figure.axes:
         lines = {line.get_label(): line for line in axes.get_lines()}
         assert set(lines) == {"deadbeat", BASELINE, f"{BASELINE} loses stability"}

@@ -4,14 +4,18 @@ a saturating hip, pushes and a mismatched controller at once, in lockstep, then 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import RUNS
 from matplotlib.colors import to_rgb
 from matplotlib.image import imread
+from matplotlib.lines import Line2D
+from support.analysis_runs import RUNS
+from support.helpers import assert_png, drawn_line
 
+from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import compare_run, dimensionless
 from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.analysis.records import Run
@@ -115,12 +119,65 @@ def test_analyze_reports_the_perturbations(
     assert summary["run"]["perturbations"]["mismatch"] == pytest.approx(
         {"mass_factor": 1.05, "stiffness_factor": 1.0, "damping_factor": 0.9, "rest_length_factor": 1.0}
     )
-    assert {"terrain_path", "measured_apex"} <= set(summary["figures"])
+    assert {"terrain_path", "measured_apex"} <= set(summary["figures"])  # what they draw: the test below
     for name in ("terrain_path.png", "measured_apex.png"):
-        assert (tmp_path / name).stat().st_size > 10_000
+        assert_png(tmp_path / name)
     rows = summary["strides"]
     assert [row["ground_m"] for row in rows] == [s.ground for s in read_run(rough.bag).strides]
     assert sum(row["saturated"] for row in rows) == saturated
+
+
+def _drawn(line: Line2D) -> tuple[np.ndarray, np.ndarray]:
+    x, y = line.get_data()
+    return np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+
+
+def test_the_perturbation_figures_draw_the_terrain_and_the_true_and_measured_apexes(
+    rough_run: Run, tmp_path: Path
+) -> None:
+    """terrain_path draws the run's terrain (its blocks, in both panels) under the centre of mass, the ground
+    height the plant recorded under the body, and the toe's touchdowns on the ground; measured_apex draws,
+    per stride, the true apex (above the ground of the last stance) and apart from it the apex the sensor
+    reported, in the paper's units (eq. 24), and shades the saturated strides. Truths: the terrain's own
+    heights and the recorded strides and samples."""
+    run, params = rough_run, rough_run.params
+    terrain = run.perturbations.terrain
+    figure = plots.terrain_path(run, tmp_path / "terrain_path.png")
+    body, ground = figure.axes
+    for axes in (body, ground):
+        x, y = _drawn(drawn_line(axes, f"ground ({terrain.kind})"))
+        np.testing.assert_array_equal(y, terrain.height(x))
+        assert x.min() <= run.samples.x.min() and run.samples.x.max() <= x.max()
+    assert np.ptp(y) > 0.02  # the blocks of sigma 2 cm: not flat
+    x, y = _drawn(drawn_line(body, "centre of mass"))
+    np.testing.assert_array_equal(x, run.samples.x)
+    np.testing.assert_array_equal(y, run.samples.y)
+    x, y = _drawn(drawn_line(ground, "recorded under the body"))
+    np.testing.assert_array_equal(y, run.samples.ground_height)
+    np.testing.assert_array_equal(y, terrain.height(x))
+    touchdowns = [c.state for c in run.contacts if c.kind == "touchdown"]
+    x, y = _drawn(drawn_line(ground, "toe at touchdown"))
+    assert x.tolist() == [state.toe_x for state in touchdowns] and y.tolist() == [s.toe_y for s in touchdowns]
+    assert len(set(y.tolist())) == len(touchdowns) > 5  # each on another block
+
+    figure = plots.measured_apex(compare_run(run), tmp_path / "measured_apex.png")
+    strides = [s.stride for s in run.strides]
+    scale = (params.r0, math.sqrt(params.g * params.r0))
+    true = [[(s.y - s.ground) / scale[0] for s in run.strides], [s.xdot / scale[1] for s in run.strides]]
+    measured = [
+        [(s.measured_y - s.ground) / scale[0] for s in run.strides],
+        [s.measured_xdot / scale[1] for s in run.strides],
+    ]
+    for column, axes in enumerate(figure.axes):
+        x, y = _drawn(drawn_line(axes, "true"))
+        assert x.tolist() == strides
+        np.testing.assert_allclose(y, true[column], rtol=1e-12)
+        x, y = _drawn(drawn_line(axes, "measured (the controller's)"))
+        assert x.tolist() == strides
+        np.testing.assert_allclose(y, measured[column], rtol=1e-12)
+        assert np.all(np.array(measured[column]) != np.array(true[column]))  # the sensing noise shows
+        saturated = [patch for patch in axes.patches if patch.get_facecolor()[:3] == to_rgb(plots.SATURATED)]
+        assert len(saturated) == run.saturated_strides > 0
 
 
 def test_a_run_that_fails_on_the_terrain_says_where_and_why(

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis_runs import raw_messages, rewrite
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from support.analysis_runs import raw_messages, rewrite
 
 from tdslip_ros import interfaces
 from tdslip_ros.analysis.decoding import RunReadError, infer_params, read_run

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from analysis_runs import as_if_from_ones_own_controller, rewrite
+from support.analysis_runs import as_if_from_ones_own_controller, rewrite
+from support.helpers import strict_json
 
 from tdslip_ros.analysis.compare import compare_run
 from tdslip_ros.analysis.decoding import RunReadError, read_run
@@ -21,20 +21,13 @@ from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.runner import RunReport
 
 
-def _strict_json(path: Path) -> object:
-    def refuse(constant: str) -> None:
-        raise AssertionError(f"non-standard JSON constant {constant}")
-
-    return json.loads(path.read_text(), parse_constant=refuse)
-
-
 def test_analyze_writes_summary_figures_and_report(
     energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "report"
     assert cli.main(["analyze", str(energy.bag), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    summary = _strict_json(out / "summary.json")
+    summary = strict_json(out / "summary.json")
     assert isinstance(summary, dict)
     strides = summary["strides"]
     assert [row["stride"] for row in strides] == [apex.stride for apex in energy.apexes]
@@ -65,7 +58,7 @@ def test_analyze_takes_the_hopper_from_a_parameter_file(energy: RunReport, tmp_p
     plant_yaml = config_file("plant.yaml")
     assert hopper_params_from_yaml(plant_yaml) == energy.params
     assert main([str(energy.bag), "--out", str(tmp_path), "--params", str(plant_yaml)]) == 0
-    summary = _strict_json(tmp_path / "summary.json")
+    summary = strict_json(tmp_path / "summary.json")
     assert isinstance(summary, dict) and summary["run"]["params"]["source"] == "given"
 
 
@@ -109,7 +102,7 @@ def test_analyze_a_run_of_ones_own_controller_and_name_a_policy_to_compare_with(
     assert main([str(path), "--out", str(tmp_path / "own")]) == 0
     printed = capsys.readouterr().out
     assert "policy not replayed: the recording shows policy my_controller" in printed
-    summary = _strict_json(tmp_path / "own" / "summary.json")
+    summary = strict_json(tmp_path / "own" / "summary.json")
     assert isinstance(summary, dict)
     comparison = summary["comparison"]
     assert comparison["policy"] is None and comparison["policy_reproduced"] is None
@@ -129,7 +122,7 @@ def test_analyze_on_the_papers_map_predicts_and_replays_with_eq_7s_speed(
     assert main([str(deadbeat.bag), "--out", str(tmp_path / "ours")]) == 0
     assert main([str(deadbeat.bag), "--out", str(tmp_path / "paper"), "--map", "paper"]) == 0
     printed = capsys.readouterr().out
-    summaries = {name: _strict_json(tmp_path / name / "summary.json") for name in ("ours", "paper")}
+    summaries = {name: strict_json(tmp_path / name / "summary.json") for name in ("ours", "paper")}
     ours, paper = (summaries[name]["comparison"] for name in ("ours", "paper"))  # type: ignore[index]
     assert (ours["analytic_map"], ours["policy"]["analytic_map"], ours["policy_reproduced"]) == (
         "ours",
@@ -187,7 +180,7 @@ def test_analyze_reports_a_failed_run(
     # The policy commands only strides its map accepts: this failure is the map's error, and says so.
     assert f"predicted a next apex for stride {outcome.stride}" in printed
     assert "not converged: the run failed" in printed
-    summary = _strict_json(tmp_path / "summary.json")
+    summary = strict_json(tmp_path / "summary.json")
     assert isinstance(summary, dict)
     last = summary["strides"][-1]
     assert last["failure"] == outcome.kind
@@ -207,6 +200,6 @@ def test_a_run_recorded_without_its_1khz_topics_is_analysed(energy: RunReport, t
     dropped = (resolve(topics.STATE), resolve(topics.GRF), resolve(topics.STATUS))
     path = rewrite(mcap_file(energy.bag), tmp_path / "run.mcap", keep=lambda topic: topic not in dropped)
     assert main([str(path), "--out", str(tmp_path / "out")]) == 0
-    summary = _strict_json(tmp_path / "out" / "summary.json")
+    summary = strict_json(tmp_path / "out" / "summary.json")
     assert isinstance(summary, dict) and summary["run"]["samples"] == 0
     assert len(summary["strides"]) == len(energy.apexes)

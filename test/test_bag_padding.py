@@ -8,7 +8,6 @@ must be (up to the length: rosbags stops at the last field, an RMW publishes a m
 from __future__ import annotations
 
 import random
-import string
 from typing import Any
 
 import pytest
@@ -16,6 +15,7 @@ from geometry_msgs.msg import WrenchStamped
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosgraph_msgs.msg import Clock
+from support.helpers import fill
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, RecorderStatus, StanceCommand, Status
 from visualization_msgs.msg import MarkerArray
 
@@ -37,43 +37,6 @@ FILLED_TYPES = (
     StanceCommand,
     RecorderStatus,
 )
-_INTEGER_BITS = {"octet": 8, "uint8": 8, "int8": 8, "uint16": 16, "int16": 16, "uint32": 32, "int32": 32}
-_INTEGER_BITS |= {"uint64": 64, "int64": 64}
-
-
-def random_value(rng: random.Random, field_type: str, template: Any, shortest: int = 0) -> Any:
-    """A random value of an rclpy field type (primitives, strings, sequences of ``shortest`` to 3
-    elements, nested messages)."""
-    if field_type.startswith("sequence<"):
-        inner = field_type[len("sequence<") : -1].split(",")[0]
-        return [random_value(rng, inner, None, shortest) for _ in range(rng.randrange(shortest, 4))]
-    if field_type in ("double", "float"):
-        return rng.choice((0.0, -1.5, 3.25)) if field_type == "float" else rng.uniform(-1e3, 1e3)
-    if field_type == "boolean":
-        return rng.random() < 0.5
-    if field_type in _INTEGER_BITS:
-        bits = _INTEGER_BITS[field_type]
-        low = -(2 ** (bits - 1)) if field_type.startswith("int") else 0
-        return rng.randrange(low, low + 2**bits if low == 0 else 2 ** (bits - 1))
-    if field_type.startswith("string"):
-        return "".join(rng.choice(string.ascii_letters) for _ in range(rng.randrange(12)))
-    message = template if template is not None else _message_class(field_type)()
-    fill(rng, message, shortest)
-    return message
-
-
-def _message_class(field_type: str) -> type:
-    package, name = field_type.split("/")
-    module = __import__(f"{package}.msg", fromlist=[name])
-    return getattr(module, name)  # type: ignore[no-any-return]
-
-
-def fill(rng: random.Random, message: Any, shortest: int = 0) -> None:
-    """Random values in every field of ``message`` (sequences of at least ``shortest`` elements)."""
-    for name, field_type in message.get_fields_and_field_types().items():
-        current = getattr(message, name)
-        nested = current if hasattr(current, "get_fields_and_field_types") else None
-        setattr(message, name, random_value(rng, field_type, nested, shortest))
 
 
 def random_markers(rng: random.Random) -> Any:

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 import yaml  # type: ignore[import-untyped]
-from analysis_runs import raw_messages
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
+from support.analysis_runs import raw_messages
 
 from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.bag import RosbagMcapWriter, open_bag

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from learned_policy import learned_file
+from support.learned_policy import learned_file
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, approximate_map

@@ -19,7 +19,7 @@ from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.policies.controllers import exact_energy_regulation
 from tdslip_ros.model.stability import analytic_fixed_points, basins
-from tdslip_ros.model.stability.analytic_fixed_points import exact_fixed_points as xs
+from tdslip_ros.model.stability import exact_fixed_points as xs
 
 PARAMS = PAPER_PARAMS
 BETA = math.radians(26.0)

@@ -7,13 +7,13 @@ through stance, forward thrust is tau < 0. A braking force is F_x < 0; a footfal
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from support.helpers import assert_png, strict_json
 
 from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures import ground_reaction
@@ -192,8 +192,8 @@ def test_the_command_draws_fig12_in_the_process_without_the_engine(
 
     monkeypatch.setattr(engine, "connect", no_engine)
     assert cli.main(["figures", "--out", str(tmp_path), "--only", "fig12"]) == 0
-    assert (tmp_path / "fig12.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    document = json.loads((tmp_path / "fig12.json").read_text(), parse_constant=pytest.fail)
+    assert_png(tmp_path / "fig12.png")
+    document = strict_json(tmp_path / "fig12.json")
     assert document["figure"] == "fig12" and document["params"]["m"] == 65.4
 
 

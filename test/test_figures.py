@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.helpers import assert_png, strict_json
 
 from tdslip_ros.analysis import paper_comparison
 from tdslip_ros.analysis.figures import catalogue, exact_basins, open_loop, regulated
@@ -17,6 +18,9 @@ from tdslip_ros.commands import cli
 from tdslip_ros.commands import figures as figures_command
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, StanceCommand
+from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.policies.controllers import exact_energy_regulation
 from tdslip_ros.model.stability import analytic_fixed_points, basins, exact_fixed_points
 from tdslip_ros.studies import engine
 
@@ -49,8 +53,8 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     assert (
         cli.main(["figures", "--out", str(tmp_path), "--only", "fig09", "--scheduler", dask_scheduler]) == 0
     )
-    assert (tmp_path / "fig09.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    document = json.loads((tmp_path / "fig09.json").read_text(), parse_constant=pytest.fail)
+    assert_png(tmp_path / "fig09.png")
+    document = strict_json(tmp_path / "fig09.json")
     assert document["figure"] == "fig09" and document["params"]["kbar"] == pytest.approx(36.0)
     assert document["resolution"] == vars(TINY)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["comparison.md", "fig09.json", "fig09.png"]
@@ -114,6 +118,65 @@ def test_fig08_holds_the_regulated_maps_and_their_fixed_points() -> None:
         assert list(np.array(points["stable"])[found, 0]) == list(radius < 1.0)
         curve = panel["maps"]["3"]
         assert np.all(np.array(curve["ybar"]) > math.cos(beta))
+
+
+def _exact_regulated_hop(beta: float, y: float, energy: float) -> float:
+    """The next apex height [m] of the exact plant (exact_map's DOP853 stride) from the apex at height ``y``
+    [m] with ``energy`` [J], under the command the ideal regulator (energy_exact) answers that apex with."""
+    apex = ApexState.from_height_energy(PARAMS, y, energy)
+    command = exact_energy_regulation(PARAMS, apex.y, apex.xdot, beta, energy)
+    stride = apex_return_map(
+        PARAMS, apex, StanceCommand(float(command.touchdown_angle), float(command.tau0), float(command.t_f))
+    )
+    assert stride.apex is not None, stride.reason
+    assert stride.apex.energy(PARAMS) == pytest.approx(energy, rel=1e-10)  # the regulator holds its goal
+    return stride.apex.y
+
+
+def test_fig09_holds_the_eigenvalues_of_fixed_points_the_exact_plant_returns_to() -> None:
+    """The paper's fig. 9: eigenvalues of the regulated fixed points, kbar = 36, zeta0 = 0.08, (a) beta = 22
+    deg, (b) beta = 30 deg. Truths: the analytic fixed points map to themselves under the analytic map at
+    the panel's angle, with the map's slope there (central differences) as eigenvalue; the exact plant's
+    fixed points, hopped by the exact map (not the compiled stride the figure's search used) under the
+    exact regulator's command, return to themselves, with the slope of those hops as eigenvalue."""
+    _, data = regulated.fig09(TINY, quiet(), "energy")
+    assert [data[panel]["beta_deg"] for panel in "ab"] == [22.0, 30.0]
+    step = 1e-5 * PARAMS.r0
+    for panel in "ab":
+        figure = data[panel]
+        beta = math.radians(figure["beta_deg"])
+        energies = units.energy_from_bar(PARAMS, np.array(figure["parameter"]))
+        y = units.height_from_bar(PARAMS, np.array(figure["ybar"], dtype=float)[:, 0])
+        found = np.isfinite(y)
+        assert found.sum() >= 6, panel
+        np.testing.assert_allclose(
+            analytic_fixed_points.regulated_height_map(PARAMS, beta, energies[found], y[found]),
+            y[found],
+            rtol=1e-9,
+        )
+        slope = (
+            analytic_fixed_points.regulated_height_map(PARAMS, beta, energies[found], y[found] + step)
+            - analytic_fixed_points.regulated_height_map(PARAMS, beta, energies[found], y[found] - step)
+        ) / (2.0 * step)
+        eigenvalue = np.real(np.array(figure["eigenvalues"])[found, 0, 0])
+        np.testing.assert_allclose(eigenvalue, slope, rtol=1e-5, atol=1e-7)
+        exact = figure["exact"]
+        exact_y = units.height_from_bar(PARAMS, np.array(exact["ybar"], dtype=float)[:, 0])
+        assert np.isfinite(exact_y).sum() >= 5, panel
+        exact_eigenvalue = np.real(np.array(exact["eigenvalues"])[:, 0, 0])
+        for row in np.flatnonzero(np.isfinite(exact_y)):
+            y_star, energy = float(exact_y[row]), float(energies[row])
+            assert _exact_regulated_hop(beta, y_star, energy) == pytest.approx(y_star, rel=1e-10)
+            exact_slope = (
+                _exact_regulated_hop(beta, y_star + step, energy)
+                - _exact_regulated_hop(beta, y_star - step, energy)
+            ) / (2.0 * step)
+            assert exact_eigenvalue[row] == pytest.approx(exact_slope, rel=1e-5, abs=1e-6), (panel, row)
+            assert exact["stable"][row][0] == (abs(exact_slope) < 1.0)
+        # An analytic fixed point is on the exact plant where the exact plant has one of that energy.
+        assert [row[0] for row in figure["analytic_exists_on_exact_plant"]] == list(
+            found & np.isfinite(exact_y)
+        )
 
 
 def test_fig10_compares_the_exact_plant_s_fixed_points_with_the_analytic_ones() -> None:

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 from ament_index_python.packages import get_package_share_directory
 from rclpy.serialization import deserialize_message, serialize_message
+from support.helpers import fill
 
 # (field, rosidl type, SI unit in the comment; None: a nested message, only a comment is required)
 HEADER = ("header", "std_msgs/Header", None)
@@ -193,29 +194,10 @@ def test_installed_reset_definition_states_si_units() -> None:
     check_units(response, RESET_RESPONSE)
 
 
-def fill(message: Any, rng: random.Random) -> Any:
-    """Set every field (recursively) to a random value of its type, away from the defaults."""
-    for field, kind in message.get_fields_and_field_types().items():
-        if kind == "double":
-            value: Any = rng.uniform(-1e3, 1e3)
-        elif kind in ("uint8", "uint32", "uint64"):
-            value = rng.randint(1, {"uint8": 2**8, "uint32": 2**32, "uint64": 2**64}[kind] - 1)
-        elif kind == "int32":
-            value = rng.randint(-(2**31), 2**31 - 1)
-        elif kind == "string":
-            value = f"{field}-{rng.random():.17g}"
-        elif kind == "boolean":
-            value = True
-        else:
-            value = fill(getattr(message, field), rng)
-        setattr(message, field, value)
-    return message
-
-
 @pytest.mark.parametrize("name", [*MESSAGE_FIELDS, "Reset.Request", "Reset.Response"])
 def test_cdr_round_trip_keeps_every_field(name: str) -> None:
     kind = getattr(reset_service(), name.split(".")[1]) if "." in name else message_class(name)
-    original = fill(kind(), random.Random(name))
+    original = fill(random.Random(name), kind())
     assert original != kind()
     decoded = deserialize_message(serialize_message(original), kind)
     assert decoded == original

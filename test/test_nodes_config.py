@@ -13,7 +13,7 @@ import yaml  # type: ignore[import-untyped]
 from rcl_interfaces.msg import ParameterType
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
-from ros_harness import RosGraph, overrides
+from support.ros_harness import RosGraph, overrides
 
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.nodes import controller_node, isolation, parameters, plant_parameters, recorder_node

@@ -9,10 +9,10 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from learned_policy import learned_file, malformed_file
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from ros_harness import RosGraph
+from support.learned_policy import learned_file, malformed_file
+from support.ros_harness import RosGraph
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.model import units

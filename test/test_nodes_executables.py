@@ -14,7 +14,7 @@ import pytest
 from ament_index_python.packages import get_package_prefix
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from ros_harness import RosGraph, stop_process
+from support.ros_harness import RosGraph, stop_process
 
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.policies.registry import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED

@@ -2,7 +2,7 @@
 own with default QoS, subscribers that stall, /clock and use_sim_time, a flood of wrong commands.
 
 Nodes run as the user runs them where it matters (the installed executables, the example
-controller script), in a private graph per test (ros_harness). The truths: lockstep runs are
+controller script), in a private graph per test (support/ros_harness.py). The truths: lockstep runs are
 deterministic, so a hopper must produce exactly the apexes of the model looped without ROS
 (test_nodes_lockstep.model_loop); a bag must hold exactly what was published.
 """
@@ -25,8 +25,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from ros_harness import RosGraph, overrides, stop_process
 from rosgraph_msgs.msg import Clock
+from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import ApexEvent, HopperState, Status
 from test_nodes_lockstep import energy_policy, model_loop
 

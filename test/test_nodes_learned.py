@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from learned_policy import learned_file, malformed_file
+from support.learned_policy import learned_file, malformed_file
 
 from tdslip_ros.analysis.compare import REPRODUCTION_TOLERANCE, command_deviation, policy_for_run
 from tdslip_ros.analysis.decoding import read_run

@@ -13,8 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from ros_harness import RosGraph, overrides
 from scipy.optimize import root
+from support.ros_harness import RosGraph, overrides
 from tdslip_msgs.msg import ApexEvent, ContactEvent, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 

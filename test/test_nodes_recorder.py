@@ -8,7 +8,6 @@ stream without a gap.
 from __future__ import annotations
 
 import signal
-import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -16,8 +15,8 @@ import pytest
 import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from ros_harness import RosGraph, overrides, stop_process
 from rosbags.highlevel import AnyReader
+from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import ApexEvent, HopperSamples
 
 from tdslip_ros.interfaces import resolve
@@ -27,13 +26,7 @@ from tdslip_ros.nodes.entry import wait_for_delivery, wait_for_matching
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
 from tdslip_ros.nodes.wire import SAMPLE_COLUMNS
 
-RECORDER = "tdslip_ros.nodes.recorder_node"
 NS = 1_000_000_000
-
-
-def start_recorder(ros: RosGraph, bag: Path, record_clock: bool) -> subprocess.Popen[bytes]:
-    arguments = ["-p", f"output:={bag}", "-p", f"record_clock:={str(record_clock).lower()}"]
-    return ros.start_module(RECORDER, arguments, bag.parent / "recorder.log")
 
 
 def start_hopping(ros: RosGraph, **plant_values: object) -> tuple[PlantNode, ControllerNode]:
@@ -101,7 +94,7 @@ def assert_gapless_from_start(states: list[Any]) -> None:
 
 def test_recording_decodes_in_two_readers_with_the_published_counts(ros: RosGraph, tmp_path: Path) -> None:
     bag = tmp_path / "bag"
-    recorder = start_recorder(ros, bag, record_clock=True)
+    recorder = ros.start_recorder(bag, bag.parent / "recorder.log", record_clock=True)
     apexes = ros.collect(ApexEvent, topics.APEX)
     plant, controller = start_hopping(ros, max_strides=3)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
@@ -145,7 +138,7 @@ def test_a_stop_signal_mid_run_leaves_a_finalised_readable_bag(
     ros: RosGraph, tmp_path: Path, signum: signal.Signals
 ) -> None:
     bag = tmp_path / "bag"
-    recorder = start_recorder(ros, bag, record_clock=False)
+    recorder = ros.start_recorder(bag, bag.parent / "recorder.log", record_clock=False)
     plant, _ = start_hopping(ros, max_strides=0)  # hops until stopped
     ros.spin_until(lambda: plant.published[topics.STATE] >= 1500, "1.5 s of simulated hopping")
     recorder.send_signal(signum)
@@ -168,7 +161,7 @@ def test_a_recorder_of_the_batches_counts_as_a_subscriber_of_the_state_for_min_s
 ) -> None:
     """With min_subscribers 1 the plant starts once the recorder is there: it hears the state and the force
     through tdslip/samples, not on the live topics."""
-    recorder = start_recorder(ros, tmp_path / "bag", record_clock=False)
+    recorder = ros.start_recorder(tmp_path / "bag", tmp_path / "recorder.log", record_clock=False)
     plant, _ = start_hopping(ros, max_strides=2, min_subscribers=1, command_timeout=30.0)
     assert plant.matched_subscribers(topics.STATE) == 0 and plant.matched_subscribers(topics.SAMPLES) == 1
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
@@ -178,7 +171,7 @@ def test_a_recorder_of_the_batches_counts_as_a_subscriber_of_the_state_for_min_s
 
 def test_a_malformed_batch_is_skipped_and_recording_goes_on(ros: RosGraph, tmp_path: Path) -> None:
     bag = tmp_path / "bag"
-    recorder = start_recorder(ros, bag, record_clock=False)
+    recorder = ros.start_recorder(bag, bag.parent / "recorder.log", record_clock=False)
     node = ros.node("someone")
     batches = node.create_publisher(HopperSamples, topics.SAMPLES, topics.STREAM_QOS)
     ros.spin_until(lambda: batches.get_subscription_count() >= 1, "the recorder to subscribe")

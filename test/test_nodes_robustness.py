@@ -11,7 +11,7 @@ import time
 from typing import Any
 
 import pytest
-from ros_harness import RosGraph, overrides
+from support.ros_harness import RosGraph, overrides
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HopperState, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 from test_nodes_lockstep import energy_policy

@@ -8,12 +8,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-import analysis_runs
 import pytest
 import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from ros_harness import stop_example
+from support import analysis_runs
+from support.helpers import apex_table
+from support.ros_harness import stop_example
 
 from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.interfaces import resolve
@@ -56,18 +57,6 @@ def tdslip_run(*arguments: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def table_rows(stdout: str) -> list[list[float]]:
-    """The apex table: stride, t, y, xdot, E, ybar, xdotbar, Ebar per row."""
-    lines = stdout.splitlines()
-    start = next(i for i, line in enumerate(lines) if line.lstrip().startswith("stride")) + 2
-    rows = []
-    for line in lines[start:]:
-        if not line.strip():
-            break
-        rows.append([float(field) for field in line.replace("|", " ").split()])
-    return rows
-
-
 def bag_apexes(bag: Path) -> list[tuple[int, float, float]]:
     with (bag / f"{bag.name}_0.mcap").open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
@@ -92,7 +81,7 @@ def test_a_run_prints_its_apexes_and_leaves_a_complete_bag(tmp_path: Path, mode:
     clock = ("--record-clock",) if mode == "realtime" else ()
     result = tdslip_run("--strides", "3", "--policy", "energy", "--mode", mode, *clock, "--out", str(bag))
     assert result.returncode == 0, result.stdout + result.stderr
-    rows = table_rows(result.stdout)
+    rows = apex_table(result.stdout)
     assert [int(row[0]) for row in rows] == [0, 1, 2, 3]
     # The table is the bag's apex sequence, in SI and in the paper's units (r0 = 1 m, sqrt(g r0)).
     for row, (stride, height, speed) in zip(rows, bag_apexes(bag), strict=True):

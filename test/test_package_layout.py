@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 from ament_index_python.packages import get_package_share_directory
 from ament_index_python.resources import get_resource
-from colcon_workspace import ColconBuild
+from support.colcon_workspace import ColconBuild
 
 from tdslip_ros.nodes import isolation
 
@@ -173,7 +173,7 @@ def test_the_readmes_colcon_command_builds_both_packages_and_plant_node_runs_fro
     """A plain workspace (this repository cloned as src/tdslip_ros) built with the README's command,
     the venv as underlay (as an activated venv presents it): after `source install/local_setup.bash`
     both packages come from the overlay, and `ros2 run tdslip_ros plant_node` hops. (The build started
-    in the background when collection ended: colcon_workspace.py.)"""
+    in the background when collection ended: support/colcon_workspace.py.)"""
     build = readme_colcon_build.wait()
     assert build.returncode == 0, build.stdout + build.stderr
     assert "Summary: 2 packages finished" in build.stdout, build.stdout

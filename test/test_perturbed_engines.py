@@ -9,7 +9,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 import pytest
-from failure_cases import PERTURBED_FAILURE_CASES, PerturbedFailureCase
+from support.failure_cases import PERTURBED_FAILURE_CASES, PerturbedFailureCase
 
 from tdslip_ros.interfaces import (
     PERTURBATION_PARAMETERS,

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from failure_cases import FAILURE_CASES
+from support.failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import units
 from tdslip_ros.model.events import NO_FAILURE_CODE, FailureKind, failure_code, failure_from_code

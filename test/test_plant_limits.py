@@ -3,16 +3,13 @@ failure state_limit, and no number makes an integrator raise, hang or report a n
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-import signal
-from collections.abc import Iterator
-from types import FrameType
 from typing import Any
 
 import numpy as np
 import pytest
+from support.helpers import deadline
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.analytic.apex_map import approximate_return_map
@@ -38,22 +35,6 @@ START = ApexState(1.0, 5.0)
 
 def gait_policy(stride: int, y: np.ndarray, xdot: np.ndarray) -> tuple[float, float, float]:
     return GAIT_LANES
-
-
-@contextlib.contextmanager
-def deadline(seconds: float) -> Iterator[None]:
-    """Fail instead of hanging: SIGALRM raises TimeoutError in the main thread after ``seconds``."""
-
-    def expire(signum: int, frame: FrameType | None) -> None:
-        raise TimeoutError(f"still running after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0.0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def test_default_limits_scale_with_the_hopper() -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from support.helpers import apex_table
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
 from tdslip_ros.commands.cli import main as tdslip
@@ -13,15 +14,6 @@ from tdslip_ros.model.params import ApexState, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
 
 PARAMS = PAPER_PARAMS
-
-
-def _table(output: str) -> list[list[float]]:
-    rows = []
-    for line in output.splitlines():
-        fields = line.split()
-        if fields and fields[0].isdigit():
-            rows.append([float(value) for value in fields])
-    return rows
 
 
 def test_energy_neutral_command_replaces_the_first_strides_losses() -> None:
@@ -42,7 +34,7 @@ def test_energy_neutral_command_replaces_the_first_strides_losses() -> None:
 def test_simulate_prints_the_steppers_apexes(capsys: pytest.CaptureFixture[str]) -> None:
     arguments = ["--strides", "3", "--tau0", "-335.5", "--t-f", "0.1227", "--touchdown-angle-deg", "22"]
     assert tdslip(["simulate", *arguments, "--speed", "5.5"]) == 0
-    rows = _table(capsys.readouterr().out)
+    rows = apex_table(capsys.readouterr().out)
     assert [int(row[0]) for row in rows] == [0, 1, 2, 3]
     command = StanceCommand(math.radians(22.0), -335.5, 0.1227)
     apex, t = ApexState(1.0, 5.5), 0.0
@@ -65,7 +57,7 @@ def test_simulate_prints_the_steppers_apexes(capsys: pytest.CaptureFixture[str])
 def test_simulate_defaults_hop_and_failures_are_named(capsys: pytest.CaptureFixture[str]) -> None:
     assert tdslip(["simulate", "--strides", "5"]) == 0
     out = capsys.readouterr().out
-    assert len(_table(out)) == 6 and "constant command" in out
+    assert len(apex_table(out)) == 6 and "constant command" in out
     assert tdslip(["simulate", "--touchdown-angle-deg", "26", "--height", "1.2", "--speed", "3"]) == 1
     out = capsys.readouterr().out
     assert "reversal" in out and "failure at t" in out

@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable
 
 import pytest
-from failure_cases import FAILURE_CASES
+from support.failure_cases import FAILURE_CASES
 
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind, FailureKind, Phase

@@ -16,8 +16,8 @@ import numpy as np
 import pyarrow as pa
 import pytest
 import yaml  # type: ignore[import-untyped]
-from learned_policy import WEIGHTS, learned_file
 from rclpy.parameter import Parameter
+from support.learned_policy import WEIGHTS, learned_file
 
 from tdslip_ros.analysis.report import policy_settings_text
 from tdslip_ros.model import units

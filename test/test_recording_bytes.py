@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from analysis_runs import raw_messages
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from support.analysis_runs import by_topic
 
 from tdslip_ros.bag.padding import padded_to_4, padding_positions
 from tdslip_ros.bag.reader import mcap_file
@@ -33,13 +33,6 @@ def _schemas(mcap_path: Path) -> dict[str, tuple[str, str]]:
         )
         for channel in summary.channels.values()
     }
-
-
-def _by_topic(mcap_path: Path) -> dict[str, list[bytes]]:
-    messages: dict[str, list[bytes]] = {}
-    for topic, _, _, _, data in raw_messages(mcap_path):
-        messages.setdefault(topic, []).append(data)
-    return messages
 
 
 STREAMED = {resolve(topics.HIP_TORQUE), resolve(topics.APPLIED_TORQUE)}
@@ -64,7 +57,7 @@ def _check_padding(report: RunReport) -> dict[str, list[bytes]]:
     store = get_typestore(Stores.EMPTY)
     for name, text in set(schemas.values()):
         store.register(get_types_from_msg(text, name))
-    messages = _by_topic(path)
+    messages = by_topic(path)
     assert len(messages[resolve(topics.STATE)]) > 1000  # the 1 kHz topics, with state and GRF
     for topic, datas in messages.items():
         name, text = schemas[topic]
@@ -84,7 +77,7 @@ def test_two_lockstep_runs_with_the_same_options_record_the_same_bytes(
 ) -> None:
     again = energy_again  # the same RunOptions (analysis_runs.AGAIN), recorded once
     assert again.recording_complete
-    first, second = _by_topic(mcap_file(energy.bag)), _by_topic(mcap_file(again.bag))
+    first, second = by_topic(mcap_file(energy.bag)), by_topic(mcap_file(again.bag))
     assert set(first) == set(second) == {resolve(topic) for topic in topics.RECORDED_TOPICS} - STREAMED
     for topic in first:
         assert len(first[topic]) == len(second[topic]), topic

@@ -5,15 +5,14 @@ the analysis and the replay read, and the messages lost are counted against thos
 from __future__ import annotations
 
 import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_harness import RosGraph
+from support.ros_harness import RosGraph
 from tdslip_msgs.msg import RecorderStatus
-from test_nodes_recorder import RECORDER, published_counts, start_hopping
+from test_nodes_recorder import published_counts, start_hopping
 
 from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.bag import open_bag
@@ -27,20 +26,6 @@ from tdslip_ros.nodes.replay import checked_bag
 from tdslip_ros.nodes.runner import RunOptions, run_custom_data
 
 CHUNK_SIZE = 64 * 1024
-
-
-def start_recorder(ros: RosGraph, bag: Path, chunk_size: int, log: Path) -> subprocess.Popen[bytes]:
-    """A recorder child with small chunks and the custom_data ``tdslip run`` gives it."""
-    custom_data = run_custom_data(RunOptions(out=bag), PAPER_PARAMS)
-    arguments = [
-        "-p",
-        f"output:={bag}",
-        "-p",
-        f"chunk_size:={chunk_size}",
-        "-p",
-        f"custom_data:={custom_data}",
-    ]
-    return ros.start_module(RECORDER, arguments, log)
 
 
 def lost_against_published(bag: Path, published: dict[str, int]) -> dict[str, int]:
@@ -60,7 +45,12 @@ def check_readable(bag: Path, published: dict[str, int]) -> None:
 
 def test_a_hard_killed_recorder_loses_only_its_open_chunk(ros: RosGraph, tmp_path: Path) -> None:
     bag = tmp_path / "bag"
-    recorder = start_recorder(ros, bag, CHUNK_SIZE, tmp_path / "recorder.log")
+    recorder = ros.start_recorder(
+        bag,
+        tmp_path / "recorder.log",
+        chunk_size=CHUNK_SIZE,
+        custom_data=run_custom_data(RunOptions(out=bag), PAPER_PARAMS),
+    )
     plant, controller = start_hopping(ros, max_strides=0)
     ros.spin_until(lambda: plant.published[topics.STATE] >= 2000, "2 s of simulated hopping")
     recorder.kill()
@@ -86,7 +76,12 @@ def test_a_full_disk_stops_the_recording_with_a_finalised_readable_bag(
     free = os.statvfs(tiny_disk).f_bavail * os.statvfs(tiny_disk).f_frsize
     (tiny_disk / "filler").write_bytes(bytes(free - 900_000))
     bag = tiny_disk / "bag"
-    recorder = start_recorder(ros, bag, 16 * 1024, tmp_path / "recorder.log")
+    recorder = ros.start_recorder(
+        bag,
+        tmp_path / "recorder.log",
+        chunk_size=16 * 1024,
+        custom_data=run_custom_data(RunOptions(out=bag), PAPER_PARAMS),
+    )
     statuses: list[RecorderStatus] = []
     ros.node("status_probe").create_subscription(
         RecorderStatus, topics.RECORDER_STATUS, statuses.append, topics.RECORDER_STATUS_QOS

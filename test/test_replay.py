@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 import rclpy
-from analysis_runs import raw_messages
 from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.qos import HistoryPolicy
 from rclpy.signals import SignalHandlerOptions
+from support.analysis_runs import by_topic, raw_messages
 
 from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.commands.replay import main
@@ -37,13 +37,6 @@ def ros_domain() -> Iterator[tuple[Context, dict[str, str]]]:
             rclpy.try_shutdown(context=context)
 
 
-def _by_topic(mcap_path: Path) -> dict[str, list[bytes]]:
-    messages: dict[str, list[bytes]] = {}
-    for topic, _, _, _, data in raw_messages(mcap_path):
-        messages.setdefault(topic, []).append(data)
-    return messages
-
-
 def test_record_replay_record_gives_the_same_messages_in_the_same_order(
     energy: RunReport, tmp_path: Path
 ) -> None:
@@ -61,12 +54,12 @@ def test_record_replay_record_gives_the_same_messages_in_the_same_order(
             recorder.stop()
         finally:
             recorder.close()
-    recorded = _by_topic(original)
+    recorded = by_topic(original)
     assert result.published == {topic: len(recorded.get(topic, [])) for topic in result.published}
     assert result.acknowledged and not result.stopped
     log_times = [log_time for _, _, log_time, _, _ in raw_messages(original)]
     assert result.duration >= (max(log_times) - min(log_times)) * 1e-9
-    replayed = _by_topic(mcap_file(again))
+    replayed = by_topic(mcap_file(again))
     streamed = {resolve(topics.HIP_TORQUE), resolve(topics.APPLIED_TORQUE)}  # stance feedback: none here
     assert set(replayed) == set(recorded) == {resolve(topic) for topic in topics.RECORDED_TOPICS} - streamed
     for topic, messages in recorded.items():

@@ -7,13 +7,13 @@ and open loop applies the very same command there), the tables the command wrote
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from support.helpers import assert_png, strict_json
 
 from tdslip_ros.commands import cli
 from tdslip_ros.commands.robustness import DEFAULT_ENERGY_BAR
@@ -96,7 +96,7 @@ def test_the_command_writes_survival_figures_and_tables(tmp_path: Path, dask_sch
         == 0
     )
     for name in ("robustness", "strides", "spread", "failures"):
-        assert (out / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert_png(out / f"{name}.png")
     with (out / "summary.csv").open() as stream:
         summary = list(csv.DictReader(stream))
     sizes = {kind: robustness.KINDS[kind].sizes for kind in ("terrain", "mismatch")}
@@ -116,7 +116,7 @@ def test_the_command_writes_survival_figures_and_tables(tmp_path: Path, dask_sch
             failures = [r["outcome"] for r in cell if r["strides_survived"] < 10]
             counted = {name: int(entry[name]) for name in robustness.FAILURES if int(entry[name])}
             assert counted == {name: failures.count(name) for name in set(failures)}
-    document = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)
+    document = strict_json(out / "summary.json")
     assert document["sizes_survived"]["terrain"]["apex_foot_placement"]["all"][0] == 0.0
     assert document["operating_point"]["touchdown_angle"] == pytest.approx(math.radians(20.0))  # the default
     table = (out / "robustness.md").read_text()
@@ -134,7 +134,7 @@ def test_map_paper_plans_deadbeat_on_the_paper_s_map(tmp_path: Path, dask_schedu
     rows = pq.read_table(out / "step" / "table").sort_by("trajectory")
     assert set(rows["analytic_map"].to_pylist()) == {"paper"}
     assert "Analytic map the policies plan on: paper." in (out / "robustness.md").read_text()
-    document = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)["operating_point"]
+    document = strict_json(out / "summary.json")["operating_point"]
     assert document["analytic_map"] == "paper"
     energy = units.energy_from_bar(PARAMS, DEFAULT_ENERGY_BAR)  # the command's default operating point
     ours = robustness.operating_point(PARAMS, math.radians(20.0), energy)

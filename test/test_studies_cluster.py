@@ -20,6 +20,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 from distributed import Client
+from support.helpers import deadline
 
 from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.design import Study, Uniform
@@ -39,17 +40,9 @@ STUDY = Study.of(
 
 
 @pytest.fixture(autouse=True)
-def deadline() -> Iterator[None]:
-    def expire(signum: int, frame: object) -> None:
-        raise TimeoutError(f"test exceeded its {DEADLINE} s deadline")
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.alarm(DEADLINE)
-    try:
+def within_deadline() -> Iterator[None]:
+    with deadline(DEADLINE):
         yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 @pytest.fixture(scope="module")

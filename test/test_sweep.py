@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from support.helpers import assert_png, strict_json
 
 from tdslip_ros.commands import cli
 from tdslip_ros.model import units
@@ -62,11 +63,11 @@ def test_the_command_writes_the_table_figure_and_summary_and_resumes(
     assert cli.main(command) == 0
     rows = pq.read_table(out / "table").sort_by("trajectory")
     assert rows.num_rows == 20 and rows["trajectory"].to_pylist() == list(range(20))
-    summary = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)
+    summary = strict_json(out / "summary.json")
     counts = summary["studies"]["fig10"]["outcome_counts"]
     assert counts == {name: rows["outcome"].to_pylist().count(name) for name in basins.OUTCOMES}
     assert counts["converged"] > 0
-    assert (out / "fig10.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert_png(out / "fig10.png")
     parts = {path: path.stat().st_mtime_ns for path in (out / "table").iterdir()}
     assert cli.main(command) == 2  # the directory holds this study: --resume, or another --out
     assert cli.main([*command, "--resume"]) == 0  # nothing left to compute: the parts stay as they were

@@ -8,7 +8,7 @@ import signal
 from pathlib import Path
 
 import pytest
-from ros_harness import RosGraph, overrides
+from support.ros_harness import RosGraph, overrides
 from tdslip_msgs.msg import ApexEvent, Status
 
 from tdslip_ros.model.limits import PlausibilityLimits

@@ -6,9 +6,9 @@ import subprocess
 import sys
 
 import pytest
-from analysis_runs import AGAIN, RUNS
 from conftest import NODE_FIXTURES, RECORDED_RUNS, NodeGuard, node_process
 from rclpy.context import Context
+from support.analysis_runs import AGAIN, RUNS
 
 PYTHON = sys.executable
 

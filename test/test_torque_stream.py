@@ -9,7 +9,13 @@ import pytest
 from rclpy.serialization import serialize_message
 from tdslip_msgs.msg import HipTorque
 
-from tdslip_ros.model.params import ParameterError
+from tdslip_ros.model.events import Event, EventKind
+from tdslip_ros.model.limits import PlausibilityLimits
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ApexState, ParameterError
+from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.stance_laws import StanceFeedback, TorqueStream
+from tdslip_ros.nodes.plant_run import PlantRun, PlantSink, RunOutcome, RunSettings
 from tdslip_ros.nodes.torque_stream import LateTorque, TorqueFields, TorqueInput, tick_of, torque_fields
 from tdslip_ros.nodes.wire import serialized
 
@@ -101,3 +107,63 @@ def test_a_torque_for_an_earlier_stance_is_late_in_both_clock_modes(sent: Torque
         with pytest.raises(LateTorque):
             torques.take(torque(), **(AT | {"stance_over": True}))
         assert torques.late == 2 and torques.latest is None
+
+
+class StanceRecord(PlantSink):
+    """A sink that keeps each stance torque the plant applied (tdslip/applied_torque) and its touchdowns."""
+
+    def __init__(self) -> None:
+        self.applied: list[tuple[int, int, int, float]] = []
+        self.touchdowns: list[int] = []
+        self.outcome: RunOutcome | None = None
+
+    @property
+    def live(self) -> bool:
+        return False
+
+    def applied_torque(self, epoch: int, stride: int, tick: int, torque: float) -> None:
+        self.applied.append((epoch, stride, tick, torque))
+
+    def contact(self, epoch: int, event: Event, t: float) -> None:
+        if event.kind is EventKind.TOUCHDOWN:
+            self.touchdowns.append(event.stride)
+
+    def finished(self, outcome: RunOutcome) -> None:
+        self.outcome = outcome
+
+
+def test_a_realtime_stance_tick_without_a_fresh_torque_holds_zero_and_is_counted_stale() -> None:
+    """A realtime run streaming the hip torque (stance feedback on a TorqueStream) through one stance: no
+    torque for the first samples, then one torque, held for max_age_ticks more ticks, then none again. Each
+    sample that held zero is a stale tick in the run's counts; the samples that held the torque are not."""
+    max_age = 3
+    hopper = PAPER_PARAMS
+    settings = RunSettings(
+        hopper,
+        PlausibilityLimits.for_hopper(hopper),
+        Perturbations(),
+        StanceFeedback(math.radians(22.0), TorqueStream()),
+        lockstep=False,
+        max_strides=1,
+        max_stale_strides=0,
+        torque_max_age_ticks=max_age,
+    )
+    sink = StanceRecord()
+    run = PlantRun(settings, ApexState(1.0, 5.0), sink)
+    run.start(0)
+    sent = None
+    while run.running:
+        if sink.touchdowns and sent is None and len(sink.applied) == 5:
+            sent = HipTorque(epoch=run.epoch, stride=sink.touchdowns[0], tick=run.ticks, torque=-50.0)
+            run.take_torque(serialized(sent))
+        run.advance_to(run.next_deadline_ns)
+    assert sink.outcome is not None and sink.outcome.ok, sink.outcome
+    assert sent is not None
+    held = [torque for _, _, _, torque in sink.applied]
+    assert held[:5] == [0.0] * 5  # nothing sent yet
+    fresh = [tick for _, _, tick, torque in sink.applied if torque == sent.torque]
+    assert fresh == list(range(sent.tick, sent.tick + max_age + 1))  # from its tick, max_age ticks more
+    assert len(held) > len(fresh) + 5  # the stance went on without a torque
+    counts = run.counts()
+    assert counts.stale_torques == held.count(0.0) == len(held) - len(fresh)
+    assert counts.late_torques == 0 and counts.rejected == 0

@@ -30,6 +30,8 @@ from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.entry import SPIN_SLICE
 
 NodeT = TypeVar("NodeT", bound=Node)
+RECORDER = "tdslip_ros.nodes.recorder_node"
+"""The recorder node's module, run as a child process (as ``tdslip run`` runs it)."""
 DEFAULT_TIMEOUT = 20.0  # s; generous for a loaded 2-core machine, never reached when things work
 
 
@@ -88,6 +90,14 @@ class RosGraph:
 
     def start_module(self, module: str, ros_arguments: list[str], log: Path) -> subprocess.Popen[bytes]:
         return self.start_process([sys.executable, "-m", module, "--ros-args", *ros_arguments], log)
+
+    def start_recorder(self, bag: Path, log: Path, **parameters: object) -> subprocess.Popen[bytes]:
+        """A recorder node child writing ``bag``, given its other ROS ``parameters`` (booleans spelled as
+        ROS reads them)."""
+        arguments = ["-p", f"output:={bag}"]
+        for name, value in parameters.items():
+            arguments += ["-p", f"{name}:={str(value).lower() if isinstance(value, bool) else value}"]
+        return self.start_module(RECORDER, arguments, log)
 
 
 def stop_process(process: subprocess.Popen[bytes], signum: int = signal.SIGINT, timeout: float = 30.0) -> int:

@@ -19,7 +19,6 @@ import subprocess
 import sys
 import time
 import traceback
-import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,34 +68,36 @@ RUNS: dict[str, dict[str, Any]] = {
     "wall": {"strides": 8, "perturbations": Perturbations(terrain=Step(0.3, 8.0))},
 }
 AGAIN = {"energy_again": "energy"}
-"""Second runs with the options of another (test_recording_bytes compares the two): recorded once, as they
-come (no retry; the test asserts that the recording is complete)."""
+"""Second runs with the options of another (test_recording_bytes compares the two bytewise)."""
 _recorded: dict[str, RunReport] = {}
 
 
-def record(name: str, directory: Path) -> tuple[RunReport, list[str]]:
-    """Run ``name`` (see RUNS and AGAIN) into ``directory``/``name``-<attempt>: its report, and the
-    warnings of the attempt that had to be retried."""
-    if name in AGAIN:
-        return run(RunOptions(out=directory / name, **RUNS[AGAIN[name]])), []
-    retried = []
-    for attempt in range(2):
-        report = run(RunOptions(out=directory / f"{name}-{attempt}", **RUNS[name]))
-        # A recorder that had not matched the controller's publisher used to miss every command
-        # (about 1 run in 15 under load); the controller now waits for that match before it exits.
-        # These tests are about the analysis: one retry, and a warning in the summary if it was needed.
-        if report.recording_complete:
-            break
-        retried.append(f"run {name!r} recorded incompletely, retried: {report.recorded}")
-    assert report.recording_complete, (report.published, report.recorded)
-    return report, retried
+class IncompleteRecording(AssertionError):
+    """A run's recording missed messages its nodes published."""
+
+
+def record(name: str, directory: Path) -> RunReport:
+    """Run ``name`` (see RUNS and AGAIN) into ``directory``/``name``: its report. IncompleteRecording if the
+    recorder missed a message: the controller waits for the recorder's match before it exits, so a gap is a
+    defect of the recording (a return of the recorder race), which fails every test that uses the run."""
+    report = run(RunOptions(out=directory / name, **RUNS[AGAIN.get(name, name)]))
+    if not report.recording_complete:
+        missed = {
+            topic: (published, report.recorded.get(topic, 0))
+            for topic, published in report.published.items()
+            if report.recorded.get(topic, 0) != published
+        }
+        raise IncompleteRecording(
+            f"run {name!r} recorded incompletely: (published, recorded) by topic {missed}; bag {report.bag}"
+        )
+    return report
 
 
 @dataclass
 class Background:
     """Figure documents drawn, runs recorded, then ``tdslip`` processes run, by a child process
-    (``python analysis_runs.py DIRECTORY JOBS``), started when collection ended (conftest.py): what the
-    tests need is made while the fast tests run, mostly on the core those leave idle. The child pickles
+    (``python support/analysis_runs.py DIRECTORY JOBS``), started when collection ended (conftest.py): what
+    the tests need is made while the fast tests run, mostly on the core those leave idle. The child pickles
     each document and each run's report as it is done (one it could not make leaves the error) and each
     ``tdslip`` process's result (:meth:`command`)."""
 
@@ -120,8 +121,10 @@ class Background:
         """Draw ``drawings`` in the child first (the fast tests that read them run before any node test),
         then record the runs ``names`` (of RUNS), then run each of ``commands`` as a process of its own."""
         directory.mkdir(parents=True, exist_ok=True)
-        # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath).
-        path = os.pathsep.join([str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])
+        # The work tree under test, as in the tests' own process (pyproject.toml: pythonpath), and test/,
+        # whose modules draw the documents (a script's own folder, test/support/, is on its path instead).
+        here = Path(__file__).resolve()
+        path = os.pathsep.join([str(here.parents[2]), str(here.parents[1]), os.environ.get("PYTHONPATH", "")])
         with (directory / "background.log").open("wb") as log:
             process = subprocess.Popen(
                 [sys.executable, __file__, str(directory), json.dumps([names, commands, drawings])],
@@ -143,10 +146,8 @@ class Background:
         return result.read_bytes()
 
     def report(self, name: str) -> RunReport:
-        """The report of run ``name`` once the child has recorded it (its retries warned here)."""
-        report, retried = pickle.loads(self._wait_for(self.directory / f"{name}.pickle", f"run {name!r}"))
-        for warning in retried:
-            warnings.warn(warning, stacklevel=1)
+        """The report of run ``name`` once the child has recorded it."""
+        report = pickle.loads(self._wait_for(self.directory / f"{name}.pickle", f"run {name!r}"))
         return cast(RunReport, report)
 
     def drawn(self, module: str, name: str) -> Any:
@@ -196,10 +197,7 @@ def recorded_run(name: str, tmp_path_factory: pytest.TempPathFactory) -> RunRepo
         if BACKGROUND is not None and name in BACKGROUND.names:
             _recorded[name] = BACKGROUND.report(name)
         else:
-            report, retried = record(name, tmp_path_factory.getbasetemp() / "analysis_runs")
-            for warning in retried:
-                warnings.warn(warning, stacklevel=1)
-            _recorded[name] = report
+            _recorded[name] = record(name, tmp_path_factory.getbasetemp() / "analysis_runs")
     return _recorded[name]
 
 
@@ -209,6 +207,14 @@ def raw_messages(mcap_path: Path) -> Iterator[tuple[str, str, int, int, bytes]]:
         for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
             assert schema is not None
             yield channel.topic, schema.name, message.log_time, message.publish_time, message.data
+
+
+def by_topic(mcap_path: Path) -> dict[str, list[bytes]]:
+    """The data of every message by topic, in file order."""
+    messages: dict[str, list[bytes]] = {}
+    for topic, _, _, _, data in raw_messages(mcap_path):
+        messages.setdefault(topic, []).append(data)
+    return messages
 
 
 def rewrite(
@@ -267,8 +273,8 @@ def _background(
     commands: dict[str, tuple[list[str], str]],
     drawings: list[tuple[str, str]],
 ) -> None:
-    """The child of :class:`Background`: each drawing pickled as it is done, then each run's (report, retry
-    warnings), then each ``tdslip`` process's result."""
+    """The child of :class:`Background`: each drawing pickled as it is done, then each run's report, then
+    each ``tdslip`` process's result."""
     for module, name in drawings:
         result = directory / f"{module}.{name}.pickle"
         try:
