@@ -90,7 +90,7 @@ def pytest_collection_finish(session: pytest.Session) -> None:
         )
     }
     # A module's draw(name) of the figure document its tests in xdist group ``name`` read
-    # (test_paper_claims.py), drawn by the child on the core the fast tests leave idle: not under xdist,
+    # (test_claims_paper.py), drawn by the child on the core the fast tests leave idle: not under xdist,
     # whose two workers keep both cores busy.
     drawings = list(
         dict.fromkeys(

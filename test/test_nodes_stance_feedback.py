@@ -161,7 +161,7 @@ def test_a_silent_torque_stream_ends_a_lockstep_run_with_command_timeout(ros: Ro
 def test_realtime_holds_the_stream_and_counts_stale_ticks(ros: RosGraph) -> None:
     """Realtime with the baseline node: the run completes, and the ticks that held zero (the controller's
     torques are never exactly zero) are the stale ticks the plant counts. On an idle machine there are few or
-    none: test_torque_stream's PlantRun test counts stale ticks that surely happen."""
+    none: test_nodes_torque_stream's PlantRun test counts stale ticks that surely happen."""
     plant = ros.add(
         PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=4, clock_mode="realtime"))
     )

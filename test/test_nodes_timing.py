@@ -54,8 +54,8 @@ def test_a_new_run_is_not_timed_against_the_previous_one() -> None:
 
 def test_a_tick_is_missed_only_when_the_next_one_was_due_before_it_was_stepped() -> None:
     """Firings at their deadlines plus 0.3, 0.7, 1.2 and 1.6 ms, which step 1, 1, 2 and 2 ticks (as the plant
-    does, none before its time: test_tick_process.py), miss 2 ticks; counted as until December 2026 (more than
-    half a period late is missed), 0 + 1 + 1 + 2 = 4."""
+    does, none before its time: test_nodes_tick_process.py), miss 2 ticks; counted as until December 2026
+    (more than half a period late is missed), 0 + 1 + 1 + 2 = 4."""
     timing = TickTiming(PERIOD, ScriptedClocks())
     deadline = 0
     for late, ticks in ((300_000, 1), (700_000, 1), (1_200_000, 2), (1_600_000, 2)):

@@ -5,7 +5,7 @@
 messages of a fixed CDR layout (primitives and nested messages, strings of one length throughout
 the batch) take a vectorised path: the byte offset of every field is computed from the stored
 schema text and the batch becomes a structured array in one ``frombuffer`` call, which is what
-makes 1 kHz topics cheap to read (``test_analysis_reader.py`` checks it against
+makes 1 kHz topics cheap to read (``test_analysis_decoding.py`` checks it against
 ``mcap-ros2-support``). Any other batch is decoded message by message.
 
 Two encoders write messages without building message objects, every padding byte zero:

@@ -68,7 +68,7 @@ RUNS: dict[str, dict[str, Any]] = {
     "wall": {"strides": 8, "perturbations": Perturbations(terrain=Step(0.3, 8.0))},
 }
 AGAIN = {"energy_again": "energy"}
-"""Second runs with the options of another (test_recording_bytes compares the two bytewise)."""
+"""Second runs with the options of another (test_nodes_recording_bytes compares the two bytewise)."""
 _recorded: dict[str, RunReport] = {}
 
 
@@ -107,7 +107,7 @@ class Background:
     """By key: the arguments of a ``tdslip`` process (the subcommand and its options, without ``--out``) and
     its output directory relative to the test's tmp_path."""
     drawings: list[tuple[str, str]]
-    """(test module, name): the child's ``module.draw(name)``, a figure's document (test_paper_claims)."""
+    """(test module, name): the child's ``module.draw(name)``, a figure's document (test_claims_paper)."""
     process: subprocess.Popen[bytes]
 
     @classmethod

@@ -1,6 +1,6 @@
 """One input per named failure of a stride, shared by the exact map's, the stepper's and the batched
 engine's tests (each must report the same failure for the same input); PERTURBED_FAILURE_CASES are the
-failures that perturbations cause (test_perturbed_engines.py)."""
+failures that perturbations cause (test_plant_perturbed_engines.py)."""
 
 from __future__ import annotations
 

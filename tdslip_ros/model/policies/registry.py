@@ -4,7 +4,7 @@
 text setting, its choices), default, one line of description and the policies that use it. Whatever lists
 the settings derives from it: the controller node's parameters (a parameter per setting, of the same name),
 the study designs' policy columns (:mod:`tdslip_ros.studies.design`), the analysis report's account of a
-policy; config/controller.yaml, which users edit, is checked against it (test/test_policy_settings.py). A
+policy; config/controller.yaml, which users edit, is checked against it (test/test_policies_settings.py). A
 :class:`PolicySpec` names one of :data:`POLICIES` with a value for each setting and answers apexes with the
 policy's commands (:mod:`tdslip_ros.model.policies.controllers`).
 

@@ -35,7 +35,7 @@ from feedback during stance. Where we had to choose (:func:`pd_speed_energy_torq
   0.95 m and 1.64 m;
 * the defaults (:data:`DEFAULT_ENERGY_GAIN`, :data:`DEFAULT_SPEED_GAIN`, :data:`DEFAULT_SPEED_RATE_GAIN`)
   hold the paper's hopper within 2 % of the target 1.2 m at 4 m/s with the angle at 22 deg
-  (``test/test_stance_laws.py``). Sampled, the law's apexes jitter by some 5e-5 m from stride to stride
+  (``test/test_plant_stance_laws.py``). Sampled, the law's apexes jitter by some 5e-5 m from stride to stride
   about that point, as the touchdown's phase in the tick changes.
 """
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-import test_figures
+import test_cli_figures
 
 from tdslip_ros.analysis import figure_parameters, paper_comparison
 from tdslip_ros.analysis.figures import exact_basins, open_loop, parameter_dependence, regulated, tracking
@@ -41,9 +41,9 @@ PAPER_TEXT = Path(
 )
 """The paper's text (converted from the PDF; not part of the repository: beside it, in ../shared/paper/)."""
 NUMBER = re.compile(r"\d+(?:\.\d+)?")
-TINY = dataclasses.replace(test_figures.TINY, betas=4, exact_energies=12)
-"""test_figures.TINY with four touchdown angles in fig05 (20, 24, 28, 32 deg), so that it has a band, and 12
-goal energies over Ebar 0.8-22 for fig11's exact stable ranges (at 6 the narrowest fall between two)."""
+TINY = dataclasses.replace(test_cli_figures.TINY, betas=4, exact_energies=12)
+"""test_cli_figures.TINY with four touchdown angles in fig05 (20, 24, 28, 32 deg), so that it has a band, and
+12 goal energies over Ebar 0.8-22 for fig11's exact stable ranges (at 6 the narrowest fall between two)."""
 
 
 def _cells(line: str) -> list[str]:
@@ -159,7 +159,7 @@ FIGURES = {
 
 def draw(name: str) -> dict[str, Any]:
     """The document of figure ``name`` at TINY."""
-    return FIGURES[name](TINY, test_figures.quiet(), "energy")[1]
+    return FIGURES[name](TINY, test_cli_figures.quiet(), "energy")[1]
 
 
 @functools.cache

@@ -4,7 +4,7 @@ recorded torques replayed on the exact map give its apex; the torque limits clip
 one torque per tick is the law; and a hand-written RK4 of the sampled law, without scipy, agrees.
 
 The ramp path is checked elsewhere, unchanged: test_plant_exact_map, test_plant_stepper, test_plant_batch
-and test_perturbed_engines hold it to their reference values."""
+and test_plant_perturbed_engines hold it to their reference values."""
 
 from __future__ import annotations
 
