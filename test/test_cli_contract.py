@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from tdslip_ros.analysis import rough_terrain
 from tdslip_ros.commands import cli
 
 SUBCOMMANDS = list(cli.SUBCOMMANDS)
@@ -54,10 +55,13 @@ def test_every_description_is_written_for_the_command_line(name: str) -> None:
 
 @pytest.mark.parametrize("name", [name for name in SUBCOMMANDS if name != "analyze"])
 def test_one_touchdown_angle_default_everywhere(name: str) -> None:
+    """The model's 20 deg, but for tdslip terrain, whose defaults draw the README's figure at its angle (a
+    toe that clears the blocks; test_docs_figures.py)."""
     angles = [
         action for action in parser_of(name)._actions if "--touchdown-angle-deg" in action.option_strings
     ]
-    assert [action.default for action in angles] in ([], [20.0])
+    expected = rough_terrain.TOUCHDOWN_ANGLE_DEG if name == "terrain" else 20.0
+    assert [action.default for action in angles] in ([], [expected])
 
 
 @pytest.mark.parametrize(

@@ -143,13 +143,15 @@ def add_touchdown_angle(
     *old: str,
     what: str = "",
     unset: str | None = None,
+    default: float = TOUCHDOWN_ANGLE_DEG,
 ) -> argparse.Action:
-    """``--touchdown-angle-deg`` [deg], default the model's 20 deg, or (with ``unset``) None, described in
-    words by ``unset``; ``old``: its deprecated spellings in this command."""
+    """``--touchdown-angle-deg`` [deg], default the model's 20 deg (a command whose figure needs another says
+    why in ``what``), or (with ``unset``) None, described in words by ``unset``; ``old``: its deprecated
+    spellings in this command."""
     action = parser.add_argument(
         "--touchdown-angle-deg",
         type=float,
-        default=None if unset else TOUCHDOWN_ANGLE_DEG,
+        default=None if unset else default,
         metavar="DEG",
         help=f"touchdown angle beta [deg]{what}" + (f" (default: {unset})" if unset else ""),
     )
