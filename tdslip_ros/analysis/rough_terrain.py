@@ -26,7 +26,7 @@ from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.policies import POLICY_SETTINGS, PolicySpec
 from tdslip_ros.model.stepper import FixedStepStepper
 from tdslip_ros.model.terrain import Blocks
-from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
+from tdslip_ros.reporting.style import POLICY_COLOURS, save_figure
 
 LABELS = {"energy": "energy regulation", "open_loop": "open loop (fixed hip power)"}
 TOUCHDOWN_ANGLE_DEG = 22.0
@@ -145,6 +145,5 @@ def draw(params: HopperParams, blocks: Blocks, hops: list[Hop], path: Path) -> F
     energy.set_ylabel("apex energy above the ground, Ebar")
     energy.legend(fontsize=7)
     energy.grid(alpha=0.3)
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
+    save_figure(figure, path)
     return figure

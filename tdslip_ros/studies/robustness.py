@@ -30,7 +30,7 @@ from tdslip_ros.model.events import FAILURE_KINDS
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.policies import PolicySpec
 from tdslip_ros.reporting.output import output_directory, to_json
-from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
+from tdslip_ros.reporting.style import POLICY_COLOURS, save_figure
 from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform, analytic_map_fixed
 
@@ -346,8 +346,7 @@ def write_robustness(
         "failures": draw_failures(summary, kinds, policies),
     }
     for name, figure in figures.items():
-        figure.tight_layout()
-        figure.savefig(out / f"{name}.png", dpi=DPI)
+        save_figure(figure, out / f"{name}.png")
     with (out / "summary.csv").open("w", newline="") as stream:
         writer = csv.DictWriter(stream, fieldnames=list(summary[0]))
         writer.writeheader()
