@@ -325,14 +325,10 @@ def _real(value: Any) -> float:
     return math.nan if value is None or value[0] is None else float(value[0])
 
 
-def regulated_unstable(documents: Documents) -> tuple[str, str]:
-    """Figs 9, 10: per angle, the most fixed points at one energy, the energies of the unstable ones and the
-    largest eigenvalue (a saddle-node needs one at +1)."""
-    panels = [
-        (documents["fig08"]["beta_22"]["fixed_points"], "22"),
-        (documents["fig10"]["analytic"] | {"exact": documents["fig10"]["exact_by_eigenvalue"]}, "26"),
-        (documents["fig08"]["beta_30"]["fixed_points"], "30"),
-    ]
+def _unstable(panels: list[tuple[dict[str, Any], str]]) -> tuple[str, str]:
+    """Per touchdown angle (a panel of fixed points with their exact check, and the angle in degrees): the
+    most fixed points at one energy, the eigenvalues at +1 or above (a saddle-node needs one), the largest
+    eigenvalue, and the energy from which one is below -1 (a flip)."""
 
     def summary(points: dict[str, Any], beta: str) -> tuple[int, float, int, str]:
         y = np.array(points["ybar"], dtype=float)
@@ -349,10 +345,22 @@ def regulated_unstable(documents: Documents) -> tuple[str, str]:
             f"at most {max(most for most, *_ in found)} per Ebar; lambda >= 1 at "
             f"{sum(saddles for _, _, saddles, _ in found)}; largest "
             + " / ".join(f"{largest:.2f}" for _, largest, *_ in found)
-            + f" (22 / 26 / 30 deg); flips: {flips}"
+            + f" ({' / '.join(beta for _, beta in panels)} deg); flips: {flips}"
         )
 
     return cell(False), cell(True)
+
+
+def fig08_unstable(documents: Documents) -> tuple[str, str]:
+    """Figs 8, 9 at 22 and 30 deg (:func:`_unstable`)."""
+    fig08 = documents["fig08"]
+    return _unstable([(fig08["beta_22"]["fixed_points"], "22"), (fig08["beta_30"]["fixed_points"], "30")])
+
+
+def fig10_unstable(documents: Documents) -> tuple[str, str]:
+    """Fig. 10 at 26 deg, the exact plant's fixed points by eigenvalue (:func:`_unstable`)."""
+    fig10 = documents["fig10"]
+    return _unstable([(fig10["analytic"] | {"exact": fig10["exact_by_eigenvalue"]}, "26")])
 
 
 def fig10_basin(documents: Documents) -> tuple[str, str]:

@@ -4,7 +4,8 @@ Each row is one claim or figure of the paper: the paper's value, ours on the ana
 plant, the command that reproduces ours, and where they differ a pointer to the explanation in
 docs/paper.md (which shows the exact-plant evidence). Ours come from the figure documents of the same run
 (:mod:`.figure_claims`) or, for the rows that read no figure, from the model alone (:mod:`.model_claims`, the
-full run's). Which parameters each figure uses, and which of them the paper gives: :mod:`.figure_parameters`.
+full run's); a run holds only the rows it computed. Which parameters each figure uses, and which of them the
+paper gives: :mod:`.figure_parameters`.
 """
 
 from __future__ import annotations
@@ -158,11 +159,18 @@ ROWS: tuple[RowSpec, ...] = (
         lambda documents, params: figure_claims.fig10_match(documents),
     ),
     (
-        "figs 9, 10: unstable fixed points beside the stable ones, a saddle node at low energy (IV.B)",
-        "stable and unstable fixed points; a saddle node bifurcation at low energy levels",
-        ("fig08", "fig10"),
+        "figs 8, 9: unstable fixed points beside the stable ones (IV.B)",
+        "stable and unstable fixed points",
+        ("fig08",),
         "unstable-fixed-points",
-        lambda documents, params: figure_claims.regulated_unstable(documents),
+        lambda documents, params: figure_claims.fig08_unstable(documents),
+    ),
+    (
+        "fig. 10: unstable fixed points beside the stable ones, a saddle node at low energy (IV.B)",
+        "stable and unstable fixed points; a saddle node bifurcation at low energy levels",
+        ("fig10",),
+        "unstable-fixed-points",
+        lambda documents, params: figure_claims.fig10_unstable(documents),
     ),
     (
         "fig. 10: the basin covers the region between the unstable and stable fixed points (IV.B)",
@@ -241,20 +249,23 @@ ROWS: tuple[RowSpec, ...] = (
 
 
 def rows(documents: Documents, params: HopperParams, *, model_rows: bool) -> list[Row]:
-    """The table's rows from the figure documents of one run (rows lacking a figure say so); the rows that
-    read no figure only with ``model_rows`` (the full run, their command), else they say so too."""
-    table = []
-    for claim, paper, figures, explanation, compute in ROWS:
-        if all(name in documents for name in figures) if figures else model_rows:
-            analytic, exact = compute(documents, params)
-        else:
-            analytic = exact = "not computed in this run"
-        table.append(Row(claim, paper, analytic, exact, figures, explanation))
-    return table
+    """The rows this run computes: those whose figures are all among ``documents``, and, with ``model_rows``
+    (the run of every figure, their command), those that read no figure."""
+    return [
+        Row(claim, paper, *compute(documents, params), figures, explanation)
+        for claim, paper, figures, explanation, compute in ROWS
+        if (set(figures) <= set(documents) if figures else model_rows)
+    ]
+
+
+NO_ROWS = "No claim reads only the figures of this run: `tdslip figures` (every figure) computes them all.\n"
+"""What the table says where a run computes none of its rows (``--only fig09``)."""
 
 
 def markdown(table: list[Row]) -> str:
-    """The table as Markdown (comparison.md; docs/paper.md quotes it)."""
+    """The table as Markdown (comparison.md; docs/paper.md quotes it); :data:`NO_ROWS` without rows."""
+    if not table:
+        return NO_ROWS
     lines = [
         "| claim | paper | ours, analytic map | ours, exact plant | reproduce | explained |",
         "|---|---|---|---|---|---|",
@@ -267,7 +278,9 @@ def markdown(table: list[Row]) -> str:
 
 
 def text(table: list[Row]) -> str:
-    """The table as plain text for the terminal: one block per claim."""
+    """The table as plain text for the terminal: one block per claim; :data:`NO_ROWS` without rows."""
+    if not table:
+        return NO_ROWS
     blocks = []
     for row in table:
         blocks.append(
