@@ -96,7 +96,7 @@ def test_the_sweeps_fit_their_titles(name: str) -> None:
 
 def test_the_robustness_figures_fit_their_titles() -> None:
     policies = [policy for policy in POLICIES if policy != LEARNED]
-    kinds = list(robustness.KINDS)
+    kinds = robustness.KINDS
     summary = [
         {
             "kind": kind,
@@ -115,7 +115,7 @@ def test_the_robustness_figures_fit_their_titles() -> None:
         summary, kinds, policies, "surviving", "fraction surviving 50 strides", "survival"
     )
     assert outside(figure) == []
-    assert outside(robustness.draw_failures(summary, kinds, policies)) == []
+    assert outside(robustness.draw_failures(summary, list(kinds), policies)) == []
 
 
 def test_the_terrain_figure_fits_its_titles(tmp_path: Path) -> None:
