@@ -2,14 +2,15 @@
 (:func:`tdslip_ros.reporting.style.save_figure`), has its titles, suptitle and axis labels inside the figure.
 
 Truth used: matplotlib's renderer (``figure.canvas.draw()``, then each text's window extent against the
-figure's bounding box), on each figure function at a tiny resolution. The recorded run's figures
-(``tdslip analyze``) need the node tier's runs; they are saved the same way.
+figure's bounding box), on each figure function at a tiny resolution; the recorded run's figures
+(``tdslip analyze``) on a recorded run of the node tier.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import shutil
 from pathlib import Path
 
 import pyarrow as pa
@@ -19,13 +20,16 @@ from matplotlib.figure import Figure
 from matplotlib.text import Text
 from test_figures import TINY, quiet
 
-from tdslip_ros.analysis import controller_comparison, rough_terrain
+from tdslip_ros.analysis import controller_comparison, plots, rough_terrain
+from tdslip_ros.analysis.compare import compare_run
 from tdslip_ros.analysis.figures.catalogue import FIGURES
+from tdslip_ros.analysis.reader import read_run
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.perturbations import Perturbations
 from tdslip_ros.model.policies import LEARNED, POLICIES
 from tdslip_ros.model.terrain import Blocks
+from tdslip_ros.nodes.runner import RunReport
 from tdslip_ros.reporting.style import lay_out, titles
 from tdslip_ros.studies import chunk, robustness
 from tdslip_ros.studies.sweep import SWEEPS
@@ -140,3 +144,23 @@ def test_the_tracking_figure_fits_its_titles(tmp_path: Path) -> None:
     ]
     figure = controller_comparison.plot_tracking(results, tmp_path / "tracking.png")
     assert outside(figure) == []
+
+
+def test_the_recorded_run_s_figures_fit_their_titles(rough: RunReport, tmp_path: Path) -> None:
+    """Every figure of ``tdslip analyze`` on the run with every perturbation (all of them are drawn), under
+    the longest directory name ``tdslip run`` gives by default (<policy>-<mode>-<time>), which their titles
+    carry."""
+    bag = tmp_path / "stance_pd_speed_energy-realtime-20261205-074455"
+    shutil.copytree(rough.bag, bag)
+    run = read_run(bag)
+    comparison = compare_run(run)
+    drawn = [
+        plots.apex_sequence(comparison, tmp_path / "apex_sequence.png"),
+        plots.return_map(comparison, tmp_path / "return_map.png"),
+        plots.com_trajectory(run, tmp_path / "com_trajectory.png"),
+        plots.energy_flows(comparison, tmp_path / "energy_flows.png"),
+        plots.terrain_path(run, tmp_path / "terrain_path.png"),
+        plots.measured_apex(comparison, tmp_path / "measured_apex.png"),
+    ]
+    for figure in drawn:
+        assert outside(figure) == []
