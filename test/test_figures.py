@@ -58,15 +58,17 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
 
 
 def test_a_run_of_one_figure_reports_the_claims_of_that_figure_and_nothing_else(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], dask_scheduler: str
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], dask_scheduler: str
 ) -> None:
     """``--only fig08``: its one claim, filled with the numbers of fig08.json, printed and in comparison.md;
-    no row of a figure not drawn, nor of the model alone (the full run's)."""
-    monkeypatch.setattr(figures_command, "DEFAULT", TINY)
-    assert (
-        cli.main(["figures", "--out", str(tmp_path), "--only", "fig08", "--scheduler", dask_scheduler]) == 0
-    )
+    no row of a figure not drawn, nor of the model alone (the full run's). At TINY's grid sizes, given as
+    --resolution: the fixed points are traced over TINY.energies goal energies (the default has 57)."""
+    sizes = [f"{name}={value:g}" for name, value in vars(TINY).items()]
+    command = ["figures", "--out", str(tmp_path), "--only", "fig08", "--resolution", *sizes]
+    assert cli.main([*command, "--scheduler", dask_scheduler]) == 0
     document = json.loads((tmp_path / "fig08.json").read_text())
+    assert document["resolution"] == vars(TINY) != vars(figures_command.DEFAULT)
+    assert len(document["beta_22"]["fixed_points"]["parameter"]) == TINY.energies
     analytic, exact = figure_claims.fig08_unstable({"fig08": document})
     claim = "figs 8, 9: unstable fixed points beside the stable ones (IV.B)"
     printed = capsys.readouterr().out
@@ -78,6 +80,27 @@ def test_a_run_of_one_figure_reports_the_claims_of_that_figure_and_nothing_else(
     assert len(table) == 3 and table[2].startswith(
         f"| {claim} | stable and unstable fixed points | {analytic} |"
     )
+
+
+@pytest.mark.parametrize(
+    ("setting", "error"),
+    [
+        ("energies=0", "energies must be a positive count, got '0'"),
+        ("energies=2.5", "energies must be a positive count, got '2.5'"),
+        ("speed_step=-1", "speed_step must be a positive number, got '-1'"),
+        ("energy=5", "expected NAME=N with NAME one of heights, alphas, "),
+        ("energies", "expected NAME=N with NAME one of heights, alphas, "),
+    ],
+)
+def test_a_grid_size_no_figure_can_use_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], setting: str, error: str
+) -> None:
+    with pytest.raises(SystemExit) as raised:
+        cli.main(["figures", "--out", str(tmp_path / "out"), "--resolution", setting])
+    assert raised.value.code == 2
+    message = capsys.readouterr().err
+    assert message.startswith(f"tdslip figures: argument --resolution: {error}") and message.count("\n") == 1
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_run_of_every_figure_computes_the_rows_the_model_alone_answers(
