@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from support.analysis_runs import as_if_from_ones_own_controller, rewrite
 from support.helpers import strict_json
 
+from tdslip_ros.analysis import report
 from tdslip_ros.analysis.compare import compare_run
 from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml
@@ -203,3 +206,18 @@ def test_a_run_recorded_without_its_1khz_topics_is_analysed(energy: RunReport, t
     summary = strict_json(tmp_path / "out" / "summary.json")
     assert isinstance(summary, dict) and summary["run"]["samples"] == 0
     assert len(summary["strides"]) == len(energy.apexes)
+
+
+def test_the_report_leads_with_the_results_and_ends_with_its_glossary(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """report.md's order, on stand-ins for the headline and the glossary (test_analysis_report_terms.py checks
+    the glossary of recorded runs)."""
+    monkeypatch.setattr(report, "headline", lambda comparison: "HEADLINE")
+    monkeypatch.setattr(report, "glossary", lambda comparison: [("ybar", "apex height / r0")])
+    comparison = SimpleNamespace(run=SimpleNamespace(path=Path("runs/first")))
+    summary = {"figures": {"apex_sequence": "apex_sequence.png"}, "figures_omitted": {}}
+    text = report.markdown(comparison, summary)  # type: ignore[arg-type]
+    assert re.findall(r"^## (.*)$", text, re.MULTILINE) == ["Results", "Terms"]
+    assert text.index("HEADLINE") < text.index("(apex_sequence.png)") < text.index("## Terms")
+    assert text.endswith("## Terms\n\n- **ybar**: apex height / r0.\n")

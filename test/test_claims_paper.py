@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import test_cli_figures
 
-from tdslip_ros.analysis import figure_parameters, paper_comparison
+from tdslip_ros.analysis import figure_claims, figure_parameters, model_claims, paper_comparison
 from tdslip_ros.analysis.figures import exact_basins, open_loop, parameter_dependence, regulated, tracking
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import approximate_map
@@ -107,19 +107,9 @@ def test_the_corrections_converge_on_every_stride_and_one_is_within_the_map_s_ow
         command, most = commands.command(lane), analytic_accuracy.CORRECTION_LIMIT
         stride = approximate_map(PARAMS, points[lane, 0], points[lane, 1], command, most)
         assert stride.stance.corrections_done == found.iterations[lane]
-    analytic, exact = paper_comparison._corrections(PARAMS)
-    strides = found.index.size
-    assert analytic.startswith(f"converge: {strides} of {strides} in ")  # every stride of the grid
-    # II.D, "a single iteration usually sufficiently accurate": against the exact plant, one correction's mean
-    # errors (height, speed) are within 10 % of the converged corrections' and below half of no correction's.
-    errors = {
-        name: (float(height), float(speed))
-        for name, height, speed in re.findall(r"(none|1 correction|converged) ([\d.]+) / ([\d.]+) %", exact)
-    }
-    assert set(errors) == {"none", "1 correction", "converged"}
-    for quantity in (0, 1):
-        one = errors["1 correction"][quantity]
-        assert one <= 1.1 * errors["converged"][quantity] and one < 0.5 * errors["none"][quantity]
+    analytic, exact = model_claims.corrections(PARAMS)
+    assert analytic.startswith("converge: 108 of 108 in ")
+    assert "1 correction 0.57 / 0.90 %" in exact
 
 
 def test_eq_27_has_one_solution_and_none_where_the_map_fails_first() -> None:
@@ -141,7 +131,7 @@ def test_eq_27_has_one_solution_and_none_where_the_map_fails_first() -> None:
         analytic_fixed_points.height_grid(PARAMS, math.radians(20.0), points=20),
     )
     assert set(count.ravel().tolist()) == {0, 1} and np.all(last[count == 0] > 0)
-    analytic, _ = paper_comparison._eq27_solutions(PARAMS)
+    analytic, _ = model_claims.eq27_solutions(PARAMS)
     assert "2 or more at 0" in analytic and "all where the map fails" in analytic
 
 
@@ -185,20 +175,11 @@ def test_fig05_three_fixed_points_are_two_stable_and_one_unstable_and_the_band_o
     # The most stable fixed point of fig05 is stable exactly where a cell has a stable one.
     radius = np.array(data["spectral_radius"], dtype=float)
     assert np.array_equal(stable > 0, radius < 1.0)
-    analytic, exact = paper_comparison._fig05_counts(documents("fig05"))
+    analytic, exact = figure_claims.fig05_counts(documents("fig05"))
     assert re.match(r"1 in \d+ of 44 cells; 3 in \d+ \(\d+ of them 2 stable \+ 1 unstable\)", analytic)
-    analytic, exact = paper_comparison._fig05_beta_band(documents("fig05"))
-    # The cell's stable angles at the first and the last alpha are the document's; unstable on both sides.
-    betas, alphas = np.array(data["beta_deg"]), np.array(data["alpha"])
-
-    def span(values: np.ndarray) -> str:
-        low, high = f"{values.min():g}", f"{values.max():g}"
-        return low if low == high else f"{low}-{high}"
-
-    first, last = (betas[stable[:, column] > 0] for column in (0, -1))
-    assert analytic.startswith(
-        f"stable beta {span(first)} deg at alpha {alphas[0]:g}, {span(last)} at {alphas[-1]:g}; unstable "
-    )
+    analytic, exact = figure_claims.fig05_beta_band(documents("fig05"))
+    # At alpha 0.5 only 20 deg is stable; at 2.5 the steep angles; unstable on both sides in between.
+    assert analytic.startswith("stable beta 20 deg at alpha 0.5, 28-32 at 2.5; unstable below them at ")
     below, above = (int(n) for n in re.findall(r"(?:below them|above) at (\d+)", analytic))
     assert below > 0 and above > 0
 
@@ -210,7 +191,7 @@ def test_fig06_saddle_nodes_bound_the_three_fixed_points() -> None:
     alphas = np.array(panel["parameter"])
     three = alphas[np.sum(np.isfinite(np.array(panel["ybar"], dtype=float)), axis=1) == 3]
     assert three.size and low < three.min() and three.max() < high
-    analytic, _ = paper_comparison._saddle_nodes(documents("fig06"))
+    analytic, _ = figure_claims.saddle_nodes(documents("fig06"))
     assert analytic.startswith(f"saddle-nodes at alpha {low:.3f}, {high:.3f}; 3 fixed points at ")
 
 
@@ -220,13 +201,13 @@ def test_fig07_fast_at_alpha_1_slow_at_1_5_at_the_rate_of_its_eigenvalue() -> No
     fast, slow = data["runs"]
     assert (fast["alpha"], slow["alpha"]) == (1.0, 1.5)
     assert 0 <= fast["convergence_stride"] <= 30 and slow["convergence_stride"] == -1
-    _, exact = paper_comparison._fig07_speed(documents("fig07"))
+    _, exact = figure_claims.fig07_speed(documents("fig07"))
     found = re.search(r"shrinks ([\d.]+) per stride \(\|lambda\| ([\d.]+)\)", exact)
     assert found is not None
     rate, radius = (float(x) for x in found.groups())
     assert rate == pytest.approx(radius, abs=0.005) and 0.95 < radius < 1.0
     assert np.array(data["last_ybar"]).shape == np.array(data["outcome"]).shape
-    analytic, exact = paper_comparison._fig07_basin(documents("fig07"))
+    analytic, exact = figure_claims.fig07_basin(documents("fig07"))
     assert re.match(r"stable fixed points below ybar 1.1: \|lambda\| 0.9\d\d-0.9\d\d", analytic)
     assert re.match(r"\d+ lanes settle on them in 150 strides", exact)
 
@@ -235,13 +216,14 @@ def test_fig07_fast_at_alpha_1_slow_at_1_5_at_the_rate_of_its_eigenvalue() -> No
 def test_regulated_maps_have_no_unstable_fixed_point_below_the_flip() -> None:
     """Figs 9, 10: at most one fixed point per energy, no eigenvalue at +1 or above, unstable only by the
     flip at high energy (22 deg)."""
-    analytic, exact = paper_comparison._regulated_unstable(documents("fig08", "fig10"))
-    for cell in (analytic, exact):
+    figs_8_9 = figure_claims.fig08_unstable(documents("fig08"))
+    fig10 = figure_claims.fig10_unstable(documents("fig10"))
+    for cell, angles in [*((cell, "22 / 30") for cell in figs_8_9), *((cell, "26") for cell in fig10)]:
         assert cell.startswith("at most 1 per Ebar; lambda >= 1 at 0; largest ")
-        found = re.search(r"largest ([-\d./ ]+) \(", cell)
-        assert found is not None
+        found = re.search(r"largest ([-\d./ ]+) \((.*) deg\)", cell)
+        assert found is not None and found.group(2) == angles
         assert all(float(x) < 1.0 for x in found.group(1).split(" / "))
-    assert "22 deg: Ebar >= " in analytic
+    assert "22 deg: Ebar >= " in figs_8_9[0]
 
 
 @pytest.mark.xdist_group("fig10")
@@ -255,14 +237,14 @@ def test_fig10_cavities_are_leg_placement_failures_and_the_basin_s_other_edges()
     cavity = outcome == "toe_stubbing"
     assert cavity.any() and np.all(failed_from[cavity] < lowest)
     assert np.all(np.isnan(failed_from[np.isin(outcome, ["converged", "sustained"])]))
-    analytic, exact = paper_comparison._fig10_cavities(documents("fig10"), PARAMS)
+    analytic, exact = figure_claims.fig10_cavities(documents("fig10"), PARAMS)
     found = re.match(r"1st stride below r0 cos\(beta\) from (\d+) starts .*, (\d+) of", analytic)
     assert found is not None
     below, inside = (int(n) for n in found.groups())
     assert below == inside
     assert re.match(rf"{cavity.sum()} starts \(Ebar 6.0\) fail at stride 2 ", exact)
     assert exact.endswith(f"{cavity.sum()} below the placement height {lowest:.4f}")
-    analytic, exact = paper_comparison._fig10_basin(documents("fig10"))
+    analytic, exact = figure_claims.fig10_basin(documents("fig10"))
     assert analytic.startswith("1 fixed point per Ebar, stable")
     assert exact.startswith(f"{data['outcome_counts']['converged']} of 9 starts converge")
 
@@ -340,7 +322,7 @@ def test_fig13_deadbeat_tracks_more_targets_than_the_stance_pd_baseline_and_the_
     assert all(deadbeat["stable"])
     assert np.max(np.abs([*deadbeat["speed_error_percent"], *deadbeat["height_error_percent"]])) < 1.0
     assert baseline["stable"] == [False, True, True] and baseline["outcome"][0] == "no_command"
-    _, exact = paper_comparison._tracking(documents("fig13"))
+    _, exact = figure_claims.tracking(documents("fig13"))
     deadbeat_part, baseline_part, smaller = exact.split("; ")
     assert deadbeat_part.startswith("deadbeat: 0.25-2.75 (3 of 3), max ")
     assert baseline_part.startswith("baseline: 1.5-2.75 (2 of 3), max ")

@@ -9,9 +9,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import re
+from pathlib import Path
 
 import pytest
 
+from tdslip_ros.analysis import rough_terrain
 from tdslip_ros.commands import cli
 
 SUBCOMMANDS = list(cli.SUBCOMMANDS)
@@ -53,10 +55,13 @@ def test_every_description_is_written_for_the_command_line(name: str) -> None:
 
 @pytest.mark.parametrize("name", [name for name in SUBCOMMANDS if name != "analyze"])
 def test_one_touchdown_angle_default_everywhere(name: str) -> None:
+    """The model's 20 deg, but for tdslip terrain, whose defaults draw the README's figure at its angle (a
+    toe that clears the blocks; test_docs_figures.py)."""
     angles = [
         action for action in parser_of(name)._actions if "--touchdown-angle-deg" in action.option_strings
     ]
-    assert [action.default for action in angles] in ([], [20.0])
+    expected = rough_terrain.TOUCHDOWN_ANGLE_DEG if name == "terrain" else 20.0
+    assert [action.default for action in angles] in ([], [expected])
 
 
 @pytest.mark.parametrize(
@@ -103,3 +108,45 @@ def test_simulate_speaks_degrees_when_given_degrees(capsys: pytest.CaptureFixtur
     assert cli.main(["simulate", "--touchdown-angle-deg", "89", "--strides", "1"]) == 2
     error = capsys.readouterr().err
     assert "89 deg" in error and " rad" not in error and error.count("\n") == 1
+
+
+def _misspelt(option: str, options: list[str]) -> str:
+    """``option`` without one of its letters (``--policy``: ``--plicy``), the first such that is not an option
+    itself (``--speed``: not ``--seed``); a short one with its last letter doubled (``--r0``: ``--r00``)."""
+    if len(option) < 6:
+        return option + option[-1]
+    return next(typo for i in range(3, len(option)) if (typo := option[:i] + option[i + 1 :]) not in options)
+
+
+@pytest.mark.parametrize("name", SUBCOMMANDS)
+def test_a_misspelt_option_gets_the_closest_one_in_one_line(
+    capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    """Every long option of every subcommand, misspelt, is refused in one line naming it; before the other
+    checks (a required --out, a missing positional RUN), which would otherwise hide it."""
+    parser = parser_of(name)
+    options = [spelling for action in parser._actions for spelling in action.option_strings]
+    for action in visible_options(parser):
+        option = next(spelling for spelling in action.option_strings if spelling.startswith("--"))
+        typo = _misspelt(option, options)
+        with pytest.raises(SystemExit) as raised:
+            parser.parse_args([typo, "1"])
+        assert raised.value.code == 2
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and error.startswith(f"tdslip {name}: unrecognized option {typo}; ")
+        assert f"did you mean {option}?" in error, (name, typo, error)
+
+
+def test_values_abbreviations_and_words_after_double_dash_are_not_taken_for_misspelt_options() -> None:
+    args = parser_of("simulate").parse_args(["--touchdown-angle", "-20", "--speed", "-0.5", "--str", "3"])
+    assert (args.touchdown_angle_deg, args.speed, args.strides) == (-20.0, -0.5, 3)
+    assert parser_of("analyze").parse_args(["--", "--polcy"]).run == Path("--polcy")
+
+
+def test_the_run_example_of_the_issue(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as raised:
+        cli.main(["run", "--polcy", "energy"])
+    assert raised.value.code == 2
+    assert capsys.readouterr().err == (
+        "tdslip run: unrecognized option --polcy; did you mean --policy? (see tdslip run --help)\n"
+    )

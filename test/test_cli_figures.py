@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from support.helpers import assert_png, strict_json
 
-from tdslip_ros.analysis import paper_comparison
+from tdslip_ros.analysis import figure_claims, paper_comparison
 from tdslip_ros.analysis.figures import catalogue, exact_basins, open_loop, regulated
 from tdslip_ros.analysis.figures.common import Reporter, Resolution
 from tdslip_ros.analysis.figures.shared import SHARED
@@ -58,12 +58,54 @@ def test_the_command_is_registered_and_writes_a_png_and_strict_json_per_figure(
     assert document["figure"] == "fig09" and document["params"]["kbar"] == pytest.approx(36.0)
     assert document["resolution"] == vars(TINY)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["comparison.md", "fig09.json", "fig09.png"]
-    # The comparison table: rows of figures not computed say so, and so do the rows the model alone answers
-    # (the full run's); the others have our numbers.
-    table = (tmp_path / "comparison.md").read_text()
-    assert table.count("not computed in this run") >= 10 and "4.70 m/s" not in table
-    speed_row = next(line for line in table.splitlines() if line.startswith("| xdotbar = 1.5 (IV.B) |"))
-    assert "| not computed in this run |" in speed_row and "`tdslip figures`" in speed_row
+    # No claim reads fig09 alone (fig08 holds its fixed points): the table says so, and lists nothing else.
+    assert (tmp_path / "comparison.md").read_text().startswith(paper_comparison.NO_ROWS + "\n| figure |")
+
+
+def test_a_run_of_one_figure_reports_the_claims_of_that_figure_and_nothing_else(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], dask_scheduler: str
+) -> None:
+    """``--only fig08``: its one claim, filled with the numbers of fig08.json, printed and in comparison.md;
+    no row of a figure not drawn, nor of the model alone (the full run's). At TINY's grid sizes, given as
+    --resolution: the fixed points are traced over TINY.energies goal energies (the default has 57)."""
+    sizes = [f"{name}={value:g}" for name, value in vars(TINY).items()]
+    command = ["figures", "--out", str(tmp_path), "--only", "fig08", "--resolution", *sizes]
+    assert cli.main([*command, "--scheduler", dask_scheduler]) == 0
+    document = json.loads((tmp_path / "fig08.json").read_text())
+    assert document["resolution"] == vars(TINY) != vars(figures_command.DEFAULT)
+    assert len(document["beta_22"]["fixed_points"]["parameter"]) == TINY.energies
+    analytic, exact = figure_claims.fig08_unstable({"fig08": document})
+    claim = "figs 8, 9: unstable fixed points beside the stable ones (IV.B)"
+    printed = capsys.readouterr().out
+    assert printed.startswith(
+        f"{claim}\n  paper:    stable and unstable fixed points\n  analytic: {analytic}\n"
+    )
+    assert printed.count("\n  paper: ") == 1 and f"  exact:    {exact}\n" in printed
+    table = (tmp_path / "comparison.md").read_text().split("\n\n")[0].splitlines()
+    assert len(table) == 3 and table[2].startswith(
+        f"| {claim} | stable and unstable fixed points | {analytic} |"
+    )
+
+
+@pytest.mark.parametrize(
+    ("setting", "error"),
+    [
+        ("energies=0", "energies must be a positive count, got '0'"),
+        ("energies=2.5", "energies must be a positive count, got '2.5'"),
+        ("speed_step=-1", "speed_step must be a positive number, got '-1'"),
+        ("energy=5", "expected NAME=N with NAME one of heights, alphas, "),
+        ("energies", "expected NAME=N with NAME one of heights, alphas, "),
+    ],
+)
+def test_a_grid_size_no_figure_can_use_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], setting: str, error: str
+) -> None:
+    with pytest.raises(SystemExit) as raised:
+        cli.main(["figures", "--out", str(tmp_path / "out"), "--resolution", setting])
+    assert raised.value.code == 2
+    message = capsys.readouterr().err
+    assert message.startswith(f"tdslip figures: argument --resolution: {error}") and message.count("\n") == 1
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_run_of_every_figure_computes_the_rows_the_model_alone_answers(
@@ -219,7 +261,7 @@ def test_the_comparison_table_reads_our_numbers_from_the_figure_documents() -> N
     assert twenty.exact == "energy [1.55, 3.34]; energy_exact [1.09, 3.34]"
     assert twenty.command == "tdslip figures --out DIR --only ranges"
     assert table["stable Ebar range, beta = 30 deg (IV.C)"].analytic == "none"
-    assert table["fig. 11: the range grows with beta"].analytic == "not computed in this run"
+    assert set(table) == {row[0] for row in paper_comparison.ROWS if row[2] == ("ranges",)}  # and no other
     markdown = paper_comparison.markdown(list(table.values()))
     assert markdown.count("\n") == len(table) + 2 and "docs/paper.md#stable-ranges" in markdown
 

@@ -7,6 +7,7 @@ and open loop applies the very same command there), the tables the command wrote
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 
@@ -58,7 +59,14 @@ def test_every_policy_holds_the_operating_point_on_flat_ground(point: robustness
 
 def test_each_kind_is_a_grid_of_policy_and_size_with_its_own_draws(point: robustness.OperatingPoint) -> None:
     made = robustness.studies(
-        ["noise", "step"], ["energy", "apex_foot_placement"], point, PARAMS, 3, 20, 4, "stiffness"
+        robustness.chosen_kinds(["noise", "step"]),
+        ["energy", "apex_foot_placement"],
+        point,
+        PARAMS,
+        3,
+        20,
+        4,
+        "stiffness",
     )
     noise, step = made["noise"], made["step"]
     sizes = robustness.KINDS["noise"].sizes
@@ -161,3 +169,46 @@ def test_a_bad_operating_point_is_one_line(tmp_path: Path, capsys: pytest.Captur
     error = capsys.readouterr().err
     assert error.startswith("tdslip robustness: energy regulation at 20 deg does not settle at Ebar = 0.5")
     assert len(error.splitlines()) == 1
+
+
+def test_the_sizes_of_a_kind_are_an_option(tmp_path: Path, dask_scheduler: str) -> None:
+    """--step-sizes replaces the step's default grid (0-8 m): the study hops those steps down, the summary and
+    the table list those sizes."""
+    out = tmp_path / "robustness"
+    command = ["robustness", "--out", str(out), "--samples", "1", "--strides", "2", "--kinds", "step"]
+    command += ["--step-sizes", "0", "0.05", "0.5", "--policies", "energy", "--scheduler", dask_scheduler]
+    assert cli.main(command) == 0
+    rows = pq.read_table(out / "step" / "table").sort_by("trajectory")
+    assert rows["step_height"].to_pylist() == [0.0, -0.05, -0.5]
+    document = json.loads((out / "summary.json").read_text(), parse_constant=pytest.fail)
+    assert document["sizes"] == {"step": {"label": "step down [m]", "sizes": [0.0, 0.05, 0.5]}}
+    assert [row["size"] for row in document["rows"]] == [0.0, 0.05, 0.5]
+
+
+@pytest.mark.parametrize(
+    ("option", "values", "error"),
+    [
+        ("--step-sizes", ["8", "4", "0"], "step sizes 8 4 0: they must increase"),
+        ("--step-sizes", ["0", "2", "2"], "step sizes 0 2 2: they must increase"),
+        (
+            "--terrain-sizes",
+            ["0.01", "0.02"],
+            "terrain sizes 0.01 0.02: they must include 0, the unperturbed size",
+        ),
+        ("--mismatch-sizes", ["0", "1"], "mismatch sizes 0 1: they must be finite and > 0"),
+        ("--noise-sizes", ["-0.1", "0"], "noise sizes -0.1 0: they must be finite and >= 0"),
+        ("--step-sizes", [], "argument --step-sizes: expected at least one argument"),
+    ],
+)
+def test_sizes_no_study_can_use_are_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str, values: list[str], error: str
+) -> None:
+    """Refused before the operating point is computed or anything is written."""
+    out = tmp_path / "robustness"
+    try:
+        status = cli.main(["robustness", "--out", str(out), option, *values])
+    except SystemExit as exit:  # argparse's own refusal
+        status = exit.code
+    assert status == 2
+    assert capsys.readouterr().err.startswith(f"tdslip robustness: {error}")
+    assert not out.exists()

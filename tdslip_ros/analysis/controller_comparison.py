@@ -31,7 +31,7 @@ from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.figures.tracking import BASELINE
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.policies.registry import POLICIES
-from tdslip_ros.reporting.style import CONTROLLER_STYLE, DPI
+from tdslip_ros.reporting.style import CONTROLLER_STYLE, save_figure
 
 CONTROLLERS = ("deadbeat", BASELINE, "apex_foot_placement")
 """The controllers ``tdslip compare`` can run."""
@@ -165,8 +165,7 @@ def plot_tracking(results: Sequence[Tracking], path: Path) -> Figure:
     axes[0].legend(fontsize=8)
     axes[1].set_xlabel("desired apex speed xdotbar*")
     axes[0].set_title("tracking error per desired speed (recorded lockstep runs)")
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
+    save_figure(figure, path)
     return figure
 
 

@@ -20,7 +20,7 @@ from tdslip_ros.analysis.compare import Comparison, closed_loop_step, dimensionl
 from tdslip_ros.analysis.records import Run
 from tdslip_ros.model import units
 from tdslip_ros.model.dynamics import speed_from_energy
-from tdslip_ros.reporting.style import DPI
+from tdslip_ros.reporting.style import save_figure
 
 MAP_CURVE_POINTS = 200
 LONG_RUN = 100
@@ -35,8 +35,7 @@ EXACT = "tab:green"
 
 
 def _save(figure: Figure, path: Path) -> Figure:
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
+    save_figure(figure, path)
     return figure
 
 

@@ -3,9 +3,9 @@ writes and prints.
 
 Writes ``DIR/summary.json`` (run, how it ended, hopper parameters, policy, per-stride records and
 predictions, convergence, fixed points, eigenvalues; each number's key says its unit, see UNITLESS_KEYS),
-the PNG figures that show something (:func:`omitted_figures`) and ``DIR/report.md``, which opens with a
-glossary of every term it uses (:func:`glossary`), and prints the headline numbers. Policy settings that
-the recording does not show can be given on the command line (see
+the PNG figures that show something (:func:`omitted_figures`) and ``DIR/report.md``, which leads with the
+results and ends with a glossary of every term it uses (:func:`glossary`), and prints the headline numbers.
+Policy settings that the recording does not show can be given on the command line (see
 :func:`tdslip_ros.analysis.compare.policy_for_run`); so can the hopper parameters (``--params``, a ROS
 parameter file such as config/plant.yaml), which otherwise come from the bag's custom_data (``tdslip run``
 stores them) or are inferred from the recording. A run of a controller of the user's
@@ -678,7 +678,8 @@ def markdown(comparison: Comparison, summary: dict[str, Any]) -> str:
     return (
         f"# Run analysis: {comparison.run.path.name}\n\n"
         "A recorded run of the TD-SLIP hopper against the analytic apex return map of the paper "
-        "(Ankarali & Saranli, Chaos 2010). Numbers: `summary.json`.\n\n"
-        f"## Terms\n\n{glossary_markdown(glossary(comparison))}\n\n"
-        f"## Results\n\n```\n{headline(comparison)}\n```\n\n{figures}{not_drawn}"
+        "(Ankarali & Saranli, Chaos 2010). Numbers: `summary.json`; the terms it uses are defined at the end."
+        "\n\n"
+        f"## Results\n\n```\n{headline(comparison)}\n```\n\n{figures}{not_drawn}\n"
+        f"## Terms\n\n{glossary_markdown(glossary(comparison))}\n"
     )

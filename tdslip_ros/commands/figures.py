@@ -1,6 +1,6 @@
 """``tdslip figures``: the paper's figures 4-13 from the model core, as PNG plus the numbers as JSON.
 
-    tdslip figures --out DIR [--only fig04 fig10 ranges ...] [--fine]
+    tdslip figures --out DIR [--only fig04 fig10 ranges ...] [--fine] [--resolution energies=101 ...]
                    [--scheduler tcp://HOST:PORT | --workers N]
 
 Each figure is named after the paper's (fig04.png with fig04.json, ...); the JSON holds the numbers drawn
@@ -57,12 +57,16 @@ computations of :func:`shared_work`) run first, as tasks on the study engine
 (:mod:`tdslip_ros.studies.engine`: a local cluster of one worker process per core, or ``--scheduler``), the
 longest first; the figures then draw from their results. Each task is the very call the figure would make,
 so the numbers do not depend on where it ran. Defaults take some ten minutes of CPU (the exact-plant checks
-and ranges most of it); ``--fine`` uses the paper's resolutions. Progress goes to stderr.
+and ranges most of it); ``--fine`` uses the paper's resolutions, and ``--resolution NAME=N ...`` changes
+single grid sizes of either (the fields of :class:`~tdslip_ros.analysis.figures.common.Resolution`). Progress
+goes to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -98,11 +102,37 @@ Dask cluster (or --scheduler); the defaults take some ten minutes of CPU, --fine
 Prints the paper's claims beside ours (also DIR/comparison.md); docs/paper.md explains the differences."""
 
 
+def resolution_setting(text: str) -> tuple[str, float]:
+    """``NAME=N``: a grid size of :class:`Resolution` (a positive count; speed_step a positive step) (argparse
+    type)."""
+    name, equals, value = text.partition("=")
+    sizes = {field.name: type(getattr(DEFAULT, field.name)) for field in dataclasses.fields(Resolution)}
+    if not equals or name not in sizes:
+        raise argparse.ArgumentTypeError(f"expected NAME=N with NAME one of {', '.join(sizes)}, got {text!r}")
+    try:
+        number = sizes[name](value)
+    except ValueError:
+        number = 0
+    if not 0 < number < math.inf:
+        kind = "a positive count" if sizes[name] is int else "a positive number"
+        raise argparse.ArgumentTypeError(f"{name} must be {kind}, got {value!r}")
+    return name, number
+
+
 def parser() -> argparse.ArgumentParser:
     parser = command_parser("figures", DESCRIPTION)
     parser.add_argument("--out", type=Path, required=True, help="directory for the PNG and JSON files")
     parser.add_argument("--only", nargs="+", choices=list(FIGURES), help="just these figures (default: all)")
     parser.add_argument("--fine", action="store_true", help="the paper's resolutions (much slower)")
+    parser.add_argument(
+        "--resolution",
+        nargs="+",
+        type=resolution_setting,
+        metavar="NAME=N",
+        help="grid sizes that differ from the default's or --fine's: "
+        + ", ".join(f"{name}={value:g}" for name, value in vars(DEFAULT).items())
+        + " by default",
+    )
     add_analytic_map(parser)
     add_engine_arguments(parser, resume=False)
     return parser
@@ -116,7 +146,7 @@ def main(argv: list[str]) -> int:
         print(f"tdslip figures: {error}", file=sys.stderr)
         return 2
     try:
-        resolution = FINE if args.fine else DEFAULT
+        resolution = dataclasses.replace(FINE if args.fine else DEFAULT, **dict(args.resolution or []))
         names = args.only or list(FIGURES)
         speed = analytic_map_speed(args)
         precompute(names, resolution, speed, where_of(args))

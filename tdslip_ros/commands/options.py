@@ -9,11 +9,12 @@ working for now, hidden from ``--help``, with a one-line deprecation warning on 
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.params import ParameterError
@@ -53,11 +54,57 @@ def shown(value: Any) -> str:
     return str(value)
 
 
+class CommandParser(argparse.ArgumentParser):
+    """A subcommand's parser: an option it does not know is refused before anything else is checked (a
+    missing required option would hide it), in one line that names the closest option it has."""
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        given = list(sys.argv[1:] if args is None else args)
+        for word in given[: given.index("--")] if "--" in given else given:
+            if (suggestion := self._unknown_option(word)) is not None:
+                self.error(suggestion)
+        return super().parse_known_args(given, namespace)
+
+    def _unknown_option(self, word: str) -> str | None:
+        """Why ``word`` is an option this parser does not have, with the closest it has; None where it is
+        one (or an abbreviation argparse resolves), a value, or has no close match (argparse says so)."""
+        if not word.startswith("-") or word == "-" or _is_number(word):
+            return None
+        spelling = word.split("=", 1)[0]
+        known = [option for action in self._actions for option in action.option_strings]
+        if spelling in known or (len(word) > 2 and word[:2] in known and not word.startswith("--")):
+            return None
+        if self.allow_abbrev and spelling.startswith("--"):
+            if any(option.startswith(spelling) for option in known):
+                return None  # an abbreviation: argparse takes it, or says it is ambiguous
+        visible = [
+            option
+            for action in self._actions
+            if action.help is not argparse.SUPPRESS
+            for option in action.option_strings
+            if option.startswith("--")
+        ]
+        closest = difflib.get_close_matches(spelling, visible, n=1)
+        return f"unrecognized option {spelling}; did you mean {closest[0]}?" if closest else None
+
+    def error(self, message: str) -> NoReturn:
+        """One line on stderr and exit status 2, pointing at --help rather than printing the usage."""
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
 def command_parser(name: str, description: str) -> argparse.ArgumentParser:
-    """The parser of ``tdslip NAME``, with the shared help formatter."""
-    return argparse.ArgumentParser(
-        prog=f"tdslip {name}", description=description, formatter_class=HelpFormatter
-    )
+    """The parser of ``tdslip NAME``, with the shared help formatter and :class:`CommandParser`'s errors."""
+    return CommandParser(prog=f"tdslip {name}", description=description, formatter_class=HelpFormatter)
 
 
 class _Deprecated(argparse.Action):
@@ -100,13 +147,15 @@ def add_touchdown_angle(
     *old: str,
     what: str = "",
     unset: str | None = None,
+    default: float = TOUCHDOWN_ANGLE_DEG,
 ) -> argparse.Action:
-    """``--touchdown-angle-deg`` [deg], default the model's 20 deg, or (with ``unset``) None, described in
-    words by ``unset``; ``old``: its deprecated spellings in this command."""
+    """``--touchdown-angle-deg`` [deg], default the model's 20 deg (a command whose figure needs another says
+    why in ``what``), or (with ``unset``) None, described in words by ``unset``; ``old``: its deprecated
+    spellings in this command."""
     action = parser.add_argument(
         "--touchdown-angle-deg",
         type=float,
-        default=None if unset else TOUCHDOWN_ANGLE_DEG,
+        default=None if unset else default,
         metavar="DEG",
         help=f"touchdown angle beta [deg]{what}" + (f" (default: {unset})" if unset else ""),
     )

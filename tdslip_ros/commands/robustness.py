@@ -1,7 +1,8 @@
 """``tdslip robustness``: how large a perturbation each policy survives, on the study engine.
 
     tdslip robustness --out DIR [--samples 30] [--strides 50] [--policies open_loop energy ...]
-                      [--kinds terrain noise mismatch step] [--touchdown-angle-deg 20] [--energy-bar 2.274]
+                      [--kinds terrain noise mismatch step] [--step-sizes 0 1 2 ...] [--terrain-sizes ...]
+                      [--touchdown-angle-deg 20] [--energy-bar 2.274]
                       [--mismatch-field stiffness] [--seed 0] [--map ours|paper] [--resume]
                       [--scheduler tcp://HOST:PORT | --workers N]
 
@@ -23,7 +24,10 @@ policy has none, as the plant node does (:mod:`tdslip_ros.studies.perturbed`):
 * step: a single step down of the size (m) at a position drawn in [1, 4] m (one stride at the operating
   point).
 
-A trajectory survives when it hops ``--strides`` strides. Written to DIR: ``robustness.png`` (the fraction
+Each kind's sizes are an option (``--terrain-sizes``, ``--noise-sizes``, ``--mismatch-sizes``,
+``--step-sizes``; defaults: :data:`~tdslip_ros.studies.robustness.KINDS`): increasing, and including the
+unperturbed size (0, or 1 for mismatch), from which the sizes survived are counted. A trajectory survives when
+it hops ``--strides`` strides. Written to DIR: ``robustness.png`` (the fraction
 surviving, per kind and policy, against the size), ``strides.png`` (the median strides survived),
 ``spread.png`` (the spread of the apex heights of the survivors: the median over them of each one's
 standard deviation), ``failures.png`` (the failure kinds), ``summary.csv`` (one row per kind, size and
@@ -59,7 +63,7 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.studies.design import StudyError
 from tdslip_ros.studies.perturbed import MISMATCH_PARAMETERS
-from tdslip_ros.studies.robustness import KINDS, write_robustness
+from tdslip_ros.studies.robustness import KINDS, chosen_kinds, write_robustness
 
 DEFAULT_ENERGY_BAR = units.energy_to_bar(PAPER_PARAMS, DEFAULT_TARGET_ENERGY)
 """The operating point's apex energy: the default apex's (1 m, 5 m/s), Ebar = 2.274, inside the stable range
@@ -91,6 +95,15 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--kinds", nargs="+", choices=list(KINDS), default=list(KINDS), help="the kinds of perturbation"
     )
+    for name, kind in KINDS.items():
+        parser.add_argument(
+            f"--{name}-sizes",
+            nargs="+",
+            type=float,
+            default=list(kind.sizes),
+            metavar="SIZE",
+            help=f"the sizes of {name}: {kind.label}, increasing, with the unperturbed {kind.neutral:g}",
+        )
     add_touchdown_angle(parser, "--touchdown-angle", what=" of the operating point")
     add_energy_bar(
         parser,
@@ -121,6 +134,7 @@ def main(argv: list[str]) -> int:
         params = PAPER_PARAMS
         if (reason := touchdown_angle_error(args.touchdown_angle_deg)) is not None:
             raise StudyError(reason)
+        chosen = chosen_kinds(kinds, {name: getattr(args, f"{name}_sizes") for name in kinds})
         if LEARNED in policies:
             if args.policy_file is None:
                 raise StudyError("the learned policy needs its file (--policy-file)")
@@ -133,7 +147,7 @@ def main(argv: list[str]) -> int:
             params,
             math.radians(args.touchdown_angle_deg),
             units.energy_from_bar(params, args.energy_bar),
-            kinds,
+            chosen,
             policies,
             args.samples,
             args.strides,

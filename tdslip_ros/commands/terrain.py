@@ -9,8 +9,11 @@ hip power C at touchdown that energy regulation applies there. On flat ground th
 identically forever; blocks start at ``--start``, so what differs is the terrain's doing.
 
 The figure shows the centre-of-mass paths over the ground and the apex energy above the ground per
-stride; the run ends at ``--strides`` apexes or a failure (marked). The same runs are recorded by the
-node suite with ``tdslip run --terrain blocks:... --policy energy`` (or ``open_loop --touchdown-angle-deg``).
+stride; the run ends at ``--strides`` apexes or a failure (marked). With the defaults it draws the README's
+figure (docs/rough_terrain.png), at the touchdown angle
+:data:`~tdslip_ros.analysis.rough_terrain.TOUCHDOWN_ANGLE_DEG`, not the model's. The same runs are recorded
+by the node suite with ``tdslip run --terrain blocks:... --policy energy --touchdown-angle-deg 22`` (or
+``open_loop``).
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tdslip_ros.analysis.rough_terrain import LABELS, draw, hop, policies
+from tdslip_ros.analysis.rough_terrain import LABELS, TOUCHDOWN_ANGLE_DEG, draw, hop, policies
+from tdslip_ros.commands.options import TOUCHDOWN_ANGLE_DEG as TOUCHDOWN_ANGLE_DEG_MODEL
 from tdslip_ros.commands.options import (
     add_initial_apex,
     add_touchdown_angle,
@@ -40,21 +44,26 @@ from tdslip_ros.reporting.output import OutputError, output_directory, write_fai
 DESCRIPTION = """\
 Energy regulation against open loop over the same random blocks, on the 1 kHz plant (no ROS).
 Both start at energy regulation's flat-ground fixed point for the initial apex's energy; the blocks begin
-at --start. Draws the centre-of-mass paths and the apex energy above the ground per stride (PNG).
-The node suite records the same runs with: tdslip run --terrain blocks:... --policy energy"""
+at --start. Draws the centre-of-mass paths and the apex energy above the ground per stride (PNG); the
+defaults draw the README's figure. The node suite records the same runs with:
+tdslip run --terrain blocks:... --policy energy --touchdown-angle-deg 22"""
 
 
 def parser() -> argparse.ArgumentParser:
     parser = command_parser("terrain", DESCRIPTION)
-    parser.add_argument(
-        "--out", type=Path, help="the PNG to write (default: runs/terrain-<time>.png, never the source tree)"
-    )
+    parser.add_argument("--out", type=Path, help="the PNG to write (default: runs/terrain-<time>.png)")
     parser.add_argument("--sigma", type=float, default=0.03, help="block heights' standard deviation [m]")
     parser.add_argument("--length", type=float, default=0.5, help="block length [m]")
     parser.add_argument("--seed", type=int, default=1, help="terrain seed")
     parser.add_argument("--start", type=float, default=2.0, help="where the blocks begin [m]")
     parser.add_argument("--strides", type=int, default=40, help="apexes to hop")
-    add_touchdown_angle(parser, "--angle")
+    add_touchdown_angle(
+        parser,
+        "--angle",
+        what=f" (default: {TOUCHDOWN_ANGLE_DEG:g}, the README figure's: at the model's "
+        f"{TOUCHDOWN_ANGLE_DEG_MODEL:g} the toe stubs on the blocks within a dozen strides)",
+        default=TOUCHDOWN_ANGLE_DEG,
+    )
     add_initial_apex(parser)
     return parser
 

@@ -11,7 +11,9 @@ and half the trajectories survive (``robustness.md``).
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,7 +32,7 @@ from tdslip_ros.model.events import FAILURE_KINDS
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.policies.registry import PolicySpec
 from tdslip_ros.reporting.output import output_directory, to_json
-from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
+from tdslip_ros.reporting.style import POLICY_COLOURS, save_figure
 from tdslip_ros.studies import chunk, engine, table
 from tdslip_ros.studies.design import DEFAULTS, Study, StudyError, Uniform, analytic_map_fixed
 
@@ -62,6 +64,23 @@ class Kind:
             return f"mismatch_{mismatch_field}", list(self.sizes)
         return "step_height", [-size for size in self.sizes]
 
+    def size_error(self, sizes: Sequence[float]) -> str | None:
+        """Why ``sizes`` cannot be this kind's, or None: they increase, lie in its domain (positive on a log
+        axis, else >= 0), and include the unperturbed size (the sizes survived are counted from it)."""
+        if not sizes:
+            return "none given"
+        if (
+            any(not math.isfinite(size) for size in sizes)
+            or min(sizes) < 0.0
+            or (self.scale == "log" and min(sizes) <= 0.0)
+        ):
+            return f"they must be finite and {'> 0' if self.scale == 'log' else '>= 0'}"
+        if any(later <= earlier for earlier, later in zip(sizes, sizes[1:], strict=False)):
+            return "they must increase"
+        if self.neutral not in sizes:
+            return f"they must include {self.neutral:g}, the unperturbed size"
+        return None
+
 
 KINDS = {
     "terrain": Kind("block height sigma [m]", (0.0, 0.01, 0.02, 0.03, 0.04, 0.06, 0.08, 0.12), "linear"),
@@ -73,6 +92,19 @@ KINDS = {
     ),
     "step": Kind("step down [m]", (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0), "linear"),
 }
+"""The kinds of perturbation, with their default sizes (``tdslip robustness --<kind>-sizes``)."""
+
+
+def chosen_kinds(names: Sequence[str], sizes: Mapping[str, Sequence[float]] | None = None) -> dict[str, Kind]:
+    """The kinds ``names``, with ``sizes`` where given (checked: StudyError naming the kind), else their
+    default sizes."""
+    chosen = {}
+    for name in names:
+        given = (sizes or {}).get(name)
+        if given is not None and (reason := KINDS[name].size_error(given)) is not None:
+            raise StudyError(f"{name} sizes {' '.join(f'{size:g}' for size in given)}: {reason}")
+        chosen[name] = KINDS[name] if given is None else dataclasses.replace(KINDS[name], sizes=tuple(given))
+    return chosen
 
 
 @dataclass(frozen=True)
@@ -130,7 +162,7 @@ def operating_point(
 
 
 def studies(
-    kinds: list[str],
+    kinds: Mapping[str, Kind],
     policies: list[str],
     point: OperatingPoint,
     params: HopperParams,
@@ -144,8 +176,8 @@ def studies(
     from the operating point (the sizes of each kind as ``tdslip robustness --help`` describes them); the
     learned policy reads ``policy_file``."""
     made = {}
-    for name in kinds:
-        axis, values = KINDS[name].axis(name, params, mismatch_field)
+    for name, kind in kinds.items():
+        axis, values = kind.axis(name, params, mismatch_field)
         made[name] = Study.of(
             grid={"policy": policies, axis: values},
             draws={"step_x": STEP_POSITIONS} if name == "step" else None,
@@ -163,11 +195,11 @@ def studies(
     return made
 
 
-def summarise(name: str, study: Study, rows: pa.Table) -> list[dict[str, Any]]:
+def summarise(name: str, kind: Kind, study: Study, rows: pa.Table) -> list[dict[str, Any]]:
     """One row per size and policy: trajectories, the fraction surviving all strides, the median strides
     survived, the failure kinds, the median apex spread of the survivors, strides without a command."""
     policies = list(study.values_of("policy"))
-    sizes = KINDS[name].sizes
+    sizes = kind.sizes
     per_cell = study.samples
     survived = table.column(rows, "strides_survived").reshape(len(policies), len(sizes), per_cell)
     outcome = table.column(rows, "outcome").reshape(survived.shape)
@@ -212,7 +244,12 @@ def survived_range(summary: list[dict[str, Any]], kind: str, policy: str, share:
 
 
 def draw(
-    summary: list[dict[str, Any]], kinds: list[str], policies: list[str], value: str, ylabel: str, title: str
+    summary: list[dict[str, Any]],
+    kinds: Mapping[str, Kind],
+    policies: list[str],
+    value: str,
+    ylabel: str,
+    title: str,
 ) -> Figure:
     """One panel per kind: ``value`` against the size, a line per policy."""
     columns = min(2, len(kinds))
@@ -230,9 +267,9 @@ def draw(
                 label=policy,
                 ms=3,
             )
-        axes.set(xlabel=KINDS[kind].label, ylabel=ylabel, title=kind, xscale=KINDS[kind].scale)
-        if KINDS[kind].scale == "log":  # the sizes themselves as ticks, not powers of ten
-            axes.set_xticks(KINDS[kind].sizes, [f"{size:g}" for size in KINDS[kind].sizes])
+        axes.set(xlabel=kinds[kind].label, ylabel=ylabel, title=kind, xscale=kinds[kind].scale)
+        if kinds[kind].scale == "log":  # the sizes themselves as ticks, not powers of ten
+            axes.set_xticks(kinds[kind].sizes, [f"{size:g}" for size in kinds[kind].sizes])
             axes.minorticks_off()
         axes.legend(fontsize=7)
     for axes in axes_all[len(kinds) :]:
@@ -241,7 +278,7 @@ def draw(
     return figure
 
 
-def draw_failures(summary: list[dict[str, Any]], kinds: list[str], policies: list[str]) -> Figure:
+def draw_failures(summary: list[dict[str, Any]], kinds: Sequence[str], policies: list[str]) -> Figure:
     """Per kind, the failure kinds of each policy's trajectories over all sizes (stacked bars)."""
     columns = min(2, len(kinds))
     rows = math.ceil(len(kinds) / columns)
@@ -266,7 +303,11 @@ def draw_failures(summary: list[dict[str, Any]], kinds: list[str], policies: lis
 
 
 def markdown(
-    summary: list[dict[str, Any]], kinds: list[str], policies: list[str], strides: int, analytic_map: str
+    summary: list[dict[str, Any]],
+    kinds: Mapping[str, Kind],
+    policies: list[str],
+    strides: int,
+    analytic_map: str,
 ) -> str:
     lines = [
         f"# Robustness: the largest perturbation survived for {strides} strides",
@@ -289,7 +330,7 @@ def markdown(
             }
             text = ", ".join(f"{name} {count}" for name, count in failures.items() if count) or "none"
             lines.append(f"| {kind} | {policy} | {_size_text(every)} | {_size_text(half)} | {text} |")
-    lines += ["", "Sizes: " + "; ".join(f"{kind}: {KINDS[kind].label}" for kind in kinds), ""]
+    lines += ["", "Sizes: " + "; ".join(f"{name}: {kind.label}" for name, kind in kinds.items()), ""]
     return "\n".join(lines)
 
 
@@ -303,7 +344,7 @@ def write_robustness(
     params: HopperParams,
     beta: float,
     energy: float,
-    kinds: list[str],
+    kinds: Mapping[str, Kind],
     policies: list[str],
     samples: int,
     strides: int,
@@ -322,7 +363,7 @@ def write_robustness(
     made = studies(kinds, policies, point, params, samples, strides, seed, mismatch_field, policy_file)
     output_directory(out)
     tables = engine.run_studies(made, out, where, resume, "robustness")
-    summary = [row for name in kinds for row in summarise(name, made[name], tables[name])]
+    summary = [row for name, kind in kinds.items() for row in summarise(name, kind, made[name], tables[name])]
     figures = {
         "robustness": draw(
             summary,
@@ -343,11 +384,10 @@ def write_robustness(
             "apex height spread [m] (survivors' median std)",
             "spread of the apex heights",
         ),
-        "failures": draw_failures(summary, kinds, policies),
+        "failures": draw_failures(summary, list(kinds), policies),
     }
     for name, figure in figures.items():
-        figure.tight_layout()
-        figure.savefig(out / f"{name}.png", dpi=DPI)
+        save_figure(figure, out / f"{name}.png")
     with (out / "summary.csv").open("w", newline="") as stream:
         writer = csv.DictWriter(stream, fieldnames=list(summary[0]))
         writer.writeheader()
@@ -362,7 +402,7 @@ def write_robustness(
         },
         "samples": samples,
         "strides": strides,
-        "sizes": {kind: {"label": KINDS[kind].label, "sizes": list(KINDS[kind].sizes)} for kind in kinds},
+        "sizes": {name: {"label": kind.label, "sizes": list(kind.sizes)} for name, kind in kinds.items()},
         "sizes_survived": {
             kind: {
                 policy: {

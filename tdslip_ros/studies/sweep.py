@@ -33,7 +33,7 @@ from tdslip_ros.reporting.paper_grids import (
     fig11_energies_bar,
     row_median,
 )
-from tdslip_ros.reporting.style import DPI, EXACT, STABLE, basin_colour_map, basin_colours
+from tdslip_ros.reporting.style import EXACT, STABLE, basin_colour_map, basin_colours, save_figure
 from tdslip_ros.studies import engine, table
 from tdslip_ros.studies.design import Study, analytic_map_fixed
 
@@ -285,8 +285,7 @@ def write_sweep(
     output_directory(out)
     tables = engine.run_studies(studies, out, where, resume, f"sweep {name}")
     figure, data = sweep.draw(studies, tables)
-    figure.tight_layout()
-    figure.savefig(out / f"{name}.png", dpi=DPI)
+    save_figure(figure, out / f"{name}.png")
     summary = {
         "sweep": name,
         "grid": list(grid or sweep.grid),

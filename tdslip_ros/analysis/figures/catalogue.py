@@ -22,7 +22,7 @@ from tdslip_ros.analysis.figures.shared import SHARED, SharedKey
 from tdslip_ros.model.analytic.apex_map import SpeedSource
 from tdslip_ros.model.paper import PAPER_KBAR, PAPER_ZETA0
 from tdslip_ros.reporting.output import to_json
-from tdslip_ros.reporting.style import DPI
+from tdslip_ros.reporting.style import save_figure
 
 FIGURES: dict[str, FigureFunction] = {
     "fig04": open_loop.fig04,
@@ -96,8 +96,7 @@ def write_figure(
     reporter = Reporter(name)
     started = time.process_time()
     figure, data = FIGURES[name](resolution, reporter, speed)
-    figure.tight_layout()
-    figure.savefig(out / f"{name}.png", dpi=DPI)
+    save_figure(figure, out / f"{name}.png")
     document = {
         "figure": name,
         "params": {"kbar": PARAMS.kbar, "zeta0": PARAMS.zeta0, "m": PARAMS.m, "r0": PARAMS.r0, "g": PARAMS.g},
