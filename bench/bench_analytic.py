@@ -3,18 +3,17 @@
     python bench/bench_analytic.py [--lanes N] [--repeat R] [--no-accuracy] [--baseline DIR] [--breakdown]
     python bench/bench_analytic.py --domain [--coarse]
 
-Times are CPU seconds of this single-threaded process (time.process_time), best of several runs.
-Prints (1) vectorised analytic-map evaluations per second on one core (corrections 0 and 1) for several
-lanes per call, beside the target of issue 13 (1e7 per second) and, with --baseline DIR, beside the same
-measurement of the tdslip_ros of another checkout (e.g. ``git worktree add /tmp/tdslip-main main``) in a
-child process,
-(2) the time per stride of the analytic map against the exact plant (exact_map.apex_return_map), measured
-side by side in this run, as a ratio, and (3) the accuracy table: mean and max relative errors of the next
-apex height and speed, analytic vs exact, for corrections 0 and 1, on a broad grid and on the operating
-region of the paper's energy-regulated gaits (kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m), and (4) the
-accuracy domain: the next-apex errors of both maps (the next speed from the energy balance, ours, and from
-eq. 7's liftoff velocity, the paper's) over the stance's maximum leg compression and the touchdown angle, and
-per angle the largest compression up to which every stride errs less than 1 % and 5 %, as Markdown tables
+Times are CPU seconds of this single-threaded process (time.process_time), best of several runs. Prints (1)
+vectorised analytic-map evaluations per second on one core (corrections 0 and 1) for several lanes per call,
+beside the target of issue 13 (1e7 per second) and, with --baseline DIR, beside the same measurement of the
+tdslip_ros of another checkout (e.g. ``git worktree add /tmp/tdslip-main main``) in a child process, (2) the
+time per stride of the analytic map against the exact plant (exact_map.apex_return_map), measured side by side
+in this run, as a ratio, and (3) the accuracy table: mean and max relative errors of the next apex height and
+speed, analytic vs exact, for corrections 0 and 1, on a broad grid and on the operating region of the paper's
+energy-regulated gaits (kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m), and (4) the accuracy domain: the
+next-apex errors of both maps (the next speed from the energy balance, ours, and from eq. 7's liftoff
+velocity, the paper's) over the stance's maximum leg compression and the touchdown angle, and per angle the
+largest compression up to which every stride errs less than 1 % and 5 %, as Markdown tables
 (docs/paper.md#accuracy-domain quotes them). --domain prints only (4), on the fine grid (FINE_DOMAIN_GRID;
 with --coarse, on the tests' DOMAIN_GRID).
 

@@ -9,8 +9,8 @@ regulation's flat-ground fixed point as the initial apex, ``studies/robustness.p
 standard deviation ``--sigma`` [m] (0.5 m long, from x = 1 m), the task ``energy`` (hold Ebar 3.5). The action
 is a residual on energy regulation's command: a = clip(W f + b, -1, 1), the features f the measured apex's
 deviation from the operating point (per 0.1 m, 0.5 m/s; :mod:`tdslip_ros.model.policies.learned`, the
-evaluation the
-``learned`` policy shares). No ground ahead: the controller node, which runs the saved policy, senses none.
+evaluation the ``learned`` policy shares). No ground ahead: the controller node, which runs the saved policy,
+senses none.
 
 Each generation draws ``--population`` candidates (W, b) from a diagonal Gaussian, runs each on the same
 ``--episodes`` grounds (common random numbers: the candidates differ by their parameters only), all lanes in

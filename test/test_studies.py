@@ -1,9 +1,8 @@
 """Study designs and chunks, in one process: what each trajectory runs, and its row.
 
 Truth used: the closed-loop runs of :mod:`tdslip_ros.model.stability.basins` (the goal regulator of fig. 10,
-the
-open-loop basin of fig. 7), fig. 13's deadbeat runs (analysis.figures.tracking.deadbeat_runs) and apex foot
-placement's on basins.basin, called directly on the same lanes; numpy's SeedSequence for the draws.
+the open-loop basin of fig. 7), fig. 13's deadbeat runs (analysis.figures.tracking.deadbeat_runs) and apex
+foot placement's on basins.basin, called directly on the same lanes; numpy's SeedSequence for the draws.
 """
 
 from __future__ import annotations

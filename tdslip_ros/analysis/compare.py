@@ -1,16 +1,15 @@
 """A recorded run against the paper's analytic apex return map.
 
 * **Per-stride prediction.** From each recorded apex and the command the plant actually applied,
-  the analytic map (:func:`tdslip_ros.model.analytic.apex_map.approximate_map`, 0 and 1 correction
-  iterations; ours or the paper's, ``Comparison.analytic_map``) predicts the next apex; the exact map
-  (batched DOP853, :func:`tdslip_ros.model.plant.batch.batch_apex_return_map`) predicts it too, which
-  separates
-  the analytic map's approximation error from the 1 kHz plant's own integration error. On a perturbed run both
-  predict what the plant did: the exact map with the run's terrain, torque limit, push and placement
-  error (reproduced from the stored seeds), so its error stays at the flat-ground level; the analytic
-  map (flat ground by construction) from the apex's height above the recorded ground of the stance, with
-  the push, the placed angle and the ramp's tau0 cut to tau_max (the saturated ramp's peak: an
-  approximation of the saturated ramp). Predicted and recorded apexes are compared in the world frame.
+  the analytic map (:func:`tdslip_ros.model.analytic.apex_map.approximate_map`, 0 and 1 correction iterations;
+  ours or the paper's, ``Comparison.analytic_map``) predicts the next apex; the exact map (batched DOP853,
+  :func:`tdslip_ros.model.plant.batch.batch_apex_return_map`) predicts it too, which separates the analytic
+  map's approximation error from the 1 kHz plant's own integration error. On a perturbed run both predict what
+  the plant did: the exact map with the run's terrain, torque limit, push and placement error (reproduced from
+  the stored seeds), so its error stays at the flat-ground level; the analytic map (flat ground by
+  construction) from the apex's height above the recorded ground of the stance, with the push, the placed
+  angle and the ramp's tau0 cut to tau_max (the saturated ramp's peak: an approximation of the saturated
+  ramp). Predicted and recorded apexes are compared in the world frame.
 * **Stance feedback.** A stride whose hip took torques streamed per tick has no ramp for the maps: the
   exact map replays its recorded torques instead (:mod:`.stance_feedback`), and reports the error.
 * **Convergence** at the paper's tolerance: the run has converged at stride n when every apex-to-apex

@@ -1,14 +1,13 @@
 """The stance-feedback strides of a recorded run, predicted on the exact map from their recorded torques.
 
-A stride under stance feedback has no ramp for the maps of :mod:`.compare` to replay. Its hip held the
-torques the plant recorded on ``tdslip/applied_torque``, each from its tick on (zero-order hold, as applied,
-zero from touchdown to the first tick: :mod:`tdslip_ros.model.plant.stance_laws`). The exact map
+A stride under stance feedback has no ramp for the maps of :mod:`.compare` to replay. Its hip held the torques
+the plant recorded on ``tdslip/applied_torque``, each from its tick on (zero-order hold, as applied, zero from
+touchdown to the first tick: :mod:`tdslip_ros.model.plant.stance_laws`). The exact map
 (:func:`tdslip_ros.model.plant.exact_map.apex_return_map`, DOP853 with event location) replays them
 (:class:`~tdslip_ros.model.plant.stance_laws.RecordedTorques`, the stride's ``stance_feedback``) from the
 recorded apex at its time on the plant's clock, which puts the replay on the plant's tick grid, with the run's
-perturbations as :mod:`.compare` applies them. The prediction then differs from the recorded next apex by
-the 1 kHz plant's own integration error alone (RK4, 4 sub-steps per tick:
-:mod:`tdslip_ros.model.plant.stepper`).
+perturbations as :mod:`.compare` applies them. The prediction then differs from the recorded next apex by the
+1 kHz plant's own integration error alone (RK4, 4 sub-steps per tick: :mod:`tdslip_ros.model.plant.stepper`).
 Recordings of several epochs (resets) are refused by the reader, so the plant's clock is the epoch's.
 """
 

@@ -10,9 +10,8 @@ the paper's m = 65.4 kg (its JSON's params say so), and its JSON is in SI units,
 
 Every analytic fixed point drawn (figs 4-6, 8, 9) is checked on the exact plant
 (:mod:`tdslip_ros.model.stability.exact_fixed_points`, the open-loop rule with the paper's t_f, or the ideal
-regulator
-energy_exact for the energy-regulated map): red markers are the exact plant's fixed points (filled where
-stable, by their eigenvalues), a red cross marks an analytic fixed point the exact plant does not have.
+regulator energy_exact for the energy-regulated map): red markers are the exact plant's fixed points (filled
+where stable, by their eigenvalues), a red cross marks an analytic fixed point the exact plant does not have.
 At the end the command prints the paper's claims beside ours (:mod:`.paper_comparison`) and writes them to
 DIR/comparison.md: the rows of the figures drawn, and, on a run of every figure, the rows the model alone
 answers (some seconds); docs/paper.md explains the differences.

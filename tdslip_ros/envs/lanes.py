@@ -3,13 +3,12 @@
 The single environment is one lane of :class:`HopperLanes`, the vector environment many: both run the same
 code, so a lane of the vector environment hops exactly as a single environment with the same seed.
 
-**Seeding.** A lane's episodes are numbered from its last seeded reset: ``reset(seed=s)`` starts episode 0
-of stream seed s, each reset without a seed the next episode (a lane never seeded draws its stream seed from
-its generator at its first reset). Episode e of stream seed s takes the model's random streams
+**Seeding.** A lane's episodes are numbered from its last seeded reset: ``reset(seed=s)`` starts episode 0 of
+stream seed s, each reset without a seed the next episode (a lane never seeded draws its stream seed from its
+generator at its first reset). Episode e of stream seed s takes the model's random streams
 (:mod:`tdslip_ros.model.plant.perturbations`) of seed s, trajectory e, stride k for sensing, placement and
-pushes,
-and random blocks of seed :func:`terrain_seed` (s, e); the initial apex is drawn from the lane's generator
-(Gymnasium's ``np_random``). An episode is therefore a function of (seed, episode, actions) only.
+pushes, and random blocks of seed :func:`terrain_seed` (s, e); the initial apex is drawn from the lane's
+generator (Gymnasium's ``np_random``). An episode is therefore a function of (seed, episode, actions) only.
 """
 
 from __future__ import annotations

@@ -3,19 +3,17 @@ primitives a kernel needs to run both in real and in complex-step arithmetic.
 
 The analytic map (:mod:`tdslip_ros.model.analytic.map_kernels`) and the policies' solvers
 (:mod:`tdslip_ros.model.policies.controller_kernels`, :mod:`tdslip_ros.model.policies.deadbeat_kernels`) are
-written once,
-as scalar functions of one lane, and compiled with :func:`kernel`. The controller calls them for one apex;
-the vectorised API loops over the lanes of a batch in compiled code; the complex step
-(``closed_loop.map_jacobian``) runs the very same source in complex128 (numba compiles one specialisation
-per argument type). The few large kernels of the map's hot path are
-compiled with :func:`inlined_kernel`, which copies them into their callers.
+written once, as scalar functions of one lane, and compiled with :func:`kernel`. The controller calls them for
+one apex; the vectorised API loops over the lanes of a batch in compiled code; the complex step
+(``closed_loop.map_jacobian``) runs the very same source in complex128 (numba compiles one specialisation per
+argument type). The few large kernels of the map's hot path are compiled with :func:`inlined_kernel`, which
+copies them into their callers.
 
-Cache. Compiling every kernel takes minutes (once for float64 and once for complex128 arguments), so
-the machine code is kept on disk and a new process only loads it. It goes to a folder
-``model-<hash>``, the hash of every source file of ``tdslip_ros.model`` and its sub-packages (kernels call
-kernels and use
-constants of other modules, so any change to the model recompiles; numba alone would only watch each
-kernel's own file), in the first of these that is writable:
+Cache. Compiling every kernel takes minutes (once for float64 and once for complex128 arguments), so the
+machine code is kept on disk and a new process only loads it. It goes to a folder ``model-<hash>``, the hash
+of every source file of ``tdslip_ros.model`` and its sub-packages (kernels call kernels and use constants of
+other modules, so any change to the model recompiles; numba alone would only watch each kernel's own file), in
+the first of these that is writable:
 
 1. ``$NUMBA_CACHE_DIR`` when set (numba's own setting);
 2. the user's cache directory, ``~/.cache/tdslip_ros`` (``$XDG_CACHE_HOME/tdslip_ros``): shared by every

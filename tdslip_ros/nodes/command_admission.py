@@ -69,9 +69,8 @@ def admit(
 ) -> ModelCommand | StanceFeedback:
     """The model's command of ``msg`` for the apex of ``epoch`` and ``stride``: a ramp, or stance feedback
     on a :class:`~tdslip_ros.model.plant.stance_laws.TorqueStream`. ParameterError with the reason to reject
-    it if
-    it answers another apex, repeats an answered stride in lockstep (``awaiting``: the stride waiting for
-    its command), comes after the touchdown (``past_touchdown``: LateCommand) or holds values the model or
+    it if it answers another apex, repeats an answered stride in lockstep (``awaiting``: the stride waiting
+    for its command), comes after the touchdown (``past_touchdown``: LateCommand) or holds values the model or
     ``limits`` refuse (stance feedback with a ramp's tau0 or t_f: which one was meant?)."""
     if msg.epoch != epoch:
         raise ParameterError(

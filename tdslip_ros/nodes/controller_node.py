@@ -3,10 +3,9 @@
 The policy is the parameter ``policy``, one of :data:`~tdslip_ros.model.policies.registry.POLICIES`; what each
 does and plans on: docs/policies.md. Each setting of the policies
 (:data:`tdslip_ros.model.policies.registry.POLICY_SETTINGS`) is the parameter of the same name, with its
-default,
-range (or choices) and description. Policy, targets and gains are read at every apex, so ``ros2 param set``
-changes them at runtime (values are checked against their ranges and choices first; a value outside them is
-refused, at start-up too). How long planning takes: ``bench/bench_controllers.py`` (docs/benchmarks.md).
+default, range (or choices) and description. Policy, targets and gains are read at every apex, so ``ros2 param
+set`` changes them at runtime (values are checked against their ranges and choices first; a value outside them
+is refused, at start-up too). How long planning takes: ``bench/bench_controllers.py`` (docs/benchmarks.md).
 
 The controller plans with its own SI hopper parameters (``mass``, ``stiffness``, ``rest_length``,
 ``damping``, ``gravity``): the plant's, as config/controller.yaml has them for the defaults, or other

@@ -1,17 +1,16 @@
 """The plant node: the exact TD-SLIP stepper of the model, advanced at 1 kHz and published.
 
-Every tick it publishes the state (``tdslip/state``) and the ground reaction force (``tdslip/grf``) to
-whoever subscribes to them, and to recorders in batches (``tdslip/samples``,
-:mod:`tdslip_ros.nodes.plant_output`); and, stamped with the times the stepper located inside the tick,
-the apex (``tdslip/apex``),
-contact (``tdslip/contact``) and failure (``tdslip/status``) events; ``tdslip/markers`` draws the
-hopper for Foxglove and RViz at ``marker_rate`` Hz of simulated time, and /clock carries the
-simulated time while someone subscribes to it (``publish_clock``). Every stamp is simulated time,
-in both clock modes; nodes that should follow it run with ``use_sim_time``. All physics is the
-model's (:class:`~tdslip_ros.model.plant.stepper.FixedStepStepper`), and the run's rules (admission, torques,
-when it ends) are :class:`~tdslip_ros.nodes.plant_run.PlantRun`'s; this node only schedules and converts
-what the run emits to messages. Names are relative, so ``__ns`` puts a hopper in a
-namespace of its own; QoS is :mod:`tdslip_ros.nodes.topics`'s contract.
+Every tick it publishes the state (``tdslip/state``) and the ground reaction force (``tdslip/grf``) to whoever
+subscribes to them, and to recorders in batches (``tdslip/samples``, :mod:`tdslip_ros.nodes.plant_output`);
+and, stamped with the times the stepper located inside the tick, the apex (``tdslip/apex``), contact
+(``tdslip/contact``) and failure (``tdslip/status``) events; ``tdslip/markers`` draws the hopper for Foxglove
+and RViz at ``marker_rate`` Hz of simulated time, and /clock carries the simulated time while someone
+subscribes to it (``publish_clock``). Every stamp is simulated time, in both clock modes; nodes that should
+follow it run with ``use_sim_time``. All physics is the model's
+(:class:`~tdslip_ros.model.plant.stepper.FixedStepStepper`), and the run's rules (admission, torques, when it
+ends) are :class:`~tdslip_ros.nodes.plant_run.PlantRun`'s; this node only schedules and converts what the run
+emits to messages. Names are relative, so ``__ns`` puts a hopper in a namespace of its own; QoS is
+:mod:`tdslip_ros.nodes.topics`'s contract.
 
 Clock modes (parameter ``clock_mode``):
 
@@ -28,31 +27,30 @@ Clock modes (parameter ``clock_mode``):
 
 Perturbations (:mod:`tdslip_ros.model.plant.perturbations`; parameters ``terrain``, ``apex_height_noise``,
 ``apex_speed_noise``, ``apex_noise_seed``, ``angle_noise``, ``angle_noise_seed``, ``tau_max``, ``pushes``:
-:data:`tdslip_ros.interfaces.PERTURBATION_PARAMETERS`)
-are the stepper's: the hopper hops over the terrain (``terrain``: ``flat``, ``step:height=H,x=X``,
-``blocks:sigma=S,length=L,seed=N``, ``profile:file=PATH.csv``), its hip saturates at tau_max, its leg
-lands with a placement error and pushes hit it right after the apex. Heights are in the world frame:
-state samples carry the ground height under the body, each contact event the ground under the toe of its
-stance, each apex event the ground of the stance before it (the initial one: under the body; the initial
-apex ``initial_height`` and a reset's height are above that ground) and, beside the true apex, the
-measured one the controller's sensor reports (the true one without sensing noise). The random draws of
-a run are those of trajectory ``epoch`` (:meth:`~tdslip_ros.model.plant.perturbations.Perturbations.draws`),
-so a run is reproduced by its parameters. A command is judged admissible on the apex the controller was given
-(measured, above the ground of the last stance); a toe placed below the ground is toe stubbing, a failure.
+:data:`tdslip_ros.interfaces.PERTURBATION_PARAMETERS`) are the stepper's: the hopper hops over the terrain
+(``terrain``: ``flat``, ``step:height=H,x=X``, ``blocks:sigma=S,length=L,seed=N``, ``profile:file=PATH.csv``),
+its hip saturates at tau_max, its leg lands with a placement error and pushes hit it right after the apex.
+Heights are in the world frame: state samples carry the ground height under the body, each contact event the
+ground under the toe of its stance, each apex event the ground of the stance before it (the initial one: under
+the body; the initial apex ``initial_height`` and a reset's height are above that ground) and, beside the true
+apex, the measured one the controller's sensor reports (the true one without sensing noise). The random draws
+of a run are those of trajectory ``epoch``
+(:meth:`~tdslip_ros.model.plant.perturbations.Perturbations.draws`), so a run is reproduced by its parameters.
+A command is judged admissible on the apex the controller was given (measured, above the ground of the last
+stance); a toe placed below the ground is toe stubbing, a failure.
 
-A command answers one apex: it carries the apex's ``epoch`` (0 for the first run, one more at
-every reset) and ``stride``. It is rejected (Status ``command_rejected``, never applied) when it
-answers another apex, arrives after the touchdown it was for, repeats an already answered stride
-in lockstep, or holds a value that :class:`~tdslip_ros.model.params.StanceCommand` or the stepper
-refuses (non-finite, out of range, or a touchdown angle the body cannot reach). Answers to
-other apexes are recognised from their bytes and cost next to nothing (a flood of them cannot delay
-the valid one); late answers are only counted, other rejections are logged and reported, at most
-:data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORTS` per
+A command answers one apex: it carries the apex's ``epoch`` (0 for the first run, one more at every reset) and
+``stride``. It is rejected (Status ``command_rejected``, never applied) when it answers another apex, arrives
+after the touchdown it was for, repeats an already answered stride in lockstep, or holds a value that
+:class:`~tdslip_ros.model.params.StanceCommand` or the stepper refuses (non-finite, out of range, or a
+touchdown angle the body cannot reach). Answers to other apexes are recognised from their bytes and cost next
+to nothing (a flood of them cannot delay the valid one); late answers are only counted, other rejections are
+logged and reported, at most :data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORTS` per
 :data:`~tdslip_ros.nodes.command_admission.REJECTION_REPORT_PERIOD`, the rest summed
-(:mod:`tdslip_ros.nodes.command_admission`). A command may ask for stance feedback instead of the ramp:
-the hip then holds the torques a controller streams on ``tdslip/hip_torque``, one per stance tick, judged
-by :mod:`tdslip_ros.nodes.torque_stream`; each torque held goes out on ``tdslip/applied_torque``.
-The parameters are :mod:`tdslip_ros.nodes.plant_parameters`.
+(:mod:`tdslip_ros.nodes.command_admission`). A command may ask for stance feedback instead of the ramp: the
+hip then holds the torques a controller streams on ``tdslip/hip_torque``, one per stance tick, judged by
+:mod:`tdslip_ros.nodes.torque_stream`; each torque held goes out on ``tdslip/applied_torque``. The parameters
+are :mod:`tdslip_ros.nodes.plant_parameters`.
 
 With ``wait_for_recorder`` the plant treats a recorder_node (``tdslip/recorder_status``) as part
 of the run (:mod:`tdslip_ros.nodes.flow_control`): it starts once the recorder hears every

@@ -6,13 +6,12 @@ Every message goes out as bytes with no undefined byte (:mod:`tdslip_ros.nodes.w
 objects cost the tick more than the bytes do; the event-rate ones serialised with their padding zeroed.
 
 The 1 kHz state and force go to recorders in batches (tdslip/samples, :data:`SAMPLES_PER_BATCH` ticks, and
-before every event) and live, a message per tick, only while someone subscribes to them: one reliable write
-a tick to a recorder in another process costs the tick more than a batch every few ticks does
-(``bench_nodes.py lockstep``; docs/benchmarks.md).
-Their counts in :attr:`PlantOutput.published` are of the samples that went out in batches.
-/clock and the markers cost a publish even when nobody listens, so they too go out only while someone
-subscribes (:meth:`PlantOutput.check_graph`).
-Each count is taken right after its publish, so that a failing publish (rclpy's RCLError) leaves them exact.
+before every event) and live, a message per tick, only while someone subscribes to them: one reliable write a
+tick to a recorder in another process costs the tick more than a batch every few ticks does (``bench_nodes.py
+lockstep``; docs/benchmarks.md). Their counts in :attr:`PlantOutput.published` are of the samples that went
+out in batches. /clock and the markers cost a publish even when nobody listens, so they too go out only while
+someone subscribes (:meth:`PlantOutput.check_graph`). Each count is taken right after its publish, so that a
+failing publish (rclpy's RCLError) leaves them exact.
 """
 
 from __future__ import annotations

@@ -1,12 +1,10 @@
 """The stance controller node: a stance-feedback policy at 1 kHz on the plant's torque interface.
 
 Its policy is :data:`~tdslip_ros.model.policies.registry.STANCE_PD_SPEED_ENERGY`, the baseline of the paper's
-ref. 36
-(:class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy`: an energy term toward the target apex, PD
-on
-forward speed). It answers every apex with stance feedback (StanceCommand ``stance`` STANCE_FEEDBACK) at the
-policy's fixed touchdown angle ``stance_touchdown_angle``, and every state sample in stance
-(``tdslip/state``, phase STANCE) with the law's torque for that sample's tick on ``tdslip/hip_torque``
+ref. 36 (:class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy`: an energy term toward the target
+apex, PD on forward speed). It answers every apex with stance feedback (StanceCommand ``stance``
+STANCE_FEEDBACK) at the policy's fixed touchdown angle ``stance_touchdown_angle``, and every state sample in
+stance (``tdslip/state``, phase STANCE) with the law's torque for that sample's tick on ``tdslip/hip_torque``
 (:mod:`tdslip_ros.nodes.torque_stream`). All maths is the model's; this node only converts messages.
 
 What the law sees is what the model's engines give it: the sampled leg state and the torque held until the

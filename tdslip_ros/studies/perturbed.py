@@ -21,10 +21,9 @@ Random draws come from the study's seed and the trajectory's index (the model's 
 
 :func:`run_held` is the closed loop of a study with ``hold_commands``: the batched engine
 (:func:`~tdslip_ros.model.plant.batch.simulate_strides`, DOP853 at basins.EXACT_TOLERANCE) with the
-perturbations,
-the policy planning on the measured apex with the controller's model, and, as the plant node does, the
-command in force kept for a stride the policy has no command for (counted). The first command in force is
-the policy's at the true initial apex; a trajectory without one is ``no_command`` at stride 0.
+perturbations, the policy planning on the measured apex with the controller's model, and, as the plant node
+does, the command in force kept for a stride the policy has no command for (counted). The first command in
+force is the policy's at the true initial apex; a trajectory without one is ``no_command`` at stride 0.
 """
 
 from __future__ import annotations

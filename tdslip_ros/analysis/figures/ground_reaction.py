@@ -9,9 +9,8 @@ Panel (a) cannot be reproduced (the data are not in the paper). (b) and (c) come
   hopper of sections III-IV (:mod:`tdslip_ros.model.paper`) at this mass;
 * TD-SLIP (left): the exact plant under the ideal energy regulator ``energy_exact``
   (:func:`~tdslip_ros.model.policies.controllers.exact_energy_regulation`, whose ramp ends at the exact
-  liftoff:
-  t_f = t_lo, as section II.D assumes) at the touchdown angle BETA_DEG (our choice), at its fixed point with
-  the apex speed SPEED: the apex height y* that the regulated stride maps onto itself
+  liftoff: t_f = t_lo, as section II.D assumes) at the touchdown angle BETA_DEG (our choice), at its fixed
+  point with the apex speed SPEED: the apex height y* that the regulated stride maps onto itself
   (:func:`regulated_gait`);
 * SLIP (right): the same hopper without damping (c = 0) and without hip torque, from the same apex, at the
   touchdown angle that maps that apex onto itself (:func:`symmetric_angle`; its stance is symmetric).

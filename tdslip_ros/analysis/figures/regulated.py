@@ -135,8 +135,8 @@ def stable_range(
 ) -> tuple[float, float]:
     """Stable Ebar range of ``source`` (RANGE_SOURCES) for the hopper (kbar, zeta0) at beta [deg]: the
     analytic map's (its next-apex ``speed``) from its fixed points
-    (analytic_fixed_points.stable_energy_range), the exact
-    plant's from its fixed points and eigenvalues (exact_fixed_points.stable_energy_range, planned on the
+    (analytic_fixed_points.stable_energy_range), the exact plant's from its fixed points and eigenvalues
+    (exact_fixed_points.stable_energy_range, planned on the
     default map); (NaN, NaN) where none is stable."""
     params = HopperParams.from_dimensionless(kbar, zeta0)
     beta = math.radians(beta_deg)

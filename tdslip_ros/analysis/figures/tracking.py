@@ -4,13 +4,11 @@ plant, tracking desired speeds from one apex, and deadbeat towards an apex below
 Both hop 50 strides per target speed from the same apex towards (target_y, xdot*). Deadbeat plans a ramp at
 each apex on the analytic map (:func:`deadbeat_runs`). The baseline decides the hip torque during stance,
 :class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy` (an energy term for the height, PD on the
-forward
-speed, its default gains) sampled at 1 kHz on the batched engine, at one touchdown angle per target speed:
-the angle at which one stride from the target apex ends at the target speed
+forward speed, its default gains) sampled at 1 kHz on the batched engine, at one touchdown angle per target
+speed: the angle at which one stride from the target apex ends at the target speed
 (:func:`~tdslip_ros.model.stability.basins.speed_matching_angle`; the paper gives no rule, see docs/paper.md,
-"The
-baseline of ref. 36"). The baseline plans on no analytic map, so ``--map`` changes deadbeat's runs alone. A
-target loses stability where the runs fail, or do not converge (apex changes below 1e-4) within the 50
+"The baseline of ref. 36"). The baseline plans on no analytic map, so ``--map`` changes deadbeat's runs alone.
+A target loses stability where the runs fail, or do not converge (apex changes below 1e-4) within the 50
 strides; for the baseline also where no angle matches its speed.
 """
 

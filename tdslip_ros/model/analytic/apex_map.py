@@ -74,15 +74,13 @@ variant ``speed="liftoff"`` of :func:`approximate_map`; both are one kernel with
 (:func:`map_variant_code`).
 
 Implementation. The equations are written once, as compiled scalar kernels of one lane
-(:mod:`tdslip_ros.model.analytic.map_kernels`): the one-apex controller calls them directly and the
-vectorised API
-here runs them in a compiled loop over the lanes of a batch. The public functions broadcast over arrays
-of states, parameters and commands (:mod:`tdslip_ros.model.arrays`) and are complex-step safe (the
-imaginary parts are treated as infinitesimal perturbations; a batch with any complex input runs the
-complex128 specialisation of the same kernels) so that
-:func:`~tdslip_ros.model.analytic.closed_loop.map_jacobian`
-can differentiate them, including the controllers of :mod:`tdslip_ros.model.policies.controllers`. A lane's
-result does not depend on the other lanes of its batch.
+(:mod:`tdslip_ros.model.analytic.map_kernels`): the one-apex controller calls them directly and the vectorised
+API here runs them in a compiled loop over the lanes of a batch. The public functions broadcast over arrays of
+states, parameters and commands (:mod:`tdslip_ros.model.arrays`) and are complex-step safe (the imaginary
+parts are treated as infinitesimal perturbations; a batch with any complex input runs the complex128
+specialisation of the same kernels) so that :func:`~tdslip_ros.model.analytic.closed_loop.map_jacobian` can
+differentiate them, including the controllers of :mod:`tdslip_ros.model.policies.controllers`. A lane's result
+does not depend on the other lanes of its batch.
 """
 
 from __future__ import annotations
@@ -470,7 +468,7 @@ def approximate_map_energy(
     speed: SpeedSource = "energy",
 ) -> Stride:
     """The same map from apex (y, E) coordinates (eq. 23); read ``.y`` and ``.energy`` of the result."""
-    xdot = dynamics.speed_from_energy(ParamArrays.of(params), y, energy)
+    xdot = dynamics.speed_from_energy(params, y, energy)
     return approximate_map(params, y, xdot, command, corrections, liftoff, speed=speed)
 
 

@@ -358,9 +358,8 @@ def apex_foot_placement(
           theta_td = theta_n(xdot) + kp (xdot - xdot*) + kd (xdot - xdot_prev)
 
       with theta_n from :func:`neutral_angle`, gains in rad/(m/s) (scalars, or one per lane), clipped into
-      :func:`admissible_angles`.
-      Running too fast places the foot further ahead, which brakes. ``previous_xdot`` is the speed at the
-      previous apex (pass ``xdot`` on the first stride).
+      :func:`admissible_angles`. Running too fast places the foot further ahead, which brakes.
+      ``previous_xdot`` is the speed at the previous apex (pass ``xdot`` on the first stride).
     * Height, through the energy: tau0 from the analytic map so that the next apex has the energy of the
       target apex, E* = m g y* + m xdot*^2/2 (:func:`energy_regulation` with that target).
 
@@ -379,9 +378,9 @@ def warm_up(params: HopperParams | None = None, complex_step: bool = True, exact
     """Load the compiled kernels of the analytic map and of every analytic policy, for one apex at a time
     as the controller node plans (and with ``complex_step`` for the complex step of map_jacobian too; with
     ``exact_plant`` the compiled exact stride and energy_exact's plan on it,
-    :mod:`.exact_regulation_kernels`),
-    compiling those not yet in the cache (:mod:`tdslip_ros.model.compiled`; about a minute for all of
-    them, once). The controller node calls it before it subscribes to the apex, so that its first answer
+    :mod:`.exact_regulation_kernels`), compiling those not yet in the cache (:mod:`tdslip_ros.model.compiled`;
+    about a minute for all of them, once). The controller node calls it before it subscribes to the apex, so
+    that its first answer
     is not late; ``./run.sh setup`` calls it so that the first node or test does not compile."""
     params = PAPER_PARAMS if params is None else params
     y, xdot, beta = 1.1, 4.5, np.radians(26.0)

@@ -1,9 +1,8 @@
 """Deadbeat's search for the touchdown angle, as compiled kernels of one lane, and its loop over the lanes.
 
 The inversion of the analytic map of :func:`tdslip_ros.model.policies.controllers.deadbeat` (its docstring
-gives the
-method): a scan of energy regulation at angles across the admissible interval, then Newton's method on
-(theta, tau0, t_f) at once (:func:`linearise`, :func:`lane_deadbeat`), on the policies' kernels
+gives the method): a scan of energy regulation at angles across the admissible interval, then Newton's method
+on (theta, tau0, t_f) at once (:func:`linearise`, :func:`lane_deadbeat`), on the policies' kernels
 (:mod:`.controller_kernels`). Not complex-step safe: the search works on real parts.
 """
 

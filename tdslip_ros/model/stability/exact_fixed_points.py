@@ -1,20 +1,19 @@
 """Fixed points of the exact plant's closed-loop apex return map and their eigenvalues (issue 10).
 
-The analytic map's fixed points (:mod:`tdslip_ros.model.stability.analytic_fixed_points`) say what the
-paper's approximation
-predicts; this module says what the exact plant does, by the same construction on the exact map (the
-batched engine's DOP853 stride, compiled lane by lane:
+The analytic map's fixed points (:mod:`tdslip_ros.model.stability.analytic_fixed_points`) say what the paper's
+approximation predicts; this module says what the exact plant does, by the same construction on the exact map
+(the batched engine's DOP853 stride, compiled lane by lane:
 :func:`~tdslip_ros.model.plant.stride_kernels.compiled_apex_return_map`), so that every stability verdict on
 the exact plant comes from a fixed point and its eigenvalue, not from a stride horizon:
 
 * the closed loop (:class:`ExactLoop`): a stance policy at the fixed touchdown angle beta answers each apex
   (y, E) and the exact plant hops the stride, P(y, E) = (y', E'). A loop is a family of such maps, one per
   member value: the touchdown power alpha (``open_loop``, section III, t_f the analytic map's predicted
-  liftoff, as the paper; or ``open_loop_stance_tf``, t_f the stance duration the plant produces), or the
-  goal energy [J] of an energy regulator (``energy``: the torque planned on the analytic map, section IV.B;
+  liftoff, as the paper; or ``open_loop_stance_tf``, t_f the stance duration the plant produces), or the goal
+  energy [J] of an energy regulator (``energy``: the torque planned on the analytic map, section IV.B;
   ``energy_exact``: planned on the exact map,
-  :func:`~tdslip_ros.model.policies.controllers.exact_energy_regulation`,
-  which keeps E' = goal exactly, so that the loop is the exact counterpart of the analytic regulated map);
+  :func:`~tdslip_ros.model.policies.controllers.exact_energy_regulation`, which keeps E' = goal exactly, so
+  that the loop is the exact counterpart of the analytic regulated map);
 * for each height y the energy fixed point E*(y) of E'(y, E) = E (eq. 27), bracketed (for the open loop on
   the energies of stability.ENERGY_SCAN, for a regulator within ENERGY_BRACKET of its goal) and solved by
   the Illinois method; the section h(y) = y'(y, E*(y)) - y (eq. 28) on a grid of heights; its sign
