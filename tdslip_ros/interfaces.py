@@ -77,14 +77,17 @@ STOP_REQUESTED = "stopped on request"
 on Ctrl-C); a run_complete with any other reason reached a limit it was given (max_strides, a wall time)."""
 
 
+def qualified_namespace(namespace: str) -> str:
+    """``namespace`` fully qualified, as rcl's ``__ns`` remapping needs it: ``h1`` -> ``/h1``."""
+    return "/" + namespace.strip("/")
+
+
 def resolve(name: str, namespace: str = "/") -> str:
-    """The fully qualified name of a suite topic or service in ``namespace`` (``/h1`` ->
+    """The fully qualified name of a suite topic or service in ``namespace`` (``/h1`` or ``h1`` ->
     ``/h1/tdslip/state``); absolute names (/clock) stay as they are."""
     if name.startswith("/"):
         return name
-    if not namespace.startswith("/"):
-        namespace = "/" + namespace
-    return f"{namespace.rstrip('/')}/{name}"
+    return f"{qualified_namespace(namespace).rstrip('/')}/{name}"
 
 
 HOPPER_PARAMETERS = {"m": "mass", "k": "stiffness", "r0": "rest_length", "c": "damping", "g": "gravity"}

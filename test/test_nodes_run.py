@@ -37,7 +37,7 @@ IN_BACKGROUND = {
         "wall",
     ),
     "test_a_run_in_a_namespace_records_and_analyses_its_topics_there": (
-        ("--strides", "3", "--namespace", "/h1"),
+        ("--strides", "3", "--namespace", "h1"),
         "ns",
     ),
 }
@@ -197,7 +197,8 @@ def test_a_400_stride_lockstep_run_with_both_cores_busy_records_every_message(tm
 
 def test_a_run_in_a_namespace_records_and_analyses_its_topics_there(tmp_path: Path) -> None:
     bag = tmp_path / "ns"
-    result = tdslip_run("--strides", "3", "--namespace", "/h1", "--out", str(bag))
+    # Written as a user may, without the leading slash that rcl's __ns remapping needs (the run adds it).
+    result = tdslip_run("--strides", "3", "--namespace", "h1", "--out", str(bag))
     assert result.returncode == 0, result.stdout + result.stderr
     counts = bag_counts(bag)
     assert counts["/h1/tdslip/apex"] == 4 and not any(topic.startswith("/tdslip/") for topic in counts)

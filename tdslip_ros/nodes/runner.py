@@ -60,6 +60,7 @@ from tdslip_ros.interfaces import (
     hopper_from_parameters,
     installed_parameters,
     perturbation_parameters,
+    qualified_namespace,
     resolve,
 )
 from tdslip_ros.model import dynamics
@@ -227,7 +228,8 @@ class ChildNode:
         cls, module: str, arguments: list[str], environment: dict[str, str], namespace: str = "/"
     ) -> ChildNode:
         log = tempfile.TemporaryFile()
-        command = [sys.executable, "-m", module, "--ros-args", "-r", f"__ns:={namespace}", *arguments]
+        ros_arguments = ["--ros-args", "-r", f"__ns:={qualified_namespace(namespace)}"]
+        command = [sys.executable, "-m", module, *ros_arguments, *arguments]
         # A session of its own: a Ctrl-C at the terminal reaches only this process, which stops the
         # children in order; and they stop by themselves should this process die.
         process = subprocess.Popen(
