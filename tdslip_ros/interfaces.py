@@ -152,9 +152,15 @@ def installed_parameters(name: str) -> dict[str, Any]:
     return dict(next(iter(document.values()))["ros__parameters"])
 
 
+HOPPER_FILE_PARAMETER = "hopper_file"
+"""The node parameter naming a hopper file that replaces the HOPPER_PARAMETERS' values (empty: none)."""
+
+
 def hopper_from_parameters(values: Mapping[str, Any]) -> HopperParams:
-    """The HopperParams of a node's parameter values by name (ParameterError names a bad one; KeyError
-    a missing one)."""
+    """The HopperParams of a node's parameter values by name: the hopper file's where ``hopper_file`` names
+    one, else the HOPPER_PARAMETERS' (ParameterError names a bad one; KeyError a missing one)."""
+    if values.get(HOPPER_FILE_PARAMETER):
+        return read_hopper_file(Path(str(values[HOPPER_FILE_PARAMETER])))
     return HopperParams(**{field: float(values[name]) for field, name in HOPPER_PARAMETERS.items()})
 
 
@@ -164,7 +170,7 @@ HOPPER_FILE_PROVENANCE = "provenance"
 """The block of a hopper file that says where the hopper came from (free text and numbers; not read)."""
 
 
-class HopperFileError(ValueError):
+class HopperFileError(ParameterError):
     """A hopper file cannot serve; the message is one line naming the file and what is wrong."""
 
 

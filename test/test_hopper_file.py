@@ -1,13 +1,19 @@
-"""The hopper file of tdslip_ros.interfaces: what identify writes and every command reads (under 1 s)."""
+"""The hopper file of tdslip_ros.interfaces, what identify writes and every command reads, and the
+commands' hopper options (under 2 s)."""
 
 from __future__ import annotations
 
+import argparse
+import math
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
+from tdslip_ros.commands.options import add_hopper, hopper_of
 from tdslip_ros.interfaces import HOPPER_PARAMETERS, HopperFileError, read_hopper_file, write_hopper_file
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import HopperParams, ParameterError
 
 
 def test_a_hopper_file_round_trips_exactly(tmp_path: Path) -> None:
@@ -62,3 +68,26 @@ def test_the_file_names_are_the_node_parameters(tmp_path: Path) -> None:
     assert set(path.read_text().split("provenance")[0].split()) >= {
         f"{n}:" for n in HOPPER_PARAMETERS.values()
     }
+
+
+def test_the_hopper_options_replace_the_files_values(tmp_path: Path) -> None:
+    """commands/options.py's one declaration of the hopper options: the file, then each value given."""
+    parser = argparse.ArgumentParser()
+    add_hopper(parser, "the paper's")
+    path = tmp_path / "robot.yaml"
+    robot = HopperParams(m=65.4, k=32490.72, r0=0.95, c=168.38)
+    write_hopper_file(path, robot, {})
+    assert hopper_of(parser.parse_args(["--hopper", str(path)]), PAPER_PARAMS) == robot
+    assert hopper_of(parser.parse_args(["--hopper", str(path), "--damping", "100"]), PAPER_PARAMS) == replace(
+        robot, c=100.0
+    )
+    # kbar = k r0/(m g) and zeta0 = c/(2 sqrt(m k)) (eq. 24) with the file's m and r0
+    bar = hopper_of(
+        parser.parse_args(["--hopper", str(path), "--kbar", "30", "--zeta0", "0.1"]), PAPER_PARAMS
+    )
+    assert (bar.k, bar.c) == pytest.approx(
+        (30.0 * 65.4 * 9.81 / 0.95, 0.2 * math.sqrt(65.4 * bar.k)), rel=1e-15
+    )
+    assert hopper_of(parser.parse_args([]), PAPER_PARAMS) == PAPER_PARAMS
+    with pytest.raises(ParameterError, match="give --damping or --zeta0, not both"):
+        hopper_of(parser.parse_args(["--damping", "1", "--zeta0", "0.1"]), PAPER_PARAMS)
