@@ -13,17 +13,22 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from tdslip_ros.analysis.compare import KNOWN_POLICIES
 from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
 from tdslip_ros.commands.options import (
     add_analytic_map,
+    add_hopper,
     add_policy_file,
     add_touchdown_angle,
     command_parser,
     deprecated,
+    hopper_given,
+    hopper_of,
     policy_file,
 )
-from tdslip_ros.model.policies.registry import POLICIES, PolicyError
+from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.policies.registry import PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
 DESCRIPTION = """\
@@ -43,13 +48,16 @@ def parser() -> argparse.ArgumentParser:
         type=Path,
         help="ROS parameter file with the hopper (default: stored in the bag, or inferred)",
     )
+    add_hopper(parser, "stored in the recording, else inferred; not with --params")
     parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
     policy = parser.add_argument_group(
         "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
         "a recorded policy the package does not know is not replayed)"
     )
     recorded = "default: the recording's"
-    policy.add_argument("--policy", dest="name", choices=POLICIES, help=f"the policy to replay ({recorded})")
+    policy.add_argument(
+        "--policy", dest="name", choices=KNOWN_POLICIES, help=f"the policy to replay ({recorded})"
+    )
     add_touchdown_angle(policy, "--angle", what=" (open_loop, energy, energy_exact)", unset="the recording's")
     policy.add_argument(
         "--touchdown-power", type=float, help=f"hip power at touchdown [W] (open_loop; {recorded})"
@@ -128,6 +136,8 @@ def main(argv: list[str]) -> int:
     }
     created = not out.exists()
     try:  # usage errors: exit status 2, as argparse's
+        if args.params is not None and hopper_given(args):
+            raise PolicyError("give --params or the hopper options (--hopper FILE, --mass, ...), not both")
         check_policy_options(args)
         check_output_directory(out)
     except (PolicyError, OutputError) as error:
@@ -139,6 +149,8 @@ def main(argv: list[str]) -> int:
     try:
         # Everything that can be checked is, before the report folder comes into being.
         params = None if args.params is None else hopper_params_from_yaml(args.params)
+        if hopper_given(args):  # values given alone replace the recording's (a first read finds them)
+            params = hopper_of(args, read_run(args.run).params if args.hopper is None else PAPER_PARAMS)
         run = read_run(args.run, params)
         output_directory(out)
         analysis = analyze(run, out, overrides, args.stride)
