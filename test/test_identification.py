@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
+from support.helpers import assert_png, strict_json
 from support.synthetic_hopping import UNLIKE_DEFAULT, hopping, kinematics_only, with_sensor_noise
 
 from tdslip_ros.analysis.identification import (
@@ -22,6 +24,8 @@ from tdslip_ros.analysis.identification import (
     fit_ramp,
     identify,
 )
+from tdslip_ros.commands import identify as identify_command
+from tdslip_ros.interfaces import read_hopper_file
 from tdslip_ros.model.paper import PAPER_PARAMS
 
 PARAMETERS = ("k", "c", "r0")
@@ -104,3 +108,44 @@ def test_fit_ramp_finds_a_ramp_that_ends_inside_the_stance() -> None:
     assert (ramp.tau0, ramp.t_f) == pytest.approx((-400.0, 0.13), rel=1e-6)
     assert ramp.rms < 1e-6
     assert math.isnan(fit_ramp(s, np.zeros_like(s)).t_f)
+
+
+def test_the_command_writes_a_hopper_file_that_round_trips_and_a_report(
+    recording,  # type: ignore[no-untyped-def]
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    run, strides, truth = recording
+    out = tmp_path / "identified"
+    args = identify_command.parser().parse_args(["robot.mcap", "--out", str(out)])
+    assert identify_command.identify_recording(args, run, strides) == 0
+    identified = read_hopper_file(out / "hopper.yaml")
+    assert (identified.k, identified.c, identified.r0, identified.m) == pytest.approx(
+        (truth.k, truth.c, truth.r0, truth.m), rel=1e-5
+    )
+    summary = strict_json(out / "summary.json")
+    assert summary["status"] == "identified" and len(summary["stances"]) == len(strides)
+    low, high = summary["estimates"]["k_N_per_m"]["interval"]
+    assert low <= truth.k <= high
+    for figure in ("stance_fit.png", "estimates.png"):
+        assert_png(out / figure)
+    assert "k   = 32490.7 N/m" in capsys.readouterr().out
+
+
+def test_the_command_writes_nothing_for_data_that_cannot_serve(
+    recording,  # type: ignore[no-untyped-def]
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    run, strides, _ = recording
+    out = tmp_path / "identified"
+    args = identify_command.parser().parse_args(["robot.mcap", "--out", str(out)])
+    assert identify_command.identify_recording(args, run, strides[:2]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip identify: robot.mcap: too short") and error.count("\n") == 1
+    assert not out.exists()
+    bad = identify_command.parser().parse_args(
+        ["robot.mcap", "--out", str(out), "--hopper", str(tmp_path / "x")]
+    )
+    assert identify_command.identify_recording(bad, run, strides) == 2
+    assert "cannot be read" in capsys.readouterr().err and not out.exists()

@@ -80,6 +80,8 @@ MIN_STANCES = 3
 """Fewest usable stances an identification needs (an interval needs stances beyond the parameters)."""
 MIN_STANCE_SAMPLES = 8
 """Fewest samples inside a stance for it to enter the fit."""
+PROGRESS_EVERY = 50
+"""Strides between two calls of identify's progress while the stances are gathered."""
 STANCE_RTOL = 1e-9
 """Relative tolerance of the exact stance's DOP853 (absolute: 1e-12 m, m/s, rad)."""
 
@@ -425,6 +427,25 @@ def _exact_stance_fit(data: StanceData, m: float, g: float, guess: tuple[float, 
     return {"k": float(k), "c": float(c), "r0": float(r0)}, fit.jac, rms, ramp
 
 
+def usable_stances(
+    run: MeasuredRun, strides: list[MeasuredStride], progress: Callable[[int, int], None] | None = None
+) -> tuple[list[StanceData], list[tuple[int, str]]]:
+    """The stance samples of the usable strides with at least MIN_STANCE_SAMPLES in stance, and the strides
+    set aside (index, reason); ``progress`` as :func:`identify`'s, every PROGRESS_EVERY strides."""
+    set_aside = [(i, s.reason or "set aside") for i, s in enumerate(strides) if not s.usable]
+    acceleration = run_acceleration(run)
+    stances = []
+    for done, (i, stride) in enumerate(((i, s) for i, s in enumerate(strides) if s.usable), start=1):
+        data = stance_data(run, stride, i, acceleration)
+        if data.s.size >= MIN_STANCE_SAMPLES:
+            stances.append(data)
+        else:
+            set_aside.append((i, f"{data.s.size} samples in stance, fewer than {MIN_STANCE_SAMPLES}"))
+        if progress is not None and done % PROGRESS_EVERY == 0:
+            progress(done, len(strides))
+    return stances, sorted(set_aside)
+
+
 def identify(
     run: MeasuredRun,
     strides: list[MeasuredStride],
@@ -434,17 +455,9 @@ def identify(
     """Estimate the hopper of ``run`` from the stances of ``strides`` (module docstring): by the leg-axis
     force balance where the run records force, else by fitting the exact stance. ``hopper`` gives the
     starting guess of the exact-stance fit, the mass where it cannot be estimated, and g. ``progress`` is
-    called with (stances done, stances) as the work goes."""
-    set_aside = [(i, s.reason or "set aside") for i, s in enumerate(strides) if not s.usable]
-    acceleration = run_acceleration(run)
-    stances = []
-    usable = [(i, s) for i, s in enumerate(strides) if s.usable]
-    for i, stride in usable:
-        data = stance_data(run, stride, i, acceleration)
-        if data.s.size >= MIN_STANCE_SAMPLES:
-            stances.append(data)
-        else:
-            set_aside.append((i, f"{data.s.size} samples in stance, fewer than {MIN_STANCE_SAMPLES}"))
+    called with (strides done, strides) as the stances are gathered, then, fitting exact stances, with
+    (stances fitted, stances)."""
+    stances, set_aside = usable_stances(run, strides, progress)
     method = FORCE_BALANCE if run.ground_force is not None else EXACT_STANCE
     if len(stances) < MIN_STANCES:
         message = (
@@ -468,8 +481,6 @@ def identify(
     if method == FORCE_BALANCE:
         estimates, number, weakest, values, rms, residual = _force_balance(stances, hopper.m, hopper.g)
         ramps = [fit_ramp(d.s, d.torque) if d.torque is not None else _NO_RAMP for d in stances]
-        if progress is not None:
-            progress(len(stances), len(stances))
     else:
         estimates, number, weakest, values, rms, ramps, residual = _exact_stances(stances, hopper, progress)
     fits = tuple(
@@ -488,7 +499,7 @@ def identify(
         params = HopperParams(m=mass, k=value["k"], r0=value["r0"], c=max(value["c"], 0.0), g=hopper.g)
     return IdentificationResult(
         status == IDENTIFIED, status, message, method, params, estimates, number,
-        unidentified if status != IDENTIFIED else (), fits, drift, tuple(sorted(set_aside)), residual,
+        unidentified if status != IDENTIFIED else (), fits, drift, tuple(set_aside), residual,
     )  # fmt: skip
 
 
@@ -564,3 +575,26 @@ def _verdict(
         f"{worst} spans +-{estimates[worst].relative_half_width:.1%} of its scale over {stances} stances "
         f"(at most {IDENTIFIED_HALF_WIDTH:.0%} identifies it)"
     )
+
+
+def stance_curves(params: HopperParams, method: str, data: StanceData, fit: StanceFit) -> tuple[
+    FloatArray, FloatArray
+]:  # fmt: skip
+    """(measured, fitted) over ``data``'s stance under the identified ``params``: the force along the leg [N]
+    of the force balance, or the body's height [m] of the exact stance (with the stance's fitted ramp, or its
+    recorded torque)."""
+    if method == FORCE_BALANCE:
+        assert data.force_axial is not None
+        return data.force_axial, dynamics.leg_force(params, data.r, data.rdot)
+    recorded = data.torque
+    if recorded is not None:
+
+        def torque(s: float) -> float:
+            return float(np.interp(s, data.s, recorded))
+    else:
+
+        def torque(s: float) -> float:
+            return float(dynamics.ramp_torque(fit.ramp.tau0, fit.ramp.t_f, s))
+
+    trial = _Trial(params.m, params.k, params.r0, params.c, params.g)
+    return data.body[:, 1], _stance_positions(trial, data, torque)[:, 1]
