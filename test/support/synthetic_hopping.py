@@ -61,7 +61,8 @@ def _stance_state(segments: list, s: np.ndarray) -> np.ndarray:  # type: ignore[
     state = np.empty((4, s.size))
     for index, segment in enumerate(segments):
         inside = (s >= segment.t[0]) & ((s < segment.t[-1]) | (index == len(segments) - 1))
-        state[:, inside] = segment.sol(s[inside])
+        if inside.any():  # a segment may fall between two samples
+            state[:, inside] = segment.sol(s[inside])
     return state
 
 
