@@ -149,3 +149,15 @@ def test_the_command_writes_nothing_for_data_that_cannot_serve(
     )
     assert identify_command.identify_recording(bad, run, strides) == 2
     assert "cannot be read" in capsys.readouterr().err and not out.exists()
+
+
+def test_a_leg_that_stiffens_over_the_run_is_flagged_as_drift() -> None:
+    """k grows by 5 % over 8 strides (the generator's stiffness_drift); c and r0 stay, and are not flagged."""
+    run, strides, truth = hopping(UNLIKE_DEFAULT, 8, stiffness_drift=0.05)
+    result = identify(run, strides, PAPER_PARAMS)
+    per_stance = [fit.values["k"] for fit in result.stances]
+    assert per_stance[0] == pytest.approx(truth.k, rel=1e-5) and per_stance[-1] == pytest.approx(
+        1.05 * truth.k, rel=1e-5
+    )
+    assert result.drift["k"].drifts and result.drift["k"].change == pytest.approx(0.05 * truth.k, rel=0.05)
+    assert not result.drift["c"].drifts and not result.drift["r0"].drifts

@@ -16,7 +16,7 @@ Used by test/test_identification.py and bench/bench_identification.py.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -73,12 +73,14 @@ def hopping(
     apex: tuple[float, float] = (1.05, 4.0),
     angle_deg: float = 24.0,
     seed: int = 0,
+    stiffness_drift: float = 0.0,
 ) -> tuple[MeasuredRun, list[MeasuredStride], Truth]:
     """``strides`` strides from ``apex`` (height [m], speed [m/s]) sampled every ``dt``: the touchdown
     angle varies by +-1 deg around ``angle_deg`` (plus 0.1 rad per m/s of apex speed above the start's),
     t_f by +-30 % around the stance's length, and tau0 holds the apex energy (the last stride's damping
-    loss put back, +-20 %), all drawn from ``seed``. Returns the noise-free run, its true strides and the
-    truth with its ramps."""
+    loss put back, +-20 %), all drawn from ``seed``. ``stiffness_drift``: k grows linearly from stride to
+    stride by this fraction over the run (a leg that warms up). Returns the noise-free run, its true strides
+    and the truth with its ramps (its k the first stride's)."""
     rng = np.random.default_rng(seed)
     m, k, c, r0 = truth.m, truth.k, truth.c, truth.r0
     target = m * G * apex[0] + 0.5 * m * apex[1] ** 2
@@ -88,7 +90,8 @@ def hopping(
     events = []
     ramps = []
     loss = 0.0
-    for _ in range(strides):
+    for index in range(strides):
+        k = truth.k * (1.0 + stiffness_drift * index / max(strides - 1, 1))
         # Raibert's foot placement on the apex speed, so that the gait neither stops nor runs away
         angle = math.radians(angle_deg + rng.uniform(-1.0, 1.0)) + 0.1 * (xdot - apex[1])
         fall = math.sqrt(2.0 * (y - r0 * math.cos(angle)) / G)
@@ -104,9 +107,9 @@ def hopping(
         t_f = period * rng.uniform(0.7, 1.3)
         rdot = -xdot * math.sin(angle) + ydot * math.cos(angle)
         thetadot = (-xdot * math.cos(angle) - ydot * math.sin(angle)) / r0
-        field = _stance_field(truth, tau0, t_f)
+        field = _stance_field(replace(truth, k=k), tau0, t_f)
 
-        def liftoff(s: float, state: np.ndarray) -> float:
+        def liftoff(s: float, state: np.ndarray, k: float = k) -> float:
             return k * (r0 - state[0]) - c * state[2]
 
         liftoff.terminal = True  # type: ignore[attr-defined]
@@ -119,7 +122,7 @@ def hopping(
                                       rtol=1e-11, atol=1e-12, dense_output=True, events=liftoff))  # fmt: skip
         duration = float(segments[-1].t_events[0][0])
         end = segments[-1].y_events[0][0]
-        pieces.append((t, t + duration, "stance", (segments, toe, tau0, t_f)))
+        pieces.append((t, t + duration, "stance", (segments, toe, tau0, t_f, k)))
         # damping loss of this stance, to put back next stride (quadrature of c rdot^2 on the dense output)
         s = np.linspace(0.0, duration, 2001)
         loss = float(np.trapezoid(c * _stance_state(segments, s)[2] ** 2, s))
@@ -146,7 +149,7 @@ def hopping(
             position[at] = np.stack([x0 + vx * s, y0 + vy * s - 0.5 * G * s * s], axis=1)
             velocity[at] = np.stack([np.full(s.size, vx), vy - G * s], axis=1)
             continue
-        segments, toe, tau0, t_f = payload
+        segments, toe, tau0, t_f, k = payload
         r, theta, rdot, thetadot = _stance_state(segments, s)
         sin_t, cos_t = np.sin(theta), np.cos(theta)
         tau = np.where(s <= t_f, tau0 * (1.0 - s / t_f), 0.0)
@@ -173,7 +176,7 @@ def hopping(
         )  # fmt: skip
         for (apex_time, td, lo, angle), next_apex in zip(events, apexes[1:], strict=True)
     ]
-    return run, measured, Truth(m, k, c, r0, tuple(ramps))
+    return run, measured, Truth(m, truth.k, c, r0, tuple(ramps))
 
 
 def with_sensor_noise(run: MeasuredRun, position: float, force: float, seed: int) -> MeasuredRun:
