@@ -1,7 +1,7 @@
 """tdslip_ros.analysis.identification against recordings made in the test by a separate integration of the
 stance equations (support/synthetic_hopping.py: scipy solve_ivp on the equations written out there, not the
-package's engines), with a ramp torque per stride. About 12 s in all on the 2-core VM, most of it the
-exact-stance fit of three stances."""
+package's engines), with a ramp torque per stride. About 23 s in all on the loaded 2-core VM, half of it the
+two exact-stance fits of three stances each."""
 
 from __future__ import annotations
 
@@ -161,3 +161,15 @@ def test_a_leg_that_stiffens_over_the_run_is_flagged_as_drift() -> None:
     )
     assert result.drift["k"].drifts and result.drift["k"].change == pytest.approx(0.05 * truth.k, rel=0.05)
     assert not result.drift["c"].drifts and not result.drift["r0"].drifts
+
+
+def test_kinematics_alone_of_a_barely_compressed_leg_is_ill_conditioned() -> None:
+    """The issue's example: no force, and a leg 40 times stiffer compressing by about a centimetre, under
+    0.5 mm of position noise: the exact stance cannot tell k and c (about 10 s, the costliest test here)."""
+    stiff = replace(UNLIKE_DEFAULT, k=40.0 * UNLIKE_DEFAULT.k, c=6.0 * UNLIKE_DEFAULT.c)
+    run, strides, _ = hopping(stiff, 4, angle_deg=18.0)
+    guess = replace(PAPER_PARAMS, m=stiff.m, k=stiff.k, c=stiff.c)  # the truth as the start: still not enough
+    result = identify(kinematics_only(with_sensor_noise(run, 5e-4, 10.0, 0)), strides[1:4], guess)
+    assert (result.success, result.status, result.method) == (False, ILL_CONDITIONED_STATUS, EXACT_STANCE)
+    assert result.condition_number > ILL_CONDITIONED and set(result.unidentified) >= {"k", "c"}
+    assert result.message.startswith("k and c cannot be identified"), result.message
