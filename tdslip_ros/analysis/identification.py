@@ -94,10 +94,6 @@ TOO_NOISY = "too_noisy"
 TOO_SHORT = "too_short"
 
 
-class IdentificationError(ValueError):
-    """The run cannot be identified at all (no stance, no usable stride); the message is one line."""
-
-
 @dataclass(frozen=True)
 class Estimate:
     """One parameter: value, standard error and the CONFIDENCE interval [low, high] (SI)."""
@@ -384,6 +380,15 @@ def _stance_positions(trial: _Trial, data: StanceData, torque: Callable[[float],
     return np.stack([data.toe[0] - r * np.sin(theta), data.toe[1] + r * np.cos(theta)], axis=1)
 
 
+def _stance_torque(data: StanceData, tau0: float, t_f: float) -> Callable[[float], float]:
+    """The hip torque [N m] at a time s since touchdown: the stance's recorded torque (linear between its
+    samples) where it has one, else the ramp tau0 (1 - s/t_f) of eq. 18."""
+    recorded = data.torque
+    if recorded is not None:
+        return lambda s: float(np.interp(s, data.s, recorded))
+    return lambda s: float(dynamics.ramp_torque(tau0, t_f, s))
+
+
 def _exact_stance_fit(data: StanceData, m: float, g: float, guess: tuple[float, float, float]) -> tuple[
     dict[str, float], FloatArray, float, Ramp
 ]:  # fmt: skip
@@ -397,17 +402,8 @@ def _exact_stance_fit(data: StanceData, m: float, g: float, guess: tuple[float, 
 
     def unpack(p: FloatArray) -> tuple[_Trial, Callable[[float], float]]:
         k, c, r0 = p[:3] * scale
-        if measured is not None:
-
-            def torque(s: float) -> float:
-                return float(np.interp(s, data.s, measured))
-        else:
-            tau0, t_f = p[3:] * ramp_scale
-
-            def torque(s: float) -> float:
-                return float(dynamics.ramp_torque(tau0, t_f, s))
-
-        return _Trial(m, k, r0, c, g), torque
+        tau0, t_f = (math.nan, math.nan) if measured is not None else p[3:] * ramp_scale
+        return _Trial(m, k, r0, c, g), _stance_torque(data, tau0, t_f)
 
     def residual(p: FloatArray) -> FloatArray:
         trial, torque = unpack(p)
@@ -586,15 +582,6 @@ def stance_curves(params: HopperParams, method: str, data: StanceData, fit: Stan
     if method == FORCE_BALANCE:
         assert data.force_axial is not None
         return data.force_axial, dynamics.leg_force(params, data.r, data.rdot)
-    recorded = data.torque
-    if recorded is not None:
-
-        def torque(s: float) -> float:
-            return float(np.interp(s, data.s, recorded))
-    else:
-
-        def torque(s: float) -> float:
-            return float(dynamics.ramp_torque(fit.ramp.tau0, fit.ramp.t_f, s))
-
     trial = _Trial(params.m, params.k, params.r0, params.c, params.g)
+    torque = _stance_torque(data, fit.ramp.tau0, fit.ramp.t_f)
     return data.body[:, 1], _stance_positions(trial, data, torque)[:, 1]
