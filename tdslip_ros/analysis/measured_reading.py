@@ -227,7 +227,8 @@ def measured_run_from_bag(bag: Path, topic_map: TopicMap) -> MeasuredRun:
     in_gap = np.zeros(len(time), dtype=bool)
     for s in samples.values():
         for gap_start, gap_end in s.gaps():
-            in_gap |= (time > gap_start) & (time < gap_end)
+            edge = 1e-6 * period  # a time-base sample on a recorded one (to rounding) is not in the gap
+            in_gap |= (time > gap_start + edge) & (time < gap_end - edge)
     sources: list[tuple[str, str]] = []
 
     def linear(quantity: str) -> FloatArray:

@@ -4,8 +4,9 @@ angle, and whether the stride can serve (docs/identify.md, "Strides from data").
 Stance is found, in this order of preference, from the vertical ground force (above FORCE_ON of the run's
 peak force to enter, below FORCE_OFF to leave: a threshold with hysteresis, so that noise around one level
 does not chatter), from the contact flag, or from the leg length against the rest length (shorter than
-r0 (1 - LEG_ON) to enter, longer than r0 (1 - LEG_OFF) to leave). Liftoff is where the signal falls through
-the leaving level, interpolated between the two samples around it.
+r0 (1 - LEG_ON) to enter, longer than r0 (1 - LEG_OFF) to leave). Liftoff is where the force, extrapolated
+from the last two stance samples, reaches zero; the contact flag and the leg length cross their leaving level
+there, interpolated between the two samples around it.
 
 Touchdown and its angle come from the leg's geometry where the map gives it (leg length and angle, or the
 toe): the toe is fixed in stance, so the first stance sample places it; touchdown is where the body's
@@ -54,6 +55,9 @@ class StanceSignal:
     enter: float
     leave: float
     how: str
+    vanishes: bool = False
+    """The signal falls to zero at liftoff (a force): liftoff is where the line through the last two stance
+    samples reaches zero, not where it passes the leaving level (which comes up to a sample early)."""
 
 
 def stance_signal(run: MeasuredRun, rest_length: float | None = None) -> StanceSignal:
@@ -63,9 +67,8 @@ def stance_signal(run: MeasuredRun, rest_length: float | None = None) -> StanceS
         peak = float(np.percentile(force, 99.9))
         if not peak > 0.0:
             raise NoStanceError("no stance: the vertical ground force is never positive")
-        return StanceSignal(
-            force, FORCE_ON * peak, FORCE_OFF * peak, "the vertical ground force, with hysteresis"
-        )
+        how = "the vertical ground force, with hysteresis"
+        return StanceSignal(force, FORCE_ON * peak, FORCE_OFF * peak, how, vanishes=True)
     if run.contact is not None:
         return StanceSignal(run.contact.astype(float), 0.5, 0.5, "the contact flag")
     if run.leg_length is not None and rest_length is not None:
@@ -92,6 +95,18 @@ def _crossing(time: FloatArray, values: FloatArray, level: float, before: int) -
     v0, v1 = values[before], values[before + 1]
     fraction = 0.0 if v1 == v0 else (level - v0) / (v1 - v0)
     return float(time[before] + min(max(fraction, 0.0), 1.0) * (time[before + 1] - time[before]))
+
+
+def _liftoff(time: FloatArray, signal: StanceSignal, up: int) -> float:
+    """Liftoff between the last stance sample ``up - 1`` and the first flight sample ``up``."""
+    values = signal.values
+    if not signal.vanishes or up < 2:
+        return _crossing(time, values, signal.leave, up - 1)
+    last = up - 1  # the last sample of the falling force, which may lie below the leaving level
+    while last + 2 < len(values) and 0.0 < values[last + 1] < values[last]:
+        last += 1
+    fraction = values[last] / (values[last - 1] - values[last]) if values[last - 1] > values[last] else 1.0
+    return float(time[last] + min(max(fraction, 0.0), 1.0) * (time[last + 1] - time[last]))
 
 
 @dataclass(frozen=True)
@@ -170,7 +185,7 @@ def find_strides(run: MeasuredRun, rest_length: float | None = None) -> list[Mea
         if touchdown.reason:
             reasons.append(touchdown.reason)
         up = int(ups[0]) if len(ups) else -1
-        liftoff_time = _crossing(time, signal.values, signal.leave, up - 1) if up > 0 else math.nan
+        liftoff_time = _liftoff(time, signal, up) if up > 0 else math.nan
         end = next_apex if next_apex >= 0 else n - 1
         if gap_before[end + 1] - gap_before[apex] > 0:
             gap = np.flatnonzero(in_gap[apex : end + 1]) + apex

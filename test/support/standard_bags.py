@@ -179,7 +179,7 @@ def odometry_definition() -> str:
     return append(ODOMETRY_MSG, "nav_msgs")
 
 
-class _Topics:
+class Topics:
     """A bag being written: each topic's messages serialised from a dict once (mcap-ros2-support's dynamic
     encoder, from the schema text), then from the values of the fields that change (bag.cdr's
     FixedLayoutEncoder, the suite's own 1 kHz path: ten times faster)."""
@@ -234,7 +234,7 @@ def write_suite_bag(path: Path, run: PlantRun) -> Path:
     state = dict.fromkeys(STATE_FIELDS, 0.0) | {"header": header(0.0), "stride": 0, "phase": 0}
     columns = ["stance", "x", "y", "xdot", "ydot", "toe_x", "toe_y", "r", "theta", "hip_torque"]
     with RosbagMcapWriter(path) as writer:
-        topics = _Topics(writer)
+        topics = Topics(writer)
         topics.add("/tdslip/state", "tdslip_msgs/msg/HopperState", state, state_fields)
         topics.add(
             "/tdslip/grf",
@@ -270,7 +270,7 @@ def write_gazebo_bag(path: Path, run: PlantRun) -> Path:
         "effort": [0.0, 0.0],
     }
     with RosbagMcapWriter(path) as writer:
-        topics = _Topics(writer)
+        topics = Topics(writer)
         odometry_fields = [
             "pose.pose.position.x",
             "pose.pose.position.z",
