@@ -12,6 +12,7 @@ found agree with the events that integration located. Bad input gets one line. A
 from __future__ import annotations
 
 import copy
+import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -23,6 +24,7 @@ from scipy.integrate import solve_ivp
 from support.standard_bags import (
     GAZEBO_MAP,
     KNOWN_HOPPER,
+    PlantRun,
     Topics,
     header,
     plant_run,
@@ -43,17 +45,22 @@ from tdslip_ros.analysis.topic_map import (
     topic_map_from_document,
 )
 from tdslip_ros.bag import RosbagMcapWriter
+from tdslip_ros.commands import analyze
 
 pytestmark = pytest.mark.xdist_group("standard_bags")
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def plant() -> PlantRun:
+    return plant_run()
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory, plant: PlantRun) -> dict[str, Path]:
     directory = tmp_path_factory.mktemp("standard_bags")
-    run = plant_run()
     return {
-        "suite": write_suite_bag(directory / "suite", run),
-        "gazebo": write_gazebo_bag(directory / "gazebo", run),
+        "suite": write_suite_bag(directory / "suite", plant),
+        "gazebo": write_gazebo_bag(directory / "gazebo", plant),
     }
 
 
@@ -429,3 +436,71 @@ def test_a_gap_sets_the_stride_aside(tmp_path: Path, recorded: dict[str, Path]) 
     found = find_strides(replace(run, in_gap=in_gap))
     assert [s.usable for s in found] == [k != 4 for k in range(len(strides))]
     assert found[4].reason.startswith("a gap in the recording from ")
+
+
+# --- tdslip analyze --topic-map -------------------------------------------------------------------------
+
+
+def hopper_file(path: Path) -> Path:
+    h = KNOWN_HOPPER
+    values = {"mass": h.m, "stiffness": h.k, "rest_length": h.r0, "damping": h.c, "gravity": h.g}
+    path.write_text(yaml.safe_dump({"plant": {"ros__parameters": values}}))
+    return path
+
+
+def test_analyze_a_standard_bag_infers_the_commands_the_plant_was_given(
+    tmp_path: Path, recorded: dict[str, Path], plant: PlantRun, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The report of the Gazebo-style bag: the commands inferred from its data are those the plant ran
+    (angle 1e-5 rad; the least-squares ramp through the recorded torque to 1e-5 relative: the touchdown, known
+    to 1e-6 s, shifts the ramp by tau0 / t_f times that, 8e-6 of tau0), and the exact map with
+    the run's hopper predicts every next apex to 1e-5 (dimensionless: the apex read from 1 kHz samples)."""
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump(GAZEBO_MAP))
+    out = tmp_path / "report"
+    argv = [str(recorded["gazebo"]), "--topic-map", str(tmp_path / "robot.yaml"), "--out", str(out)]
+    assert analyze.main([*argv, "--params", str(hopper_file(tmp_path / "hopper.yaml"))]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["strides_compared"] == 9 and summary["measured"]["hip_torque"] == "/joint_states"
+    given = plant.commands[1:10]  # the first apex is the run's start, not found in its data
+    for row, command in zip(summary["strides"], given, strict=True):
+        assert row["touchdown_angle_rad"] == pytest.approx(command.touchdown_angle, abs=1e-5)
+        assert row["tau0_n_m"] == pytest.approx(command.tau0, rel=1e-5)
+        assert row["t_f_s"] == pytest.approx(command.t_f, rel=1e-5)
+    assert summary["errors"]["exact"]["max_height"] < 1e-5 and summary["errors"]["exact"]["max_speed"] < 1e-5
+    assert "inferred: ramp_torque, fitted to the measured hip torque" in (out / "report.md").read_text()
+    # Without --params the hopper is the paper's, and the report says so.
+    assert analyze.main([*argv[:3], "--out", str(tmp_path / "paper")]) == 0
+    assert "Hopper: the paper's" in (tmp_path / "paper" / "report.md").read_text()
+    assert "9 of 9 strides compared" in capsys.readouterr().out
+
+
+def test_analyze_refuses_bad_input_with_one_line_and_writes_nothing(
+    tmp_path: Path, recorded: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    def refused(bag: Path, document: object, status: int, expected: str) -> None:
+        (tmp_path / "map.yaml").write_text(
+            document if isinstance(document, str) else yaml.safe_dump(document)
+        )
+        out = tmp_path / "out"
+        assert (
+            analyze.main([str(bag), "--topic-map", str(tmp_path / "map.yaml"), "--out", str(out)]) == status
+        )
+        error = capsys.readouterr().err
+        assert error.startswith("tdslip analyze: ") and expected in error and error.count("\n") == 1
+        assert not out.exists()
+
+    gazebo = recorded["gazebo"]
+    refused(gazebo, "format: [", 2, "not a YAML file")
+    refused(gazebo, gazebo_map({"hip_torque": {"unit": "lbf ft"}}), 2, "'lbf ft' is not one of 'N m', 'N mm'")
+    refused(gazebo, gazebo_map({"hip_torque": {"type": "sensor_msgs/msg/Imu"}}), 2, "is not one of")
+    refused(gazebo, gazebo_map({"body_forward": {"topic": "/mocap"}}), 2, "the recording has no topic /mocap")
+    refused(gazebo, gazebo_map({"body_forward": {"field": "pose.pose.place"}}), 2, "has no field")
+    refused(gazebo, gazebo_map({"hip_torque": {"joint": "knee"}}), 2, "has no joint 'knee'")
+    simple = copy.deepcopy(SIMPLE_MAP)
+    times = [0.001 * i for i in range(1, 200)]
+    heights = [1.0 - 0.5 * G * t * t for t in times]
+    backwards = times[:50] + [times[48]] + times[51:]
+    refused(_bag_with(tmp_path / "backwards", backwards, heights), simple, 1, "stamps go backwards")
+    nan = heights[:99] + [math.nan] + heights[100:]
+    refused(_bag_with(tmp_path / "nan", times, nan), simple, 1, "values are not finite")
+    refused(_bag_with(tmp_path / "flight", times, heights), simple, 1, "no stance")
