@@ -45,6 +45,7 @@ from tdslip_ros.analysis.topic_map import (
     topic_map_from_document,
 )
 from tdslip_ros.bag import RosbagMcapWriter
+from tdslip_ros.bag.reader import BagReadError, iter_messages, open_bag, topic_messages
 from tdslip_ros.commands import analyze
 
 pytestmark = pytest.mark.xdist_group("standard_bags")
@@ -504,3 +505,22 @@ def test_analyze_refuses_bad_input_with_one_line_and_writes_nothing(
     nan = heights[:99] + [math.nan] + heights[100:]
     refused(_bag_with(tmp_path / "nan", times, nan), simple, 1, "values are not finite")
     refused(_bag_with(tmp_path / "flight", times, heights), simple, 1, "no stance")
+
+
+def test_the_fast_topic_reader_reads_what_the_checked_iterator_reads(
+    tmp_path: Path, recorded: dict[str, Path]
+) -> None:
+    """bag.reader.topic_messages (chunks walked with struct) against iter_messages (mcap's own reader), and
+    a damaged chunk is one line, not a wrong column."""
+    bag = open_bag(recorded["gazebo"])
+    topics = {"/odom", "/joint_states"}
+    fast = topic_messages(bag, topics)
+    for topic in topics:
+        slow = [(m.data, m.log_time) for c, m in iter_messages(bag, {topic})]
+        assert list(zip(*fast[topic], strict=True)) == slow and len(slow) > 500
+    damaged = tmp_path / "damaged.mcap"
+    content = bytearray(bag.mcap_path.read_bytes())
+    content[len(content) // 3] ^= 0xFF
+    damaged.write_bytes(bytes(content))
+    with pytest.raises(BagReadError, match=r"the chunk at byte \d+ is corrupt"):
+        topic_messages(open_bag(damaged), topics)

@@ -32,7 +32,7 @@ from mcap.records import Schema
 from tdslip_ros.analysis.measured import FloatArray, MeasuredRun
 from tdslip_ros.analysis.topic_map import Source, TopicMap, TopicMapError
 from tdslip_ros.bag.cdr import decoded_columns, decoder
-from tdslip_ros.bag.reader import Bag, iter_messages, open_bag
+from tdslip_ros.bag.reader import Bag, open_bag, topic_messages
 from tdslip_ros.bag.schema import MessageDefinitionError, message_fields
 
 GAP_PERIODS = 3.0
@@ -130,45 +130,33 @@ def _stamps_ns(source: Source, columns: dict[str, np.ndarray], log_ns: np.ndarra
 
 def _read_sources(bag: Bag, topic_map: TopicMap) -> list[tuple[Source, np.ndarray, np.ndarray]]:
     """Each source's stamps [ns] and raw values, in the order of the map."""
-    topics = topic_map.topics()
-    datas: dict[str, list[bytes]] = {topic: [] for topic in topics}
-    log_times: dict[str, list[int]] = {topic: [] for topic in topics}
-    # Everything about the map is checked before the data is read; a joint's index needs a first message.
-    first: dict[str, bytes] = {}
-    if any(source.joint is not None for source in topic_map.sources.values()):
-        for channel, message in iter_messages(bag, topics, log_time_order=True):
-            first.setdefault(channel.topic, message.data)
-            if len(first) == len(topics):
-                break
-    paths: dict[str, str] = {}
-    for quantity, source in topic_map.sources.items():
-        schema = bag.topics[source.topic].schema if source.topic in bag.topics else None
-
-        def first_message(source: Source = source, schema: Schema | None = schema) -> object:
-            assert schema is not None
-            if source.topic not in first:
-                raise MeasuredDataError(f"{source.topic} holds no messages")
-            return decoder(schema)(first[source.topic])
-
-        paths[quantity] = _checked_path(bag, source, first_message)
-    for channel, message in iter_messages(bag, topics):
-        datas[channel.topic].append(message.data)
-        log_times[channel.topic].append(message.log_time)
+    messages = topic_messages(bag, set(topic_map.topics()))
     read = []
     for quantity, source in topic_map.sources.items():
-        schema = bag.topics[source.topic].schema
-        assert schema is not None  # _checked_path
-        if not datas[source.topic]:
+        datas, log_times = messages[source.topic]
+        schema = bag.topics[source.topic].schema if source.topic in bag.topics else None
+
+        def first_message(
+            schema: Schema | None = schema, datas: list[bytes] = datas, topic: str = source.topic
+        ) -> object:
+            assert schema is not None  # _checked_path looks for the joint after the schema
+            if not datas:
+                raise MeasuredDataError(f"{topic} holds no messages")
+            return decoder(schema)(datas[0])
+
+        path = _checked_path(bag, source, first_message)
+        assert schema is not None
+        if not datas:
             raise MeasuredDataError(f"{source.topic} holds no messages")
-        wanted = [paths[quantity]] + (list(HEADER_STAMP) if source.stamp == "header" else [])
+        wanted = [path] + (list(HEADER_STAMP) if source.stamp == "header" else [])
         try:
-            columns = decoded_columns(schema, datas[source.topic], wanted)
+            columns = decoded_columns(schema, datas, wanted)
         except AttributeError:
             raise MapMismatchError(
                 f"quantities.{quantity}: {source.topic} has no header to stamp by"
             ) from None
-        stamps = _stamps_ns(source, columns, np.asarray(log_times[source.topic], dtype=np.int64))
-        read.append((source, stamps, columns[paths[quantity]].astype(float)))
+        stamps = _stamps_ns(source, columns, np.asarray(log_times, dtype=np.int64))
+        read.append((source, stamps, columns[path].astype(float)))
     return read
 
 

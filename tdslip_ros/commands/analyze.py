@@ -55,7 +55,7 @@ def parser() -> argparse.ArgumentParser:
         type=Path,
         help="a recording this suite did not write: the YAML topic map that says where each quantity lives "
         "in it (docs/identify.md); the strides are found in the data and the hopper is --params', else "
-        "the paper's; the policy options do not apply",
+        "the paper's; the policy options do not apply (default: none, RUN is a recording of this suite)",
     )
     policy = parser.add_argument_group(
         "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
