@@ -24,14 +24,21 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from tdslip_ros.analysis.compare import CORRECTIONS, ErrorStats, FixedPoint, convergence, error_stats
+from tdslip_ros.analysis.compare import (
+    CORRECTIONS,
+    ErrorStats,
+    FixedPoint,
+    convergence,
+    error_stats,
+    error_summary,
+)
 from tdslip_ros.analysis.measured import FloatArray, MeasuredRun, MeasuredStride
 from tdslip_ros.analysis.stride_detection import stance_signal
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, approximate_map
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.plant.batch import batch_apex_return_map
-from tdslip_ros.reporting.output import to_json
+from tdslip_ros.reporting.output import to_json, unit_key
 
 PREDICTORS = (*ANALYTIC_MAPS, "exact")
 """The predictions compared: each analytic map by name (ours, paper) and the exact map."""
@@ -202,22 +209,29 @@ def measured_summary(comparison: MeasuredComparison) -> dict[str, Any]:
                 "apex_height_m": float(heights[row]),
                 "apex_speed_m_per_s": float(c.apex[row, 1]),
                 "touchdown_angle_rad": float(c.command[row, 0]),
-                "tau0_n_m": float(c.command[row, 1]),
+                unit_key("tau0", "N m"): float(c.command[row, 1]),
                 "t_f_s": float(c.command[row, 2]),
-                "torque_fit_rms_n_m": float(c.torque_residual[row]),
-                "energy_j": float(energy[row]),
-                "energy_change_j": float(next_energy[row] - energy[row]),
-                "next_apex_m_m_per_s": c.next_apex[row].tolist(),
-                **{f"predicted_{name}_m_m_per_s": c.predicted[name][row].tolist() for name in PREDICTORS},
+                unit_key("torque_fit_rms", "N m"): float(c.torque_residual[row]),
+                unit_key("energy", "J"): float(energy[row]),
+                unit_key("energy_change", "J"): float(next_energy[row] - energy[row]),
+                "next_apex_height_m": float(c.next_apex[row, 0] - c.ground[row]),
+                "next_apex_speed_m_per_s": float(c.next_apex[row, 1]),
+                **{
+                    f"predicted_{name}_height_m": float(c.predicted[name][row, 0] - c.ground[row])
+                    for name in PREDICTORS
+                },
+                **{
+                    f"predicted_{name}_speed_m_per_s": float(c.predicted[name][row, 1]) for name in PREDICTORS
+                },
             }
         )
     return {
         "hopper": {
             "source": c.hopper_source,
             "m_kg": c.params.m,
-            "k_n_per_m": c.params.k,
+            "k_N_per_m": c.params.k,
             "r0_m": c.params.r0,
-            "c_n_s_per_m": c.params.c,
+            "c_N_s_per_m": c.params.c,
         },
         "measured": dict(c.measured),
         "inferred": dict(c.inferred),
@@ -225,14 +239,14 @@ def measured_summary(comparison: MeasuredComparison) -> dict[str, Any]:
         "strides_compared": len(c.used),
         "set_aside": [{"apex_time_s": s.apex_time, "reason": s.reason} for s in c.strides if not s.usable],
         "strides": rows,
-        "errors": {name: vars(stats) for name, stats in c.errors.items()},
+        "errors": {name: error_summary(stats) for name, stats in c.errors.items()},
         "converged_at_stride": c.converged_at,
         "fixed_point": None
         if c.fixed_point is None
         else {
             "y_m": c.fixed_point.y,
             "xdot_m_per_s": c.fixed_point.xdot,
-            "eigenvalue_moduli": [abs(v) for v in c.fixed_point.eigenvalues],
+            "eigenvalue_moduli_factor": [abs(v) for v in c.fixed_point.eigenvalues],
         },
     }
 
@@ -255,8 +269,8 @@ def measured_markdown(summary: dict[str, Any]) -> str:
     lines = [
         "# A recording against the return maps",
         "",
-        f"Hopper: {hopper['source']} (m = {hopper['m_kg']:g} kg, k = {hopper['k_n_per_m']:g} N/m, "
-        f"r0 = {hopper['r0_m']:g} m, c = {hopper['c_n_s_per_m']:g} N s/m).",
+        f"Hopper: {hopper['source']} (m = {hopper['m_kg']:g} kg, k = {hopper['k_N_per_m']:g} N/m, "
+        f"r0 = {hopper['r0_m']:g} m, c = {hopper['c_N_s_per_m']:g} N s/m).",
         "",
         "## What was measured and what was inferred",
         "",
@@ -272,8 +286,8 @@ def measured_markdown(summary: dict[str, Any]) -> str:
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
         *(
             f"| {r['apex_time_s']:.4f} | {r['apex_height_m']:.4f} | {r['apex_speed_m_per_s']:.4f} | "
-            f"{r['touchdown_angle_rad']:.4f} | {r['tau0_n_m']:.2f} | {r['t_f_s']:.4f} | "
-            f"{r['energy_j']:.1f} | {r['energy_change_j']:.2f} |"
+            f"{r['touchdown_angle_rad']:.4f} | {r['tau0_N_m']:.2f} | {r['t_f_s']:.4f} | "
+            f"{r['energy_J']:.1f} | {r['energy_change_J']:.2f} |"
             for r in summary["strides"]
         ),
         "",
@@ -282,8 +296,8 @@ def measured_markdown(summary: dict[str, Any]) -> str:
         "| map | strides | mean height | max height | mean speed | max speed |",
         "| --- | --- | --- | --- | --- | --- |",
         *(
-            f"| {name} | {e['strides']} | {e['mean_height']:.3g} | {e['max_height']:.3g} | "
-            f"{e['mean_speed']:.3g} | {e['max_speed']:.3g} |"
+            f"| {name} | {e['strides']} | {e['mean_error_ybar']:.3g} | {e['max_error_ybar']:.3g} | "
+            f"{e['mean_error_xdotbar']:.3g} | {e['max_error_xdotbar']:.3g} |"
             for name, e in summary["errors"].items()
         ),
         "",
