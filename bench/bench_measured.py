@@ -69,7 +69,10 @@ def main() -> None:
     base = plant_run(ticks=3001)
     maps = {"suite": suite_topic_map(), "gazebo": topic_map_from_document(GAZEBO_MAP, "gazebo")}
     writers = {"suite": write_suite_bag, "gazebo": write_gazebo_bag}
-    print(f"{'recording':<22} {'read [s]':>9} {'ratio':>8} {'strides [s]':>12} {'ratio':>8} {'found':>6}")
+    print(
+        f"{'recording':<15} {'read [s]':>9} {'cpu [s]':>8} {'ratio':>8} {'detect [s]':>11} {'cpu [s]':>8} "
+        f"{'ratio':>8} {'found':>6}   (ratio: CPU time over the recorded length)"
+    )
     for minutes in args.minutes:
         run = None
         for kind in ("suite", "gazebo"):
@@ -80,16 +83,17 @@ def main() -> None:
                 writers[kind](bag, run)
                 print(f"(wrote {bag.name} in {time.perf_counter() - started:.1f} s)")
             steal = steal_seconds()
-            started = time.perf_counter()
+            started, cpu = time.perf_counter(), time.process_time()
             measured = measured_run_from_bag(bag, maps[kind])
-            read = time.perf_counter() - started
-            started = time.perf_counter()
+            read, read_cpu = time.perf_counter() - started, time.process_time() - cpu
+            started, cpu = time.perf_counter(), time.process_time()
             strides = find_strides(measured)
-            detect = time.perf_counter() - started
+            detect, detect_cpu = time.perf_counter() - started, time.process_time() - cpu
             length = minutes * 60.0
             print(
-                f"{bag.name:<22} {read:>9.2f} {read / length:>8.4f} {detect:>12.3f} {detect / length:>8.5f} "
-                f"{len(strides):>6}   stolen {steal_seconds() - steal:.1f} s, {load()}"
+                f"{bag.name:<15} {read:>9.2f} {read_cpu:>8.2f} {read_cpu / length:>8.4f} {detect:>11.3f} "
+                f"{detect_cpu:>8.3f} {detect_cpu / length:>8.5f} {len(strides):>6}   "
+                f"stolen {steal_seconds() - steal:.1f} s, {load()}"
             )
 
 

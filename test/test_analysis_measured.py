@@ -525,3 +525,39 @@ def test_the_fast_topic_reader_reads_what_the_checked_iterator_reads(
     damaged.write_bytes(bytes(content))
     with pytest.raises(BagReadError, match=r"the chunk at byte \d+ is corrupt"):
         topic_messages(open_bag(damaged), topics)
+
+
+def test_without_force_stance_comes_from_the_contact_flag_or_the_leg_length(
+    recorded: dict[str, Path],
+) -> None:
+    """The suite's run again, its force withheld: stance from its phase mapped as the contact, then from the
+    leg length against r0. The apexes and the touchdowns (placed by the geometry either way) stay those found
+    from the force; liftoff moves within a sample (the flag changes between two samples) or, from the leg
+    length, later by the time the leg takes to return within LEG_OFF of r0 after its force vanished
+    (observed 1.5-2.5 ms; the bound 5 ms)."""
+    run = measured_run_from_bag(recorded["suite"], suite_topic_map())
+    assert run.leg_length is not None and run.ground_force is not None
+    by_force = find_strides(run)
+    document = yaml.safe_load(Path(suite_topic_map().origin).read_text())
+    del document["quantities"]["ground_force_forward"], document["quantities"]["ground_force_vertical"]
+    document["quantities"]["contact"] = {
+        "topic": "/tdslip/state",
+        "type": "tdslip_msgs/msg/HopperState",
+        "field": "phase",
+        "unit": "1",
+    }
+    flag = measured_run_from_bag(recorded["suite"], topic_map_from_document(document, "phase as contact"))
+    assert flag.contact is not None and dict(flag.sources)["contact"] == "/tdslip/state"
+    by_length = replace(run, ground_force=None)
+    with pytest.raises(NoStanceError, match="no rest length was given"):
+        find_strides(by_length)
+    for strides, liftoff in (
+        (find_strides(flag), (-1e-3, 1e-3)),
+        (find_strides(by_length, KNOWN_HOPPER.r0), (0, 5e-3)),
+    ):
+        assert len(strides) == len(by_force) and all(s.usable for s in strides)
+        for found, truth in zip(strides, by_force, strict=True):
+            assert found.apex_time == truth.apex_time and found.next_apex_time == truth.next_apex_time
+            assert found.touchdown_time == pytest.approx(truth.touchdown_time, abs=1e-9)
+            assert found.touchdown_angle == pytest.approx(truth.touchdown_angle, abs=1e-9)
+            assert liftoff[0] <= found.liftoff_time - truth.liftoff_time < liftoff[1]

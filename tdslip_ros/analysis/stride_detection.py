@@ -114,29 +114,39 @@ class Touchdown:
     time: float
     angle: float
     reason: str = ""
+    index: int = -1
+    """The sample before it (-1: the last flight sample by the detection's leaving level)."""
+
+
+TOUCHDOWN_LOOKBACK = 5
+"""Samples before the last flight sample (by the detection's leaving level) searched for the touchdown."""
 
 
 def _touchdown(run: MeasuredRun, signal: StanceSignal, first: int, last_flight: int) -> Touchdown:
-    """Touchdown between the last flight sample and the first stance sample after it (module docstring)."""
+    """Touchdown before the stance sample ``first`` (module docstring): the toe is placed from that
+    sample, the flight's leg length is the longest among the samples before it, and touchdown lies between
+    the last sample whose body is that far from the toe and the next."""
     time = run.time
     if run.leg_length is None or run.leg_angle is None:
         when = _crossing(time, signal.values, signal.leave, last_flight)
         return Touchdown(when, math.nan, "no leg geometry in the map (leg length and angle, or the toe)")
-    a, b = last_flight, last_flight + 1
-    r_b, theta_b = run.leg_length[b], run.leg_angle[b]
-    toe = run.body_position[b] + r_b * np.array([math.sin(theta_b), -math.cos(theta_b)])
-    flight_length = float(run.leg_length[a])
-    distance = float(np.hypot(*(run.body_position[a] - toe)))
-    if not distance >= flight_length > r_b:
+    start = max(last_flight - TOUCHDOWN_LOOKBACK, 0)
+    r, theta = run.leg_length[first], run.leg_angle[first]
+    toe = run.body_position[first] + r * np.array([math.sin(theta), -math.cos(theta)])
+    flight_length = float(np.max(run.leg_length[start:first]))
+    distance = np.hypot(*(run.body_position[start : first + 1] - toe).T) - flight_length
+    away = np.flatnonzero(distance >= 0.0)
+    if not len(away) or away[-1] == len(distance) - 1:
         return Touchdown(
-            _crossing(time, signal.values, signal.leave, a),
+            _crossing(time, signal.values, signal.leave, last_flight),
             math.nan,
-            f"the leg did not touch down between {time[a]:.4f} s and {time[b]:.4f} s by its geometry",
+            f"the leg did not touch down between {time[start]:.4f} s and {time[first]:.4f} s by its geometry",
         )
-    fraction = (distance - flight_length) / (distance - r_b)
-    body = run.body_position[a] + fraction * (run.body_position[b] - run.body_position[a])
+    a = start + int(away[-1])
+    fraction = float(distance[away[-1]] / (distance[away[-1]] - distance[away[-1] + 1]))
+    body = run.body_position[a] + fraction * (run.body_position[a + 1] - run.body_position[a])
     angle = math.atan2(float(toe[0] - body[0]), float(body[1] - toe[1]))
-    return Touchdown(float(time[a] + fraction * (time[b] - time[a])), angle)
+    return Touchdown(float(time[a] + fraction * (time[a + 1] - time[a])), angle, index=a)
 
 
 def find_strides(run: MeasuredRun, rest_length: float | None = None) -> list[MeasuredStride]:
@@ -193,7 +203,7 @@ def find_strides(run: MeasuredRun, rest_length: float | None = None) -> list[Mea
         strides.append(
             MeasuredStride(
                 apex_index=int(apex),
-                touchdown_index=max(last_flight, 0),
+                touchdown_index=touchdown.index if touchdown.index >= 0 else max(last_flight, 0),
                 liftoff_index=up - 1 if up > 0 else -1,
                 next_apex_index=next_apex,
                 apex_time=float(apex_time),
