@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
+from mcap.reader import SeekingReader
 from scipy.integrate import solve_ivp
 from support.standard_bags import (
     GAZEBO_MAP,
@@ -68,7 +69,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory, plant: PlantRun) -> dict[
 def gazebo_map(change: dict[str, dict[str, object]] | None = None) -> dict[str, object]:
     document = copy.deepcopy(GAZEBO_MAP)
     for quantity, entry in (change or {}).items():
-        document["quantities"][quantity].update(entry)  # type: ignore[index]
+        document["quantities"].setdefault(quantity, {}).update(entry)  # type: ignore[attr-defined]
     return document
 
 
@@ -338,6 +339,17 @@ def test_the_validator_reads_its_rules_from_the_schema() -> None:
             "geometry_msgs/msg/Vector3Stamped",
         ),
         (
+            {
+                "contact": {
+                    "topic": "/foot_contact",
+                    "type": "std_msgs/msg/Bool",
+                    "field": "data",
+                    "unit": "1",
+                }
+            },
+            "quantities.contact: std_msgs/msg/Bool has no header to stamp by (stamp: log)",
+        ),
+        (
             {"body_forward": {"field": "child_frame_id", "axis": None}},
             "is not a number (string) at 'child_frame_id'",
         ),
@@ -521,7 +533,11 @@ def test_the_fast_topic_reader_reads_what_the_checked_iterator_reads(
         assert list(zip(*fast[topic], strict=True)) == slow and len(slow) > 500
     damaged = tmp_path / "damaged.mcap"
     content = bytearray(bag.mcap_path.read_bytes())
-    content[len(content) // 3] ^= 0xFF
+    with open(bag.mcap_path, "rb") as stream:
+        summary = SeekingReader(stream).get_summary()
+    assert summary is not None
+    chunk = summary.chunk_indexes[len(summary.chunk_indexes) // 2]
+    content[chunk.chunk_start_offset + chunk.chunk_length // 2] ^= 0xFF  # inside its compressed records
     damaged.write_bytes(bytes(content))
     with pytest.raises(BagReadError, match=r"the chunk at byte \d+ is corrupt"):
         topic_messages(open_bag(damaged), topics)

@@ -104,6 +104,8 @@ def _checked_path(bag: Bag, source: Source, first_message: Callable[[], object])
         raise MapMismatchError(
             f"{what}: the stored schema of {source.topic} is unreadable ({error})"
         ) from None
+    if source.stamp == "header" and _field_base(definitions, type_name, HEADER_STAMP[0]) != "int32":
+        raise MapMismatchError(f"{what}: {source.type_name} has no header to stamp by (stamp: log)")
     base = _field_base(definitions, type_name, source.path)
     if source.joint is not None:
         if base != "float64[]":
@@ -132,7 +134,7 @@ def _read_sources(bag: Bag, topic_map: TopicMap) -> list[tuple[Source, np.ndarra
     """Each source's stamps [ns] and raw values, in the order of the map."""
     messages = topic_messages(bag, set(topic_map.topics()))
     read = []
-    for quantity, source in topic_map.sources.items():
+    for source in topic_map.sources.values():
         datas, log_times = messages[source.topic]
         schema = bag.topics[source.topic].schema if source.topic in bag.topics else None
 
@@ -149,12 +151,7 @@ def _read_sources(bag: Bag, topic_map: TopicMap) -> list[tuple[Source, np.ndarra
         if not datas:
             raise MeasuredDataError(f"{source.topic} holds no messages")
         wanted = [path] + (list(HEADER_STAMP) if source.stamp == "header" else [])
-        try:
-            columns = decoded_columns(schema, datas, wanted)
-        except AttributeError:
-            raise MapMismatchError(
-                f"quantities.{quantity}: {source.topic} has no header to stamp by"
-            ) from None
+        columns = decoded_columns(schema, datas, wanted)
         stamps = _stamps_ns(source, columns, np.asarray(log_times, dtype=np.int64))
         read.append((source, stamps, columns[path].astype(float)))
     return read

@@ -123,6 +123,8 @@ GAZEBO_MAP = {
 }
 """The topic map of :func:`write_gazebo_bag` (docs/identify.md's second example)."""
 
+FOOT_SWITCH = {False: b"\x00\x01\x00\x00\x00\x00\x00\x00", True: b"\x00\x01\x00\x00\x01\x00\x00\x00"}
+"""A std_msgs/Bool, serialised (CDR little-endian: the header, the byte, padding to 4)."""
 ODOMETRY_EVERY = 4
 """Plant ticks per Odometry message: 250 Hz."""
 
@@ -219,20 +221,11 @@ WRENCH = {"force": ZERO, "torque": ZERO}
 def write_suite_bag(path: Path, run: PlantRun) -> Path:
     """``run`` as the suite records it: tdslip/state and tdslip/grf at 1 kHz."""
     c = run.columns
-    state_fields = [
-        "phase",
-        "x",
-        "y",
-        "xdot",
-        "ydot",
-        "toe_x",
-        "toe_y",
-        "leg_length",
-        "leg_angle",
-        "hip_torque",
-    ]
+    # The HopperState fields the plant run holds, in the message's order, and the run's column of each.
+    column_of = {"phase": "stance", "leg_length": "r", "leg_angle": "theta"}
+    state_fields = [name for name in STATE_FIELDS if column_of.get(name, name) in c]
+    columns = [column_of.get(name, name) for name in state_fields]
     state = dict.fromkeys(STATE_FIELDS, 0.0) | {"header": header(0.0), "stride": 0, "phase": 0}
-    columns = ["stance", "x", "y", "xdot", "ydot", "toe_x", "toe_y", "r", "theta", "hip_torque"]
     with RosbagMcapWriter(path) as writer:
         topics = Topics(writer)
         topics.add("/tdslip/state", "tdslip_msgs/msg/HopperState", state, state_fields)
@@ -287,12 +280,18 @@ def write_gazebo_bag(path: Path, run: PlantRun) -> Path:
         topics.add(
             "/joint_states", "sensor_msgs/msg/JointState", joints, ["position[0]", "position[1]", "effort[0]"]
         )
-        columns = ["t", "x", "y", "xdot", "ydot", "grf_x", "grf_y", "theta", "r", "hip_torque"]
-        for i, (t, x, y, xdot, ydot, fx, fy, theta, r, tau) in enumerate(
+        # A foot switch without a header, which the map does not use (a recorder keeps more than a map reads).
+        writer.add_topic("/foot_contact", "std_msgs/msg/Bool")
+        columns = ["t", "x", "y", "xdot", "ydot", "grf_x", "grf_y", "theta", "r", "hip_torque", "stance"]
+        for i, (t, x, y, xdot, ydot, fx, fy, theta, r, tau, stance) in enumerate(
             np.stack([c[n] for n in columns], axis=-1).tolist()
         ):
             if i % ODOMETRY_EVERY == 0:
                 topics.write("/odom", t, [x, y, xdot, ydot])
             topics.write("/force_plate", t, [-fx, -fy])  # the force on the plate
             topics.write("/joint_states", t, [-theta, r, -tau])  # a hip about +y turns the leg backwards
+            ns = round(t * 1e9)
+            writer.write(
+                "/foot_contact", FOOT_SWITCH[stance > 0.5], log_time_ns=ns + 200_000, publish_time_ns=ns
+            )
     return path
