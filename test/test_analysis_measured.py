@@ -577,3 +577,20 @@ def test_without_force_stance_comes_from_the_contact_flag_or_the_leg_length(
             assert found.touchdown_time == pytest.approx(truth.touchdown_time, abs=1e-9)
             assert found.touchdown_angle == pytest.approx(truth.touchdown_angle, abs=1e-9)
             assert liftoff[0] <= found.liftoff_time - truth.liftoff_time < liftoff[1]
+
+
+def test_the_hysteresis_keeps_a_noisy_force_from_chattering(recorded: dict[str, Path]) -> None:
+    """The suite's run with Gaussian noise of 1 % of the peak on the force (seeded): the same strides, all
+    usable, touchdowns unmoved (placed by the geometry) and liftoffs within 2 ms. The entering level sits
+    five standard deviations above the flight's noise; one level low enough to find liftoff (FORCE_OFF)
+    would see stances in the flight's noise."""
+    run = measured_run_from_bag(recorded["suite"], suite_topic_map())
+    assert run.ground_force is not None
+    clean = find_strides(run)
+    peak = float(np.max(run.ground_force[:, 1]))
+    noise = np.random.default_rng(7).normal(0.0, 0.01 * peak, run.ground_force.shape)
+    noisy = find_strides(replace(run, ground_force=run.ground_force + noise))
+    assert len(noisy) == len(clean) and all(s.usable for s in noisy)
+    for found, truth in zip(noisy, clean, strict=True):
+        assert found.touchdown_time == pytest.approx(truth.touchdown_time, abs=1e-9)
+        assert found.liftoff_time == pytest.approx(truth.liftoff_time, abs=2e-3)
