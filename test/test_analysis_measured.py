@@ -594,3 +594,28 @@ def test_the_hysteresis_keeps_a_noisy_force_from_chattering(recorded: dict[str, 
     for found, truth in zip(noisy, clean, strict=True):
         assert found.touchdown_time == pytest.approx(truth.touchdown_time, abs=1e-9)
         assert found.liftoff_time == pytest.approx(truth.liftoff_time, abs=2e-3)
+
+
+def test_log_time_stamps_and_a_foot_switch(recorded: dict[str, Path]) -> None:
+    """The Gazebo-style bag stamped by the recorder's log time (0.2 ms after the header stamp there), its
+    force plate replaced by the headerless foot switch: every apex and touchdown comes 0.2 ms later than by
+    the header stamps (1e-9 s and 1e-6 s, as against the suite's topics), liftoff within a sample of it."""
+    by_header = find_strides(
+        measured_run_from_bag(recorded["gazebo"], topic_map_from_document(gazebo_map(), "gazebo"))
+    )
+    document = gazebo_map({name: {"stamp": "log"} for name in GAZEBO_MAP["quantities"]})  # type: ignore[attr-defined]
+    del document["quantities"]["ground_force_forward"], document["quantities"]["ground_force_vertical"]  # type: ignore[attr-defined]
+    document["quantities"]["contact"] = {  # type: ignore[index]
+        "topic": "/foot_contact",
+        "type": "std_msgs/msg/Bool",
+        "field": "data",
+        "unit": "1",
+        "stamp": "log",
+    }
+    run = measured_run_from_bag(recorded["gazebo"], topic_map_from_document(document, "log stamps"))
+    by_log = find_strides(run)
+    assert dict(run.sources)["contact"] == "/foot_contact" and len(by_log) == len(by_header)
+    for found, truth in zip(by_log, by_header, strict=True):
+        assert found.usable and found.apex_time == pytest.approx(truth.apex_time + 2e-4, abs=1e-9)
+        assert found.touchdown_time == pytest.approx(truth.touchdown_time + 2e-4, abs=1e-6)
+        assert found.liftoff_time - 2e-4 == pytest.approx(truth.liftoff_time, abs=1e-3)
