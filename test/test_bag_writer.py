@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
 import pytest
 import yaml
 from builtin_interfaces.msg import Time
@@ -554,6 +555,80 @@ def test_a_full_tmpfs_leaves_a_finalised_bag(tiny_disk: Path) -> None:
     given, error = write_until_refused(bag, STRING_PAYLOAD)
     check_full_disk_bag(bag, given, error)
     assert open_bag(tiny_disk / "run").custom_data == {"policy": "energy"}
+
+
+def random_strings(count: int) -> list[bytes]:
+    """Serialized std_msgs/String messages of 199 random letters: chunks of them hardly compress, as
+    the 1 kHz state does not, so a small disk fills after thousands of messages, not millions."""
+    letters = np.random.default_rng(7).integers(ord("a"), ord("z") + 1, size=(count, 199), dtype=np.uint8)
+    return [STRING_PAYLOAD[:8] + row.tobytes() + b"\0" for row in letters]
+
+
+def test_a_nearly_full_disk_keeps_the_first_messages_with_the_default_reserve(tiny_disk: Path) -> None:
+    """The 2 MiB tmpfs of issue 35 at the default chunk size: the reserve (two chunks and the summary's
+    room, 2 MiB) once took the whole disk, and the bag held 0 messages. Sized to half of what is free,
+    it leaves the first megabyte to the messages."""
+    bag = RosbagMcapWriter(tiny_disk / "run")
+    bag.add_topic("/chatter", "std_msgs/msg/String")
+    payloads = random_strings(20_000)
+    given = 0
+    with pytest.raises(BagWriteError) as refused:
+        for given, payload in enumerate(payloads, start=1):
+            bag.write("/chatter", payload, given)
+    error = refused.value
+    assert error.errno == errno.ENOSPC and "\n" not in str(error)
+    assert f"finalised with all {given} messages" in str(error)
+    assert not reserve_path(bag.mcap_path).exists() and (tiny_disk / "run" / "metadata.yaml").is_file()
+    check_bag_holds(tiny_disk / "run", payloads[:given])
+    assert given > 4_000  # 1 MiB of 209-byte messages, at least
+
+
+def check_bag_holds(bag: Path, payloads: list[bytes]) -> None:
+    """The bag directory holds exactly ``payloads``, in order, at log times 1, 2, ... (rosbags reads it)."""
+    with AnyReader([bag]) as reader:
+        read = [(timestamp, raw) for _, timestamp, raw in reader.messages()]
+    assert [timestamp for timestamp, _ in read] == list(range(1, len(payloads) + 1))
+    assert [raw for _, raw in read] == payloads
+
+
+RLIMIT_WRITER = """
+import resource, sys
+from pathlib import Path
+sys.path[:0] = [sys.argv[3], sys.argv[4]]
+from test_bag_writer import random_strings
+from tdslip_ros.bag import BagWriteError, RosbagMcapWriter
+resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), resource.RLIM_INFINITY))
+bag = RosbagMcapWriter(Path(sys.argv[1]))
+bag.add_topic("/chatter", "std_msgs/msg/String")
+for given, payload in enumerate(random_strings(20_000), start=1):
+    try:
+        bag.write("/chatter", payload, given)
+    except BagWriteError as error:
+        print(given)
+        print(error)
+        break
+"""
+
+
+def test_a_file_size_limit_finalises_the_bag_with_every_message_given(tmp_path: Path) -> None:
+    """RLIMIT_FSIZE (what ``ulimit -f`` sets, no privileges needed) on the writing process: the write
+    that reaches the last reserve below the limit is the last, and the bag holds everything given."""
+    limit = 1536 * 1024
+    test_dir, repo = Path(__file__).parent, Path(__file__).parents[1]
+    result = subprocess.run(
+        [sys.executable, "-c", RLIMIT_WRITER, str(tmp_path / "run"), str(limit), str(test_dir), str(repo)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    given_line, message = result.stdout.splitlines()
+    assert (tmp_path / "run" / "run_0.mcap").stat().st_size <= limit
+    given = int(given_line)
+    assert "RLIMIT_FSIZE" in message and f"finalised with all {given} messages" in message
+    assert (tmp_path / "run" / "metadata.yaml").is_file()
+    check_bag_holds(tmp_path / "run", random_strings(given))
+    assert given > 2_000  # 768 KiB below the limit hold at least that many 209-byte messages
 
 
 def test_no_room_for_the_reserve_is_one_clear_error(tiny_disk: Path) -> None:

@@ -24,9 +24,11 @@ from tdslip_ros.analysis.identification import (
     fit_ramp,
     identify,
 )
+from tdslip_ros.commands import cli
 from tdslip_ros.commands import identify as identify_command
 from tdslip_ros.interfaces import read_hopper_file
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.nodes.runner import RunReport
 
 PARAMETERS = ("k", "c", "r0")
 
@@ -173,3 +175,18 @@ def test_kinematics_alone_of_a_barely_compressed_leg_is_ill_conditioned() -> Non
     assert (result.success, result.status, result.method) == (False, ILL_CONDITIONED_STATUS, EXACT_STANCE)
     assert result.condition_number > ILL_CONDITIONED and set(result.unidentified) >= {"k", "c"}
     assert result.message.startswith("k and c cannot be identified"), result.message
+
+
+def test_tdslip_identify_of_a_suite_recording_finds_the_hopper_it_was_run_with(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The whole command on a bag of the node suite (energy regulation, 12 strides, the paper's hopper), read
+    through the suite's own topic map and its strides found in the data (topic-map's reader)."""
+    out = tmp_path / "identified"
+    assert cli.main(["identify", str(energy.bag), "--out", str(out)]) == 0, capsys.readouterr().err
+    identified = read_hopper_file(out / "hopper.yaml")
+    assert (identified.k, identified.c, identified.r0, identified.m) == pytest.approx(
+        (PAPER_PARAMS.k, PAPER_PARAMS.c, PAPER_PARAMS.r0, PAPER_PARAMS.m), rel=1e-6
+    )
+    assert cli.main(["identify", str(energy.bag), "--topic-map", str(tmp_path / "absent.yaml")]) == 2
+    assert capsys.readouterr().err.count("\n") == 1

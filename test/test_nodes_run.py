@@ -17,6 +17,7 @@ from support.helpers import apex_table
 from support.ros_harness import stop_example
 
 from tdslip_ros.analysis.decoding import read_run
+from tdslip_ros.bag.recover import recover
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.nodes import topics
@@ -35,6 +36,10 @@ IN_BACKGROUND = {
     "test_a_failed_run_names_the_failure_and_exits_non_zero[lockstep]": (
         ("--strides", "8", "--terrain", "step:height=0.3,x=8", "--mode", "lockstep"),
         "wall",
+    ),
+    "test_a_command_the_controller_finds_none_for_is_the_failure_it_names": (
+        ("--speed", "0", "--strides", "3", "--timeout", "1"),
+        "standing",
     ),
     "test_a_run_in_a_namespace_records_and_analyses_its_topics_there": (
         ("--strides", "3", "--namespace", "h1"),
@@ -278,6 +283,47 @@ def test_a_controller_killed_mid_run_leaves_a_finalised_bag_and_a_count_of_what_
     # it had just sent, if the kill came before the recorder acknowledged it.
     assert all(n == 0 for topic, n in lost.items() if topic != resolve(topics.COMMAND))
     assert lost[resolve(topics.COMMAND)] in (0, 1)
+
+
+def test_a_recorder_killed_mid_run_is_named_with_what_tdslip_recover_gets_back(tmp_path: Path) -> None:
+    """Issue 35: the table used to say LOST with 0 recorded on every topic, and recover then got
+    thousands back. Now its column is what recover keeps, and the shortfall is put on the recorder."""
+    process, bag = hopping_run(tmp_path)
+    assert process.stderr is not None
+    for line in process.stderr:  # past the first chunks (about 10 strides each)
+        if line.startswith("stride ") and int(line.split()[1].split("/")[0]) >= 30:
+            break
+    recorder = child_pid(process.pid, "tdslip_ros.nodes.recorder_node")
+    assert recorder is not None
+    os.kill(recorder, signal.SIGKILL)
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode == 1
+    assert "recorder_node exited early (-9)" in stderr and "LOST" not in stdout
+    rows = [line.split(maxsplit=3) for line in stdout.splitlines() if line.startswith("/")]
+    assert stdout.splitlines()[0].split() == ["topic", "published", "recoverable"]
+    printed = {topic: int(recoverable) for topic, _, recoverable, *_ in rows}
+    assert sum(printed.values()) > 0
+    assert f"make it readable ({sum(printed.values())} messages) with: tdslip recover {bag}" in stderr
+    assert {row[3] for row in rows if len(row) == 4} <= {"after the recorder stopped"}
+    recovery = recover(bag)
+    assert {topic: recovery.recovered.get(topic, 0) for topic in printed} == printed
+
+
+def test_a_command_the_controller_finds_none_for_is_the_failure_it_names(tmp_path: Path) -> None:
+    """From a standing start (0 m/s) energy regulation predicts a reversal: the failure line says that,
+    not only the plant's command_timeout (issue 35)."""
+    result = tdslip_run(
+        "--speed", "0", "--strides", "3", "--timeout", "1", "--out", str(tmp_path / "standing")
+    )
+    assert result.returncode == 1
+    (failure,) = [line for line in result.stderr.splitlines() if line.startswith("run FAILED")]
+    assert failure.startswith(
+        "run FAILED at stride 0, t = 0.000000 s: the controller found no command: no command "
+        "(predicted_reversal): "
+    )
+    assert failure.endswith(
+        "(command_timeout: no valid command for epoch 0, stride 0 within command_timeout = 1 s)"
+    )
 
 
 def test_a_double_ctrl_c_leaves_a_finalised_bag(tmp_path: Path) -> None:

@@ -167,10 +167,11 @@ def test_realtime_holds_the_stream_and_counts_stale_ticks(ros: RosGraph) -> None
     )
     controller = ros.add(StanceControllerNode(context=ros.context))
     applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
-    statuses = ros.collect(Status, topics.STATUS)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and plant.outcome.ok, plant.outcome
-    assert controller.torques > 0 and plant.counts.rejected == 0, [s.reason for s in statuses]
+    # On a loaded machine a command may come after its touchdown (fresh2's suite, 2026-12-05): then it is
+    # refused as late, and that is all it may be refused for (one answer per apex: one per late stride).
+    assert controller.torques > 0 and plant.counts.rejected == plant.counts.late_commands, plant.counts
     ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
     stale = sum(1 for a in applied if a.torque == 0.0)
     assert plant.counts.stale_torques == stale

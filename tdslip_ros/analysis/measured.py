@@ -27,7 +27,8 @@ class MeasuredRun:
     The optional quantities are None where the map names no source for them: ``leg_length`` [m] and
     ``leg_angle`` [rad] of the leg from hip to toe; ``ground_force`` (n, 2) [N], the ground's force on the
     hopper; ``hip_torque`` [N m] on the leg; ``contact`` (n,) bool. ``sources`` names, for each quantity
-    present, the topic it came from, or ``"inferred: <how>"``.
+    present, the topic it came from, or ``"inferred: <how>"``. ``in_gap`` (n,) bool marks the samples that
+    lie in a gap of one of the sources (interpolated across it, not measured); None: no gaps known.
     """
 
     time: FloatArray
@@ -40,6 +41,7 @@ class MeasuredRun:
     hip_torque: FloatArray | None = None
     contact: BoolArray | None = None
     sources: tuple[tuple[str, str], ...] = ()
+    in_gap: BoolArray | None = None
 
 
 @dataclass(frozen=True)

@@ -164,8 +164,12 @@ def decoder(schema: Schema) -> Callable[[bytes], Any]:
 
 
 def _attribute(message: object, path: str) -> Any:
-    for name in path.split("."):
+    """The value at a dotted path; ``name[i]`` takes element i of an array, as the fixed layout names it."""
+    for part in path.split("."):
+        name, _, index = part.partition("[")
         message = getattr(message, name)
+        if index:
+            message = message[int(index.rstrip("]"))]
     return message
 
 

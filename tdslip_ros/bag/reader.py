@@ -19,6 +19,7 @@ is missing or wrong.
 
 from __future__ import annotations
 
+import io
 import struct
 import zlib
 from collections.abc import Collection, Iterator
@@ -28,13 +29,17 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
+from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary start, summary offset start, CRC
+_RECORD = struct.Struct("<BQ")  # opcode, record length
+_MESSAGE = struct.Struct("<HIQ")  # channel id, sequence, log time (publish time follows)
+_MESSAGE_HEADER = 2 + 4 + 8 + 8
 ROSBAG2_RECORD = "rosbag2"
 """Name of the MCAP metadata record in which rosbag2 stores the bag information (key
 ``serialized_metadata``: the YAML of metadata.yaml's ``rosbag2_bagfile_information``)."""
@@ -256,3 +261,69 @@ def verify(bag: Bag) -> None:
     """Read every record of ``bag`` once with all checks (see iter_messages); BagReadError if one fails."""
     for _ in iter_messages(bag):
         pass
+
+
+def topic_messages(bag: Bag, topics: Collection[str]) -> dict[str, tuple[list[bytes], list[int]]]:
+    """The serialised messages of ``topics`` and their log times [ns], in file order, by topic: the fast
+    path of a full read of a few topics. Each chunk of the summary's index is read, decompressed and its
+    CRC checked (as :func:`iter_messages` does), then its records are walked with ``struct`` alone; the
+    message counts are checked against the summary's. Without a chunk index (an unchunked file) this is
+    :func:`iter_messages`. Timed by bench/bench_measured.py: about 20 times faster than iter_messages."""
+    found: dict[str, tuple[list[bytes], list[int]]] = {topic: ([], []) for topic in topics}
+    with open(bag.mcap_path, "rb") as stream:
+        try:
+            summary = SeekingReader(stream).get_summary()
+        except Exception as error:  # see _damaged
+            raise BagReadError(f"{bag.mcap_path}: the summary section is unreadable ({error!r})") from None
+        if summary is None or not summary.chunk_indexes:
+            for channel, message in iter_messages(bag, topics):
+                found[channel.topic][0].append(message.data)
+                found[channel.topic][1].append(message.log_time)
+            return found
+        wanted = {cid: found[c.topic] for cid, c in summary.channels.items() if c.topic in found}
+        for index in sorted(summary.chunk_indexes, key=lambda chunk: chunk.chunk_start_offset):
+            if not wanted.keys() & index.message_index_offsets.keys():
+                continue
+            stream.seek(index.chunk_start_offset)
+            record = stream.read(index.chunk_length)
+            try:
+                opcode, length = _RECORD.unpack_from(record)
+                if opcode != Opcode.CHUNK:
+                    raise ValueError(f"opcode {opcode:#x} where the index places a chunk")
+                chunk = Chunk.read(ReadDataStream(io.BytesIO(record[_RECORD.size : _RECORD.size + length])))
+                data = get_chunk_data_stream(chunk, validate_crc=True)[0].read(chunk.uncompressed_size)
+            except Exception as error:  # see _damaged
+                raise BagReadError(
+                    f"{bag.mcap_path}: the chunk at byte {index.chunk_start_offset} is corrupt: "
+                    f"{type(error).__name__}: {error}"
+                ) from None
+            _collect(data, wanted, bag.mcap_path, index.chunk_start_offset)
+    for cid, (datas, _) in wanted.items():
+        expected = summary.statistics.channel_message_counts.get(cid, 0) if summary.statistics else len(datas)
+        if len(datas) != expected:
+            topic = summary.channels[cid].topic
+            raise BagReadError(
+                f"{bag.mcap_path}: {topic}: the chunks hold {len(datas)} messages, "
+                f"the summary counts {expected}"
+            )
+    return found
+
+
+def _collect(data: bytes, wanted: dict[int, tuple[list[bytes], list[int]]], path: Path, where: int) -> None:
+    """Append the messages of ``wanted`` channels among the records of a decompressed chunk."""
+    offset, end, message = 0, len(data), int(Opcode.MESSAGE)
+    while offset < end:
+        if offset + _RECORD.size > end:
+            raise BagReadError(f"{path}: the chunk at byte {where} ends inside a record")
+        opcode, length = _RECORD.unpack_from(data, offset)
+        body = offset + _RECORD.size
+        offset = body + length
+        if opcode != message:
+            continue
+        channel, _, log_time = _MESSAGE.unpack_from(data, body)
+        into = wanted.get(channel)
+        if into is not None:
+            into[0].append(data[body + _MESSAGE_HEADER : offset])
+            into[1].append(log_time)
+    if offset != end:
+        raise BagReadError(f"{path}: the chunk at byte {where} ends inside a record")

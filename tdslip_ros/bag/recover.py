@@ -268,6 +268,27 @@ def recover(path: Path) -> Recovery:
     return Recovery(mcap_path, original, recovery.recovered, recovery.expected, recovery.scan, notes)
 
 
+def recoverable_counts(path: Path) -> dict[str, int]:
+    """Messages per topic that :func:`recover` keeps from the recording at ``path`` (a bag directory or
+    MCAP file), found by its first pass alone: nothing is written."""
+    try:
+        scan = _scan(mcap_file(path))
+    except BagReadError as error:
+        raise RecoverInputError(str(error)) from None
+    return {channel.topic: scan.counts.get(channel_id, 0) for channel_id, channel in scan.channels.items()}
+
+
+def _scan(source: Path) -> Scan:
+    """A record-by-record pass over ``source``: definitions, metadata, messages per channel, damage."""
+    with open(source, "rb") as stream:
+        if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise RecoverInputError(f"{source}: not an MCAP file (no MCAP magic at its start)")
+        scan = Scan(source, source.stat().st_size)
+        for _ in scan_records(stream, scan):
+            pass
+    return scan
+
+
 def _intact(mcap_path: Path) -> bool:
     try:
         verify(open_bag(mcap_path))
@@ -287,12 +308,8 @@ def _has_metadata(mcap_path: Path) -> bool:
 def _copy(source: Path, target: Path) -> tuple[Recovery, dict[str, Any]]:
     """Scan ``source`` (first pass: definitions, metadata, damage), then copy what is readable into a
     finalised bag at ``target`` (second pass); the recovery and the bag information written."""
+    scan = _scan(source)
     with open(source, "rb") as stream:
-        if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise RecoverInputError(f"{source}: not an MCAP file (no MCAP magic at its start)")
-        scan = Scan(source, source.stat().st_size)
-        for _ in scan_records(stream, scan):
-            pass
         information = scan.information
         notes: list[str] = []
         with RosbagMcapWriter(

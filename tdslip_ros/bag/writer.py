@@ -26,11 +26,14 @@ the ``custom_data``; ``tdslip recover`` (:mod:`tdslip_ros.bag.recover`) turns su
 finalised bag.
 
 Write errors. A small file is preallocated beside the bag (``<file>.reserve``: two chunks and room
-for the summary). When a write fails (ENOSPC, EIO), the partial write is cut off, the reserve is
-released and the write tried once more; if that works, the bag is finalised at once with
-everything written so far and :class:`BagWriteError` (one line) says so; if not, the file is left
-ending with a whole record, for ``tdslip recover``, and the error says that instead. Either way
-the bag is closed: later writes raise :class:`BagClosedError`.
+for the summary, or half of what is free where that is less: :func:`reserve_size`). When a write
+fails (ENOSPC, EIO), the partial write is cut off, the reserve is released and the write tried once
+more; if that works, the bag is finalised at once with everything written so far and
+:class:`BagWriteError` (one line) says so; if not, the file is left ending with a whole record, for
+``tdslip recover``, and the error says that instead. Either way the bag is closed: later writes
+raise :class:`BagClosedError`. A limit on the size of one file (``RLIMIT_FSIZE``, ``ulimit -f``) is
+met the same way: the last reserve's worth of bytes below it is kept for finalising, so the write
+that reaches into it is the last, and the bag is finalised with everything given to it (EFBIG).
 
 Threads and signals. All methods are serialized by one re-entrant lock. :meth:`close` may be called
 from another thread (it waits for a write in progress) or from a signal handler: if the handler
@@ -40,7 +43,9 @@ the handler itself must not raise. Writing after close raises :class:`BagClosedE
 
 from __future__ import annotations
 
+import errno
 import os
+import resource
 import threading
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
@@ -97,19 +102,41 @@ def reserve_path(mcap_path: Path) -> Path:
     return mcap_path.with_name(mcap_path.name + RESERVE_SUFFIX)
 
 
+def file_size_limit() -> int | None:
+    """The largest file this process may write (``RLIMIT_FSIZE``, soft), or None if unlimited."""
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return None if limit == resource.RLIM_INFINITY else limit
+
+
+def reserve_size(directory: Path, chunk_size: int) -> int:
+    """The default reserve of a bag written into ``directory``: two chunks and SUMMARY_RESERVE, but
+    at most half of the space free there and half of the file-size limit, so that on a nearly full
+    disk the first strides are written instead of the reserve taking all the room."""
+    free = os.statvfs(directory)
+    room = [2 * chunk_size + SUMMARY_RESERVE, free.f_bavail * free.f_frsize // 2]
+    limit = file_size_limit()
+    if limit is not None:
+        room.append(limit // 2)
+    return min(room)
+
+
 class _WriteThroughFile:
     """Minimal binary sink for ``mcap.writer.Writer`` that hands every write straight to the kernel.
 
     The mcap writer only writes whole records (a finished chunk, its message indexes, the summary),
     so unbuffered writes cost a few system calls per chunk and nothing per message. A failed write
     is cut off (the file keeps ending with a whole record), the reserve released and the write
-    tried once more; ``error`` keeps the first failure even when the retry worked.
+    tried once more; ``error`` keeps the first failure even when the retry worked. Under a file-size
+    limit, the last ``reserve`` bytes below it play the reserve file's part: the write that reaches
+    into them succeeds and sets ``error`` (EFBIG), which finalises the bag.
     """
 
     def __init__(self, path: Path, reserve: int) -> None:
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         self._position = 0
         self.error: OSError | None = None
+        limit = file_size_limit()
+        self._headroom_from = None if limit is None else limit - reserve
         self._reserve: Path | None = reserve_path(path) if reserve > 0 else None
         if self._reserve is not None:
             try:
@@ -123,6 +150,10 @@ class _WriteThroughFile:
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         start = self._position
+        if self.error is None and self._headroom_from is not None and start + len(data) > self._headroom_from:
+            self.error = OSError(
+                errno.EFBIG, "the bag reached the file-size limit (RLIMIT_FSIZE) less its reserve"
+            )
         while True:
             try:
                 self._write_at(start, data)
@@ -216,8 +247,8 @@ class RosbagMcapWriter:
     may exist already. ``ros_distro`` defaults to ``$ROS_DISTRO``, else ``kilted``; ``custom_data``
     goes into the bag metadata's ``custom_data`` mapping. ``flush_interval_ns`` (0: none) closes the
     open chunk once its messages span that much log time, which bounds in time what a hard kill
-    loses. ``reserve`` is the size of the reserve file (default: two chunks and SUMMARY_RESERVE;
-    0: none); BagWriteError if it cannot be allocated.
+    loses. ``reserve`` is the size of the reserve file (default: :func:`reserve_size`; 0: none);
+    BagWriteError if it cannot be allocated.
     """
 
     def __init__(
@@ -261,7 +292,7 @@ class RosbagMcapWriter:
         self._finished = False  # the MCAP file is finalised and closed
         self._metadata_written = False
         self._file = _WriteThroughFile(
-            self.mcap_path, 2 * chunk_size + SUMMARY_RESERVE if reserve is None else reserve
+            self.mcap_path, reserve_size(self.mcap_path.parent, chunk_size) if reserve is None else reserve
         )
         self._mcap = Writer(
             cast(IO[Any], self._file), chunk_size=chunk_size, compression=MCAP_COMPRESSION[compression]

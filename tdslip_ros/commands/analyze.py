@@ -15,7 +15,12 @@ from pathlib import Path
 
 from tdslip_ros.analysis.compare import KNOWN_POLICIES
 from tdslip_ros.analysis.decoding import RunReadError, read_run
+from tdslip_ros.analysis.measured_comparison import compare_measured, measured_headline, write_measured_report
+from tdslip_ros.analysis.measured_reading import MeasuredDataError, measured_run_from_bag
 from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
+from tdslip_ros.analysis.stride_detection import find_strides
+from tdslip_ros.analysis.topic_map import TopicMapError, load_topic_map
+from tdslip_ros.bag.reader import BagReadError
 from tdslip_ros.commands.options import (
     add_analytic_map,
     add_hopper,
@@ -28,6 +33,7 @@ from tdslip_ros.commands.options import (
     policy_file,
 )
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.policies.registry import PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
@@ -48,8 +54,18 @@ def parser() -> argparse.ArgumentParser:
         type=Path,
         help="ROS parameter file with the hopper (default: stored in the bag, or inferred)",
     )
-    add_hopper(parser, "stored in the recording, else inferred; not with --params")
+    add_hopper(
+        parser, "stored in the recording, else inferred; with --topic-map the paper's; not with --params"
+    )
     parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
+    parser.add_argument(
+        "--topic-map",
+        type=Path,
+        help="a recording this suite did not write: the YAML topic map that says where each quantity lives "
+        "in it (docs/identify.md); the strides are found in the data and the hopper is --params' or the "
+        "hopper options', else the paper's; the policy options do not apply (default: none, RUN is a "
+        "recording of this suite)",
+    )
     policy = parser.add_argument_group(
         "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
         "a recorded policy the package does not know is not replayed)"
@@ -119,6 +135,8 @@ def check_policy_options(args: argparse.Namespace) -> None:
 def main(argv: list[str]) -> int:
     args = parser().parse_args(argv)
     out = args.out or (args.run / "report" if args.run.is_dir() else args.run.with_suffix("") / "report")
+    if args.topic_map is not None:
+        return analyze_measured(args, out)
     overrides = {
         "name": args.name,
         "touchdown_angle": None
@@ -163,4 +181,54 @@ def main(argv: list[str]) -> int:
     print(headline(analysis.comparison))
     figures = sum(1 for path in analysis.files.values() if path.suffix == ".png")
     print(f"report: {analysis.files['report']} (summary.json and {figures} figures beside it)")
+    return 0
+
+
+PAPER_HOPPER = "the paper's (section IV.B: m = 80 kg, r0 = 1 m, kbar = 36, zeta0 = 0.08)"
+
+
+def analyze_measured(args: argparse.Namespace, out: Path) -> int:
+    """``--topic-map``: a recording this suite did not write (analysis/measured_comparison.py)."""
+    given = [name for name in POLICY_OPTION_DOMAINS if getattr(args, name) is not None]
+    given += [name for name in ("name", "map", "policy_file", "stride") if getattr(args, name) is not None]
+    created = not out.exists()
+    try:  # usage errors: exit status 2, as argparse's
+        if given:
+            options = ", ".join(f"--{name.replace('_', '-')}" for name in given).replace("--name", "--policy")
+            raise PolicyError(f"{options} do not apply to a recording read through --topic-map")
+        check_output_directory(out)
+        if not args.run.exists():
+            raise OutputError(f"{args.run}: no such file or directory")
+        topic_map = load_topic_map(args.topic_map)
+        if args.params is not None and hopper_given(args):
+            raise PolicyError("give --params or the hopper options (--hopper FILE, --mass, ...), not both")
+        params = PAPER_PARAMS if args.params is None else hopper_params_from_yaml(args.params)
+        hopper = PAPER_HOPPER if args.params is None else f"from {args.params}"
+        if hopper_given(args):
+            params = hopper_of(args, PAPER_PARAMS)
+            hopper = f"from {args.hopper}" if args.hopper is not None else "given on the command line"
+        run = measured_run_from_bag(args.run, topic_map)
+    except (PolicyError, OutputError, TopicMapError, RunReadError, ParameterError) as error:
+        print(f"tdslip analyze: {error}", file=sys.stderr)
+        return 2
+    except (MeasuredDataError, BagReadError) as error:
+        print(f"tdslip analyze: {error}", file=sys.stderr)
+        return 1
+    try:
+        strides = find_strides(run)
+        if not any(stride.usable for stride in strides):
+            reasons = sorted({stride.reason for stride in strides})
+            raise MeasuredDataError(f"no usable stride among the {len(strides)} found: {'; '.join(reasons)}")
+        comparison = compare_measured(run, strides, params, hopper)
+        output_directory(out)
+        files = write_measured_report(comparison, out)
+    except (MeasuredDataError, OutputError, ValueError, OSError) as error:
+        if created and out.is_dir():
+            shutil.rmtree(out)  # a failed analysis leaves the file system as it found it
+        print(
+            f"tdslip analyze: {write_failed(error) if isinstance(error, OSError) else error}", file=sys.stderr
+        )
+        return 1
+    print(measured_headline(comparison))
+    print(f"report: {files['report']} (summary.json beside it)")
     return 0

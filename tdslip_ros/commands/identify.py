@@ -1,12 +1,11 @@
-"""``tdslip identify BAG [--map robot.yaml]``: the hopper's k, c and r0 (and m) estimated from a
+"""``tdslip identify BAG [--topic-map robot.yaml]``: the hopper's k, c and r0 (and m) estimated from a
 recording's stances (:mod:`tdslip_ros.analysis.identification`), a report
 (:mod:`tdslip_ros.analysis.identification_report`) and a hopper file that every command and node accepts
 (``--hopper FILE``, ``-p hopper_file:=FILE``).
 
-Reading BAG through the topic map and finding its strides is the topic map's work (issue 33, its other
-half: ``measured_run_from_bag`` and ``find_strides``). Until it is on main this module has no ``main`` and is
-not in ``commands/cli.py``: :func:`identify_recording` is everything after the reading, and ``main`` is to be
-``args = parser().parse_args(argv)``, the two calls, then ``return identify_recording(args, run, strides)``.
+BAG is read through the topic map (:func:`.analysis.measured_reading.measured_run_from_bag`; the suite's own
+topics by default) and its strides found in the data (:func:`.analysis.stride_detection.find_strides`), as
+``tdslip analyze --topic-map`` does; :func:`identify_recording` is everything after the reading.
 """
 
 from __future__ import annotations
@@ -20,7 +19,11 @@ from pathlib import Path
 from tdslip_ros.analysis.identification import identify, usable_stances
 from tdslip_ros.analysis.identification_report import JSON_KEYS, estimate_lines, write_report
 from tdslip_ros.analysis.measured import MeasuredRun, MeasuredStride
-from tdslip_ros.commands.options import add_hopper, command_parser, hopper_of
+from tdslip_ros.analysis.measured_reading import MeasuredDataError, measured_run_from_bag
+from tdslip_ros.analysis.stride_detection import find_strides
+from tdslip_ros.analysis.topic_map import TopicMapError, load_topic_map, suite_topic_map
+from tdslip_ros.bag.reader import BagReadError
+from tdslip_ros.commands.options import add_hopper, command_parser, hopper_given, hopper_of
 from tdslip_ros.interfaces import write_hopper_file
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
@@ -37,7 +40,12 @@ answer (too short, too noisy, ill-conditioned) is one line, exit status 1, and n
 def parser() -> argparse.ArgumentParser:
     parser = command_parser("identify", DESCRIPTION)
     parser.add_argument("bag", type=Path, help="bag directory or .mcap file of the recording")
-    parser.add_argument("--map", type=Path, help="the topic map (default: the suite's own topics)")
+    parser.add_argument(
+        "--topic-map",
+        type=Path,
+        help="the YAML topic map that says where each quantity lives in BAG (docs/identify.md) (default: the "
+        "suite's own topics, config/topic_map_suite.yaml)",
+    )
     parser.add_argument(
         "--out", type=Path, help="report directory (default: BAG/identify, or next to an .mcap)"
     )
@@ -46,6 +54,28 @@ def parser() -> argparse.ArgumentParser:
         "the paper's; the exact-stance fit starts from it and takes its mass, which kinematics cannot give",
     )
     return parser
+
+
+def main(argv: list[str]) -> int:
+    args = parser().parse_args(argv)
+    try:  # usage errors: exit status 2
+        if not args.bag.exists():
+            raise OutputError(f"{args.bag}: no such file or directory")
+        topic_map = suite_topic_map() if args.topic_map is None else load_topic_map(args.topic_map)
+        rest_length = hopper_of(args, PAPER_PARAMS).r0 if hopper_given(args) else None
+    except (OutputError, TopicMapError, ParameterError) as error:
+        print(f"tdslip identify: {error}", file=sys.stderr)
+        return 2
+    try:
+        run = measured_run_from_bag(args.bag, topic_map)
+        strides = find_strides(run, rest_length)
+    except TopicMapError as error:  # a map that names what the bag does not have
+        print(f"tdslip identify: {error}", file=sys.stderr)
+        return 2
+    except (MeasuredDataError, BagReadError) as error:
+        print(f"tdslip identify: {error}", file=sys.stderr)
+        return 1
+    return identify_recording(args, run, strides)
 
 
 def default_out(bag: Path) -> Path:

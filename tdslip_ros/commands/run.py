@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 from datetime import datetime
 from pathlib import Path
@@ -58,22 +59,43 @@ def apex_table(params: HopperParams, apexes: list[ApexEvent], ground: bool = Fal
     return "\n".join(rows)
 
 
-def counts_table(published_counts: dict[str, int], recorded_counts: dict[str, int]) -> str:
-    """Messages published and recorded per topic, marking the topics where they differ."""
+def counts_table(
+    published_counts: dict[str, int],
+    recorded_counts: dict[str, int],
+    heading: str = "recorded",
+    shortfall: str = "LOST",
+) -> str:
+    """Messages published and recorded (or ``heading``) per topic, marking the topics where they differ:
+    ``shortfall`` where fewer are in the bag than were published."""
     names = sorted(set(published_counts) | set(recorded_counts))
     width = max(len("topic"), *map(len, names))
-    rows = [f"{'topic':<{width}} {'published':>10} {'recorded':>10}"]
+    rows = [f"{'topic':<{width}} {'published':>10} {heading:>11}"]
     for topic in names:
         published, recorded = published_counts.get(topic, 0), recorded_counts.get(topic, 0)
-        mark = "" if published == recorded else "  LOST" if recorded < published else "  EXTRA"
-        rows.append(f"{topic:<{width}} {published:>10d} {recorded:>10d}{mark}")
+        mark = "" if published == recorded else f"  {shortfall}" if recorded < published else "  EXTRA"
+        rows.append(f"{topic:<{width}} {published:>10d} {recorded:>11d}{mark}")
     return "\n".join(rows)
 
 
-def recording_note(bag: Path) -> str:
-    """What became of the recording of a run that ended early."""
+def early_end_table(error: RunError) -> str:
+    """The counts of a run that a node ended early. When the recorder stopped, what it did not record
+    was published after it stopped, not lost in a running recording; an unfinalised bag is counted by
+    what ``tdslip recover`` gets back."""
+    published = error.published or {}
+    if error.recoverable is not None:
+        in_bag, heading = error.recoverable, "recoverable"
+    else:
+        in_bag, heading = error.recorded or {}, "recorded"
+    shortfall = "after the recorder stopped" if error.recorder_stopped else "LOST"
+    return counts_table(published, {topic: in_bag.get(topic, 0) for topic in published}, heading, shortfall)
+
+
+def recording_note(bag: Path, recoverable: dict[str, int] | None = None) -> str:
+    """What became of the recording of a run that ended early (``recoverable``: what ``tdslip recover``
+    gets back from an unfinalised bag, by topic)."""
     if not (bag / "metadata.yaml").is_file():
-        return f"The recording in {bag} was not finalised; make it readable with: tdslip recover {bag}"
+        kept = "" if recoverable is None else f" ({sum(recoverable.values())} messages)"
+        return f"The recording in {bag} was not finalised; make it readable{kept} with: tdslip recover {bag}"
     return f"The recording so far is in {bag} (finalised: tdslip analyze and replay read it)."
 
 
@@ -308,10 +330,9 @@ def main(argv: list[str]) -> int:
     except RunError as error:
         print(f"\ntdslip run: {error}", file=sys.stderr)
         if error.published is not None:
-            recorded = error.recorded or {}
-            print(counts_table(error.published, {topic: recorded.get(topic, 0) for topic in error.published}))
+            print(early_end_table(error))
         if ours and options.out.exists():
-            print(recording_note(options.out), file=sys.stderr)
+            print(recording_note(options.out, error.recoverable), file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # a second Ctrl-C: the children were stopped on the way out
         note = recording_note(options.out) if ours and options.out.exists() else "Nothing was recorded."
@@ -360,7 +381,17 @@ def main(argv: list[str]) -> int:
             print(f"controller output:\n{report.controller_log.rstrip()}", file=sys.stderr)
         print(
             f"run FAILED at stride {outcome.stride}, t = {outcome.sim_time:.6f} s: "
-            f"{outcome.kind}: {outcome.reason}",
+            f"{failure_cause(outcome.kind, outcome.reason, outcome.stride, report.controller_log)}",
             file=sys.stderr,
         )
     return 0 if report.ok else 1
+
+
+def failure_cause(kind: str, reason: str, stride: int, controller_log: str) -> str:
+    """Why the run failed: the plant's failure kind and reason, led by the controller's own reason where
+    the plant waited in vain for a command that the controller found none for (its log line of that
+    apex, controller_node's "no command for apex N (...): why")."""
+    refusal = re.search(rf"no command for apex {stride} \(.*?\): (.+)$", controller_log, re.MULTILINE)
+    if kind == "command_timeout" and refusal is not None:
+        return f"the controller found no command: {refusal[1]} ({kind}: {reason})"
+    return f"{kind}: {reason}"

@@ -52,6 +52,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from tdslip_msgs.msg import ApexEvent
 
+from tdslip_ros.bag.recover import recoverable_counts
 from tdslip_ros.interfaces import (
     HOPPER_PARAMETERS,
     STOP_REQUESTED,
@@ -112,6 +113,10 @@ class RunError(RuntimeError):
 
     published: dict[str, int] | None = None
     recorded: dict[str, int] | None = None
+    recoverable: dict[str, int] | None = None
+    """For a bag left unfinalised: what ``tdslip recover`` gets back, by topic."""
+    recorder_stopped: bool = False
+    """The recorder is the node that ended first (a full disk, a crash, a kill)."""
 
 
 class RunOptionError(RunError):
@@ -598,9 +603,12 @@ def run(
         except RunError as error:
             # A node died: stop the others (the recorder finalises what it has), then say what is in the bag.
             error.published = published_counts()
+            error.recorder_stopped = recorder.process.poll() is not None
             stack.close()
             if (bag / "metadata.yaml").is_file():
                 error.recorded = read_bag_counts(bag)
+            elif bag.is_dir():
+                error.recoverable = recoverable_counts(bag)
             raise
         outcome = plant.outcome
 
