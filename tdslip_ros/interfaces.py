@@ -6,6 +6,7 @@ which ``tdslip run`` stores the nodes' parameters in a bag's ``custom_data``.
 tdslip_ros.nodes.topics adds the QoS and message classes; the analysis must not need rclpy.
 """
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -151,10 +152,75 @@ def installed_parameters(name: str) -> dict[str, Any]:
     return dict(next(iter(document.values()))["ros__parameters"])
 
 
+HOPPER_FILE_PARAMETER = "hopper_file"
+"""The node parameter naming a hopper file that replaces the HOPPER_PARAMETERS' values (empty: none)."""
+
+
 def hopper_from_parameters(values: Mapping[str, Any]) -> HopperParams:
-    """The HopperParams of a node's parameter values by name (ParameterError names a bad one; KeyError
-    a missing one)."""
+    """The HopperParams of a node's parameter values by name: the hopper file's where ``hopper_file`` names
+    one, else the HOPPER_PARAMETERS' (ParameterError names a bad one; KeyError a missing one)."""
+    if values.get(HOPPER_FILE_PARAMETER):
+        return read_hopper_file(Path(str(values[HOPPER_FILE_PARAMETER])))
     return HopperParams(**{field: float(values[name]) for field, name in HOPPER_PARAMETERS.items()})
+
+
+HOPPER_FILE_KEY = "hopper"
+"""The block of a hopper file that holds the hopper, by the node parameter names of HOPPER_PARAMETERS."""
+HOPPER_FILE_PROVENANCE = "provenance"
+"""The block of a hopper file that says where the hopper came from (free text and numbers; not read)."""
+
+
+class HopperFileError(ParameterError):
+    """A hopper file cannot serve; the message is one line naming the file and what is wrong."""
+
+
+def write_hopper_file(path: Path, params: HopperParams, provenance: Mapping[str, Any]) -> None:
+    """Write ``params`` as a hopper file (YAML, SI): the block ``hopper`` with a value per node parameter
+    of HOPPER_PARAMETERS, and ``provenance`` (what made it: a command, a recording, confidence intervals),
+    which :func:`read_hopper_file` ignores. Written whole or not at all (a temporary file, then renamed)."""
+    document = {
+        HOPPER_FILE_KEY: {name: float(getattr(params, field)) for field, name in HOPPER_PARAMETERS.items()},
+        HOPPER_FILE_PROVENANCE: dict(provenance),
+    }
+    path = Path(path)
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(yaml.safe_dump(document, sort_keys=False))
+    partial.replace(path)
+
+
+def read_hopper_file(path: Path) -> HopperParams:
+    """The hopper of a hopper file (:func:`write_hopper_file`). Every field but gravity is required (gravity
+    defaults to HopperParams'); an unknown name is refused, so that a misspelt one is not silently the
+    default. HopperFileError, one line naming the file, for anything else."""
+    optional = {f.name for f in dataclasses.fields(HopperParams) if f.default is not dataclasses.MISSING}
+    try:
+        document = yaml.safe_load(Path(path).read_text())
+    except (OSError, UnicodeDecodeError) as error:
+        raise HopperFileError(f"hopper file {path}: cannot be read ({error.strerror or error})") from None
+    except yaml.YAMLError as error:
+        raise HopperFileError(f"hopper file {path}: not YAML ({' '.join(str(error).split())})") from None
+    block = document.get(HOPPER_FILE_KEY) if isinstance(document, dict) else None
+    if not isinstance(block, dict):
+        raise HopperFileError(f"hopper file {path}: no '{HOPPER_FILE_KEY}:' block of name: value lines")
+    names = {name: field for field, name in HOPPER_PARAMETERS.items()}
+    if unknown := sorted(str(name) for name in block.keys() - names.keys()):
+        raise HopperFileError(
+            f"hopper file {path}: unknown name(s) {', '.join(unknown)}; known: {', '.join(names)}"
+        )
+    if missing := [name for name, field in names.items() if name not in block and field not in optional]:
+        raise HopperFileError(f"hopper file {path}: missing {', '.join(missing)}")
+    values = {}
+    for name, value in block.items():
+        try:  # PyYAML reads 2e4 (no dot, no sign) as text: take what float() takes
+            values[names[name]] = float(value) if not isinstance(value, bool) else math.nan
+        except (TypeError, ValueError):
+            values[names[name]] = math.nan
+        if not math.isfinite(values[names[name]]):
+            raise HopperFileError(f"hopper file {path}: {name} must be a finite number (SI), got {value!r}")
+    try:
+        return HopperParams(**values)
+    except ParameterError as error:
+        raise HopperFileError(f"hopper file {path}: {error}") from None
 
 
 def custom_data_key(node: str, parameter: str) -> str:

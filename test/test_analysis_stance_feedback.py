@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tdslip_ros.analysis.compare import compare_run
+from tdslip_ros.analysis.compare import compare_run, policy_for_run
 from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.analysis.records import STANCE_FEEDBACK, CommandRecord, ContactRecord
-from tdslip_ros.analysis.report import analyze
+from tdslip_ros.analysis.report import analyze, headline
 from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary
 from tdslip_ros.analysis.strides import applied_commands
 from tdslip_ros.model.events import HopperState, Phase
@@ -51,6 +51,22 @@ def test_tdslip_analyze_reports_the_replay(stance_pd: RunReport, tmp_path: Path)
         "its recorded torques replayed on the exact map over 8 strides"
         in analysis.files["report"].read_text()
     )
+
+
+def test_the_stance_feedback_policy_is_replayed_and_reproduces_every_torque(stance_pd: RunReport) -> None:
+    """Issue 33: its law, with the stored settings and the controller's hopper, on each recorded stance state
+    gives the torque the hip held, to rounding (the node computes on floats with math, the replay on arrays
+    with numpy); other gains do not."""
+    run = read_run(stance_pd.bag)
+    comparison = compare_run(run)
+    assert comparison.policy is not None and comparison.policy.name == STANCE_PD_SPEED_ENERGY
+    assert comparison.command_deviation is not None and comparison.command_deviation < 1e-13
+    assert comparison.policy_reproduced
+    assert comparison.ramp_policy is None and comparison.analytic_fixed_point is None
+    doubled = 2.0 * comparison.policy.stance_speed_gain
+    other = compare_run(run, policy_for_run(run, stance_speed_gain=doubled))
+    assert other.command_deviation is not None and other.command_deviation > 1e-3
+    assert "policy stance_pd_speed_energy (" in headline(comparison) and "reproduces" in headline(comparison)
 
 
 def test_a_stance_feedback_command_is_found_applied_with_and_without_a_torque_limit() -> None:

@@ -169,6 +169,14 @@ def test_a_bad_operating_point_is_one_line(tmp_path: Path, capsys: pytest.Captur
     error = capsys.readouterr().err
     assert error.startswith("tdslip robustness: energy regulation at 20 deg does not settle at Ebar = 0.5")
     assert len(error.splitlines()) == 1
+    # the hopper is an input here too (commands/options.py), refused as the others before anything runs
+    absent = tmp_path / "absent.yaml"
+    assert cli.main(["robustness", "--out", str(tmp_path / "c"), "--hopper", str(absent)]) == 2
+    assert (
+        capsys.readouterr().err
+        == f"tdslip robustness: hopper file {absent}: cannot be read (No such file or directory)\n"
+    )
+    assert not (tmp_path / "c").exists()
 
 
 def test_the_sizes_of_a_kind_are_an_option(tmp_path: Path, dask_scheduler: str) -> None:

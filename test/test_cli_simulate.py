@@ -77,7 +77,8 @@ def test_simulate_defaults_hop_and_failures_are_named(capsys: pytest.CaptureFixt
         (["--strides", "-5"], "--strides must be at least 1, got -5"),
         (["--strides", "0"], "--strides must be at least 1, got 0"),
         (["--zeta0", "2"], "zeta0 = c/(2 sqrt(m k)) = 2, but the model needs an underdamped leg"),
-        (["--mass", "1e-300"], "out of the floating-point range"),
+        (["--mass", "1e-300", "--kbar", "36"], "out of the floating-point range"),
+        (["--stiffness", "3e4", "--kbar", "36"], "give --stiffness or --kbar, not both"),
         (["--dt", "0.5"], "cannot resolve this hopper"),
     ],
 )

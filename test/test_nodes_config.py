@@ -15,7 +15,8 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from support.ros_harness import RosGraph, overrides
 
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.interfaces import hopper_from_parameters
+from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import controller_node, isolation, parameters, plant_parameters, recorder_node
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.entry import BAD_PARAMETERS, with_default_params_file
@@ -54,7 +55,7 @@ def test_plant_and_controller_share_the_paper_hopper(repo_root: Path) -> None:
     plant = yaml_parameters(repo_root / "config" / "plant.yaml")
     controller = yaml_parameters(repo_root / "config" / "controller.yaml")
     assert {key: plant[key] for key in HOPPER_KEYS} == {key: controller[key] for key in HOPPER_KEYS}
-    hopper = HopperParams(*(plant[key] for key in HOPPER_KEYS))
+    hopper = hopper_from_parameters(plant)
     assert (hopper.kbar, hopper.zeta0, hopper.m, hopper.r0) == pytest.approx(
         (36.0, 0.08, 80.0, 1.0), rel=1e-14
     )

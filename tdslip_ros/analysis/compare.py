@@ -59,7 +59,12 @@ import numpy.typing as npt
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.analysis.records import Run, StrideRecord
-from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary, predict_stance_feedback
+from tdslip_ros.analysis.stance_feedback import (
+    FeedbackPredictions,
+    feedback_summary,
+    law_deviation,
+    predict_stance_feedback,
+)
 from tdslip_ros.bag.schema import MessageDefinitionError
 from tdslip_ros.interfaces import installed_parameters, stored_parameters
 from tdslip_ros.model import units
@@ -80,12 +85,17 @@ from tdslip_ros.model.policies.registry import (
     POLICIES,
     POLICY_SETTINGS,
     SETTING_DEFAULTS,
+    STANCE_FEEDBACK_POLICIES,
     PolicyError,
     PolicySpec,
 )
 from tdslip_ros.reporting.output import unit_key
 
 FloatArray = npt.NDArray[np.float64]
+
+KNOWN_POLICIES = (*POLICIES, *STANCE_FEEDBACK_POLICIES)
+"""Every policy of the suite, the ones that answer with a ramp and the stance-feedback ones: each is
+replayed on a recording that names it."""
 
 CONVERGENCE_TOLERANCE = 1e-4
 """Dimensionless apex change below which a run has converged (the paper's tolerance)."""
@@ -129,12 +139,12 @@ def policy_for_run(run: Run, **overrides: Any) -> PolicySpec | None:
     stored = {key: value for key, value in controller.items() if key in PolicySpec.settings()}
     if "name" in given:
         name = str(given["name"])
-        if name not in POLICIES:
-            raise PolicyError(f"unknown policy {name!r}; one of {', '.join(POLICIES)}")
+        if name not in KNOWN_POLICIES:
+            raise PolicyError(f"unknown policy {name!r}; one of {', '.join(KNOWN_POLICIES)}")
     else:
         policies = run.policies
         name = str(controller.get("policy", policies[0] if len(policies) == 1 else ""))
-        if name not in POLICIES:
+        if name not in KNOWN_POLICIES:
             return None
     defaults = controller_defaults()
     values: dict[str, Any] = {key: defaults[key] for key in PolicySpec.settings()}
@@ -230,6 +240,12 @@ class Comparison:
         return ", ".join(self.run.policies) or "no applied command"
 
     @property
+    def ramp_policy(self) -> PolicySpec | None:
+        """The policy where it answers with a ramp, so that its closed loop runs on the analytic map; None
+        for a stance-feedback policy (its torque is decided during stance) or without a policy."""
+        return self.policy if self.policy is not None and self.policy.name in POLICIES else None
+
+    @property
     def policy_reproduced(self) -> bool:
         return self.command_deviation is not None and self.command_deviation <= REPRODUCTION_TOLERANCE
 
@@ -252,7 +268,9 @@ def compare_run(run: Run, policy: PolicySpec | None = None, analytic_map: str | 
     guess = (
         (recorded.y, recorded.xdot) if recorded is not None else (float(apexes[-1, 0]), float(apexes[-1, 1]))
     )
-    analytic = None if policy is None else analytic_fixed_point(params, policy, guess, run.planner)
+    # a stance-feedback policy has no closed loop on the analytic map: its torque is decided during stance
+    ramp = policy is not None and policy.name in POLICIES
+    analytic = analytic_fixed_point(params, policy, guess, run.planner) if ramp and policy else None
     return Comparison(
         run=run,
         policy=policy,
@@ -514,7 +532,10 @@ def command_deviation(run: Run, policy: PolicySpec) -> float:
     """Largest relative deviation of the policy's commands, replayed on the recorded apexes as the
     controller was given them (measured, above the ground of the last stance) with the hopper it planned
     with, from the applied ones (angle, tau0 and t_f each relative to its own magnitude); NaN without
-    commands."""
+    commands. A stance-feedback policy's law is replayed on the recorded stance states instead
+    (:func:`.stance_feedback.law_deviation`)."""
+    if policy.name in STANCE_FEEDBACK_POLICIES:
+        return law_deviation(run, policy)
     rows = [(i, s) for i, s in enumerate(run.strides) if s.command is not None]
     if not rows:
         return math.nan

@@ -94,7 +94,7 @@ def return_map(comparison: Comparison, path: Path) -> Figure:
     scale = units.length_scale(params)
     figure = Figure(figsize=(6, 6))
     ax = figure.subplots()
-    if comparison.policy is not None:
+    if comparison.ramp_policy is not None:
         fixed = comparison.analytic_fixed_point or comparison.recorded_fixed_point
         level = (
             params.m * (params.g * fixed.y + 0.5 * fixed.xdot**2)
@@ -103,7 +103,7 @@ def return_map(comparison: Comparison, path: Path) -> Figure:
         )
         xdot = speed_from_energy(params, y, level)
         with np.errstate(invalid="ignore"):
-            mapped = closed_loop_step(params, comparison.policy, y, xdot, xdot)[:, 0]
+            mapped = closed_loop_step(params, comparison.ramp_policy, y, xdot, xdot)[:, 0]
         ax.plot(
             y / scale,
             mapped / scale,

@@ -28,6 +28,7 @@ from tdslip_ros.analysis import plots
 from tdslip_ros.analysis.compare import (
     CONVERGENCE_TOLERANCE,
     CORRECTIONS,
+    KNOWN_POLICIES,
     Comparison,
     FixedPoint,
     compare_run,
@@ -48,7 +49,7 @@ from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP
 from tdslip_ros.model.params import HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.perturbations import MISMATCH_FIELDS, Mismatch
-from tdslip_ros.model.policies.registry import POLICIES, PolicySpec, settings_of
+from tdslip_ros.model.policies.registry import PolicySpec, settings_of
 from tdslip_ros.reporting.output import DIMENSIONLESS_SUFFIXES, UNIT_SUFFIXES, to_json, unit_key
 
 FIGURES = {
@@ -398,7 +399,7 @@ def _policy_text(comparison: Comparison) -> str:
             f"policy not replayed: the recording shows {what}, not one policy tdslip_ros knows; checking "
             "that it reproduces the recorded commands and the analytic fixed point are skipped, the "
             "predictions use the applied commands. To compare with a known policy: "
-            f"--policy {{{','.join(POLICIES)}}} and its settings (see --help)"
+            f"--policy {{{','.join(KNOWN_POLICIES)}}} and its settings (see --help)"
         )
     detail = policy_settings_text(policy, params)
     if math.isnan(deviation):
@@ -540,10 +541,11 @@ GLOSSARY: tuple[tuple[str, str], ...] = (
     ),
     (
         "policy; replaying, max rel. dev.",
-        "the controller's rule from apex to command (" + ", ".join(POLICIES) + "); replaying it: running "
-        "it offline on the apexes the controller was given; max rel. dev.: the largest relative "
+        "the controller's rule from apex to command (" + ", ".join(KNOWN_POLICIES) + "); replaying it: "
+        "running it offline on the apexes the controller was given; max rel. dev.: the largest relative "
         "difference of the replayed commands from the applied ones (angle, tau0, t_f each relative to its "
-        "own size)",
+        "own size; a stance-feedback policy's torques, its law run on the recorded stance states, relative "
+        "to the largest applied)",
     ),
     (
         "analytic map, corrections",

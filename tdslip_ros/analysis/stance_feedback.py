@@ -9,10 +9,17 @@ recorded apex at its time on the plant's clock, which puts the replay on the pla
 perturbations as :mod:`.compare` applies them. The prediction then differs from the recorded next apex by the
 1 kHz plant's own integration error alone (RK4, 4 sub-steps per tick: :mod:`tdslip_ros.model.plant.stepper`).
 Recordings of several epochs (resets) are refused by the reader, so the plant's clock is the epoch's.
+
+**The policy replayed** (:func:`law_deviation`): a stance-feedback policy of the suite
+(``model.policies.registry.STANCE_FEEDBACK_POLICIES``) is checked as a ramp policy is in :mod:`.compare`. Its
+law, computing with the hopper the controller planned with, is evaluated on the recorded state of each tick at
+which a torque was applied (the state the stance controller answered, with the torque held until then) and
+clipped as the controller and the plant clip it; its touchdown angle is compared with the one applied.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,9 +27,17 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.analysis.records import Run
+from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.perturbations import StrideConditions
+from tdslip_ros.model.plant.stance_laws import (
+    RECORD_TIME_TOLERANCE,
+    RecordedTorques,
+    StanceSample,
+    clip_torque,
+)
+from tdslip_ros.model.policies.registry import PolicySpec
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -83,6 +98,41 @@ def predict_stance_feedback(run: Run) -> FeedbackPredictions:
         exact=np.array(exact, dtype=float).reshape(-1, 2),
         failures=failures,
     )
+
+
+def law_deviation(run: Run, policy: PolicySpec) -> float:
+    """Largest deviation of ``policy``'s stance feedback, replayed on the recorded stances (module docstring),
+    from what was applied: each torque relative to the largest applied |torque| of the run, the touchdown
+    angle relative to itself; NaN without a stance under feedback or with a torque at no recorded state."""
+    feedback = policy.stance_feedback(run.planner)
+    limit = min(PlausibilityLimits.for_hopper(run.planner).max_torque, float(run.perturbations.tau_max))
+    samples = run.samples
+    replayed, applied, angle_deviation = [], [], 0.0
+    for stride in run.strides:
+        if stride.stance_feedback is None or not isinstance(stride.stance_feedback.law, RecordedTorques):
+            continue
+        recorded = stride.stance_feedback.law
+        angle = stride.stance_feedback.touchdown_angle
+        angle_deviation = max(angle_deviation, abs(feedback.touchdown_angle - angle) / abs(angle))
+        at = np.clip(np.searchsorted(samples.t, recorded.times - RECORD_TIME_TOLERANCE), 0, len(samples) - 1)
+        if not np.all(np.abs(samples.t[at] - recorded.times) <= RECORD_TIME_TOLERANCE):
+            return math.nan
+        sample = StanceSample(
+            samples.t[at],
+            samples.t[at] - stride.touchdown_time,
+            samples.r[at],
+            samples.theta[at],
+            samples.rdot[at],
+            samples.thetadot[at],
+            samples.hip_torque[at],
+        )
+        replayed.append(clip_torque(np.asarray(feedback.law.torque(sample), dtype=float), limit))
+        applied.append(recorded.torques)
+    if not applied:
+        return math.nan
+    torques, laws = np.concatenate(applied), np.concatenate(replayed)
+    scale = max(float(np.max(np.abs(torques))), 1e-300)
+    return max(angle_deviation, float(np.max(np.abs(laws - torques))) / scale)
 
 
 def largest_errors(predictions: FeedbackPredictions) -> tuple[float, float] | None:

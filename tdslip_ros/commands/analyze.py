@@ -13,6 +13,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from tdslip_ros.analysis.compare import KNOWN_POLICIES
 from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.measured_comparison import compare_measured, measured_headline, write_measured_report
 from tdslip_ros.analysis.measured_reading import MeasuredDataError, measured_run_from_bag
@@ -22,14 +23,18 @@ from tdslip_ros.analysis.topic_map import TopicMapError, load_topic_map
 from tdslip_ros.bag.reader import BagReadError
 from tdslip_ros.commands.options import (
     add_analytic_map,
+    add_hopper,
     add_policy_file,
     add_touchdown_angle,
     command_parser,
     deprecated,
+    hopper_given,
+    hopper_of,
     policy_file,
 )
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.policies.registry import POLICIES, PolicyError
+from tdslip_ros.model.params import ParameterError
+from tdslip_ros.model.policies.registry import PolicyError
 from tdslip_ros.reporting.output import OutputError, check_output_directory, output_directory, write_failed
 
 DESCRIPTION = """\
@@ -49,20 +54,26 @@ def parser() -> argparse.ArgumentParser:
         type=Path,
         help="ROS parameter file with the hopper (default: stored in the bag, or inferred)",
     )
+    add_hopper(
+        parser, "stored in the recording, else inferred; with --topic-map the paper's; not with --params"
+    )
     parser.add_argument("--stride", type=int, help="stride drawn in the COM figure (default: last complete)")
     parser.add_argument(
         "--topic-map",
         type=Path,
         help="a recording this suite did not write: the YAML topic map that says where each quantity lives "
-        "in it (docs/identify.md); the strides are found in the data and the hopper is --params', else "
-        "the paper's; the policy options do not apply (default: none, RUN is a recording of this suite)",
+        "in it (docs/identify.md); the strides are found in the data and the hopper is --params' or the "
+        "hopper options', else the paper's; the policy options do not apply (default: none, RUN is a "
+        "recording of this suite)",
     )
     policy = parser.add_argument_group(
         "policy settings (default: as stored in the bag, else the recording and config/controller.yaml; "
         "a recorded policy the package does not know is not replayed)"
     )
     recorded = "default: the recording's"
-    policy.add_argument("--policy", dest="name", choices=POLICIES, help=f"the policy to replay ({recorded})")
+    policy.add_argument(
+        "--policy", dest="name", choices=KNOWN_POLICIES, help=f"the policy to replay ({recorded})"
+    )
     add_touchdown_angle(policy, "--angle", what=" (open_loop, energy, energy_exact)", unset="the recording's")
     policy.add_argument(
         "--touchdown-power", type=float, help=f"hip power at touchdown [W] (open_loop; {recorded})"
@@ -143,6 +154,8 @@ def main(argv: list[str]) -> int:
     }
     created = not out.exists()
     try:  # usage errors: exit status 2, as argparse's
+        if args.params is not None and hopper_given(args):
+            raise PolicyError("give --params or the hopper options (--hopper FILE, --mass, ...), not both")
         check_policy_options(args)
         check_output_directory(out)
     except (PolicyError, OutputError) as error:
@@ -154,6 +167,8 @@ def main(argv: list[str]) -> int:
     try:
         # Everything that can be checked is, before the report folder comes into being.
         params = None if args.params is None else hopper_params_from_yaml(args.params)
+        if hopper_given(args):  # values given alone replace the recording's (a first read finds them)
+            params = hopper_of(args, read_run(args.run).params if args.hopper is None else PAPER_PARAMS)
         run = read_run(args.run, params)
         output_directory(out)
         analysis = analyze(run, out, overrides, args.stride)
@@ -185,10 +200,15 @@ def analyze_measured(args: argparse.Namespace, out: Path) -> int:
         if not args.run.exists():
             raise OutputError(f"{args.run}: no such file or directory")
         topic_map = load_topic_map(args.topic_map)
+        if args.params is not None and hopper_given(args):
+            raise PolicyError("give --params or the hopper options (--hopper FILE, --mass, ...), not both")
         params = PAPER_PARAMS if args.params is None else hopper_params_from_yaml(args.params)
         hopper = PAPER_HOPPER if args.params is None else f"from {args.params}"
+        if hopper_given(args):
+            params = hopper_of(args, PAPER_PARAMS)
+            hopper = f"from {args.hopper}" if args.hopper is not None else "given on the command line"
         run = measured_run_from_bag(args.run, topic_map)
-    except (PolicyError, OutputError, TopicMapError, RunReadError) as error:
+    except (PolicyError, OutputError, TopicMapError, RunReadError, ParameterError) as error:
         print(f"tdslip analyze: {error}", file=sys.stderr)
         return 2
     except (MeasuredDataError, BagReadError) as error:

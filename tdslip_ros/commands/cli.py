@@ -20,6 +20,7 @@ SUBCOMMANDS: dict[str, str] = {
     "simulate": "plant-only simulation from the model core, printed as a table",
     "run": "run the plant, controller and recorder nodes for one hop, recorded",
     "analyze": "compare a recorded run with the analytic map: summary JSON, figures, report",
+    "identify": "estimate the hopper (k, c, r0, m) from a recording's stances: a hopper file and a report",
     "compare": "deadbeat vs apex foot placement over desired speeds, recorded and analysed (fig. 13 errors)",
     "replay": "re-publish a recording on its topics with its timing (or --rate R)",
     "recover": "make a truncated or unfinalised recording readable again (the original is kept as *.orig)",

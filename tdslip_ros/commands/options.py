@@ -16,8 +16,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
+from tdslip_ros.interfaces import HOPPER_PARAMETERS, read_hopper_file
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
-from tdslip_ros.model.params import ParameterError
+from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
@@ -231,3 +232,69 @@ def policy_file(args: argparse.Namespace) -> str | None:
 
 def analytic_map_speed(args: argparse.Namespace) -> SpeedSource:
     return ANALYTIC_MAPS[args.map]
+
+
+HOPPER_OPTIONS = {
+    "m": ("--mass", "KG", "body mass m [kg]"),
+    "k": ("--stiffness", "N_PER_M", "leg stiffness k [N/m]"),
+    "c": ("--damping", "N_S_PER_M", "leg damping c [N s/m]"),
+    "r0": ("--rest-length", "M", "leg rest length r0 [m]"),
+}
+"""The hopper's SI options by HopperParams field (gravity stays the model's); with --kbar, --zeta0 and
+--hopper FILE, declared here once for every command that takes a hopper (:func:`add_hopper`)."""
+
+
+def add_hopper(parser: argparse.ArgumentParser | Any, default: str, *old_rest_length: str) -> None:
+    """The hopper options (one group): ``--hopper FILE`` (a hopper file, ``tdslip identify`` writes one),
+    then each of ``--mass``, ``--stiffness``, ``--damping``, ``--rest-length`` [SI] or the paper's ``--kbar``
+    and ``--zeta0`` (eq. 24) replacing the file's or the default's value; ``default`` says in words what the
+    hopper is without them. Read them with :func:`hopper_of`."""
+    group = parser.add_argument_group(f"the hopper (default: {default}; an option replaces its value)")
+    group.add_argument(
+        "--hopper", type=Path, metavar="FILE", help="hopper file (YAML, SI; tdslip identify) (default: none)"
+    )
+    for option, metavar, what in HOPPER_OPTIONS.values():
+        action = group.add_argument(
+            option, type=float, metavar=metavar, help=f"{what} (default: the hopper's)"
+        )
+        if option == "--rest-length":
+            deprecated(group, action, *old_rest_length)
+    for option, what, instead in (("--kbar", "leg stiffness k r0/(m g)", "--stiffness"),
+                                  ("--zeta0", "leg damping ratio c/(2 sqrt(m k))", "--damping")):  # fmt: skip
+        group.add_argument(
+            option, type=float, help=f"{what}, dimensionless; or {instead} (default: the hopper's)"
+        )
+
+
+def hopper_given(args: argparse.Namespace) -> bool:
+    """Whether any of :func:`add_hopper`'s options was given."""
+    options = [
+        "hopper",
+        "kbar",
+        "zeta0",
+        *(option[2:].replace("-", "_") for option, _, _ in HOPPER_OPTIONS.values()),
+    ]
+    return any(getattr(args, name) is not None for name in options)
+
+
+def hopper_of(args: argparse.Namespace, default: HopperParams) -> HopperParams:
+    """The hopper of :func:`add_hopper`'s options: the file's, else ``default``, with the given values
+    replaced (kbar and zeta0 with the resulting m and r0). ParameterError, one line, for a bad value, a file
+    that cannot serve, or a value given twice (--stiffness with --kbar, --damping with --zeta0)."""
+    given = {
+        field: getattr(args, option[2:].replace("-", "_")) for field, (option, _, _) in HOPPER_OPTIONS.items()
+    }
+    for field, bar in (("k", "kbar"), ("c", "zeta0")):
+        if given[field] is not None and getattr(args, bar) is not None:
+            raise ParameterError(f"give {HOPPER_OPTIONS[field][0]} or --{bar}, not both")
+    base = default if args.hopper is None else read_hopper_file(args.hopper)
+    values = {field: getattr(base, field) for field in HOPPER_PARAMETERS}
+    values |= {field: value for field, value in given.items() if value is not None}
+    m, r0, g = values["m"], values["r0"], values["g"]
+    if args.kbar is not None:
+        values["k"] = HopperParams.from_dimensionless(args.kbar, 0.0, m=m, r0=r0, g=g).k
+    if args.zeta0 is not None:
+        values["c"] = HopperParams.from_dimensionless(
+            values["k"] * r0 / (m * g), args.zeta0, m=m, r0=r0, g=g
+        ).c
+    return HopperParams(**values)

@@ -45,15 +45,18 @@ from pathlib import Path
 from tdslip_ros.commands.options import (
     add_analytic_map,
     add_energy_bar,
+    add_hopper,
     add_policy_file,
     add_touchdown_angle,
     command_parser,
+    hopper_of,
     policy_file,
     touchdown_angle_error,
 )
 from tdslip_ros.commands.study_command import add_engine_arguments, positive_int, run_study_command, where_of
 from tdslip_ros.model import units
 from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.policies.registry import (
     DEFAULT_TARGET_ENERGY,
     LEARNED,
@@ -122,6 +125,7 @@ def parser() -> argparse.ArgumentParser:
         "--seed", type=int, default=0, help="of every random draw (with the trajectory index)"
     )
     add_analytic_map(parser, what=", the one the policies (and the operating point) plan on")
+    add_hopper(parser, "the paper's, kbar 36, zeta0 0.08, 80 kg, 1 m")
     add_engine_arguments(parser)
     return parser
 
@@ -131,7 +135,10 @@ def main(argv: list[str]) -> int:
     kinds, policies = list(dict.fromkeys(args.kinds)), list(dict.fromkeys(args.policies))
 
     def produce() -> None:
-        params = PAPER_PARAMS
+        try:
+            params = hopper_of(args, PAPER_PARAMS)
+        except ParameterError as error:
+            raise StudyError(str(error)) from None
         if (reason := touchdown_angle_error(args.touchdown_angle_deg)) is not None:
             raise StudyError(reason)
         chosen = chosen_kinds(kinds, {name: getattr(args, f"{name}_sizes") for name in kinds})

@@ -18,14 +18,17 @@ from tdslip_msgs.msg import ApexEvent
 
 from tdslip_ros.commands.options import (
     add_analytic_map,
+    add_hopper,
     add_initial_apex,
     add_policy_file,
     add_touchdown_angle,
     command_parser,
+    hopper_given,
+    hopper_of,
     policy_file,
     touchdown_angle_error,
 )
-from tdslip_ros.interfaces import resolve
+from tdslip_ros.interfaces import hopper_from_parameters, installed_parameters, resolve
 from tdslip_ros.model import units
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.plant.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
@@ -214,6 +217,7 @@ def parser() -> argparse.ArgumentParser:
         metavar="STRIDE:DV | random:size=DV,rate=P,seed=N",
         help="a push of DV [m/s] right after the apex of STRIDE, or random ones (repeatable; default: none)",
     )
+    add_hopper(parser, "config/plant.yaml's, the paper's; the plant's and the controller's model alike")
     return parser
 
 
@@ -257,8 +261,13 @@ def main(argv: list[str]) -> int:
         if angle_error is not None:
             raise RunOptionError(angle_error)
         perturbations = perturbations_of(args)
+        hopper = (
+            hopper_of(args, hopper_from_parameters(installed_parameters("plant.yaml")))
+            if hopper_given(args)
+            else None
+        )
         domain_id = own_controller_domain(args) if args.controller == "none" else args.domain_id
-    except RunError as error:
+    except (RunError, ParameterError) as error:
         print(f"tdslip run: {error}", file=sys.stderr)
         return 2
     options = RunOptions(
@@ -282,6 +291,7 @@ def main(argv: list[str]) -> int:
         domain_id=domain_id,
         namespace=args.namespace,
         perturbations=perturbations,
+        hopper=hopper,
         own_controller=args.controller == "none",
         controller_wait=args.wait_for_controller,
     )

@@ -17,15 +17,17 @@ import sys
 
 from tdslip_ros.analysis.simulate import energy_neutral_command
 from tdslip_ros.commands.options import (
+    add_hopper,
     add_initial_apex,
     add_touchdown_angle,
     check_strides_and_angle,
     command_parser,
+    hopper_of,
 )
 from tdslip_ros.model import dynamics, units
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
-from tdslip_ros.model.paper import PAPER_KBAR, PAPER_PARAMS, PAPER_ZETA0
+from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 
@@ -52,12 +54,7 @@ best marginally stable, so the run drifts and may end in a named failure (exit s
 def parser() -> argparse.ArgumentParser:
     parser = command_parser("simulate", DESCRIPTION)
     parser.add_argument("--strides", type=int, default=10, help="apexes to simulate")
-    parser.add_argument(
-        "--kbar", type=float, default=PAPER_KBAR, help="leg stiffness k r0/(m g) (dimensionless)"
-    )
-    parser.add_argument("--zeta0", type=float, default=PAPER_ZETA0, help="leg damping ratio (dimensionless)")
-    parser.add_argument("--mass", type=float, default=PAPER_PARAMS.m, help="body mass m [kg]")
-    parser.add_argument("--r0", type=float, default=PAPER_PARAMS.r0, help="leg rest length [m]")
+    add_hopper(parser, "the paper's, kbar 36, zeta0 0.08, 80 kg, 1 m", "--r0")
     add_touchdown_angle(parser, "--beta-deg")
     add_initial_apex(parser)
     parser.add_argument("--tau0", type=float, help="ramp torque [N m] (default: energy-neutral first stride)")
@@ -71,7 +68,7 @@ def main(argv: list[str]) -> int:
     # Bad input: one line on stderr and exit code 2 (argparse's code for a usage error); 1 is a failure.
     try:
         check_strides_and_angle(args.strides, args.touchdown_angle_deg)
-        params = HopperParams.from_dimensionless(args.kbar, args.zeta0, m=args.mass, r0=args.r0)
+        params = hopper_of(args, PAPER_PARAMS)
         check_hopper(params)
         limits = PlausibilityLimits.for_hopper(params)
         apex = ApexState(args.height, args.speed)

@@ -5,7 +5,9 @@ rclpy enforces the numeric ranges itself (for YAML overrides at start-up and for
 as its on-set-parameters callback, so a bad value is refused with a reason and never taken.
 
 The hopper's physical parameters (:data:`HOPPER`) are SI and shared by the plant and the
-controller, which needs the same values to plan; both YAML files carry them under the same keys.
+controller, which needs the same values to plan; both YAML files carry them under the same keys. Either
+node may instead read them from a hopper file (``hopper_file``,
+:func:`tdslip_ros.interfaces.read_hopper_file`).
 Their defaults are the paper's figures 8-10: kbar = 36, zeta0 = 0.08, m = 80 kg, r0 = 1 m.
 """
 
@@ -21,6 +23,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from tdslip_ros.interfaces import HOPPER_FILE_PARAMETER
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.plant.terrain import TERRAIN_FORMS
@@ -73,6 +76,13 @@ HOPPER: tuple[ParameterSpec, ...] = (
     _hopper("rest_length", PAPER_PARAMS.r0, "leg rest length r0 [m]", 1e-3, 1e2),
     _hopper("damping", PAPER_PARAMS.c, "leg damping c [N s/m] (zeta0 = c / (2 sqrt(m k)) < 1)", 0.0, 1e7),
     _hopper("gravity", PAPER_PARAMS.g, "gravitational acceleration g [m/s^2]", 1e-3, 1e3),
+    ParameterSpec(
+        HOPPER_FILE_PARAMETER,
+        "",
+        "a hopper file (YAML, SI; tdslip identify writes one) whose hopper replaces the five above "
+        "(empty: none)",
+        read_only=True,
+    ),
 )
 
 

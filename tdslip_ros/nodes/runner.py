@@ -161,6 +161,9 @@ class RunOptions:
     perturbations: Perturbations = field(default_factory=Perturbations)
     """Terrain, sensing noise, placement error, torque limit and pushes for the plant; mismatch for the
     controller, whose hopper parameters become the plant's times its factors."""
+    hopper: HopperParams | None = None
+    """The hopper of the plant and of the controller's model alike (``tdslip run --hopper FILE``, --mass,
+    ...); None: the installed plant.yaml's."""
     own_controller: bool = False
     """Start no controller: the user's own answers the apexes (``tdslip run --controller none``)."""
     controller_wait: float = 300.0
@@ -295,8 +298,16 @@ def _overrides(values: dict[str, object]) -> list[str]:
     return arguments
 
 
+def hopper_overrides(hopper: HopperParams | None) -> dict[str, object]:
+    """The node parameters of ``hopper`` (none: the installed files'), the same for plant and controller."""
+    if hopper is None:
+        return {}
+    return {name: getattr(hopper, field) for field, name in HOPPER_PARAMETERS.items()}
+
+
 def plant_overrides(options: RunOptions) -> dict[str, object]:
     return {
+        **hopper_overrides(options.hopper),
         **perturbation_parameters(options.perturbations),
         "clock_mode": options.mode,
         "max_strides": options.strides,
@@ -314,7 +325,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
     target_energy = options.target_energy
     if target_energy is None:
         target_energy = params.m * (params.g * options.height + 0.5 * options.speed**2)
-    model = {}
+    model = hopper_overrides(options.hopper)
     mismatch = options.perturbations.mismatch
     if mismatch.active:  # the controller plans with another hopper
         planned = mismatch.controller_params(params)
@@ -430,7 +441,12 @@ def check_options(options: RunOptions) -> None:
         parameters.check_values(plant_parameters.SPECS, plant_overrides(options))
     except ParameterError as error:
         raise RunOptionError(f"plant parameters: {error}") from None
-    hopper = hopper_from_parameters(installed_parameters("plant.yaml"))
+    if options.hopper is not None:
+        try:
+            check_hopper(options.hopper)
+        except ParameterError as error:
+            raise RunOptionError(f"the hopper: {error}") from None
+    hopper = options.hopper or hopper_from_parameters(installed_parameters("plant.yaml"))
     check_placement(options, hopper)
     if not options.own_controller:
         check_controller_parameters(options, hopper)
