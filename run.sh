@@ -147,7 +147,7 @@ ensure_ros2_tools() {
     )
     key="$(inputs_hash "${tool_inputs[@]}" -- "$(cat "$STAMPS/requirements")")"
     stamp_is_current ros2_tools "$key" && return 0
-    say "installing the ros2 command-line tools from ../shared/ros2-tools into .venv (about a minute)"
+    say "installing the ros2 command-line tools from ../shared/ros2-tools into .venv (1 to 4 minutes)"
     logged "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REPO/requirements-ros2-tools.txt"
     mapfile -t wheels < <(find "$ROS2_TOOLS/wheels" -name '*.whl' | LC_ALL=C sort)
     logged "$VENV/bin/python" -m pip install --disable-pip-version-check --no-index --no-deps "${wheels[@]}"
