@@ -31,8 +31,6 @@ from support.ros2_tools import ros2_command
 from tdslip_ros.interfaces import installed_parameters, resolve
 from tdslip_ros.nodes import isolation, topics
 
-pytestmark = pytest.mark.nodes
-
 STRIDES = 30
 CONTROLLER_START_TIMEOUT = 60.0  # s
 NO_DAEMON = ["--no-daemon", "--spin-time", "2"]
@@ -89,12 +87,14 @@ def hand_run(tmp_path_factory: pytest.TempPathFactory) -> HandRun:
         return HandRun(processes, folder / "bag", plant_status, param_set_status)
 
 
+@pytest.mark.nodes
 def test_the_hand_started_hop_completes_and_is_recorded(hand_run: HandRun) -> None:
     assert hand_run.plant_status == 0, hand_run.processes.output("plant")
     apexes = bag_messages(hand_run.bag)[resolve(topics.APEX)]
     assert [apex.stride for _, apex in apexes] == list(range(STRIDES + 1))
 
 
+@pytest.mark.nodes
 def test_topic_echo_prints_every_apex_as_recorded(hand_run: HandRun) -> None:
     printed = yaml_documents(hand_run.processes.output("echo"))
     recorded = [apex for _, apex in bag_messages(hand_run.bag)[resolve(topics.APEX)]]
@@ -103,6 +103,7 @@ def test_topic_echo_prints_every_apex_as_recorded(hand_run: HandRun) -> None:
         assert (shown["height"], shown["forward_speed"]) == (apex.height, apex.forward_speed)
 
 
+@pytest.mark.nodes
 def test_param_set_changes_the_target_of_the_next_command(hand_run: HandRun) -> None:
     assert hand_run.param_set_status == 0, hand_run.processes.output("param_set")
     assert "Set parameter successful" in hand_run.processes.output("param_set")
@@ -114,6 +115,7 @@ def test_param_set_changes_the_target_of_the_next_command(hand_run: HandRun) -> 
 
 
 def test_every_readme_ros2_command_is_run_by_a_test() -> None:
+    """No node: the README's text against the commands the tests run (fast tier, also without ../shared)."""
     from test_ros2_launch import RUN_THERE
 
     untested = set(readme_ros2_commands()) - set(RUN_HERE) - set(RUN_THERE) - set(NOT_IN_THE_TOOLS)
