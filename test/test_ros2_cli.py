@@ -26,6 +26,7 @@ from support.ros2_processes import (
     ros2_processes,
 )
 from support.ros2_tools import ros2_command
+from support.ros_harness import RosGraph, ros_graph
 
 from tdslip_ros.interfaces import installed_parameters, resolve
 from tdslip_ros.nodes import isolation, topics
@@ -62,25 +63,35 @@ class HandRun:
 @pytest.fixture(scope="module")
 def hand_run(tmp_path_factory: pytest.TempPathFactory) -> HandRun:
     folder = tmp_path_factory.mktemp("hand_run")
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        for name, value in isolation.process_settings().items():
+            monkeypatch.setenv(name, value)  # read when this process creates its first participant
+        with ros_graph() as graph, ros2_processes(graph.domain_id, folder) as processes:
+            return hand_run_on(graph, processes, folder)
+
+
+def hand_run_on(graph: RosGraph, processes: Ros2Processes, folder: Path) -> HandRun:
     ros2 = str(ros2_command())
-    with isolation.reserved_domain() as domain_id, ros2_processes(domain_id, folder) as processes:
-        controller = [ros2, "run", "tdslip_ros", "controller_node", "--ros-args", "-p", "policy:=deadbeat"]
-        processes.start("controller", controller)
-        # A first, one-stride hop: the controller has answered with the configured target (and keeps the
-        # policy it planned with) before the parameter changes; its plant waits for the controller.
-        first_hop = [ros2, "run", "tdslip_ros", "plant_node", "--ros-args", "-p", "max_strides:=1"]
-        first_hop_status = processes.run("first_hop", [*first_hop, "-p", "command_timeout:=60.0"], 90.0)
-        assert first_hop_status == 0, processes.output("first_hop")
-        param_set_status = processes.run("param_set", [*readme_command(PARAM_SET), *NO_DAEMON], 30.0)
-        # With the type given, echo subscribes before the plant is there (it would otherwise exit).
-        processes.start("echo", [*readme_command(ECHO), "tdslip_msgs/msg/ApexEvent", *NO_DAEMON])
-        processes.start("recorder", [*readme_command(RECORDER), "-p", f"output:={folder / 'bag'}"])
-        plant = processes.start("plant", [*readme_command(PLANT), "-p", f"max_strides:={STRIDES}"])
-        plant_status = plant.wait(60.0)
-        processes.interrupt("controller")
-        processes.interrupt("echo")
-        processes.interrupt("recorder")
-        return HandRun(processes, folder / "bag", plant_status, param_set_status)
+    controller = [ros2, "run", "tdslip_ros", "controller_node", "--ros-args", "-p", "policy:=deadbeat"]
+    processes.start("controller", controller)
+    # A first, one-stride hop: the controller has answered with the configured target (and keeps the
+    # policy it planned with) before the parameter changes; its plant waits for the controller.
+    first_hop = [ros2, "run", "tdslip_ros", "plant_node", "--ros-args", "-p", "max_strides:=1"]
+    first_hop_status = processes.run("first_hop", [*first_hop, "-p", "command_timeout:=60.0"], 90.0)
+    assert first_hop_status == 0, processes.output("first_hop")
+    param_set_status = processes.run("param_set", [*readme_command(PARAM_SET), *NO_DAEMON], 30.0)
+    # With the type given, echo subscribes before the plant is there (it would otherwise exit).
+    processes.start("echo", [*readme_command(ECHO), "tdslip_msgs/msg/ApexEvent", *NO_DAEMON])
+    processes.start("recorder", [*readme_command(RECORDER), "-p", f"output:={folder / 'bag'}"])
+    # The plant waits for the controller and the recorder, not for echo: it starts once both listen.
+    probe = graph.node("probe")
+    graph.spin_until(lambda: probe.count_subscribers(resolve(topics.APEX)) >= 2, "echo and the recorder")
+    plant = processes.start("plant", [*readme_command(PLANT), "-p", f"max_strides:={STRIDES}"])
+    plant_status = plant.wait(60.0)
+    processes.interrupt("controller")
+    processes.interrupt("echo")
+    processes.interrupt("recorder")
+    return HandRun(processes, folder / "bag", plant_status, param_set_status)
 
 
 @pytest.mark.nodes
