@@ -16,6 +16,7 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 VENV="$REPO/.venv"
 STAMPS="$VENV/.tdslip-stamps"
 MSG_BUILD="$REPO/build/msg_defs"
+ROS2_TOOLS="$REPO/../shared/ros2-tools"
 SETUP_LOG="$REPO/build/setup.log"
 PIP_VERSION="26.3"
 
@@ -74,6 +75,15 @@ ensure_venv() {
     logged "$python" -m venv "$VENV"
 }
 
+# pip check, less the one known gap of the ros2 tools' wheels (ensure_ros2_tools): they name
+# ament_index_python, which the Kilted wheels install as ros-ament-index-python.
+pip_check() {
+    local problems
+    problems="$("$VENV/bin/python" -m pip check 2>&1 | grep -v ' requires ament-index-python, which is not installed' \
+        | grep -v '^No broken requirements found' || true)"
+    [[ -z "$problems" ]] || { echo "$problems"; return 1; }
+}
+
 ensure_requirements() {
     local key
     key="$(inputs_hash "$REPO/requirements.txt" "$REPO/requirements-dev.txt" -- "pip==$PIP_VERSION")"
@@ -81,7 +91,7 @@ ensure_requirements() {
     say "installing the pinned requirements into .venv (ROS 2 Kilted wheels, numpy, scipy, ...; about a minute)"
     logged "$VENV/bin/python" -m pip install --disable-pip-version-check "pip==$PIP_VERSION"
     logged "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REPO/requirements-dev.txt"
-    logged "$VENV/bin/python" -m pip check
+    logged pip_check
     write_stamp requirements "$key"
 }
 
@@ -106,9 +116,9 @@ ensure_tdslip_ros() {
     local key
     local -a package_inputs
     # Editable: code changes need no reinstall; the installed data files (ament marker, package.xml,
-    # config/*.yaml, ros2run launchers) are copies, hence part of the key.
+    # config/*.yaml, launch/*.launch.py, ros2run launchers) are copies, hence part of the key.
     mapfile -t package_inputs < <(
-        find "$REPO/setup.py" "$REPO/setup.cfg" "$REPO/package.xml" "$REPO/resource" "$REPO/config" \
+        find "$REPO/setup.py" "$REPO/setup.cfg" "$REPO/package.xml" "$REPO/resource" "$REPO/config" "$REPO/launch" \
             -type f | LC_ALL=C sort
     )
     key="$(inputs_hash "${package_inputs[@]}" -- "$(cat "$STAMPS/msgs")")"
@@ -117,6 +127,41 @@ ensure_tdslip_ros() {
     logged "$VENV/bin/python" -m pip install --disable-pip-version-check \
         --no-deps --no-build-isolation --editable "$REPO"
     write_stamp tdslip_ros "$key"
+}
+
+# The real `ros2` command line for the tests, only where ../shared/ros2-tools sits beside the clone
+# (its README.md): the tools' PyPI requirements, their wheels (--no-deps: their metadata names
+# ament_index_python, which the Kilted wheels install as ros-ament-index-python), and the two message
+# packages that no registry here ships, built from the shared source like msg_defs, with the wheels'
+# include paths relocated at the end of their configure step. The package itself never needs them.
+ensure_ros2_tools() {
+    if [[ ! -d "$ROS2_TOOLS" ]]; then
+        say "no ../shared/ros2-tools beside the clone: the tests of the real ros2 command line will skip"
+        return 0
+    fi
+    local key package
+    local -a tool_inputs wheels
+    mapfile -t tool_inputs < <(
+        find "$REPO/requirements-ros2-tools.txt" "$REPO/msg_defs/cmake" "$ROS2_TOOLS/wheels" "$ROS2_TOOLS/src" \
+            -type f | LC_ALL=C sort
+    )
+    key="$(inputs_hash "${tool_inputs[@]}" -- "$(cat "$STAMPS/requirements")")"
+    stamp_is_current ros2_tools "$key" && return 0
+    say "installing the ros2 command-line tools from ../shared/ros2-tools into .venv (1 to 4 minutes)"
+    logged "$VENV/bin/python" -m pip install --disable-pip-version-check -r "$REPO/requirements-ros2-tools.txt"
+    mapfile -t wheels < <(find "$ROS2_TOOLS/wheels" -name '*.whl' | LC_ALL=C sort)
+    logged "$VENV/bin/python" -m pip install --disable-pip-version-check --no-index --no-deps "${wheels[@]}"
+    for package in composition_interfaces tf2_msgs; do
+        logged env CMAKE_PREFIX_PATH="$VENV" AMENT_PREFIX_PATH="$VENV" \
+            cmake -S "$ROS2_TOOLS/src/$package" -B "$REPO/build/ros2-tools/$package" \
+            -DCMAKE_PROJECT_INCLUDE="$REPO/msg_defs/cmake/relocate_at_end_of_configure.cmake" \
+            -DCMAKE_INSTALL_PREFIX="$VENV" -DPython3_EXECUTABLE="$VENV/bin/python" \
+            -DCMAKE_BUILD_TYPE=Release -DBUILD_TESTING=OFF
+        logged cmake --build "$REPO/build/ros2-tools/$package" --parallel 2
+        logged cmake --install "$REPO/build/ros2-tools/$package"
+    done
+    logged "$VENV/bin/python" -c 'import composition_interfaces.srv, launch_ros, ros2cli; from tf2_msgs.msg import TFMessage'
+    write_stamp ros2_tools "$key"
 }
 
 # The model's compiled kernels (numba) are cached (tdslip_ros/model/compiled.py says where); compiling them here
@@ -143,6 +188,7 @@ ensure_environment() {
     ensure_venv
     ensure_requirements
     ensure_msgs
+    ensure_ros2_tools
     ensure_tdslip_ros
     ensure_kernels
     exec {lock_fd}>&-

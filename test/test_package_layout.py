@@ -138,13 +138,14 @@ def test_launcher_execs_its_console_script_with_the_arguments(tmp_path: Path, ar
 
 
 @pytest.mark.usefixtures("ament_index")
-def test_installed_manifest_and_parameter_files_are_the_work_tree_ones(repo_root: Path) -> None:
+def test_installed_manifest_parameter_and_launch_files_are_the_work_tree_ones(repo_root: Path) -> None:
     share = Path(get_package_share_directory(PACKAGE))
     assert ET.parse(share / "package.xml").findtext("name") == PACKAGE
     assert (share / "package.xml").read_text() == (repo_root / "package.xml").read_text()
-    work_tree_yaml = {path.name: path.read_text() for path in (repo_root / "config").glob("*.yaml")}
-    installed_yaml = {path.name: path.read_text() for path in (share / "config").glob("*.yaml")}
-    assert installed_yaml == work_tree_yaml
+    for folder, pattern in (("config", "*.yaml"), ("launch", "*.launch.py")):  # where ros2 launch looks
+        work_tree = {path.name: path.read_text() for path in (repo_root / folder).glob(pattern)}
+        installed = {path.name: path.read_text() for path in (share / folder).glob(pattern)}
+        assert installed == work_tree, folder
 
 
 @pytest.mark.usefixtures("ament_index")
