@@ -300,7 +300,9 @@ def test_a_flood_of_wrong_commands_does_not_keep_the_valid_one_from_the_plant(
 ) -> None:
     strides = 6
     plant = ros.add(
-        PlantNode(context=ros.context, autostart=False, parameter_overrides=overrides(max_strides=strides))
+        PlantNode(
+            context=ros.context, start_when_ready=False, parameter_overrides=overrides(max_strides=strides)
+        )
     )
     controller = ros.add(ControllerNode(context=ros.context))
     statuses = ros.collect(Status, topics.STATUS)
