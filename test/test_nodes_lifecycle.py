@@ -1,18 +1,25 @@
 """Managed nodes (tdslip_ros.nodes.lifecycle), driven as a lifecycle manager drives them: through their
-lifecycle_msgs ChangeState and GetState services, from a client node of the test's own graph.
+lifecycle_msgs ChangeState and GetState services, from a client node of the test's own graph; and the
+recorder's walk once more with the real ``ros2 lifecycle set/get`` (skipped, in one line, without
+../shared/ros2-tools).
 
-About 25 s in all on the 2-core VM (each test starts a recorder process or a realtime tick's).
+About 30 s with the clients and 40 s with ros2 (two seconds of discovery per call) on the 2-core VM.
 """
 
 from __future__ import annotations
 
 import math
+import re
+import subprocess
 import time
 from pathlib import Path
+from typing import Protocol
 
 import pytest
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
+from rclpy.serialization import deserialize_message
+from support.ros2_tools import ros2_command, ros2_environment
 from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import ApexEvent, Status
 
@@ -22,6 +29,17 @@ from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode
 
 PAUSE = 1.0  # s a paused node is watched for anything it should not do
+APEX_PERIOD = 0.02  # s between two apexes the recorder's walk publishes
+SPIN_TIME = "3"
+"""s a ros2 call spends discovering the graph: 2 s missed the recorder now and then on the loaded VM."""
+
+
+class Lifecycle(Protocol):
+    """What drives one managed node: its state's id (lifecycle_msgs/State), and a transition by label."""
+
+    def state(self) -> int: ...
+
+    def set(self, label: str) -> bool: ...
 
 
 class Manager:
@@ -45,69 +63,116 @@ class Manager:
         return bool(future.result().success)
 
 
+class Ros2Lifecycle:
+    """``ros2 lifecycle get/set`` on one node, without a daemon, in the test's graph."""
+
+    def __init__(self, ros: RosGraph, node: str, log_dir: Path) -> None:
+        self._ros2 = str(ros2_command())
+        self._node = f"/{node}"
+        self._environment = ros2_environment(ros.domain_id, log_dir)
+
+    def _run(self, *arguments: str) -> str:
+        command = [self._ros2, "lifecycle", *arguments, "--no-daemon", "--spin-time", SPIN_TIME]
+        result = subprocess.run(command, capture_output=True, text=True, timeout=60, env=self._environment)
+        return result.stdout + result.stderr
+
+    def state(self) -> int:
+        output = self._run("get", self._node)
+        found = re.search(r"\[(\d+)\]", output)
+        assert found, output
+        return int(found.group(1))
+
+    def set(self, label: str) -> bool:
+        return "Transitioning successful" in self._run("set", self._node, label)
+
+
 def spin_for(ros: RosGraph, seconds: float) -> None:
     deadline = time.monotonic() + seconds
     ros.spin_until(lambda: time.monotonic() > deadline, f"{seconds} s", timeout=seconds + 5.0)
 
 
-def apex_count(bag: Bag) -> int:
-    return sum(1 for channel, _ in iter_messages(bag) if channel.topic == f"/{topics.APEX}")
-
-
-def log_times(bag: Bag) -> list[int]:
-    """Every message's log time [ns], each message read and CRC-checked."""
-    return [message.log_time for _, message in iter_messages(bag)]
-
-
 def test_recorder_walk_pauses_into_valid_bags(ros: RosGraph, tmp_path: Path) -> None:
-    """configure -> activate -> deactivate -> activate -> shutdown, while a realtime plant hops throughout."""
+    """configure -> activate -> deactivate -> activate -> shutdown by ChangeState and GetState, while a
+    realtime plant hops throughout."""
+    process = ros.start_recorder(tmp_path / "bag", tmp_path / "recorder.log", autostart=False)
+    recorder_walk(ros, tmp_path, process, Manager(ros, "recorder"))
+
+
+def test_recorder_walk_with_ros2_lifecycle(ros: RosGraph, tmp_path: Path) -> None:
+    """The same walk, each transition and state by the real ``ros2 lifecycle set`` and ``get``."""
+    manager = Ros2Lifecycle(ros, "recorder", tmp_path)
+    process = ros.start_recorder(tmp_path / "bag", tmp_path / "recorder.log", autostart=False)
+    recorder_walk(ros, tmp_path, process, manager)
+
+
+def recorder_walk(
+    ros: RosGraph, tmp_path: Path, process: subprocess.Popen[bytes], recorder: Lifecycle
+) -> None:
+    """The recorder (``process``, autostart false, writing tmp_path/bag) through its transitions by
+    ``recorder``, while the test publishes an apex every APEX_PERIOD s: each bag valid when the recorder
+    stops writing, holding exactly a run of the apexes published while it was active, none of the others."""
     output, log = tmp_path / "bag", tmp_path / "recorder.log"
-    process = ros.start_recorder(output, log, autostart=False)
-    recorder = Manager(ros, "recorder")
+    probe = ros.node("apex_source")
+    ros.spin_until(
+        lambda: (
+            ("/recorder/get_state", ["lifecycle_msgs/srv/GetState"]) in probe.get_service_names_and_types()
+        ),
+        "the recorder's lifecycle services",
+    )
     assert recorder.state() == State.PRIMARY_STATE_UNCONFIGURED
     assert not output.exists()  # autostart:=false waits: nothing opened yet
 
-    plant = ros.add(
-        PlantNode(context=ros.context, parameter_overrides=overrides(clock_mode="realtime", max_strides=0))
-    )
-    ros.add(ControllerNode(context=ros.context))
-    ros.spin_until(lambda: plant.running, "the plant's start")
+    publisher = probe.create_publisher(ApexEvent, topics.APEX, topics.STREAM_QOS)
+    sent: list[int] = []  # wall time [ns] at which each stride's apex was published
 
+    def publish() -> None:
+        sent.append(time.time_ns())
+        publisher.publish(ApexEvent(stride=len(sent) - 1))
+
+    probe.create_timer(APEX_PERIOD, publish)
     assert recorder.set("configure") and recorder.state() == State.PRIMARY_STATE_INACTIVE
-    assert (output / "metadata.yaml").exists() is False and output.is_dir()  # opened, not finalised
-    spin_for(ros, PAUSE)  # hopping, not recorded
+    assert output.is_dir() and not (output / "metadata.yaml").exists()  # opened, not finalised
+    spin_for(ros, PAUSE)  # published, not recorded
     first_on = time.time_ns()
-    assert recorder.set("activate") and recorder.state() == State.PRIMARY_STATE_ACTIVE
-    stride = plant.stride
-    ros.spin_until(lambda: plant.stride >= stride + 2, "two strides recorded")
+    assert recorder.set("activate")
+    spin_for(ros, PAUSE)
     assert recorder.set("deactivate") and recorder.state() == State.PRIMARY_STATE_INACTIVE
     first_off = time.time_ns()
 
     # Paused: the first bag is complete and valid, and nothing more is written while inactive.
     first = open_bag(output)
-    verify(first)
-    first_times = log_times(first)
-    assert first_times and first_on <= min(first_times) and max(first_times) <= first_off
-    assert apex_count(first) >= 2
-    paused_at = plant.published[topics.STATE]
+    first_strides = recorded_strides(first, first_on, first_off)
     spin_for(ros, PAUSE)
-    assert plant.published[topics.STATE] > paused_at + 100  # the plant hopped on meanwhile
     assert open_bag(output) == first and not (tmp_path / "bag_2").exists()
 
     second_on = time.time_ns()
     assert recorder.set("activate")
-    stride = plant.stride
-    ros.spin_until(lambda: plant.stride >= stride + 1, "a stride recorded in the second bag")
+    spin_for(ros, PAUSE)
     assert recorder.set("shutdown") and recorder.state() == State.PRIMARY_STATE_FINALIZED
     second_off = time.time_ns()
+    second_strides = recorded_strides(open_bag(tmp_path / "bag_2"), second_on, second_off)
 
-    second = open_bag(tmp_path / "bag_2")
-    verify(second)
-    second_times = log_times(second)
-    assert second_times and second_on <= min(second_times) and max(second_times) <= second_off
-    assert apex_count(second) >= 1
+    # Every apex published while the recorder was inactive is in neither bag.
+    inactive = {stride for stride, at in enumerate(sent) if not first_on <= at <= first_off}
+    inactive &= {stride for stride, at in enumerate(sent) if not second_on <= at <= second_off}
+    assert len(inactive) > 2 * PAUSE / APEX_PERIOD
+    assert not inactive & (set(first_strides) | set(second_strides))
     assert stop_process(process) == 0, log.read_text()
     assert "failed" not in log.read_text()
+
+
+def recorded_strides(bag: Bag, active_from: int, active_until: int) -> list[int]:
+    """The strides of the apexes in ``bag``, each message read and CRC-checked: a run of consecutive strides,
+    each taken (its log time) while the recorder was active."""
+    verify(bag)
+    strides, times = [], []
+    for channel, message in iter_messages(bag):
+        assert channel.topic == f"/{topics.APEX}"
+        strides.append(deserialize_message(message.data, ApexEvent).stride)
+        times.append(message.log_time)
+    assert len(strides) > 10 and strides == list(range(strides[0], strides[0] + len(strides)))
+    assert active_from <= min(times) and max(times) <= active_until
+    return strides
 
 
 @pytest.mark.parametrize("clock_mode", ["lockstep", "realtime"])
