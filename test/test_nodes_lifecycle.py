@@ -9,7 +9,9 @@ About 30 s with the clients and 40 s with ros2 (two seconds of discovery per cal
 from __future__ import annotations
 
 import math
+import os
 import re
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -238,3 +240,42 @@ def test_a_bad_parameter_fails_configure_and_leaves_the_node_unconfigured(
     assert stop_process(process) == 0
     (line,) = [line for line in log.read_text().splitlines() if "failed" in line]
     assert "configure failed:" in line and str(taken) in line
+
+
+def test_the_managed_launch_drives_the_nodes_and_ends_with_the_run(ros: RosGraph, tmp_path: Path) -> None:
+    """``ros2 launch launch/hop_managed.launch.py``: the three nodes, unconfigured at start, are configured
+    and activated by the launch's events; it ends by itself with status 0 when the run ends, the bag
+    finalised with every apex of the run (about 10 s)."""
+    strides, bag = 3, tmp_path / "bag"
+    launch_file = Path(__file__).resolve().parents[1] / "launch" / "hop_managed.launch.py"
+    launched = subprocess.Popen(
+        [str(ros2_command()), "launch", str(launch_file), f"strides:={strides}", f"output:={bag}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=ros2_environment(ros.domain_id, tmp_path),
+        start_new_session=True,  # a group of its own: the nodes too are killed if it hangs
+    )
+    try:
+        printed, _ = launched.communicate(timeout=180)
+    finally:
+        if launched.poll() is None:
+            os.killpg(launched.pid, signal.SIGKILL)
+            launched.wait()
+    assert launched.returncode == 0, printed[-3000:]
+    for node in ("recorder", "controller", "plant"):  # each came up unconfigured, the launch took it on
+        assert f"[{node}]: activate failed" not in printed and f"[{node}]: configure failed" not in printed
+    recorded = open_bag(bag)
+    verify(recorded)
+    apexes = [
+        deserialize_message(message.data, ApexEvent).stride
+        for channel, message in iter_messages(recorded)
+        if channel.topic == f"/{topics.APEX}"
+    ]
+    statuses = [
+        deserialize_message(message.data, Status).kind
+        for channel, message in iter_messages(recorded)
+        if channel.topic == f"/{topics.STATUS}"
+    ]
+    assert apexes == list(range(strides + 1)) and statuses == [Status.KIND_RUN_COMPLETE]
+    assert printed.count("ending with it (end_with_run)") == 2  # the controller and the recorder
