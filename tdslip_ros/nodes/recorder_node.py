@@ -33,6 +33,12 @@ A write error (disk full, I/O error) stops the recording with one logged line; t
 finalised with everything written when the writer's reserve made that possible, and reported
 closed on tdslip/recorder_status, so that a plant stops waiting for it.
 
+A managed node (:mod:`tdslip_ros.nodes.lifecycle`): configure opens the bag, activate starts writing,
+deactivate stops writing (what arrives meanwhile is taken and dropped) and finalises the bag, so that it is
+complete and valid while the recorder waits; activating again opens the next bag beside it (``<output>_2``,
+``<output>_3``, ...: :attr:`RecorderNode.bags`); cleanup and shutdown finalise the open one. With
+``end_with_run`` the executable stops as on SIGINT when the plant's run ends.
+
 Run it in a process of its own next to a 1 kHz plant: every message written costs Python work.
 """
 
@@ -120,7 +126,7 @@ def parse_custom_data(text: str) -> dict[str, str]:
 
 
 class RecorderNode(ManagedNode):
-    """Records into ``bag`` from construction until :meth:`close`.
+    """Records into ``bag`` while active, from configure until :meth:`close` (see the module docstring).
 
     The subscriptions live on a second node (``<name>_reader``) that no executor spins: a thread of
     this node sleeps in a wait set of them until one has messages, then takes every subscription's in
