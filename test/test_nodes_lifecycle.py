@@ -279,3 +279,42 @@ def test_the_managed_launch_drives_the_nodes_and_ends_with_the_run(ros: RosGraph
     ]
     assert apexes == list(range(strides + 1)) and statuses == [Status.KIND_RUN_COMPLETE]
     assert printed.count("ending with it (end_with_run)") == 2  # the controller and the recorder
+
+
+def test_a_lockstep_plant_hops_on_through_its_recorders_pause(ros: RosGraph, tmp_path: Path) -> None:
+    """The recorder a lockstep plant waits for (wait_for_recorder) is paused and activated again mid-run:
+    the plant is not held by the paused recorder, nor by what the second bag never saw, and waits at the end
+    for the second bag to hold every apex from its first to the last (about 15 s)."""
+    strides = 40
+    process = ros.start_recorder(tmp_path / "bag", tmp_path / "recorder.log")
+    plant = ros.add(
+        PlantNode(
+            context=ros.context, parameter_overrides=overrides(wait_for_recorder=True, max_strides=strides)
+        )
+    )
+    ros.add(ControllerNode(context=ros.context))
+    recorder = Manager(ros, "recorder")
+    ros.spin_until(lambda: plant.stride >= 5, "five strides")
+    assert recorder.set("deactivate")
+    paused_at = plant.stride
+    ros.spin_until(
+        lambda: plant.stride >= paused_at + 5 or plant.outcome is not None, "hopping on, unrecorded"
+    )
+    assert recorder.set("activate")
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run", timeout=60.0)
+    assert plant.outcome.kind == Status.KIND_RUN_COMPLETE, plant.outcome
+    assert plant.deliver(ros.executor)  # the second bag has everything published since it opened
+    assert recorder.set("shutdown")
+    first, second = (recorded_apexes(open_bag(path)) for path in (tmp_path / "bag", tmp_path / "bag_2"))
+    assert first == list(range(len(first))) and len(first) >= 3  # the plant runs a window ahead
+    assert second == list(range(second[0], strides + 1)) and second[0] > first[-1] + 1
+    assert stop_process(process) == 0
+
+
+def recorded_apexes(bag: Bag) -> list[int]:
+    verify(bag)
+    return [
+        deserialize_message(message.data, ApexEvent).stride
+        for channel, message in iter_messages(bag)
+        if channel.topic == f"/{topics.APEX}"
+    ]

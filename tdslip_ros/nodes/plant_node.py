@@ -514,7 +514,8 @@ class PlantNode(ManagedNode):
 
     def _on_recorder_status(self, msg: RecorderStatus) -> None:
         with self._lock:
-            self.recorders.update(msg)
+            published = {self.topic_names[t]: n for t, n in self.published.items()} if self.running else None
+            self.recorders.update(msg, published)
             if self._held_by_recorder and self.running and self._recorder_lag() <= FLOW_WINDOW // 2:
                 self._held_by_recorder = False
                 self._stop_timer(self._recorder_timer)
