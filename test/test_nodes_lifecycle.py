@@ -199,6 +199,7 @@ def test_a_deactivated_plant_holds_its_state_and_resumes(ros: RosGraph, clock_mo
     assert manager.set("activate")
     ros.spin_until(lambda: plant.stride >= 1, "the first stride")
     assert manager.set("deactivate") and manager.state() == State.PRIMARY_STATE_INACTIVE
+    spin_for(ros, 0.2)  # realtime: the ticks stepped before the pause reached the tick's process come in
     held = (plant.sim_time, plant.stride, plant.published[topics.STATE])
     deadline = time.monotonic() + PAUSE
     ros.spin_until(lambda: time.monotonic() > deadline, "the pause")
@@ -215,6 +216,14 @@ def test_a_deactivated_plant_holds_its_state_and_resumes(ros: RosGraph, clock_mo
     if clock_mode == "realtime":  # the pause did not count as time the tick was late: no catch-up burst
         ran = time.monotonic() - resumed
         assert plant.sim_time - held[0] <= ran + 0.1, (plant.sim_time, held, ran)
+
+    # Cleaned up and configured again, it hops a run of its own.
+    assert manager.set("deactivate") and manager.set("cleanup") and manager.set("configure")
+    assert manager.set("activate")
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the second run")
+    assert plant.outcome.kind == Status.KIND_RUN_COMPLETE and plant.stride == strides
+    ros.spin_until(lambda: len(apexes) == 2 * (strides + 1), "the second run's apexes")
+    assert [apex.stride for apex in apexes[strides + 1 :]] == list(range(strides + 1))
 
 
 def test_a_bad_parameter_fails_configure_and_leaves_the_node_unconfigured(

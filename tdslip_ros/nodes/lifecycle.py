@@ -14,8 +14,9 @@ lifecycle_py). Each declares what it does at each transition as a hook of :class
   unconfigured;
 * shutdown from active deactivates first, and from active or inactive cleans up;
 * ``autostart`` (:data:`AUTOSTART`, default true) configures and activates the node as it is constructed,
-  so an executable behaves as an unmanaged node would; a refusal is then raised (not logged), as an
-  unmanaged node's constructor raised it, and the executable says it in one line and exits with status 2;
+  so an executable behaves as an unmanaged node would: the activate hook runs inside configure then (a
+  message that arrives between the two transitions is not missed), and a refusal is raised (not logged), as
+  an unmanaged node's constructor raised it; the executable says it in one line and exits with status 2;
 * ``end_with_run`` (:data:`END_WITH_RUN`, on the nodes that serve a plant's run) watches ``tdslip/status``
   and sets :attr:`ManagedNode.run_ended` at the plant's fatal Status (the end of its run), which ends the
   node's executable (:func:`tdslip_ros.nodes.entry.run_node`).
@@ -102,6 +103,8 @@ class ManagedNode(LifecycleNode):
                 undeclared = [spec for spec in self._specs if not self.has_parameter(spec.name)]
                 parameters.declare(self, undeclared)
                 self.configure({spec.name: self.get_parameter(spec.name).value for spec in self._specs})
+                if self._autostarting:  # at once: nothing that arrives between the two transitions is missed
+                    self.activate()
             finally:  # what a configure that failed part way made is destroyed too
                 self._configured_entities = _destroyers(self, before)
 
@@ -111,6 +114,8 @@ class ManagedNode(LifecycleNode):
         return result
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self._autostarting:
+            return TransitionCallbackReturn.SUCCESS  # the activate hook ran with configure
         return self._transition("activate", self.activate)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:

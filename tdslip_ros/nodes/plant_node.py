@@ -189,6 +189,8 @@ class PlantNode(ManagedNode):
         self.tick_timing: TickTiming | None = None
         """Realtime: the tick's wall-clock timing, once a run is over."""
         self.recorders = RecorderProgress()
+        self.outcome = None  # a run of its own, also after a cleanup
+        self.done = Future()
 
         marker_rate = float(values["marker_rate"])
         self._out = PlantOutput(
