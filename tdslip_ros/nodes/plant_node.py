@@ -252,7 +252,6 @@ class PlantNode(ManagedNode):
             )
 
         self._min_subscribers = int(values["min_subscribers"])
-        self._created_ns = time.monotonic_ns()
         self._ready_since_ns: int | None = None
         self._start_check = self.create_timer(
             START_CHECK_PERIOD, self._start_when_ready, clock=steady, autostart=False
@@ -263,7 +262,8 @@ class PlantNode(ManagedNode):
         """Start the run when ready, or resume the paused one."""
         with self._lock:
             if not self._started:
-                if self._starts_when_ready:
+                if self._starts_when_ready:  # command_timeout counts from here, not from configure
+                    self._waiting_since_ns = time.monotonic_ns()
                     self._start_check.reset()
                 return
             if self._timers_on_hold is None:
@@ -367,7 +367,7 @@ class PlantNode(ManagedNode):
 
     def _start_when_ready(self) -> None:
         """autostart: start once :meth:`ready_to_start`, or once command_timeout has passed."""
-        waited = time.monotonic_ns() - self._created_ns >= self._command_timeout * _NS_PER_S
+        waited = time.monotonic_ns() - self._waiting_since_ns >= self._command_timeout * _NS_PER_S
         if self.ready_to_start() or (waited and self._peers_required_present()):
             self.start()
 
