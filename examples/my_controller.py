@@ -16,7 +16,8 @@ command_timeout:=60.0`, then this script.)
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from tdslip_msgs.msg import ApexEvent, StanceCommand
+from rclpy.task import Future
+from tdslip_msgs.msg import ApexEvent, StanceCommand, Status
 
 
 class MyController(Node):
@@ -24,6 +25,12 @@ class MyController(Node):
         super().__init__("my_controller")
         self.commands = self.create_publisher(StanceCommand, "tdslip/command", 10)
         self.create_subscription(ApexEvent, "tdslip/apex", self.on_apex, 10)
+        self.run_ended = Future()  # done at the plant's fatal Status: its run is over, and so is ours
+        self.create_subscription(Status, "tdslip/status", self.on_status, 10)
+
+    def on_status(self, status: Status) -> None:
+        if status.fatal and not self.run_ended.done():
+            self.run_ended.set_result(status.kind)
 
     def on_apex(self, apex: ApexEvent) -> None:
         command = StanceCommand(epoch=apex.epoch, stride=apex.stride, policy="my_controller")
@@ -34,11 +41,12 @@ class MyController(Node):
 
 
 def main() -> None:
-    # As ros2/demos' demo_nodes_py: Ctrl-C (KeyboardInterrupt) and SIGTERM (rclpy shuts the context
-    # down: ExternalShutdownException) both end the script quietly.
+    # It ends with the plant's run. As ros2/demos' demo_nodes_py: Ctrl-C (KeyboardInterrupt) and SIGTERM
+    # (rclpy shuts the context down: ExternalShutdownException) both end it earlier, quietly.
     try:
         with rclpy.init():
-            rclpy.spin(MyController())
+            controller = MyController()
+            rclpy.spin_until_future_complete(controller, controller.run_ended)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 

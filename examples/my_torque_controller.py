@@ -15,7 +15,8 @@ what it answers; in lockstep the plant waits for it at every stance tick.
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand
+from rclpy.task import Future
+from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, Status
 
 
 class MyTorqueController(Node):
@@ -25,7 +26,13 @@ class MyTorqueController(Node):
         self.commands = self.create_publisher(StanceCommand, "tdslip/command", 10)
         self.torques = self.create_publisher(HipTorque, "tdslip/hip_torque", 10)
         self.create_subscription(ApexEvent, "tdslip/apex", self.on_apex, 10)
+        self.run_ended = Future()  # done at the plant's fatal Status: its run is over, and so is ours
+        self.create_subscription(Status, "tdslip/status", self.on_status, 10)
         self.create_subscription(HopperState, "tdslip/state", self.on_state, 10)
+
+    def on_status(self, status: Status) -> None:
+        if status.fatal and not self.run_ended.done():
+            self.run_ended.set_result(status.kind)
 
     def on_apex(self, apex: ApexEvent) -> None:
         self.epoch = apex.epoch
@@ -45,12 +52,14 @@ class MyTorqueController(Node):
 
 
 def main() -> None:
-    # As ros2/demos' demo_nodes_py: Ctrl-C (KeyboardInterrupt) and SIGTERM (rclpy shuts the context
-    # down: ExternalShutdownException) both end the script, quietly as a rule (a Ctrl-C that lands inside
-    # rclpy's take of one of the 1 kHz messages can surface as a RuntimeError traceback: an rclpy race).
+    # It ends with the plant's run. As ros2/demos' demo_nodes_py: Ctrl-C (KeyboardInterrupt) and SIGTERM
+    # (rclpy shuts the context down: ExternalShutdownException) both end it earlier, quietly as a rule (a
+    # Ctrl-C that lands inside rclpy's take of one of the 1 kHz messages can surface as a RuntimeError
+    # traceback: an rclpy race).
     try:
         with rclpy.init():
-            rclpy.spin(MyTorqueController())
+            controller = MyTorqueController()
+            rclpy.spin_until_future_complete(controller, controller.run_ended)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 

@@ -78,7 +78,7 @@ def check_descriptor(node: Node, spec: ParameterSpec) -> None:
 
 def test_every_parameter_is_described_with_its_range(ros: RosGraph, tmp_path: Path) -> None:
     nodes = {
-        "plant.yaml": PlantNode(context=ros.context, autostart=False),
+        "plant.yaml": PlantNode(context=ros.context, start_when_ready=False),
         "controller.yaml": ControllerNode(context=ros.context),
         "recorder.yaml": RecorderNode(
             context=ros.context, parameter_overrides=overrides(output=str(tmp_path / "b"))
@@ -99,7 +99,9 @@ def test_a_params_file_configures_the_node_and_bad_values_are_refused(ros: RosGr
         path.write_text(yaml.safe_dump({"/**": {"ros__parameters": values}}))
         return ros.add(
             PlantNode(
-                context=ros.context, autostart=False, cli_args=["--ros-args", "--params-file", str(path)]
+                context=ros.context,
+                start_when_ready=False,
+                cli_args=["--ros-args", "--params-file", str(path)],
             )
         )
 
@@ -134,7 +136,7 @@ def test_command_line_overrides_win_over_the_default_params_file(ros: RosGraph) 
     arguments = with_default_params_file(argv, "plant.yaml")
     assert arguments[:3] == ["plant_node", "--ros-args", "--params-file"] and arguments[-3:] == argv[1:]
     assert with_default_params_file([*argv, "--params-file", "mine.yaml"], "plant.yaml")[-1] == "mine.yaml"
-    plant = ros.add(PlantNode(context=ros.context, autostart=False, cli_args=arguments[1:]))
+    plant = ros.add(PlantNode(context=ros.context, start_when_ready=False, cli_args=arguments[1:]))
     assert plant.hopper.m == 70.0
     assert plant.hopper.k == parameters.PAPER_PARAMS.k
 

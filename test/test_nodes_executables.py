@@ -14,7 +14,7 @@ import pytest
 from ament_index_python.packages import get_package_prefix
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from support.ros_harness import RosGraph, stop_process
+from support.ros_harness import RosGraph
 
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.policies.registry import DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED
@@ -28,10 +28,14 @@ STRIDES = 3
 def test_executables_hop_on_their_own_with_the_installed_config(ros: RosGraph, tmp_path: Path) -> None:
     lib = Path(get_package_prefix("tdslip_ros")) / "lib" / "tdslip_ros"
     bag = tmp_path / "bag"
+    # end_with_run: the recorder and the controller end when the plant's run ends, as under tdslip run.
+    ends = ["-p", "end_with_run:=true"]
     recorder = ros.start_process(
-        [str(lib / "recorder_node"), "--ros-args", "-p", f"output:={bag}"], tmp_path / "recorder.log"
+        [str(lib / "recorder_node"), "--ros-args", "-p", f"output:={bag}", *ends], tmp_path / "recorder.log"
     )
-    controller = ros.start_process([str(lib / "controller_node")], tmp_path / "controller.log")
+    controller = ros.start_process(
+        [str(lib / "controller_node"), "--ros-args", *ends], tmp_path / "controller.log"
+    )
     # Lockstep (plant.yaml): it waits for the controller, and here for the recorder (wait_for_recorder).
     plant = ros.start_process(
         [
@@ -45,8 +49,8 @@ def test_executables_hop_on_their_own_with_the_installed_config(ros: RosGraph, t
         tmp_path / "plant.log",
     )
     assert plant.wait(60) == 0, (tmp_path / "plant.log").read_text()  # exit_when_done, run complete
-    assert stop_process(controller) == 0, (tmp_path / "controller.log").read_text()
-    assert stop_process(recorder) == 0, (tmp_path / "recorder.log").read_text()
+    assert controller.wait(30) == 0, (tmp_path / "controller.log").read_text()
+    assert recorder.wait(30) == 0, (tmp_path / "recorder.log").read_text()  # its bag finalised
 
     messages: dict[str, list[Any]] = {}
     with (bag / "bag_0.mcap").open("rb") as stream:

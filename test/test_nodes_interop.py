@@ -105,7 +105,8 @@ def test_a_controller_of_ones_own_with_default_qos_drives_the_plant_and_is_recor
     strides = 8
     bag = tmp_path / "mine"
     recorder = ros.start_process(
-        [executable("recorder_node"), "--ros-args", "-p", f"output:={bag}"], tmp_path / "recorder.log"
+        [executable("recorder_node"), "--ros-args", "-p", f"output:={bag}", "-p", "end_with_run:=true"],
+        tmp_path / "recorder.log",
     )
     plant = ros.start_process(
         [
@@ -122,8 +123,9 @@ def test_a_controller_of_ones_own_with_default_qos_drives_the_plant_and_is_recor
         [sys.executable, str(REPO / "examples" / "my_controller.py")], tmp_path / "c.log"
     )
     assert plant.wait(60) == 0, (tmp_path / "plant.log").read_text()
-    assert stop_process(controller) == 0, (tmp_path / "c.log").read_text()
-    assert stop_process(recorder) == 0, (tmp_path / "recorder.log").read_text()
+    # Started by hand, both end with the plant's run, as under tdslip run: the recorder's bag finalised.
+    assert controller.wait(30) == 0, (tmp_path / "c.log").read_text()
+    assert recorder.wait(30) == 0, (tmp_path / "recorder.log").read_text()
 
     messages = bag_messages(bag)
     commands = messages[resolve(topics.COMMAND)]
@@ -300,7 +302,9 @@ def test_a_flood_of_wrong_commands_does_not_keep_the_valid_one_from_the_plant(
 ) -> None:
     strides = 6
     plant = ros.add(
-        PlantNode(context=ros.context, autostart=False, parameter_overrides=overrides(max_strides=strides))
+        PlantNode(
+            context=ros.context, start_when_ready=False, parameter_overrides=overrides(max_strides=strides)
+        )
     )
     controller = ros.add(ControllerNode(context=ros.context))
     statuses = ros.collect(Status, topics.STATUS)
@@ -323,3 +327,27 @@ def test_a_flood_of_wrong_commands_does_not_keep_the_valid_one_from_the_plant(
     reports = [s for s in statuses if s.kind == Status.KIND_COMMAND_REJECTED]
     duration = plant.outcome.wall_time + 1.0
     assert len(reports) <= 10 * (duration + 1)  # the log and the status topic are not flooded
+
+
+def watching_snippet() -> str:
+    """The Python of docs/nodes.md's topic-watching snippet (``python -c '...'`` under "Watching a topic")."""
+    section = (REPO / "docs" / "nodes.md").read_text().split("### Watching a topic", 1)[1]
+    block = section.split("```sh\n", 1)[1].split("\n```", 1)[0]
+    assert block.startswith("python -c '") and block.endswith("'")
+    return block.removeprefix("python -c '").removesuffix("'")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_the_docs_topic_watching_snippet_prints_apexes_and_ends_quietly(
+    ros: RosGraph, tmp_path: Path, signum: int
+) -> None:
+    """Ctrl-C (SIGINT) or SIGTERM ends it with status 0 and nothing on stderr (no traceback)."""
+    log = tmp_path / "echo.log"
+    watcher = ros.start_process([sys.executable, "-c", watching_snippet()], log)
+    probe = ros.node("probe")
+    apex = probe.create_publisher(ApexEvent, topics.APEX, 10)
+    ros.spin_until(lambda: apex.get_subscription_count() >= 1, "the snippet's subscription")
+    apex.publish(ApexEvent(stride=7, height=1.25))
+    ros.spin_until(lambda: "stride=7" in log.read_text(), "the apex printed")
+    assert stop_process(watcher, signum) == 0
+    assert "Traceback" not in log.read_text() and "height=1.25" in log.read_text()

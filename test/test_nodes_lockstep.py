@@ -127,7 +127,7 @@ def test_bad_commands_are_rejected_and_the_plant_runs_on(ros: RosGraph) -> None:
     plant = ros.add(
         PlantNode(
             context=ros.context,
-            autostart=False,
+            start_when_ready=False,
             parameter_overrides=overrides(max_strides=1, initial_height=low_start),
         )
     )
@@ -178,7 +178,9 @@ def test_missing_controller_ends_the_run_with_command_timeout(ros: RosGraph) -> 
     timeout = 0.3
     plant = ros.add(
         PlantNode(
-            context=ros.context, autostart=False, parameter_overrides=overrides(command_timeout=timeout)
+            context=ros.context,
+            start_when_ready=False,
+            parameter_overrides=overrides(command_timeout=timeout),
         )
     )
     statuses = ros.collect(Status, topics.STATUS)

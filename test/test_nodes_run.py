@@ -340,7 +340,8 @@ def test_a_double_ctrl_c_leaves_a_finalised_bag(tmp_path: Path) -> None:
 def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analysable(tmp_path: Path) -> None:
     """``tdslip run --controller none`` starts the plant and the recorder only and waits for the user's own
     controller (examples/my_controller.py, started a few seconds later in the same domain); the run ends by
-    itself, everything is recorded, and tdslip analyze reads it as a controller of one's own."""
+    itself, and so does the example, everything is recorded, and tdslip analyze reads it as a controller of
+    one's own."""
     from tdslip_ros.nodes import isolation
 
     bag = tmp_path / "mine"
@@ -365,9 +366,11 @@ def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analy
     )
     try:
         stdout, stderr = run.communicate(timeout=120)
+        controller_status = controller.wait(30)  # the example ends with the plant's run
     finally:
         stop_example(controller)
     assert run.returncode == 0, stderr[-2000:]
+    assert controller_status == 0
     assert stderr.startswith(f"tdslip run: waiting up to 60 s for your controller in ROS domain {domain_id}")
     assert "lockstep run, your own controller: 5 strides" in stdout and "LOST" not in stdout
     counts = bag_counts(bag)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from support.ros_harness import RosGraph, overrides, stop_example
+from support.ros_harness import RosGraph, overrides
 from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, Status
 
 from tdslip_ros.model.events import EventKind
@@ -182,7 +182,7 @@ def test_a_torque_controller_of_ones_own_with_default_qos_drives_the_plant(
 ) -> None:
     """examples/my_torque_controller.py, a stranger's 1 kHz node (default QoS), in a process of its own:
     the lockstep plant holds every torque it sends, none late or refused, and the hopper settles where
-    its docstring says."""
+    its docstring says; it ends by itself when the run ends."""
     strides = 6
     plant = ros.add(
         PlantNode(
@@ -194,8 +194,8 @@ def test_a_torque_controller_of_ones_own_with_default_qos_drives_the_plant(
     log = tmp_path / "controller.log"
     controller = ros.start_process([sys.executable, str(REPO / "examples" / "my_torque_controller.py")], log)
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run", timeout=90.0)
-    stop_example(controller)
     assert plant.outcome is not None and plant.outcome.ok, (plant.outcome, log.read_text())
+    assert controller.wait(30) == 0, log.read_text()  # the example ends with the plant's run
     ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
     ros.spin_until(lambda: len(applied) == plant.published[topics.APPLIED_TORQUE], "every applied torque")
     assert plant.received_torques == len(applied) > 100 and plant.counts.rejected == 0

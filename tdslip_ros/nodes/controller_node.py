@@ -21,7 +21,6 @@ from __future__ import annotations
 import contextlib
 import sys
 
-from rclpy.node import Node
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.interfaces import hopper_from_parameters
@@ -40,7 +39,8 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.entry import run_node, wait_to_answer
-from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
+from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.wire import command_encoder
 
 MATCH_TIMEOUT = 1.0  # s an answer waits for its publisher to match a subscriber the graph already shows
@@ -57,18 +57,23 @@ TUNABLE: tuple[ParameterSpec, ...] = (
     ParameterSpec("policy", DEFAULT_POLICY, "stance policy answering each apex", choices=POLICIES),
     *map(setting_parameter, POLICY_SETTINGS),
 )
-SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *TUNABLE)
+SPECS: tuple[ParameterSpec, ...] = (AUTOSTART, END_WITH_RUN, *parameters.HOPPER, *TUNABLE)
 
 
-class ControllerNode(Node):
-    """Subscribes tdslip/apex, publishes one tdslip/command per apex it can answer."""
+class ControllerNode(ManagedNode):
+    """Subscribes tdslip/apex, publishes one tdslip/command per apex it can answer while active
+    (:mod:`tdslip_ros.nodes.lifecycle`: configure loads the policies' kernels, activate answers)."""
 
     def __init__(self, **node_options: object) -> None:
-        super().__init__("controller", **node_options)  # type: ignore[arg-type]
-        self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
-        self.hopper = hopper_from_parameters(parameters.declare(self, SPECS))
-        check_hopper(self.hopper)
         self.published = 0
+        self._answering = False
+        self._configured = False
+        super().__init__("controller", SPECS, **node_options)
+        self.add_post_set_parameters_callback(self._parameters_changed)
+
+    def configure(self, values: dict[str, ParameterValue]) -> None:
+        self.hopper = hopper_from_parameters(values)
+        check_hopper(self.hopper)
         self._previous_speed: float | None = None
         self._policy: PolicySpec | None = None
         """The policy with the current parameters; built again at the first apex after a parameter changed."""
@@ -78,14 +83,24 @@ class ControllerNode(Node):
         self.exact_plant_ready = False
         """energy_exact's compiled exact stride is loaded (see :meth:`_ready_exact_plant`)."""
         self._ready_exact_plant()
-        self.add_post_set_parameters_callback(self._parameters_changed)
         self._apex_topic = self.create_subscription(
             ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS
         ).topic_name
+        self._configured = True
+
+    def activate(self) -> None:
+        self._answering = True
+
+    def deactivate(self) -> None:
+        self._answering = False
+
+    def cleanup(self) -> None:
+        self._configured = False
 
     def _parameters_changed(self, changed: object) -> None:
         self._policy = None
-        self._ready_exact_plant()
+        if self._configured:
+            self._ready_exact_plant()
 
     def _ready_exact_plant(self) -> None:
         """Load energy_exact's compiled exact stride once the policy plans on it, directly or as a learned
@@ -127,6 +142,8 @@ class ControllerNode(Node):
         )
 
     def _on_apex(self, apex: ApexEvent) -> None:
+        if not self._answering:
+            return
         if apex.stride == 0:
             self._previous_speed = None  # a new run: no previous apex for the PD's derivative term
         # What the controller can know: the measured apex, its height above the ground it last stood on.
@@ -163,9 +180,14 @@ class ControllerNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``controller_node [--ros-args ...]``: serve until SIGINT/SIGTERM, config/controller.yaml by default."""
+    """``controller_node [--ros-args ...]``: serve until SIGINT/SIGTERM (or the run's end, ``end_with_run``),
+    config/controller.yaml by default."""
     return run_node(
-        ControllerNode, "controller.yaml", sys.argv if argv is None else argv, lambda node: False, specs=SPECS
+        ControllerNode,
+        "controller.yaml",
+        sys.argv if argv is None else argv,
+        lambda node: node.run_ended,
+        specs=SPECS,
     )
 
 

@@ -32,6 +32,9 @@ class _Report:
     publishers: dict[str, int]
     closed: bool
     received_ns: int
+    missed: dict[str, int]
+    """Per topic, what had been published and not written when this bag was first reported during the run:
+    a recorder that opened it mid-run (activated again after a pause) is held only to what came after."""
 
 
 class RecorderProgress:
@@ -40,12 +43,21 @@ class RecorderProgress:
     def __init__(self) -> None:
         self._reports: dict[str, _Report] = {}
 
-    def update(self, msg: RecorderStatus) -> None:
+    def update(self, msg: RecorderStatus, published: Mapping[str, int] | None = None) -> None:
+        """Take a report; ``published``: the messages published so far by topic, while a run is on."""
+        recorded = dict(zip(msg.topics, (int(n) for n in msg.recorded), strict=True))
+        known = self._reports.get(msg.bag)
+        if known is not None:
+            missed = known.missed
+        else:
+            published = published or {}
+            missed = {topic: max(0, published.get(topic, 0) - count) for topic, count in recorded.items()}
         self._reports[msg.bag] = _Report(
-            recorded=dict(zip(msg.topics, (int(n) for n in msg.recorded), strict=True)),
+            recorded=recorded,
             publishers=dict(zip(msg.topics, (int(n) for n in msg.publishers), strict=True)),
             closed=bool(msg.closed),
             received_ns=time.monotonic_ns(),
+            missed=missed,
         )
 
     def _recording(self, topic: str) -> list[_Report]:
@@ -73,7 +85,10 @@ class RecorderProgress:
     def lag(self, topic: str, published: int) -> int:
         """Messages on ``topic`` published but not yet written by the slowest recorder (0 if none
         records it)."""
-        return max((published - report.recorded[topic] for report in self._recording(topic)), default=0)
+        return max(
+            (published - report.recorded[topic] - report.missed[topic] for report in self._recording(topic)),
+            default=0,
+        )
 
     def caught_up(self, published: Mapping[str, int]) -> bool:
         """Every recorder has written everything published on the topics it records."""

@@ -80,8 +80,8 @@ from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.executors import Executor
 from rclpy.impl.implementation_singleton import rclpy_implementation
-from rclpy.node import Node
 from rclpy.task import Future
+from rclpy.timer import Timer
 from tdslip_msgs.msg import HipTorque, RecorderStatus, StanceCommand, Status
 from tdslip_msgs.srv import Reset
 
@@ -93,9 +93,11 @@ from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
 from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
-from tdslip_ros.nodes import parameters, topics
+from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
+from tdslip_ros.nodes.lifecycle import ManagedNode
+from tdslip_ros.nodes.parameters import ParameterValue
 from tdslip_ros.nodes.plant_output import GRAPH_CHECK_TICKS, PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.plant_run import (
@@ -126,19 +128,29 @@ ACK_TIMEOUT = 1.0  # s
 _NS_PER_S = 1_000_000_000
 
 
-class PlantNode(Node):
+class PlantNode(ManagedNode):
     """The 1 kHz TD-SLIP plant. ``done`` completes with the :class:`RunOutcome` when the run ends.
 
-    It starts by itself once its peers are there (see the parameters ``min_subscribers`` and
-    ``wait_for_recorder``, and :meth:`_start_when_ready`); with ``autostart=False`` it waits for
-    :meth:`start` instead.
+    A managed node (:mod:`tdslip_ros.nodes.lifecycle`): configure checks the parameters and readies the
+    run (the realtime tick's process starts, its kernels loaded), activate starts it or resumes it,
+    deactivate pauses it, holding its state (:meth:`deactivate`), cleanup ends a run in progress.
+    Active, it starts the run by itself once its peers are there (see the parameters ``min_subscribers``
+    and ``wait_for_recorder``, and :meth:`_start_when_ready`); with ``start_when_ready=False`` it waits
+    for :meth:`start` instead.
     """
 
-    def __init__(self, *, autostart: bool = True, **node_options: object) -> None:
-        super().__init__("plant", **node_options)  # type: ignore[arg-type]
+    def __init__(self, *, start_when_ready: bool = True, **node_options: object) -> None:
         self._ticking: TickProcess | None = None  # first: destroy_node must work if the rest raises
-        self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
-        values = parameters.declare(self, SPECS)
+        self._driver: _InProcessRun | TickProcess | None = None  # None: not configured
+        self._starts_when_ready = start_when_ready
+        self._lock = threading.Lock()
+        self._timers_on_hold: set[Timer] | None = None  # paused (inactive): the timers to run on activate
+        self.outcome: RunOutcome | None = None
+        self.done: Future[RunOutcome] = Future()
+        self._started = False
+        super().__init__("plant", SPECS, **node_options)
+
+    def configure(self, values: dict[str, ParameterValue]) -> None:
         self.hopper = hopper_from_parameters(values)
         check_hopper(self.hopper)
         self.limits = PlausibilityLimits.for_hopper(self.hopper)
@@ -177,8 +189,8 @@ class PlantNode(Node):
         self.tick_timing: TickTiming | None = None
         """Realtime: the tick's wall-clock timing, once a run is over."""
         self.recorders = RecorderProgress()
-        self.outcome: RunOutcome | None = None
-        self.done: Future[RunOutcome] = Future()
+        self.outcome = None  # a run of its own, also after a cleanup
+        self.done = Future()
 
         marker_rate = float(values["marker_rate"])
         self._out = PlantOutput(
@@ -207,7 +219,6 @@ class PlantNode(Node):
         # Stepping: lockstep by a zero-period timer of the executor, realtime in a process of its own whose
         # output a thread replays here; the lock keeps that thread and the executor's callbacks apart.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._lock = threading.Lock()
         self._lockstep_timer = self.create_timer(0.0, self._advance_lockstep, clock=steady, autostart=False)
         self._command_timeout = float(values["command_timeout"])
         self._timeout_timer = self.create_timer(
@@ -226,7 +237,6 @@ class PlantNode(Node):
         self.start_wall_ns = 0
         sink = _NodeSink(self, self._out)
         self._run: PlantRun | None = None  # lockstep: the run this node steps
-        self._driver: _InProcessRun | TickProcess
         if self.lockstep:
             self._run = PlantRun(settings, initial_apex, sink)
             self._driver = _InProcessRun(self._run, self._lock)
@@ -242,12 +252,70 @@ class PlantNode(Node):
             )
 
         self._min_subscribers = int(values["min_subscribers"])
-        self._created_ns = time.monotonic_ns()
         self._ready_since_ns: int | None = None
         self._start_check = self.create_timer(
-            START_CHECK_PERIOD, self._start_when_ready, clock=steady, autostart=autostart
+            START_CHECK_PERIOD, self._start_when_ready, clock=steady, autostart=False
         )
         self.get_logger().info(self._startup_summary(initial_apex))
+
+    def activate(self) -> None:
+        """Start the run when ready, or resume the paused one."""
+        with self._lock:
+            if not self._started:
+                if self._starts_when_ready:  # command_timeout counts from here, not from configure
+                    self._waiting_since_ns = time.monotonic_ns()
+                    self._start_check.reset()
+                return
+            if self._timers_on_hold is None:
+                return
+            for timer in self._timers_on_hold:
+                timer.reset()
+            self._timers_on_hold = None
+        if self.running:
+            assert self._driver is not None
+            self._driver.resume()
+            self.get_logger().info(f"resumed at stride {self._stride}, t = {self.sim_time:.3f} s")
+
+    def deactivate(self) -> None:
+        """Pause: lockstep stops stepping (its timers wait for activate), realtime stops its tick; the state,
+        the stride and the command awaited are held."""
+        self._start_check.cancel()
+        with self._lock:
+            if not self.running:
+                return
+            timers = (self._lockstep_timer, self._timeout_timer, self._recorder_timer)
+            self._timers_on_hold = {timer for timer in timers if not timer.is_canceled()}
+            for timer in timers:
+                timer.cancel()
+        assert self._driver is not None
+        self._driver.pause()
+        stopped = "stepping" if self.lockstep else "its tick"
+        self.get_logger().info(
+            f"paused at stride {self._stride}, t = {self.sim_time:.3f} s: {stopped} stopped until activate"
+        )
+
+    def cleanup(self) -> None:
+        """End a run in progress (its final Status goes out) and stop the tick's process."""
+        if self.running:
+            self.end_run("the plant was cleaned up (lifecycle)")
+        if self._ticking is not None:
+            self._ticking.close()
+            self._ticking = None
+        self._driver = None
+        self._timers_on_hold = None
+
+    def _run_timer(self, timer: Timer) -> None:
+        """Start ``timer``, or, paused, on activate (under the lock)."""
+        if self._timers_on_hold is None:
+            timer.reset()
+        else:
+            self._timers_on_hold.add(timer)
+
+    def _stop_timer(self, timer: Timer) -> None:
+        """Stop ``timer``, also for activate (under the lock)."""
+        timer.cancel()
+        if self._timers_on_hold is not None:
+            self._timers_on_hold.discard(timer)
 
     def _startup_summary(self, apex: ApexState) -> str:
         hopper = self.hopper
@@ -299,7 +367,7 @@ class PlantNode(Node):
 
     def _start_when_ready(self) -> None:
         """autostart: start once :meth:`ready_to_start`, or once command_timeout has passed."""
-        waited = time.monotonic_ns() - self._created_ns >= self._command_timeout * _NS_PER_S
+        waited = time.monotonic_ns() - self._waiting_since_ns >= self._command_timeout * _NS_PER_S
         if self.ready_to_start() or (waited and self._peers_required_present()):
             self.start()
 
@@ -368,9 +436,9 @@ class PlantNode(Node):
 
     def _finished(self, outcome: RunOutcome) -> None:
         """The run ended (under the lock)."""
-        self._lockstep_timer.cancel()
-        self._timeout_timer.cancel()
-        self._recorder_timer.cancel()
+        self._stop_timer(self._lockstep_timer)
+        self._stop_timer(self._timeout_timer)
+        self._stop_timer(self._recorder_timer)
         self._held_by_recorder = False
         self.outcome = outcome
         if not self.done.done():
@@ -378,9 +446,9 @@ class PlantNode(Node):
 
     def _restarted(self, epoch: int, ended: RunOutcome) -> None:
         """A reset began ``epoch`` (under the lock); ``ended``: how the run before ended, if it had not."""
-        self._lockstep_timer.cancel()
-        self._timeout_timer.cancel()
-        self._recorder_timer.cancel()
+        self._stop_timer(self._lockstep_timer)
+        self._stop_timer(self._timeout_timer)
+        self._stop_timer(self._recorder_timer)
         self._held_by_recorder = False
         if not self.done.done():
             self.done.set_result(ended)
@@ -412,7 +480,9 @@ class PlantNode(Node):
         (False after DELIVERY_TIMEOUT s); without, wait at most ACK_TIMEOUT for the subscribers'
         acknowledgements, so that no stalled subscriber can keep the plant. What the tick process stepped and
         the samples not yet batched go out first (a run stopped from outside, e.g. by SIGINT, published no
-        final status)."""
+        final status). Not configured (or cleaned up), there is nothing to deliver."""
+        if self._driver is None:
+            return True
         if self._ticking is not None:
             self._ticking.close()
         with self._lock:
@@ -446,11 +516,12 @@ class PlantNode(Node):
 
     def _on_recorder_status(self, msg: RecorderStatus) -> None:
         with self._lock:
-            self.recorders.update(msg)
+            published = {self.topic_names[t]: n for t, n in self.published.items()} if self.running else None
+            self.recorders.update(msg, published)
             if self._held_by_recorder and self.running and self._recorder_lag() <= FLOW_WINDOW // 2:
                 self._held_by_recorder = False
-                self._recorder_timer.cancel()
-                self._lockstep_timer.reset()
+                self._stop_timer(self._recorder_timer)
+                self._run_timer(self._lockstep_timer)
 
     def _on_recorder_timeout(self) -> None:
         self._recorder_timer.cancel()
@@ -524,6 +595,12 @@ class _InProcessRun:
         with self._lock:
             return self._run.reset(apex)
 
+    def pause(self) -> None:
+        """Nothing to do: the node's timers, which step this run, are held."""
+
+    def resume(self) -> None:
+        """Nothing to do: the node's timers run again."""
+
 
 class _NodeSink:
     """The node's side of a run (:class:`~tdslip_ros.nodes.plant_run.PlantSink`): publishes through the
@@ -566,11 +643,11 @@ class _NodeSink:
         self._publishing(self._out.applied_torque, *args)
 
     def awaiting(self) -> None:
-        self._node._timeout_timer.reset()
+        self._node._run_timer(self._node._timeout_timer)
 
     def resumed(self) -> None:
-        self._node._timeout_timer.cancel()
-        self._node._lockstep_timer.reset()
+        self._node._stop_timer(self._node._timeout_timer)
+        self._node._run_timer(self._node._lockstep_timer)
 
     def command_applied(self, epoch: int, stride: int, applied_ns: int) -> None:
         self._node.command_latencies_ns.append((epoch, stride, applied_ns - self._node._apex_wall_ns))

@@ -14,10 +14,12 @@ from tdslip_ros.model.policies.registry import (
     DEFAULT_TOUCHDOWN_ANGLE,
 )
 from tdslip_ros.nodes import parameters
+from tdslip_ros.nodes.lifecycle import AUTOSTART
 from tdslip_ros.nodes.parameters import ParameterSpec
 
 CLOCK_MODES = ("realtime", "lockstep")
 SPECS: tuple[ParameterSpec, ...] = (
+    AUTOSTART,
     *parameters.HOPPER,
     ParameterSpec(
         "initial_height",

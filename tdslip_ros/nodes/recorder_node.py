@@ -33,6 +33,12 @@ A write error (disk full, I/O error) stops the recording with one logged line; t
 finalised with everything written when the writer's reserve made that possible, and reported
 closed on tdslip/recorder_status, so that a plant stops waiting for it.
 
+A managed node (:mod:`tdslip_ros.nodes.lifecycle`): configure opens the bag, activate starts writing,
+deactivate stops writing (what arrives meanwhile is taken and dropped) and finalises the bag, so that it is
+complete and valid while the recorder waits; activating again opens the next bag beside it (``<output>_2``,
+``<output>_3``, ...: :attr:`RecorderNode.bags`); cleanup and shutdown finalise the open one. With
+``end_with_run`` the executable stops as on SIGINT when the plant's run ends.
+
 Run it in a process of its own next to a 1 kHz plant: every message written costs Python work.
 """
 
@@ -56,9 +62,10 @@ from tdslip_msgs.msg import RecorderStatus
 
 from tdslip_ros.bag import BagClosedError, BagWriteError, OfferedQos, RosbagMcapWriter
 from tdslip_ros.model.params import ParameterError
-from tdslip_ros.nodes import parameters, topics
+from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import run_node
-from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
+from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.realtime import name_this_thread
 from tdslip_ros.nodes.wire import grf_encoder, sample_rows, serialized, state_encoder
 
@@ -75,6 +82,8 @@ every ~50 ticks."""
 DRAIN_QUIET = 0.2  # s without a message: everything sent before the stop has been recorded
 DRAIN_LIMIT = 1.0  # s, the longest a stop waits for the stream to go quiet
 SPECS: tuple[ParameterSpec, ...] = (
+    AUTOSTART,
+    END_WITH_RUN,
     ParameterSpec(
         "output",
         "",
@@ -116,8 +125,8 @@ def parse_custom_data(text: str) -> dict[str, str]:
     return pairs
 
 
-class RecorderNode(Node):
-    """Records into ``bag`` from construction until :meth:`close`.
+class RecorderNode(ManagedNode):
+    """Records into ``bag`` while active, from configure until :meth:`close` (see the module docstring).
 
     The subscriptions live on a second node (``<name>_reader``) that no executor spins: a thread of
     this node sleeps in a wait set of them until one has messages, then takes every subscription's in
@@ -128,21 +137,29 @@ class RecorderNode(Node):
     """
 
     def __init__(self, **node_options: object) -> None:
-        super().__init__("recorder", **node_options)  # type: ignore[arg-type]
         self._taker: threading.Thread | None = None  # first: destroy_node must work if the rest raises
         self._reader: Node | None = None
+        self.bag: RosbagMcapWriter | None = None
+        """The bag being written, or the last one written (finalised), once configured."""
+        self.bags: list[Path] = []
+        """The bag directories written, one per activation (see the module docstring)."""
+        self._recording = threading.Event()  # active: what the taker takes is written
+        self.write_error: str | None = None
+        """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
+        super().__init__("recorder", SPECS, **node_options)
+
+    def configure(self, values: dict[str, ParameterValue]) -> None:
+        output = str(values["output"]) or f"rosbag2_{datetime.now():%Y_%m_%d-%H_%M_%S}"
+        self._output = Path(output)
+        self._bag_settings = {
+            "compression": values["compression"],
+            "chunk_size": int(values["chunk_size"]),
+            "flush_interval_ns": round(float(values["flush_interval"]) * 1e9),
+            "custom_data": parse_custom_data(str(values["custom_data"])),
+        }
         self._wake_taker = GuardCondition(None, None, context=self.context)
         """Triggered when the subscriptions change or taking stops: the taker leaves its wait set."""
-        self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
-        values = parameters.declare(self, SPECS)
-        output = str(values["output"]) or f"rosbag2_{datetime.now():%Y_%m_%d-%H_%M_%S}"
-        self.bag = RosbagMcapWriter(
-            Path(output),
-            compression=values["compression"],  # type: ignore[arg-type]
-            chunk_size=int(values["chunk_size"]),
-            flush_interval_ns=round(float(values["flush_interval"]) * 1e9),
-            custom_data=parse_custom_data(str(values["custom_data"])),
-        )
+        self._registered: set[str] = set()
         relative = [*topics.RECORDED_TOPICS, *((topics.CLOCK,) if values["record_clock"] else ())]
         self.topic_names = [self.resolve_topic_name(topic) for topic in relative]
         """The recorded topics, fully qualified, in the order of the status reports."""
@@ -155,8 +172,9 @@ class RecorderNode(Node):
         self._batched = {self._state_topic, self._grf_topic}
         """The topics recorded from the batches on tdslip/samples while it has a publisher."""
         self._state_encoder, self._grf_encoder = state_encoder(), grf_encoder()
-        self.write_error: str | None = None
-        """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
+        self.write_error = None
+        self._open_bag()
+        assert self.bag is not None
         self._reader = Node(
             f"{self.get_name()}_reader",
             namespace=self.get_namespace(),
@@ -167,7 +185,6 @@ class RecorderNode(Node):
         self._subscriptions_lock = threading.Lock()  # the taker thread and the discovery timer
         self._status_lock = threading.Lock()
         self._warned: set[str] = set()
-        self._registered: set[str] = set()
         self._unreported = 0
         self._status = RecorderStatus(bag=str(self.bag.mcap_path), topics=self.topic_names)
         self._status_publisher = self.create_publisher(
@@ -184,7 +201,40 @@ class RecorderNode(Node):
         self._taker.start()
         self.create_timer(DISCOVERY_PERIOD, self._discover)
         self._discover()
+
+    def _open_bag(self) -> None:
+        """Create the bag of this activation: ``output`` the first time, ``output_2``, ... after a pause."""
+        path = (
+            self._output
+            if not self.bags
+            else self._output.with_name(f"{self._output.name}_{len(self.bags) + 1}")
+        )
+        self.bag = RosbagMcapWriter(path, **self._bag_settings)  # type: ignore[arg-type]
+        self.bags.append(path)
+        self._registered.clear()
         self.get_logger().info(f"recording {', '.join(self.topic_names)} into {self.bag.mcap_path}")
+
+    def activate(self) -> None:
+        assert self.bag is not None
+        if self.bag.closed:  # paused before: a new bag, the last one stays as it was finalised
+            self._open_bag()
+            self._status.bag = str(self.bag.mcap_path)
+            self._discover()
+        self._recording.set()
+
+    def deactivate(self) -> None:
+        """Stop writing (what is taken meanwhile is dropped) and finalise the bag, which is then complete."""
+        self._recording.clear()
+        self._finalise()
+
+    def cleanup(self) -> None:
+        self.close()
+        if self._reader is not None:
+            self._reader.destroy_node()
+            self._reader = None
+        if hasattr(self, "_wake_taker"):
+            self._wake_taker.destroy()
+            del self._wake_taker
 
     def _discover(self) -> None:
         """Register newly published topics in the bag with their offered QoS and adapt a subscription
@@ -284,7 +334,7 @@ class RecorderNode(Node):
                     while (message := handle.take_message(message_type, True)) is not None:
                         data, info = message
                         taken.append((time.time_ns(), info["source_timestamp"], name, data))
-        if not taken or self.write_error is not None:
+        if not taken or self.write_error is not None or not self._recording.is_set():
             return 0
         written = 0
         for received, sent, name, data in taken:
@@ -355,7 +405,7 @@ class RecorderNode(Node):
 
     @property
     def message_count(self) -> int:
-        return sum(self.bag.message_counts.values())
+        return 0 if self.bag is None else sum(self.bag.message_counts.values())
 
     def close(self) -> None:
         """Take what has arrived, stop taking and finalise the bag (idempotent)."""
@@ -365,19 +415,18 @@ class RecorderNode(Node):
             self._taker.join()
             self._taker = None
             self.take_and_write()
-        if not self.bag.closed:
+        self._recording.clear()
+        self._finalise()
+
+    def _finalise(self) -> None:
+        if self.bag is not None and not self.bag.closed:
             self.bag.close()
             counts = ", ".join(f"{topic} {count}" for topic, count in self.bag.message_counts.items())
             self.get_logger().info(f"bag {self.bag.mcap_path} closed: {counts}")
             self.publish_status()
 
     def destroy_node(self) -> None:
-        if hasattr(self, "bag"):
-            self.close()
-        if self._reader is not None:
-            self._reader.destroy_node()
-            self._reader = None
-        self._wake_taker.destroy()
+        self.cleanup()
         super().destroy_node()
 
 
@@ -408,7 +457,8 @@ def drain(executor: Executor, recorder: RecorderNode) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``recorder_node [--ros-args -p output:=DIR ...]``: record until SIGINT/SIGTERM."""
+    """``recorder_node [--ros-args -p output:=DIR ...]``: record until SIGINT/SIGTERM (or the run's end,
+    ``end_with_run``)."""
 
     def finish(recorder: RecorderNode, executor: Executor) -> None:
         drain(executor, recorder)
@@ -418,7 +468,8 @@ def main(argv: list[str] | None = None) -> int:
         RecorderNode,
         "recorder.yaml",
         sys.argv if argv is None else argv,
-        lambda node: node.write_error is not None,  # nothing more can be recorded
+        # Nothing more can be recorded, or (end_with_run) nothing more is coming.
+        lambda node: node.write_error is not None or node.run_ended,
         exit_status=lambda node: 1 if node.write_error is not None else 0,
         on_stop=finish,
         specs=SPECS,

@@ -508,7 +508,7 @@ def run(
         context = stack.enter_context(_ros_context(domain_id))
         try:
             plant = PlantNode(
-                autostart=False,
+                start_when_ready=False,
                 context=context,
                 namespace=options.namespace,
                 cli_args=["--ros-args", "--params-file", str(config_file("plant.yaml"))],

@@ -23,7 +23,6 @@ from __future__ import annotations
 import math
 import sys
 
-from rclpy.node import Node
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, StanceCommand
 
 from tdslip_ros.interfaces import STAMP_FIELDS, hopper_from_parameters
@@ -38,26 +37,34 @@ from tdslip_ros.model.policies.registry import (
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
 from tdslip_ros.nodes.entry import run_node, wait_to_answer
-from tdslip_ros.nodes.parameters import ParameterSpec
+from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
+from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.torque_stream import tick_of
 from tdslip_ros.nodes.wire import fixed_layout_encoder, serialized
 
 POLICY = STANCE_PD_SPEED_ENERGY
-SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *map(setting_parameter, settings_of(POLICY)))
+SPECS: tuple[ParameterSpec, ...] = (
+    AUTOSTART,
+    END_WITH_RUN,
+    *parameters.HOPPER,
+    *map(setting_parameter, settings_of(POLICY)),
+)
 
 
-class StanceControllerNode(Node):
-    """Subscribes tdslip/apex, tdslip/contact and tdslip/state; publishes a tdslip/command per apex and a
-    tdslip/hip_torque per stance sample."""
+class StanceControllerNode(ManagedNode):
+    """Subscribes tdslip/apex, tdslip/contact and tdslip/state; while active, publishes a tdslip/command per
+    apex and a tdslip/hip_torque per stance sample (:mod:`tdslip_ros.nodes.lifecycle`)."""
 
     def __init__(self, **node_options: object) -> None:
-        super().__init__("stance_controller", **node_options)  # type: ignore[arg-type]
-        self.add_on_set_parameters_callback(lambda changed: parameters.validate(SPECS, changed))
-        self.hopper = hopper_from_parameters(parameters.declare(self, SPECS))
-        check_hopper(self.hopper)
-        self._max_torque = PlausibilityLimits.for_hopper(self.hopper).max_torque
         self.commands = 0
         self.torques = 0
+        self._answering = False
+        super().__init__("stance_controller", SPECS, **node_options)
+
+    def configure(self, values: dict[str, ParameterValue]) -> None:
+        self.hopper = hopper_from_parameters(values)
+        check_hopper(self.hopper)
+        self._max_torque = PlausibilityLimits.for_hopper(self.hopper).max_torque
         self._epoch = 0
         self._feedback: StanceFeedback | None = None  # the answer to the latest apex
         self._touchdown = (-1, math.nan)  # (stride, simulated time [s]) of the latest touchdown heard
@@ -72,6 +79,13 @@ class StanceControllerNode(Node):
         self.create_subscription(ContactEvent, topics.CONTACT, self._on_contact, topics.STREAM_QOS)
         self.create_subscription(HopperState, topics.STATE, self._on_state, topics.STREAM_QOS)
 
+    def activate(self) -> None:
+        self._answering = True
+
+    def deactivate(self) -> None:
+        self._answering = False
+        self._feedback = None  # no torque for a stance whose apex this node did not answer
+
     def feedback(self) -> StanceFeedback:
         """The policy's stance feedback with the current parameters."""
         values = {**SETTING_DEFAULTS}
@@ -79,6 +93,8 @@ class StanceControllerNode(Node):
         return PolicySpec.of(POLICY, values).stance_feedback(self.hopper)
 
     def _on_apex(self, apex: ApexEvent) -> None:
+        if not self._answering:
+            return
         self._epoch, self._feedback = apex.epoch, self.feedback()
         msg = StanceCommand(
             epoch=apex.epoch,
@@ -100,7 +116,7 @@ class StanceControllerNode(Node):
             self._touchdown = (contact.stride, contact.sim_time)
 
     def _on_state(self, state: HopperState) -> None:
-        if state.phase != HopperState.PHASE_STANCE or self._feedback is None:
+        if state.phase != HopperState.PHASE_STANCE or self._feedback is None or not self._answering:
             return
         sec, nanosec = state.header.stamp.sec, state.header.stamp.nanosec
         t = sec + nanosec * 1e-9
@@ -121,13 +137,13 @@ class StanceControllerNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``stance_controller_node [--ros-args ...]``: serve until SIGINT/SIGTERM, config/controller.yaml by
-    default."""
+    """``stance_controller_node [--ros-args ...]``: serve until SIGINT/SIGTERM (or the run's end,
+    ``end_with_run``), config/controller.yaml by default."""
     return run_node(
         StanceControllerNode,
         "controller.yaml",
         sys.argv if argv is None else argv,
-        lambda node: False,
+        lambda node: node.run_ended,
         specs=SPECS,
     )
 

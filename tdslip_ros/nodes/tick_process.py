@@ -226,6 +226,14 @@ class TickProcess:
     def end(self, kind: str, reason: str) -> None:
         self._send("end", kind, reason, None)
 
+    def pause(self) -> None:
+        """Stop the tick, holding the run's state, until :meth:`resume`."""
+        self._send("pause", time.monotonic_ns())
+
+    def resume(self) -> None:
+        """Tick again from where the run was paused: the pause does not count as time the run was late."""
+        self._send("resume", time.monotonic_ns())
+
     def reset(self, apex: ApexState) -> str:
         """Restart the run from ``apex`` in a new epoch; the reset's message once the process has."""
         self._restarted.clear()
@@ -297,12 +305,13 @@ class _TickServer:
         self._run = run
         self._sink = sink
         self._busy_ns = 0  # the process's own work past the deadline of the coming firing
+        self._paused_ns: int | None = None  # when the node paused the run (steady clock), while it is
 
     @property
     def _deadline(self) -> int | None:
-        """The next firing (steady clock), while the run runs: the next tick's deadline, past already after a
-        late firing (the next then comes at once, and no deadline is skipped)."""
-        return self._run.next_deadline_ns if self._run.running else None
+        """The next firing (steady clock), while the run runs and is not paused: the next tick's deadline,
+        past already after a late firing (the next then comes at once, and no deadline is skipped)."""
+        return self._run.next_deadline_ns if self._run.running and self._paused_ns is None else None
 
     def serve(self, inbox: int, frames: FrameReader) -> None:
         """Until "stop", or until the node's process is gone."""
@@ -348,6 +357,12 @@ class _TickServer:
             run.end(*args)
         elif kind == "reset":
             run.reset(args[0])
+        elif kind == "pause":
+            self._paused_ns = args[0]
+        elif kind == "resume":
+            if self._paused_ns is not None:  # the run's wall clock skips the pause
+                run.start_wall_ns += args[0] - self._paused_ns
+                self._paused_ns = None
         else:
             raise ValueError(f"unknown message {kind!r}")
         self._sink.flush()
