@@ -62,7 +62,7 @@ def test_each_node_reads_its_hopper_from_the_hopper_file_parameter(ros: RosGraph
         node = ros.add(
             node_class(
                 context=ros.context,
-                autostart=False,
+                start_when_ready=False,
                 parameter_overrides=overrides(hopper_file=str(hopper_file)),
             )
             if node_class is PlantNode
@@ -72,6 +72,6 @@ def test_each_node_reads_its_hopper_from_the_hopper_file_parameter(ros: RosGraph
     with pytest.raises(ParameterError, match="hopper file .*absent.yaml: cannot be read"):
         PlantNode(
             context=ros.context,
-            autostart=False,
+            start_when_ready=False,
             parameter_overrides=overrides(hopper_file=str(tmp_path / "absent.yaml")),
         )
