@@ -51,9 +51,18 @@ SHOWN = {
         "xlabel: step down [m]",
         "ylabel: fraction surviving 50 strides",
     ],
+    "docs/viability/kernel.png": [
+        "suptitle: ",
+        "title: viable pairs (blue), pairs that do not fail at once but are not viable (grey), failing",
+        "xlabel: touchdown angle [deg]",
+        "ylabel: height fraction of the energy",
+    ],
 }
 """The titles and axis labels each figure of docs/ shows, read off the image, axes by axes."""
-TINY = {"robustness": ["--samples", "1", "--strides", "3"]}
+TINY = {
+    "robustness": ["--samples", "1", "--strides", "3"],
+    "viability": ["--fractions", "0.1", "0.995", "12", "--angles-deg", "-10", "70", "9"],
+}
 """Options that make a command's work tiny (the figure's kind stays)."""
 
 
@@ -136,7 +145,7 @@ def test_the_command_of_a_figure_draws_it(
     target = tmp_path / Path(image).name
     out = target if name == "terrain" else tmp_path  # terrain's --out is the PNG, a study's its directory
     rest += ["--out", str(out), *TINY.get(name, [])]
-    if name == "robustness":
+    if name in ("robustness", "viability"):
         rest += ["--scheduler", request.getfixturevalue("dask_scheduler")]
     saved: dict[Path, list[str]] = {}
     savefig = Figure.savefig

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -20,6 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 from distributed import Client
+from support.cluster import KillAWorker
 from support.helpers import deadline
 
 from tdslip_ros.studies import chunk, engine, table
@@ -200,23 +200,6 @@ def test_an_unreachable_scheduler_is_one_clear_error(monkeypatch: pytest.MonkeyP
     with pytest.raises(engine.EngineError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         with engine.connect(engine.Where(scheduler="tcp://127.0.0.1:9")):
             pass
-
-
-class KillAWorker(engine.Progress):
-    """After a chunk arrives, SIGKILL a worker process that is running one (the first time one is)."""
-
-    def __init__(self, client) -> None:
-        super().__init__("test", "trajectories", stream=open(os.devnull, "w"))
-        self.client, self.killed = client, None
-
-    def advance(self, count: int) -> None:
-        super().advance(count)
-        if self.killed is None:
-            busy = [worker for worker, keys in self.client.processing().items() if keys]
-            if busy:  # between two chunks none may be running (an IndexError here once): the next chunk then
-                victim = busy[0]
-                self.killed = self.client.run(os.getpid, workers=[victim])[victim]
-                os.kill(self.killed, signal.SIGKILL)
 
 
 def test_a_worker_killed_mid_study_is_replaced_and_the_table_is_the_undisturbed_one(

@@ -31,6 +31,7 @@ SUBCOMMANDS: dict[str, str] = {
     "robustness": (
         "survival against terrain, sensor noise, model mismatch and step-downs, per policy, on Dask"
     ),
+    "viability": "viability kernels: the states and commands that keep the hopper running, on Dask",
     "terrain": "energy regulation against open loop over rough ground: COM paths and apex energies (PNG)",
 }
 """Every subcommand by name, with its one-line summary; ``tdslip NAME`` runs ``tdslip_ros.commands.NAME``."""

@@ -273,6 +273,18 @@ def compute(client: Client, calls: Sequence[Call], progress: Progress | None = N
     """The results of pure calls, in order, computed as tasks on the cluster (at most IN_FLIGHT_PER_THREAD
     per thread at a time, in the order given); EngineError where one fails for good."""
     results: list[Any] = [None] * len(calls)
+    for_each(client, calls, results.__setitem__, progress)
+    return results
+
+
+def for_each(
+    client: Client,
+    calls: Sequence[Call],
+    receive: Callable[[int, Any], None],
+    progress: Progress | None = None,
+) -> None:
+    """:func:`compute`'s calls, each result handed to ``receive(position, result)`` as it arrives (in any
+    order) and not kept, so that a caller can write it and let it go."""
     positions: dict[str, list[int]] = {}  # a call made twice is computed once
     for position, (name, _, args) in enumerate(calls):
         positions.setdefault(_call_key(name, args), []).append(position)
@@ -283,17 +295,16 @@ def compute(client: Client, calls: Sequence[Call], progress: Progress | None = N
         _, function, args = calls[positions[key][0]]
         return client.submit(function, *args, key=key, retries=RETRIES)
 
-    def receive(future: Future[Any]) -> None:
+    def received(future: Future[Any]) -> None:
         result = future.result()
         for position in positions[future.key]:
-            results[position] = result
+            receive(position, result)
         if progress is not None:
             progress.advance(1)
 
-    _stream(client, list(positions), submit, receive, lambda future: calls[positions[future.key][0]][0])
+    _stream(client, list(positions), submit, received, lambda future: calls[positions[future.key][0]][0])
     if progress is not None:
         progress.finish()
-    return results
 
 
 def _call_key(name: str, args: tuple[Any, ...]) -> str:

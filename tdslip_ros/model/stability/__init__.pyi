@@ -37,3 +37,9 @@ from .basins import (
     run_strides as run_strides,
 )
 from .exact_fixed_points import ExactLoop as ExactLoop
+from .viability import QMap as QMap
+from .viability import ViabilityResult as ViabilityResult
+from .viability import viable_set as viable_set
+from .viability_spaces import ApexSpace as ApexSpace
+from .viability_spaces import EnergySpace as EnergySpace
+from .viability_spaces import q_map as q_map
