@@ -57,7 +57,9 @@ from tdslip_msgs.msg import RecorderStatus
 from tdslip_ros.bag import BagClosedError, BagWriteError, OfferedQos, RosbagMcapWriter
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import parameters, topics
+from tdslip_ros.nodes.diagnostics import RECORDER_THRESHOLDS, specs_of
 from tdslip_ros.nodes.entry import run_node
+from tdslip_ros.nodes.node_status import recorder_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.realtime import name_this_thread
 from tdslip_ros.nodes.wire import grf_encoder, sample_rows, serialized, state_encoder
@@ -102,6 +104,7 @@ SPECS: tuple[ParameterSpec, ...] = (
         "space-separated KEY=VALUE pairs for the bag metadata's custom_data (ros2 bag record --custom-data)",
         read_only=True,
     ),
+    *specs_of(RECORDER_THRESHOLDS),
 )
 
 
@@ -184,6 +187,7 @@ class RecorderNode(Node):
         self._taker.start()
         self.create_timer(DISCOVERY_PERIOD, self._discover)
         self._discover()
+        self.diagnostics = recorder_diagnostics(self, self)
         self.get_logger().info(f"recording {', '.join(self.topic_names)} into {self.bag.mcap_path}")
 
     def _discover(self) -> None:

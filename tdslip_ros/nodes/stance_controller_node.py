@@ -37,13 +37,19 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
+from tdslip_ros.nodes.diagnostics import specs_of
 from tdslip_ros.nodes.entry import run_node, wait_to_answer
+from tdslip_ros.nodes.node_status import stance_controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.torque_stream import tick_of
 from tdslip_ros.nodes.wire import fixed_layout_encoder, serialized
 
 POLICY = STANCE_PD_SPEED_ENERGY
-SPECS: tuple[ParameterSpec, ...] = (*parameters.HOPPER, *map(setting_parameter, settings_of(POLICY)))
+SPECS: tuple[ParameterSpec, ...] = (
+    *parameters.HOPPER,
+    *map(setting_parameter, settings_of(POLICY)),
+    *specs_of(()),
+)
 
 
 class StanceControllerNode(Node):
@@ -71,6 +77,7 @@ class StanceControllerNode(Node):
         ).topic_name
         self.create_subscription(ContactEvent, topics.CONTACT, self._on_contact, topics.STREAM_QOS)
         self.create_subscription(HopperState, topics.STATE, self._on_state, topics.STREAM_QOS)
+        self.diagnostics = stance_controller_diagnostics(self, self, POLICY)
 
     def feedback(self) -> StanceFeedback:
         """The policy's stance feedback with the current parameters."""
