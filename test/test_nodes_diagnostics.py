@@ -6,21 +6,28 @@ the 1 kHz state message. One ROS graph per test; the last two tests run the real
 from __future__ import annotations
 
 import math
+import subprocess
+import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
 import yaml  # type: ignore[import-untyped]
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import WrenchStamped
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
+from support.ros2_tools import ros2_command, ros2_environment
 from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import HopperState, Status
 
+from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
@@ -34,6 +41,7 @@ from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.plant_node import PlantNode
 
 NS = 1_000_000_000
+ECHO_TIMEOUT = 90.0  # s for four ros2 processes to start, discover and echo on the loaded 2-core VM
 
 
 def statuses_of(arrays: list[Any], name: str) -> list[DiagnosticStatus]:
@@ -255,3 +263,66 @@ def test_joint_states_and_tf_agree_with_the_state_message_and_the_urdf_names_the
             assert message.transforms[2].transform.translation.z < 0  # the toe below the hip, along -z
             assert toe_in_world(list(message.transforms))[1][0] > state.x
     assert touchdown_seen
+
+
+def namespace_of(value: Any) -> Any:
+    """A YAML mapping as attributes, as the message it was echoed from."""
+    if isinstance(value, dict):
+        return SimpleNamespace(**{key: namespace_of(item) for key, item in value.items()})
+    if isinstance(value, list):
+        return [namespace_of(item) for item in value]
+    return value
+
+
+def test_the_real_ros2_echoes_each_nodes_diagnostics_and_the_tf_of_a_run(
+    ros: RosGraph, tmp_path: Path
+) -> None:
+    ros2 = ros2_command()
+    recorder = ros.start_recorder(tmp_path / "bag", tmp_path / "recorder.log")
+    plant = ros.add(
+        PlantNode(
+            context=ros.context,
+            # max_stale_strides 0: the run goes on while four ros2 processes starting delay the controller.
+            parameter_overrides=overrides(
+                max_strides=0, max_stale_strides=0, clock_mode="realtime", wait_for_recorder=True
+            ),
+        )
+    )
+    ros.add(ControllerNode(context=ros.context))
+    ros.spin_until(lambda: plant.running, "the run's start", timeout=60)
+    environment = ros2_environment(ros.domain_id, tmp_path / "ros_log")
+    echo = [str(ros2), "topic", "echo", "--once", "--no-daemon", "--spin-time", "2"]
+    names = ("/plant", "/controller", "/recorder")
+    commands = {
+        name: [*echo, "--filter", f"m.status[0].name == '{name}'", topics.DIAGNOSTICS] for name in names
+    }
+    commands["/tf"] = [*echo, topics.TF, "tf2_msgs/msg/TFMessage"]  # typed: no wait for discovery to tell it
+    echoes = {
+        what: subprocess.Popen(
+            command, env=environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+        for what, command in commands.items()
+    }
+    deadline = time.monotonic() + ECHO_TIMEOUT
+    while any(p.poll() is None for p in echoes.values()) and time.monotonic() < deadline:
+        ros.executor.spin_once(timeout_sec=0.05)
+    for process in echoes.values():
+        if process.poll() is None:
+            process.kill()
+    outputs = {what: process.communicate()[0] for what, process in echoes.items()}
+    assert all(process.returncode == 0 for process in echoes.values()), outputs
+    plant.end_run("the test's end")
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    for name in names:
+        (status,) = yaml.safe_load(outputs[name].split("\n---", 1)[0])["status"]
+        assert (status["name"], status["hardware_id"]) == (name, HARDWARE_ID), outputs[name]
+        assert {pair["key"] for pair in status["values"]} >= {"lifecycle state"}
+    echoed = namespace_of(yaml.safe_load(outputs["/tf"].split("\n---", 1)[0]))
+    (stamp,) = {stamp_ns(t) for t in echoed.transforms}
+    assert plant.deliver(ros.executor) and stop_process(recorder) == 0
+    # The state of the echoed stamp, as the recorder wrote it (a 1 kHz subscription here would load the test).
+    with mcap_file(tmp_path / "bag").open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        messages = reader.iter_decoded_messages(topics=[resolve(topics.STATE)])
+        (state,) = [message for _, _, _, message in messages if stamp_ns(message) == stamp]
+    check_against_state(echoed.transforms, state)
