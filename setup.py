@@ -1,7 +1,8 @@
 """Build of the ament_python package tdslip_ros (static metadata in setup.cfg).
 
 Installs the Python package, the console scripts, and the ROS 2 layout: the ament index marker,
-package.xml, the node parameter files, the launch files and one launcher per console script where
+package.xml, the node parameter files, the launch files, the hopper's URDF and one launcher per console
+script where
 ``ros2 run`` looks.
 """
 
@@ -80,7 +81,9 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", relative_files("config/*.yaml") + relative_files("config/*.json")),
         (f"share/{PACKAGE}/launch", relative_files("launch/*.launch.py")),
+        (f"share/{PACKAGE}/urdf", relative_files(f"{PACKAGE}/nodes/urdf/*.urdf")),
     ],
+    package_data={f"{PACKAGE}.nodes": ["urdf/*.urdf"]},
     entry_points={"console_scripts": [f"{name} = {target}" for name, target in CONSOLE_SCRIPTS.items()]},
     cmdclass={"install_data": InstallDataWithRos2RunLaunchers},
     distclass=Ros2Distribution,

@@ -34,6 +34,12 @@ RECORDER_STATUS = "tdslip/recorder_status"
 MARKERS = "tdslip/markers"
 CLOCK = "/clock"
 RESET_SERVICE = "tdslip/reset"
+# The hopper as a robot for RViz and Foxglove (nodes/robot_model.py) and the nodes' health, under the names
+# ROS 2's own tools use: robot_state_publisher's (relative) and tf2's and diagnostic_updater's (global).
+JOINT_STATES = "joint_states"
+ROBOT_DESCRIPTION = "robot_description"
+TF = "/tf"
+DIAGNOSTICS = "/diagnostics"
 
 TOPIC_TYPES: dict[str, str] = {
     STATE: "tdslip_msgs/msg/HopperState",

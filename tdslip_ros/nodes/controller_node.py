@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import time
 
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
@@ -38,8 +39,10 @@ from tdslip_ros.model.policies.registry import (
     PolicySpec,
 )
 from tdslip_ros.nodes import parameters, topics
+from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
 from tdslip_ros.nodes.entry import run_node, wait_to_answer
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
+from tdslip_ros.nodes.node_status import PlanningTimes, controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.wire import command_encoder
 
@@ -57,7 +60,13 @@ TUNABLE: tuple[ParameterSpec, ...] = (
     ParameterSpec("policy", DEFAULT_POLICY, "stance policy answering each apex", choices=POLICIES),
     *map(setting_parameter, POLICY_SETTINGS),
 )
-SPECS: tuple[ParameterSpec, ...] = (AUTOSTART, END_WITH_RUN, *parameters.HOPPER, *TUNABLE)
+SPECS: tuple[ParameterSpec, ...] = (
+    AUTOSTART,
+    END_WITH_RUN,
+    *parameters.HOPPER,
+    *TUNABLE,
+    *specs_of(CONTROLLER_THRESHOLDS),
+)
 
 
 class ControllerNode(ManagedNode):
@@ -66,6 +75,8 @@ class ControllerNode(ManagedNode):
 
     def __init__(self, **node_options: object) -> None:
         self.published = 0
+        self.unanswered = 0
+        self.planning_times = PlanningTimes()
         self._answering = False
         self._configured = False
         super().__init__("controller", SPECS, **node_options)
@@ -86,6 +97,7 @@ class ControllerNode(ManagedNode):
         self._apex_topic = self.create_subscription(
             ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS
         ).topic_name
+        self.diagnostics = controller_diagnostics(self, self)
         self._configured = True
 
     def activate(self) -> None:
@@ -148,10 +160,12 @@ class ControllerNode(ManagedNode):
             self._previous_speed = None  # a new run: no previous apex for the PD's derivative term
         # What the controller can know: the measured apex, its height above the ground it last stood on.
         height, speed = apex.measured_height - apex.ground_height, apex.measured_forward_speed
+        started_ns = time.perf_counter_ns()
         try:
             policy = self.current_policy()  # once: the command and its label come from the same policy
             command = self.plan(height, speed, policy)
         except (ParameterError, PolicyError) as error:
+            self.unanswered += 1
             name = self.get_parameter("policy").value
             self.get_logger().error(
                 f"{name}: no command for apex {apex.stride} (y = {height:.6g} m above the ground, "
@@ -160,6 +174,7 @@ class ControllerNode(ManagedNode):
             return
         finally:
             self._previous_speed = speed
+            self.planning_times.add(time.perf_counter_ns() - started_ns)
         stamp = apex.header.stamp
         encoder = command_encoder(policy.name, apex.header.frame_id)  # in the apex's frame
         data = encoder.encode(

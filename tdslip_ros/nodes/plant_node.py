@@ -97,6 +97,7 @@ from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import run_node, spin_until, wait_for_delivery
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
 from tdslip_ros.nodes.lifecycle import ManagedNode
+from tdslip_ros.nodes.node_status import plant_diagnostics
 from tdslip_ros.nodes.parameters import ParameterValue
 from tdslip_ros.nodes.plant_output import GRAPH_CHECK_TICKS, PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
@@ -110,6 +111,7 @@ from tdslip_ros.nodes.plant_run import (
     RunSettings,
 )
 from tdslip_ros.nodes.realtime import TickTiming
+from tdslip_ros.nodes.robot_model import RobotModelPublisher
 from tdslip_ros.nodes.tick_process import TickProcess
 
 __all__ = ["TICK_PERIOD", "PlantNode", "RunOutcome"]
@@ -193,11 +195,11 @@ class PlantNode(ManagedNode):
         self.done = Future()
 
         marker_rate = float(values["marker_rate"])
+        marker_period_ticks = max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0
         self._out = PlantOutput(
-            self,
-            publish_clock=bool(values["publish_clock"]),
-            marker_period_ticks=max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0,
+            self, publish_clock=bool(values["publish_clock"]), marker_period_ticks=marker_period_ticks
         )
+        self.robot_model = RobotModelPublisher(self, self.hopper, marker_period_ticks)
         self.published = self._out.published
         """Messages published per topic, by relative name (topics.STATE, ...)."""
         self.topic_names = self._out.topic_names
@@ -256,6 +258,7 @@ class PlantNode(ManagedNode):
         self._start_check = self.create_timer(
             START_CHECK_PERIOD, self._start_when_ready, clock=steady, autostart=False
         )
+        self.diagnostics = plant_diagnostics(self, self)
         self.get_logger().info(self._startup_summary(initial_apex))
 
     def activate(self) -> None:
@@ -624,8 +627,10 @@ class _NodeSink:
     def tick(self, state: ModelState, t: float, tick: int) -> None:
         if tick % GRAPH_CHECK_TICKS == 0:  # here, not in the run: who listens is the node's question
             self._out.check_graph()
+            self._node.robot_model.check_graph()
         self._publishing(self._out.sample, state, t)
         self._publishing(self._out.markers, state, t, tick)
+        self._publishing(self._node.robot_model.publish, state, t, tick)
         self._node._ticks = tick
 
     def apex(self, report: ApexReport) -> None:

@@ -14,6 +14,7 @@ from tdslip_ros.model.policies.registry import (
     DEFAULT_TOUCHDOWN_ANGLE,
 )
 from tdslip_ros.nodes import parameters
+from tdslip_ros.nodes.diagnostics import PLANT_THRESHOLDS, specs_of
 from tdslip_ros.nodes.lifecycle import AUTOSTART
 from tdslip_ros.nodes.parameters import ParameterSpec
 
@@ -154,4 +155,5 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "exit_when_done", True, "plant_node exits when the run has ended (else it stays for tdslip/reset)"
     ),
+    *specs_of(PLANT_THRESHOLDS),
 )

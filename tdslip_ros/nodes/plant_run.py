@@ -28,7 +28,7 @@ from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.model.plant.stance_laws import StanceFeedback
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.nodes.command_admission import LateCommand, RejectionLog, admit, command_key, not_yet
-from tdslip_ros.nodes.realtime import TickTiming
+from tdslip_ros.nodes.realtime import MissedTicks, TickTiming
 from tdslip_ros.nodes.torque_stream import TICK_NS, LateTorque, TorqueInput, torque_fields
 
 TICK_PERIOD = TICK_NS / 1e9  # s, the plant's fixed step
@@ -84,6 +84,8 @@ class RunCounts:
     """Realtime: stance ticks that held zero, as no torque within the age bound had come."""
     saturated_strides: int = 0
     """Touchdowns of the current epoch whose |tau0| exceeded tau_max (the hip saturated)."""
+    missed_ticks: MissedTicks | None = None
+    """Realtime: the tick's counts of missed ticks (at the end of a run those of its closing summary)."""
 
 
 @dataclass(frozen=True)
@@ -187,6 +189,7 @@ class PlantRun:
             self.torques.late,
             self.torques.stale,
             self._stepper.saturated_strides,
+            None if self.tick_timing is None else self.tick_timing.counts(),
         )
 
     def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
@@ -332,6 +335,7 @@ class PlantRun:
         self.tick_timing.close_window()
         self._sink.log("info", f"realtime: {self.tick_timing.summary()}")
         self._sink.timed(self.tick_timing)
+        self._sink.counted(self.counts())  # the missed ticks of the summary, the last firing's included
 
     @property
     def next_deadline_ns(self) -> int:

@@ -13,6 +13,7 @@ import ctypes
 import math
 import os
 import struct
+from dataclasses import dataclass
 from typing import Protocol
 
 
@@ -68,6 +69,20 @@ class ProcCpuClocks:
             return os.open(path, os.O_RDONLY)
         except OSError:
             return None
+
+
+@dataclass(frozen=True)
+class MissedTicks:
+    """:class:`TickTiming`'s counts at one moment, small enough to go with every apex's counts
+    (/diagnostics)."""
+
+    ticks: int = 0
+    missed: int = 0
+    stolen: int = 0
+    waiting: int = 0
+    woken_late: int = 0
+    unexplained: int = 0
+    stolen_ns: int = 0
 
 
 class TickTiming:
@@ -182,6 +197,17 @@ class TickTiming:
             self.missed_unexplained += self._window_ours
         self._window_steal = steal
         self._window_firings = self._window_waiting = self._window_woken_late = self._window_ours = 0
+
+    def counts(self) -> MissedTicks:
+        return MissedTicks(
+            self.ticks,
+            self.missed,
+            self.missed_stolen,
+            self.missed_waiting,
+            self.missed_woken_late,
+            self.missed_unexplained,
+            self.stolen_ns,
+        )
 
     def period_error(self, quantile: float) -> float:
         """The quantile (0..1) of the period error [s], to the bin width (1 us)."""

@@ -63,8 +63,10 @@ from tdslip_msgs.msg import RecorderStatus
 from tdslip_ros.bag import BagClosedError, BagWriteError, OfferedQos, RosbagMcapWriter
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.nodes import topics
+from tdslip_ros.nodes.diagnostics import RECORDER_THRESHOLDS, specs_of
 from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
+from tdslip_ros.nodes.node_status import recorder_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.realtime import name_this_thread
 from tdslip_ros.nodes.wire import grf_encoder, sample_rows, serialized, state_encoder
@@ -111,6 +113,7 @@ SPECS: tuple[ParameterSpec, ...] = (
         "space-separated KEY=VALUE pairs for the bag metadata's custom_data (ros2 bag record --custom-data)",
         read_only=True,
     ),
+    *specs_of(RECORDER_THRESHOLDS),
 )
 
 
@@ -201,6 +204,7 @@ class RecorderNode(ManagedNode):
         self._taker.start()
         self.create_timer(DISCOVERY_PERIOD, self._discover)
         self._discover()
+        self.diagnostics = recorder_diagnostics(self, self)
 
     def _open_bag(self) -> None:
         """Create the bag of this activation: ``output`` the first time, ``output_2``, ... after a pause."""

@@ -36,8 +36,10 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
+from tdslip_ros.nodes.diagnostics import specs_of
 from tdslip_ros.nodes.entry import run_node, wait_to_answer
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
+from tdslip_ros.nodes.node_status import stance_controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.torque_stream import tick_of
 from tdslip_ros.nodes.wire import fixed_layout_encoder, serialized
@@ -48,6 +50,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     END_WITH_RUN,
     *parameters.HOPPER,
     *map(setting_parameter, settings_of(POLICY)),
+    *specs_of(()),
 )
 
 
@@ -78,6 +81,7 @@ class StanceControllerNode(ManagedNode):
         ).topic_name
         self.create_subscription(ContactEvent, topics.CONTACT, self._on_contact, topics.STREAM_QOS)
         self.create_subscription(HopperState, topics.STATE, self._on_state, topics.STREAM_QOS)
+        self.diagnostics = stance_controller_diagnostics(self, self, POLICY)
 
     def activate(self) -> None:
         self._answering = True

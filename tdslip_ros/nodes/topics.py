@@ -56,14 +56,18 @@ from tdslip_ros.interfaces import (  # noqa: F401
     CLOCK,
     COMMAND,
     CONTACT,
+    DIAGNOSTICS,
     GRF,
     HIP_TORQUE,
+    JOINT_STATES,
     MARKERS,
     RECORDER_STATUS,
     RESET_SERVICE,
+    ROBOT_DESCRIPTION,
     SAMPLES,
     STATE,
     STATUS,
+    TF,
 )
 
 FRAME_ID = "world"
@@ -95,6 +99,22 @@ COMMAND_SUBSCRIPTION_QOS = QoSProfile(
 """The plant's command subscription: reliable and volatile (an old answer is of no use to a new run),
 KEEP_ALL so that no later message can push the valid answer out of its queue."""
 RECORDER_STATUS_QOS: QoSProfile = QoSPresetProfiles.DEFAULT.value
+DIAGNOSTICS_QOS: QoSProfile = QoSPresetProfiles.DEFAULT.value
+"""/diagnostics: reliable, volatile, depth 10, as diagnostic_updater and rqt_robot_monitor use it."""
+ROBOT_DESCRIPTION_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+"""robot_description: transient-local, as robot_state_publisher offers it: a viewer started later gets it."""
+TF_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=100,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+"""/tf: tf2_ros's dynamic broadcaster's profile (reliable, volatile, depth 100)."""
 
 
 def qos(topic: str) -> QoSProfile:
