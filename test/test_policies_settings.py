@@ -39,6 +39,8 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
 from tdslip_ros.nodes import controller_node, parameters, stance_controller_node
+from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
+from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN
 from tdslip_ros.studies import design, table
 
 SETTINGS = {setting.name: setting for setting in POLICY_SETTINGS}
@@ -266,9 +268,14 @@ def test_the_controller_node_has_a_parameter_per_setting() -> None:
 
 
 def test_the_stance_controller_node_has_a_parameter_per_setting_of_its_policy() -> None:
-    """The baseline of ref. 36 runs in a node of its own: the hopper, then its policy's settings."""
-    tunable = stance_controller_node.SPECS[len(parameters.HOPPER) :]
-    assert [spec.name for spec in tunable] == [s.name for s in settings_of(STANCE_PD_SPEED_ENERGY)]
+    """The baseline of ref. 36 runs in a node of its own: the lifecycle's, the hopper, its policy's settings,
+    then its diagnostics."""
+    settings = settings_of(STANCE_PD_SPEED_ENERGY)
+    ahead = (AUTOSTART, END_WITH_RUN, *parameters.HOPPER)
+    assert stance_controller_node.SPECS[: len(ahead)] == ahead
+    tunable = stance_controller_node.SPECS[len(ahead) : len(ahead) + len(settings)]
+    assert stance_controller_node.SPECS[len(ahead) + len(settings) :] == specs_of(())
+    assert [spec.name for spec in tunable] == [s.name for s in settings]
     for spec, setting in zip(tunable, settings_of(STANCE_PD_SPEED_ENERGY), strict=True):
         assert (spec.default, spec.descriptor().description) == (setting.default, setting.text)
 
@@ -295,7 +302,15 @@ def test_controller_yaml_sets_each_setting_to_its_default_and_describes_it(repo_
     text = (repo_root / "config" / "controller.yaml").read_text()
     values = yaml.safe_load(text)["/**"]["ros__parameters"]
     comments = {match["key"]: match["comment"] for match in map(YAML_ENTRY.match, text.splitlines()) if match}
-    assert list(values) == [*(spec.name for spec in parameters.HOPPER), "policy", *SETTINGS]
+    lifecycle = [AUTOSTART.name, END_WITH_RUN.name]
+    diagnostics = [spec.name for spec in specs_of(CONTROLLER_THRESHOLDS)]
+    assert list(values) == [
+        *lifecycle,
+        *(spec.name for spec in parameters.HOPPER),
+        "policy",
+        *SETTINGS,
+        *diagnostics,
+    ]
     assert values["policy"] == DEFAULT_POLICY
     assert comments["policy"] == " | ".join(POLICIES)
     for setting in POLICY_SETTINGS:
