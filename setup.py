@@ -27,6 +27,7 @@ CONSOLE_SCRIPTS = {
     "controller_node": "tdslip_ros.nodes.controller_node:main",
     "stance_controller_node": "tdslip_ros.nodes.stance_controller_node:main",
     "recorder_node": "tdslip_ros.nodes.recorder_node:main",
+    "lifecycle_manager": "tdslip_ros.nodes.lifecycle_manager:main",
 }
 
 

@@ -1,9 +1,10 @@
 """One recorded hop with managed nodes: the recorder, the controller and the plant start unconfigured
-(``autostart`` false), and this launch drives each through configure and activate, in that order, each
-node's next transition on the event of its last (launch_ros ``OnStateTransition``): the recorder records
-before the controller answers, and the controller answers before the plant steps. The launch ends when the
-plant's run ends: the controller and the recorder end with it (``end_with_run``, the recorder finalising
-its bag), and the plant's exit shuts down whatever is left.
+(``autostart`` false), and the package's lifecycle manager (``lifecycle_manager``) configures and activates
+each through its lifecycle services, in that order: the recorder records before the controller answers,
+and the controller answers before the plant steps. The launch ends when the plant's run ends: the
+controller and the recorder end with it (``end_with_run``, the recorder finalising its bag), and the
+plant's exit shuts down whatever is left. A node that exits with a failure, or a transition the manager
+could not make, fails the launch (exit status 1), as in hop.launch.py.
 
     ros2 launch tdslip_ros hop_managed.launch.py strides:=20 output:=runs/managed
 
@@ -12,19 +13,17 @@ Arguments: ``strides`` and ``mode`` (lockstep or realtime), defaulting to config
 rosbag2_<date>-<time>). The nodes' other parameters are the installed config/*.yaml defaults.
 """
 
+import signal
 from pathlib import Path
 
 import yaml
 from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, Shutdown
+from launch import LaunchContext, LaunchDescription
+from launch.actions import DeclareLaunchArgument, RegisterEventHandler, Shutdown
 from launch.event_handlers import OnProcessExit
-from launch.events import matches_action
+from launch.events.process import ProcessExited
 from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import LifecycleNode
-from launch_ros.event_handlers import OnStateTransition
-from launch_ros.events.lifecycle import ChangeState
-from lifecycle_msgs.msg import Transition
+from launch_ros.actions import Node
 
 
 def plant_default(name: str) -> str:
@@ -33,35 +32,26 @@ def plant_default(name: str) -> str:
     return str(yaml.safe_load(config.read_text())["/**"]["ros__parameters"][name])
 
 
-def transition(node: LifecycleNode, transition_id: int) -> EmitEvent:
-    return EmitEvent(
-        event=ChangeState(lifecycle_node_matcher=matches_action(node), transition_id=transition_id)
-    )
-
-
 def generate_launch_description() -> LaunchDescription:
     managed = {"autostart": False}
-    recorder = LifecycleNode(
+    recorder = Node(
         package="tdslip_ros",
         executable="recorder_node",
         name="recorder",
-        namespace="",
         output="screen",
         parameters=[{**managed, "end_with_run": True, "output": LaunchConfiguration("output")}],
     )
-    controller = LifecycleNode(
+    controller = Node(
         package="tdslip_ros",
         executable="controller_node",
         name="controller",
-        namespace="",
         output="screen",
         parameters=[{**managed, "end_with_run": True}],
     )
-    plant = LifecycleNode(
+    plant = Node(
         package="tdslip_ros",
         executable="plant_node",
         name="plant",
-        namespace="",
         output="screen",
         parameters=[
             {
@@ -72,29 +62,22 @@ def generate_launch_description() -> LaunchDescription:
             }
         ],
     )
-    # Each node is configured once the one before is active, and activated once it is configured.
-    order = [recorder, controller, plant]
-    chain = []
-    for node, after in zip(order, [None, *order[:-1]], strict=True):
-        configure = transition(node, Transition.TRANSITION_CONFIGURE)
-        if after is None:
-            chain.append(configure)
-        else:
-            chain.append(
-                RegisterEventHandler(
-                    OnStateTransition(target_lifecycle_node=after, goal_state="active", entities=[configure])
-                )
-            )
-        chain.append(
-            RegisterEventHandler(
-                OnStateTransition(
-                    target_lifecycle_node=node,
-                    goal_state="inactive",
-                    start_state="configuring",
-                    entities=[transition(node, Transition.TRANSITION_ACTIVATE)],
-                )
-            )
-        )
+    manager = Node(
+        package="tdslip_ros",
+        executable="lifecycle_manager",
+        name="lifecycle_manager",
+        output="screen",
+        parameters=[{"managed_nodes": "recorder,controller,plant"}],
+    )
+
+    def end_of(event: ProcessExited, context: LaunchContext) -> list[Shutdown]:
+        # The controller and the recorder end by themselves with the run; launch's SIGINT at its shutdown
+        # may land while they exit, when Python has given the signal back to its default: not a failure.
+        interrupted = context.is_shutdown and event.returncode == -signal.SIGINT
+        if event.returncode != 0 and not interrupted:  # launch's exit status is 1 only when a handler raises
+            raise RuntimeError(f"{event.action.name} failed (exit status {event.returncode})")
+        return [Shutdown(reason="the run ended")] if event.action is plant else []
+
     return LaunchDescription(
         [
             DeclareLaunchArgument("strides", default_value=plant_default("max_strides")),
@@ -103,9 +86,7 @@ def generate_launch_description() -> LaunchDescription:
             recorder,
             controller,
             plant,
-            *chain,
-            RegisterEventHandler(
-                OnProcessExit(target_action=plant, on_exit=[Shutdown(reason="the run ended")])
-            ),
+            manager,
+            RegisterEventHandler(OnProcessExit(on_exit=end_of)),
         ]
     )

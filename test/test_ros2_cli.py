@@ -85,7 +85,10 @@ def hand_run_on(graph: RosGraph, processes: Ros2Processes, folder: Path) -> Hand
     processes.start("recorder", [*readme_command(RECORDER), "-p", f"output:={folder / 'bag'}"])
     # The plant waits for the controller and the recorder, not for echo: it starts once both listen.
     probe = graph.node("probe")
-    graph.spin_until(lambda: probe.count_subscribers(resolve(topics.APEX)) >= 2, "echo and the recorder")
+    # The controller listens there too: three subscribers (the controller's alone met ">= 2" with echo late).
+    graph.spin_until(
+        lambda: probe.count_subscribers(resolve(topics.APEX)) >= 3, "the controller, echo and the recorder"
+    )
     plant = processes.start("plant", [*readme_command(PLANT), "-p", f"max_strides:={STRIDES}"])
     plant_status = plant.wait(60.0)
     processes.interrupt("controller")
