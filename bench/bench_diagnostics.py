@@ -80,7 +80,9 @@ def one_run(
     switch = Parameter("diagnostics", value=setting != "off")
     mode = Parameter("clock_mode", value="realtime" if realtime else "lockstep")
     ends = Parameter("max_strides", value=0 if realtime else strides)
-    plant = PlantNode(context=context, parameter_overrides=[switch, mode, ends])
+    # Started by the bench once the viewer is matched: a plant that started by itself could finish its
+    # 40 lockstep strides before the viewer matched, and the bench would wait for a run already over.
+    plant = PlantNode(context=context, start_when_ready=False, parameter_overrides=[switch, mode, ends])
     controller = ControllerNode(context=context, parameter_overrides=[switch])
     try:
         for node in (plant, controller):
@@ -97,7 +99,8 @@ def one_run(
             spin_until(
                 lambda: plant.count_subscribers(topics.JOINT_STATES) and plant.count_subscribers(topics.TF)
             )
-        spin_until(lambda: plant.running)
+        spin_until(plant.ready_to_start)
+        plant.start()
         steal = steal_seconds()
         if realtime:
             spin_until(lambda: time.monotonic_ns() - plant.start_wall_ns > duration * 1e9)
