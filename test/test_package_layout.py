@@ -32,6 +32,7 @@ EXECUTABLES = {
     "controller_node": "tdslip_ros.nodes.controller_node:main",
     "recorder_node": "tdslip_ros.nodes.recorder_node:main",
     "stance_controller_node": "tdslip_ros.nodes.stance_controller_node:main",
+    "lifecycle_manager": "tdslip_ros.nodes.lifecycle_manager:main",
 }
 INTERFACES = [
     "msg/HopperState.msg",
