@@ -147,6 +147,8 @@ class RecorderNode(ManagedNode):
         self.bags: list[Path] = []
         """The bag directories written, one per activation (see the module docstring)."""
         self._recording = threading.Event()  # active: what the taker takes is written
+        self._active_since_ns = 0
+        """System time of the latest activation: a message DDS received before it arrived while paused."""
         self.write_error: str | None = None
         """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
         super().__init__("recorder", SPECS, **node_options)
@@ -224,6 +226,8 @@ class RecorderNode(ManagedNode):
             self._open_bag()
             self._status.bag = str(self.bag.mcap_path)
             self._discover()
+        # Autostarting, configure and activate are one step: all that the new subscriptions received counts.
+        self._active_since_ns = 0 if self._autostarting else time.time_ns()
         self._recording.set()
 
     def deactivate(self) -> None:
@@ -337,7 +341,8 @@ class RecorderNode(ManagedNode):
                 with handle:
                     while (message := handle.take_message(message_type, True)) is not None:
                         data, info = message
-                        taken.append((time.time_ns(), info["source_timestamp"], name, data))
+                        if info["received_timestamp"] >= self._active_since_ns:  # not queued while paused
+                            taken.append((time.time_ns(), info["source_timestamp"], name, data))
         if not taken or self.write_error is not None or not self._recording.is_set():
             return 0
         written = 0
