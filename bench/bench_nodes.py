@@ -44,6 +44,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -214,7 +215,7 @@ def planning_times(options: RunOptions, report: RunReport) -> tuple[list[float],
         )
         pause = report.outcome.wall_time / max(len(report.apexes), 1)
 
-        def timed(apexes: Sequence[ApexEvent], pause: float) -> list[float]:
+        def timed(apexes: Sequence[Any], pause: float) -> list[float]:
             times = []
             for apex in apexes:
                 time.sleep(pause)

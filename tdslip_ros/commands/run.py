@@ -11,8 +11,10 @@ import math
 import os
 import re
 import sys
+from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 from tdslip_msgs.msg import ApexEvent
 
@@ -40,7 +42,7 @@ from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.nodes.runner import RunError, RunOptionError, RunOptions, check_options, run
 
 
-def apex_table(params: HopperParams, apexes: list[ApexEvent], ground: bool = False) -> str:
+def apex_table(params: HopperParams, apexes: Sequence[Any], ground: bool = False) -> str:
     """The apex states, SI (world frame) and dimensionless (eq. 24), one row per stride; with ``ground``,
     the ground height of the stance before each apex too."""
     header = (

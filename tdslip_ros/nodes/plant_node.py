@@ -112,6 +112,7 @@ from tdslip_ros.nodes.plant_run import (
 )
 from tdslip_ros.nodes.realtime import TickTiming
 from tdslip_ros.nodes.robot_model import RobotModelPublisher
+from tdslip_ros.nodes.rows import Rows
 from tdslip_ros.nodes.tick_process import TickProcess
 
 __all__ = ["TICK_PERIOD", "PlantNode", "RunOutcome"]
@@ -184,7 +185,7 @@ class PlantNode(ManagedNode):
 
         self.received_commands = 0
         self.received_torques = 0
-        self.command_latencies_ns: list[tuple[int, int, int]] = []
+        self.command_latencies_ns = Rows("CommandLatency", {"epoch": "I", "stride": "I", "latency_ns": "q"})
         """(epoch, stride, ns) of each answered apex: wall time from its publication to the valid command."""
         self.counts = RunCounts()
         """What the run counted (late commands, rejections, torques), as of its latest apex and its end."""
@@ -655,7 +656,7 @@ class _NodeSink:
         self._node._run_timer(self._node._lockstep_timer)
 
     def command_applied(self, epoch: int, stride: int, applied_ns: int) -> None:
-        self._node.command_latencies_ns.append((epoch, stride, applied_ns - self._node._apex_wall_ns))
+        self._node.command_latencies_ns.append(epoch, stride, applied_ns - self._node._apex_wall_ns)
 
     def counted(self, counts: RunCounts) -> None:
         self._node.counts = counts

@@ -96,6 +96,7 @@ from tdslip_ros.nodes.entry import (
 from tdslip_ros.nodes.plant_node import PlantNode, RunOutcome
 from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.nodes.realtime import TickTiming
+from tdslip_ros.nodes.rows import Rows
 from tdslip_ros.reporting.output import OutputError, check_output_directory
 
 STARTUP_TIMEOUT = 30.0  # s for the child nodes to start and match the plant's topics
@@ -174,12 +175,13 @@ class RunOptions:
 class RunReport:
     outcome: RunOutcome
     params: HopperParams
-    apexes: list[ApexEvent]
+    apexes: Rows
+    """The fields of each apex event (:meth:`Rows.of_message`), in the order the monitor heard them."""
     published: dict[str, int]
     """Messages per recorded topic (fully qualified name): the plant's, and the commands it received."""
     recorded: dict[str, int]
     """Messages per recorded topic in the bag."""
-    command_latencies_ns: list[tuple[int, int, int]]
+    command_latencies_ns: Rows
     """(epoch, stride, ns) of each answered apex: wall time from its publication to the plant's receipt of the
     valid command for it."""
     delivery_time: float
@@ -213,12 +215,12 @@ class ApexMonitor(Node):
 
     def __init__(self, progress: ProgressCallback | None, **node_options: object) -> None:
         super().__init__("run_monitor", **node_options)  # type: ignore[arg-type]
-        self.apexes: list[ApexEvent] = []
+        self.apexes = Rows.of_message(ApexEvent)
         self._progress = progress
         self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
 
     def _on_apex(self, msg: ApexEvent) -> None:
-        self.apexes.append(msg)
+        self.apexes.append_message(msg)
         if self._progress is not None:
             self._progress(msg)
 
