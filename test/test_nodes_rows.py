@@ -4,6 +4,7 @@ minutes keeping them). No node, no ROS context."""
 
 from __future__ import annotations
 
+import pickle
 import tracemalloc
 
 import numpy as np
@@ -41,6 +42,7 @@ def test_each_row_has_the_fields_of_its_message_bit_for_bit() -> None:
     assert rows[-1] == rows[len(rows) - 1] and rows[3:7] == [rows[i] for i in range(3, 7)]
     with pytest.raises(IndexError):
         rows[len(rows)]
+    assert list(pickle.loads(pickle.dumps(rows))) == list(rows)  # a RunReport is pickled whole
 
 
 def test_rows_of_values_unpack_as_they_were_appended() -> None:

@@ -67,3 +67,16 @@ class Rows(Sequence[Any]):
 
     def __iter__(self) -> Iterator[Any]:
         return map(self._row, *self._columns)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # The row type is made at run time, which pickle cannot look up: a report is pickled by its columns.
+        fields = {
+            name: column.typecode for name, column in zip(self._row._fields, self._columns, strict=True)
+        }
+        return (_unpickled, (self._row.__name__, fields, self._columns))
+
+
+def _unpickled(name: str, fields: Mapping[str, str], columns: list[array[Any]]) -> Rows:
+    rows = Rows(name, fields)
+    rows._columns = columns
+    return rows
