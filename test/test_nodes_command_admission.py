@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import pytest
@@ -11,8 +12,9 @@ from tdslip_msgs.msg import StanceCommand
 
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import ParameterError
+from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.params import StanceCommand as ModelCommand
+from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.model.plant.stance_laws import StanceFeedback, TorqueStream
 from tdslip_ros.nodes.command_admission import (
     REJECTION_REPORT_PERIOD,
@@ -23,6 +25,7 @@ from tdslip_ros.nodes.command_admission import (
     command_key,
     not_yet,
 )
+from tdslip_ros.nodes.plant_run import ApexReport, PlantRun, PlantSink, RunSettings
 
 LIMITS = PlausibilityLimits.for_hopper(PAPER_PARAMS)
 NS = 1_000_000_000
@@ -115,3 +118,67 @@ def test_rejections_are_reported_up_to_the_limit_per_period_and_the_rest_summed(
     assert log.admit(later) == "(3 more rejected, not reported one by one) "
     assert (log.total, log.suppressed) == (REJECTION_REPORTS + 4, 0)
     assert log.admit(later + 1) == ""
+
+
+class StatusRecord(PlantSink):
+    """A sink that keeps the plant's Status reports (kind, reason) and the strides of its apexes."""
+
+    def __init__(self) -> None:
+        self.statuses: list[tuple[str, str]] = []
+        self.apexes: list[int] = []
+
+    @property
+    def live(self) -> bool:
+        return False
+
+    def apex(self, report: ApexReport) -> None:
+        self.apexes.append(report.stride)
+
+    def status(self, epoch: int, stride: int, kind: str, reason: str, t: float, *, fatal: bool) -> None:
+        self.statuses.append((kind, reason))
+
+
+def summed(reason: str) -> int:
+    """The rejections a report sums besides its own (its ``(N more rejected ...)`` prefix)."""
+    found = re.match(r"\((\d+) more rejected", reason)
+    return int(found.group(1)) if found else 0
+
+
+def test_every_rejection_is_a_status_of_its_own_summed_into_a_later_one_or_an_earlier_answer() -> None:
+    """A realtime run (PlantRun, no node) given a scripted mix of answers: its rejected count is accounted
+    for by the Statuses alone: one report each, the ``(N more rejected ...)`` a report sums, the answers to
+    earlier apexes (counted, never reported), and those the next report would sum."""
+    settings = RunSettings(
+        PAPER_PARAMS,
+        LIMITS,
+        Perturbations(),
+        ModelCommand(math.radians(20.0), -273.0, 0.13),
+        lockstep=False,
+        max_strides=4,
+        max_stale_strides=0,
+        torque_max_age_ticks=3,
+    )
+    sink = StatusRecord()
+    run = PlantRun(settings, ApexState(1.0, 5.0), sink)
+    run.start(0)
+    earlier_sent = bad_sent = 0
+    while run.running:
+        if len(sink.apexes) == 2 and earlier_sent == 0:  # at apex 1: answers to apex 0, and bad ones
+            for _ in range(4):
+                run.take_command(serialize_message(command(epoch=0, stride=0)))
+                earlier_sent += 1
+            flood = [command(epoch=0, stride=1, touchdown_angle=math.nan), command(epoch=0, stride=9)]
+            for msg in flood * (REJECTION_REPORTS // 2 + 3):  # more than a period's reports
+                run.take_command(serialize_message(msg))
+                bad_sent += 1
+        run.advance_to(run.next_deadline_ns)
+    counts = run.counts()
+    rejections = [reason for kind, reason in sink.statuses if kind == "command_rejected"]
+    assert len(rejections) == REJECTION_REPORTS and counts.unreported_rejections == bad_sent - len(rejections)
+    assert counts.earlier_answers == earlier_sent
+    reported = len(rejections) + sum(summed(reason) for reason in rejections)
+    assert (
+        counts.rejected
+        == earlier_sent + bad_sent
+        == (reported + counts.earlier_answers + counts.unreported_rejections)
+    )

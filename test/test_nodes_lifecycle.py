@@ -16,10 +16,12 @@ import re
 import signal
 import subprocess
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Protocol
 
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.serialization import deserialize_message
@@ -28,6 +30,7 @@ from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import ApexEvent, Status
 
 from tdslip_ros.bag.reader import Bag, iter_messages, open_bag, verify
+from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode
@@ -338,8 +341,17 @@ def test_the_lifecycle_manager_stops_at_a_refused_configure_and_at_a_node_that_n
 def test_a_lockstep_plant_hops_on_through_its_recorders_pause(ros: RosGraph, tmp_path: Path) -> None:
     """The recorder a lockstep plant waits for (wait_for_recorder) is paused and activated again mid-run:
     the plant is not held by the paused recorder, nor by what the second bag never saw, and waits at the end
-    for the second bag to hold every apex from its first to the last (about 15 s)."""
+    for the second bag to hold every apex from its first to the last (about 15 s). The recorder's
+    /diagnostics count every message the plant published: written into one of the two bags, or dropped
+    while paused, none lost."""
     strides = 40
+    statuses: list[DiagnosticStatus] = []
+    ros.node("diagnostics_probe").create_subscription(
+        DiagnosticArray,
+        topics.DIAGNOSTICS,
+        lambda array: statuses.extend(s for s in array.status if s.name == "/recorder"),
+        topics.DIAGNOSTICS_QOS,
+    )
     process = ros.start_recorder(tmp_path / "bag", tmp_path / "recorder.log")
     plant = ros.add(
         PlantNode(
@@ -358,11 +370,24 @@ def test_a_lockstep_plant_hops_on_through_its_recorders_pause(ros: RosGraph, tmp
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run", timeout=60.0)
     assert plant.outcome.kind == Status.KIND_RUN_COMPLETE, plant.outcome
     assert plant.deliver(ros.executor)  # the second bag has everything published since it opened
+    published = {resolve(t): n for t, n in plant.published.items() if t in topics.RECORDED_TOPICS}
+    published[resolve(topics.COMMAND)] = plant.received_commands  # the controller's, all of them
+    seen = len(statuses)
+    ros.spin_until(lambda: len(statuses) > seen + 1, "the recorder's diagnostics after the run")
+    final = {pair.key: pair.value for pair in statuses[-1].values}
     assert recorder.set("shutdown")
-    first, second = (recorded_apexes(open_bag(path)) for path in (tmp_path / "bag", tmp_path / "bag_2"))
+    bags = [open_bag(path) for path in (tmp_path / "bag", tmp_path / "bag_2")]
+    first, second = (recorded_apexes(bag) for bag in bags)
     assert first == list(range(len(first))) and len(first) >= 3  # the plant runs a window ahead
     assert second == list(range(second[0], strides + 1)) and second[0] > first[-1] + 1
     assert stop_process(process) == 0
+
+    in_bags = Counter(channel.topic for bag in bags for channel, _ in iter_messages(bag))
+    written = {key.removeprefix("written "): int(n) for key, n in final.items() if key.startswith("written ")}
+    assert {topic: written[topic] for topic in published} == {topic: in_bags[topic] for topic in published}
+    dropped = int(final["dropped while paused"])
+    assert dropped > 0 and dropped == sum(published.values()) - sum(in_bags[t] for t in published)
+    assert final["messages lost"] == "0"
 
 
 def recorded_apexes(bag: Bag) -> list[int]:

@@ -104,7 +104,14 @@ class RejectionLog:
         self._period_start_ns = 0
         self._reports_in_period = 0
         self.suppressed = 0
+        """Rejections since the latest report, not reported one by one: the next report sums them."""
         self.total = 0
+        self.earlier_answers = 0
+        """Answers to earlier apexes (late, or of an earlier epoch): counted in ``total``, never reported."""
+
+    def count_earlier_answer(self) -> None:
+        self.total += 1
+        self.earlier_answers += 1
 
     def admit(self, now_ns: int) -> str | None:
         """Count a rejection; the prefix of its report if it is to be reported now, else None."""

@@ -11,6 +11,7 @@ import math
 import shutil
 import time
 from collections import Counter, deque
+from collections.abc import Mapping
 from typing import Protocol
 
 from rclpy.lifecycle import LifecycleNode
@@ -38,6 +39,8 @@ PUBLISHED = "published "
 """The prefix of the plant's key of the messages it published on a topic (its fully qualified name)."""
 WRITTEN = "written "
 """The prefix of the recorder's key of the messages it wrote of a topic (its fully qualified name)."""
+DROPPED_WHILE_PAUSED = "dropped while paused"
+"""The recorder's key of the messages that arrived while it was inactive (taken, not written)."""
 PLANNING_WINDOW = 256
 """Apexes whose planning times the controller's percentiles cover (a bounded window: recent behaviour)."""
 _GB = 1e9
@@ -100,6 +103,7 @@ class PlantReport:
             "commands received": plant.received_commands,
             "late commands": counts.late_commands,
             REJECTED: counts.rejected,
+            "answers to earlier apexes": counts.earlier_answers,
             "torques received": plant.received_torques,
             "late torques": counts.late_torques,
             STALE_TORQUES: counts.stale_torques,
@@ -200,16 +204,22 @@ class RecorderCounters(Protocol):
     bag: RosbagMcapWriter
     topic_names: list[str]
     write_error: str | None
+    dropped_while_paused: Mapping[str, int]
+
+    @property
+    def written(self) -> Mapping[str, int]: ...
 
 
 def recorder_diagnostics(recorder: RecorderCounters, node: Node) -> DiagnosticsPublisher:
-    """The recorder's status: messages written per topic, messages lost (what a plant on /diagnostics says it
-    published minus what was written, per topic it reports), bag size, free disk; ERROR on a write error."""
+    """The recorder's status: messages written per topic (into every bag of its activations), dropped while
+    it was paused, messages lost (what a plant on /diagnostics says it published minus what was written or
+    dropped while paused, per topic it reports), bag size, free disk; ERROR on a write error."""
 
     def report(heard: Heard) -> NodeStatus:
-        written, path = recorder.bag.message_counts, recorder.bag.mcap_path
+        written, dropped, path = recorder.written, recorder.dropped_while_paused, recorder.bag.mcap_path
         values: dict[str, object] = {"lifecycle state": lifecycle_state(node), "bag": str(path)}
         values |= {WRITTEN + name: written.get(name, 0) for name in recorder.topic_names}
+        values[DROPPED_WHILE_PAUSED] = sum(dropped.values())
         published = {
             key.removeprefix(PUBLISHED): int(value)
             for status in heard.statuses.values()
@@ -217,7 +227,9 @@ def recorder_diagnostics(recorder: RecorderCounters, node: Node) -> DiagnosticsP
             if key.startswith(PUBLISHED) and key.removeprefix(PUBLISHED) in recorder.topic_names
         }
         if published:
-            values[LOST] = sum(max(0, n - written.get(name, 0)) for name, n in published.items())
+            values[LOST] = sum(
+                max(0, n - written.get(name, 0) - dropped.get(name, 0)) for name, n in published.items()
+            )
         values["bag size [bytes]"] = path.stat().st_size if path.exists() else 0
         values[FREE_DISK] = shutil.disk_usage(path.parent).free / _GB
         return NodeStatus(values, f"{sum(written.values())} messages written", recorder.write_error)

@@ -77,7 +77,12 @@ class RunCounts:
     late_commands: int = 0
     """Realtime: strides whose answer arrived after their touchdown (never applied)."""
     rejected: int = 0
-    """Commands and torques rejected, late answers included."""
+    """Commands and torques rejected, late answers included: each reported by a Status of its own, summed
+    into a later one's ``(N more rejected ...)``, one of ``unreported_rejections``, or an earlier answer."""
+    earlier_answers: int = 0
+    """Rejected answers to earlier apexes (late, or of an earlier epoch): counted, never reported."""
+    unreported_rejections: int = 0
+    """Rejections since the latest report that the next report will sum (none has come yet)."""
     late_torques: int = 0
     """Hip torques that came after their tick was stepped or after their stance."""
     stale_torques: int = 0
@@ -184,12 +189,14 @@ class PlantRun:
 
     def counts(self) -> RunCounts:
         return RunCounts(
-            self.late_commands,
-            self.rejections.total,
-            self.torques.late,
-            self.torques.stale,
-            self._stepper.saturated_strides,
-            None if self.tick_timing is None else self.tick_timing.counts(),
+            late_commands=self.late_commands,
+            rejected=self.rejections.total,
+            earlier_answers=self.rejections.earlier_answers,
+            unreported_rejections=self.rejections.suppressed,
+            late_torques=self.torques.late,
+            stale_torques=self.torques.stale,
+            saturated_strides=self._stepper.saturated_strides,
+            missed_ticks=None if self.tick_timing is None else self.tick_timing.counts(),
         )
 
     def _restart(self, apex: ApexState, time_offset_ticks: int) -> None:
@@ -421,7 +428,7 @@ class PlantRun:
                 reason = not_yet(key, *current)
                 self._report_rejection(f"command for epoch {key[0]}, stride {key[1]} rejected: {reason}")
             else:
-                self.rejections.total += 1  # a late answer: counted, not reported
+                self.rejections.count_earlier_answer()  # a late answer: counted, not reported
                 if key[0] == self.epoch and key[1] > self._answered:
                     self._count_late(key[1])  # its stride never had a command: it missed the touchdown
             return

@@ -48,6 +48,7 @@ import contextlib
 import sys
 import threading
 import time
+from collections import Counter
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -147,10 +148,14 @@ class RecorderNode(ManagedNode):
         self.bags: list[Path] = []
         """The bag directories written, one per activation (see the module docstring)."""
         self._recording = threading.Event()  # active: what the taker takes is written
+        self._pause_lock = threading.Lock()  # held by the taker while it writes a take, and to pause
         self._active_since_ns = 0
         """System time of the latest activation: a message DDS received before it arrived while paused."""
         self.write_error: str | None = None
         """Why the bag stopped taking messages (a full disk, an I/O error), if it did."""
+        self.dropped_while_paused: Counter[str] = Counter()
+        """Messages per topic that arrived while the recorder was inactive, taken and not written."""
+        self._written_before: Counter[str] = Counter()  # in the bags finalised at earlier pauses
         super().__init__("recorder", SPECS, **node_options)
 
     def configure(self, values: dict[str, ParameterValue]) -> None:
@@ -210,6 +215,8 @@ class RecorderNode(ManagedNode):
 
     def _open_bag(self) -> None:
         """Create the bag of this activation: ``output`` the first time, ``output_2``, ... after a pause."""
+        if self.bag is not None:
+            self._written_before.update(self.bag.message_counts)
         path = (
             self._output
             if not self.bags
@@ -232,7 +239,8 @@ class RecorderNode(ManagedNode):
 
     def deactivate(self) -> None:
         """Stop writing (what is taken meanwhile is dropped) and finalise the bag, which is then complete."""
-        self._recording.clear()
+        with self._pause_lock:
+            self._recording.clear()
         self._finalise()
 
     def cleanup(self) -> None:
@@ -341,29 +349,53 @@ class RecorderNode(ManagedNode):
                 with handle:
                     while (message := handle.take_message(message_type, True)) is not None:
                         data, info = message
-                        if info["received_timestamp"] >= self._active_since_ns:  # not queued while paused
+                        if info["received_timestamp"] >= self._active_since_ns:
                             taken.append((time.time_ns(), info["source_timestamp"], name, data))
-        if not taken or self.write_error is not None or not self._recording.is_set():
-            return 0
-        written = 0
-        for received, sent, name, data in taken:
-            try:
-                if name == self._samples_topic:
-                    written += self._write_samples(data, received, sent)
-                else:
-                    self._write(name, data, received, sent)
-                    written += 1
-            except BagWriteError as error:  # the bag is closed now (finalised if it could be)
-                self.write_error = str(error)
-                self.get_logger().error(self.write_error)
-                self.publish_status()
+                        else:  # it arrived while paused, before the latest activation
+                            self._count_dropped(name, data)
+        with self._pause_lock:  # a pause comes before or after these, whole
+            if not self._recording.is_set():
+                for _, _, name, data in taken:
+                    self._count_dropped(name, data)
                 return 0
-            except BagClosedError:  # closed meanwhile: nothing more is recorded
+            if not taken or self.write_error is not None:
                 return 0
+            written = 0
+            for received, sent, name, data in taken:
+                try:
+                    if name == self._samples_topic:
+                        written += self._write_samples(data, received, sent)
+                    else:
+                        self._write(name, data, received, sent)
+                        written += 1
+                except BagWriteError as error:  # the bag is closed now (finalised if it could be)
+                    self.write_error = str(error)
+                    self.get_logger().error(self.write_error)
+                    self.publish_status()
+                    return 0
+                except BagClosedError:  # closed meanwhile: nothing more is recorded
+                    return 0
         self._unreported += written
         if self._unreported >= STATUS_MESSAGES:
             self.publish_status()
         return written
+
+    def _count_dropped(self, name: str, data: bytes) -> None:
+        """Count a message taken while paused under the topic(s) it would have been written as."""
+        if name != self._samples_topic:
+            self.dropped_while_paused[name] += 1
+            return
+        with contextlib.suppress(ValueError):  # a malformed batch would not have been written either
+            rows = sum(1 for _ in sample_rows(data))
+            self.dropped_while_paused.update({self._state_topic: rows, self._grf_topic: rows})
+
+    @property
+    def written(self) -> Counter[str]:
+        """Messages per topic written into every bag of this node (each activation's)."""
+        counts = Counter(self._written_before)
+        if self.bag is not None:
+            counts.update(self.bag.message_counts)
+        return counts
 
     def _write(self, name: str, data: bytes, received: int, sent: int) -> None:
         if name not in self._registered:  # a message before its publisher was discovered

@@ -95,6 +95,7 @@ from tdslip_ros.nodes.entry import (
 )
 from tdslip_ros.nodes.plant_node import PlantNode, RunOutcome
 from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
+from tdslip_ros.nodes.plant_run import RunCounts
 from tdslip_ros.nodes.realtime import TickTiming
 from tdslip_ros.nodes.rows import Rows
 from tdslip_ros.reporting.output import OutputError, check_output_directory
@@ -194,11 +195,13 @@ class RunReport:
     saturated_strides: int = 0
     """Touchdowns at which the commanded |tau0| exceeded tau_max (the hip saturated)."""
     late_commands: int = 0
+    """Realtime: commands that arrived after the touchdown of their stride (the previous command held)."""
     stale_torques: int = 0
     """Realtime, stance feedback: stance ticks that held zero, no torque within torque_max_age."""
     late_torques: int = 0
     """Stance feedback: torques that came after their tick was stepped or after their stance."""
-    """Realtime: commands that arrived after the touchdown of their stride (the previous command held)."""
+    counts: RunCounts = field(default_factory=RunCounts)
+    """Everything the plant counted, as of the end of the run: its rejections among them."""
     problems: list[str] = field(default_factory=list)
 
     @property
@@ -641,6 +644,7 @@ def run(
             late_commands=plant.counts.late_commands,
             stale_torques=plant.counts.stale_torques,
             late_torques=plant.counts.late_torques,
+            counts=plant.counts,
             problems=problems,
         )
     return report
