@@ -1,6 +1,11 @@
 """The soak: the realtime suite for an hour under fire, all at once (issue 35). One command:
 
     .venv/bin/python bench/bench_soak.py [--duration 3600] [--seed 1] [--out DIR] [--json FILE]
+    .venv/bin/python bench/bench_soak.py lockstep [--strides 20000] [--out DIR] [--json FILE]
+
+The second is the long run bounded: a recorded lockstep run of 20,000 strides (about 2 hours simulated,
+a bag of about 1 GB), its processes sampled as below, then ``tdslip analyze`` of its bag (time against
+0.01 x the recording, and its peak RSS).
 
 ``tdslip run``'s realtime plant and recorder run as ``tdslip run`` runs them (the plant in this process,
 the recorder in a child). Beside them, each in a process of its own on the run's ROS domain:
@@ -8,7 +13,7 @@ the recorder in a child). Beside them, each in a process of its own on the run's
 * **a hostile controller** (:class:`HostileController`, default QoS): it mostly answers each apex with
   energy regulation, but also sends bursts of answers to wrong epochs and strides, NaN and out-of-range
   commands, duplicates, answers 0.2-0.6 s late, stays silent for a stride, and now and then resets the
-  plant (from its apex callback, so that no answer of its own is in flight). For stretches of 5-20
+  plant (from its apex callback, so that no answer of its own is in flight). For stretches of 3-8
   strides it answers with stance feedback and streams the suite's stance PD law at 1 kHz, some torques
   dropped and some sent a tick late. Its ``touchdown_angle`` is a parameter, set at runtime;
 * **yesterday's recording replayed**: a short lockstep run recorded first in namespace ``/yesterday``,
@@ -77,7 +82,7 @@ from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.plant.stance_laws import StanceSample, clip_torque
 from tdslip_ros.model.policies.registry import SETTING_DEFAULTS, STANCE_PD_SPEED_ENERGY, PolicySpec
 from tdslip_ros.nodes import isolation, topics
-from tdslip_ros.nodes.runner import RunOptions, RunReport, read_bag_counts, run
+from tdslip_ros.nodes.runner import RunError, RunOptions, RunReport, read_bag_counts, run
 from tdslip_ros.nodes.torque_stream import tick_of
 
 FULL_PACE = 600.0
@@ -102,7 +107,7 @@ BEHAVIOURS = {
     "duplicate": 0.05,  # the good answer three times
     "late": 0.04,  # the good answer 0.2-0.6 s after the apex
     "silent": 0.03,  # nothing
-    "feedback": 0.03,  # a stretch of 5-20 strides of stance feedback begins
+    "feedback": 0.03,  # a stretch of FEEDBACK_STRETCH strides of stance feedback begins
     "reset": 0.004,  # no answer; the plant is reset to the initial apex
 }
 HOSTILE_TOPICS = (f"/{topics.COMMAND}", f"/{topics.HIP_TORQUE}")
@@ -115,6 +120,11 @@ REFUSAL_WORDS = {  # what the plant's Status reason says of each bad kind
     "late": "arrived after the touchdown",
 }
 TORQUE_DROP, TORQUE_DELAY = 0.02, 0.02  # of the streamed torques
+FEEDBACK_STRETCH = (3, 8)  # strides
+SAFE_ENERGY = 0.9
+"""Of the target: below it the hostile controller answers its best until the energy is back. Under load about
+half of the streamed torques come too late for their tick and the plant holds zero (stale), so a long stretch
+of stance feedback loses energy stride by stride; the soak is of the suite, not of this controller's gait."""
 STALL_EVERY, STALL_SECONDS = 30.0, (2.0, 5.0)  # s
 
 
@@ -183,7 +193,6 @@ class HostileController(Node):
             policy="hostile",
         )
         behaviour = "good"
-        streaming_already = self.stretch > 0
         if self.stretch > 0:
             self.stretch -= 1
             behaviour = "feedback"
@@ -194,6 +203,12 @@ class HostileController(Node):
                     behaviour = name
                     break
                 draw -= share
+            if behaviour == "feedback":
+                self.stretch = self.rng.randint(*FEEDBACK_STRETCH) - 1  # the strides after this one
+        if (
+            apex.energy < SAFE_ENERGY * self.target_energy
+        ):  # hostile, not fatal: energy regulation restores it
+            behaviour, self.stretch = "good", 0
         self.answered_last = behaviour in ("good", "burst", "duplicate", "feedback")
         if behaviour == "burst":
             for _ in range(self.rng.randint(2, 5)):
@@ -203,8 +218,6 @@ class HostileController(Node):
                 self.publish_command(good)
             self.sent[behaviour if behaviour == "duplicate" else "good"] += 1
         elif behaviour == "feedback":
-            if self.stretch == 0 and not streaming_already:
-                self.stretch = self.rng.randint(4, 19)  # strides after this one
             good.touchdown_angle, good.tau0, good.t_f = self.feedback.touchdown_angle, 0.0, 0.0
             good.stance = StanceCommand.STANCE_FEEDBACK
             self.streaming = (apex.epoch, apex.stride)
@@ -253,7 +266,10 @@ class HostileController(Node):
             self.publish_torque(self.delayed)
             self.delayed = None
             self.sent["torque a tick late"] += 1
-        if state.phase != HopperState.PHASE_STANCE or self.streaming != (self.streaming_epoch, state.stride):
+        if state.phase != HopperState.PHASE_STANCE or self.streaming is None:
+            return
+        epoch, stride = self.streaming
+        if state.stride != stride:
             return
         stamp = state.header.stamp
         sample = StanceSample(
@@ -267,7 +283,7 @@ class HostileController(Node):
         )
         torque = HipTorque(
             header=state.header,
-            epoch=self.streaming_epoch,
+            epoch=epoch,
             stride=state.stride,
             tick=tick_of(stamp.sec, stamp.nanosec),
             torque=clip_torque(float(self.feedback.law.torque(sample)), self.max_torque),
@@ -280,10 +296,6 @@ class HostileController(Node):
         else:
             self.publish_torque(torque)
             self.sent["torque"] += 1
-
-    @property
-    def streaming_epoch(self) -> int:
-        return -1 if self.streaming is None else self.streaming[0]
 
 
 class StalledViewer(Node):
@@ -850,10 +862,71 @@ def print_summary(figures: dict[str, Any]) -> None:
     )
 
 
+def long_lockstep(arguments: argparse.Namespace) -> dict[str, Any]:
+    """A lockstep run of ``--strides`` strides, recorded, its processes sampled as the soak's are; then
+    ``tdslip analyze`` of its bag."""
+    out = Path(arguments.out or tempfile.mkdtemp(prefix="tdslip-long-"))
+    out.mkdir(parents=True, exist_ok=True)
+    sampler = Sampler(SAMPLE_PERIOD)
+    steal_before, wall_before = steal_seconds(), time.monotonic()
+
+    def progress(apex: ApexEvent) -> None:
+        if apex.stride % 1000 == 0:
+            elapsed = time.monotonic() - wall_before
+            print(f"  {elapsed:7.0f} s: stride {apex.stride}; {load()}", flush=True)
+
+    sampler.start()
+    try:
+        report = run(RunOptions(out / "run", strides=arguments.strides), progress)
+    finally:
+        sampler.stop.set()
+    wall = time.monotonic() - wall_before
+    length = report.apexes[-1].sim_time
+    bag_bytes = sum(path.stat().st_size for path in (out / "run").iterdir())
+    analysis = analyze(out / "run", out / "analysis")
+    return {
+        "strides": len(report.apexes) - 1,
+        "outcome": f"{report.outcome.kind}: {report.outcome.reason}",
+        "simulated_s": length,
+        "wall_s": wall,
+        "steal_s": steal_seconds() - steal_before,
+        "load": os.getloadavg(),
+        "recording_complete": report.recording_complete,
+        "bag_bytes": bag_bytes,
+        "slopes": sampler.slopes(min(WARM_UP, wall / 5.0)),
+        "samples": sampler.samples,
+        "analysis": analysis | {"recording_s": length},
+    }
+
+
+def print_long_lockstep(figures: dict[str, Any]) -> None:
+    print(
+        f"\nlockstep run of {figures['strides']} strides ({figures['simulated_s']:.0f} s simulated) in "
+        f"{figures['wall_s']:.0f} s wall: {figures['outcome']}; recorded equal to published: "
+        f"{figures['recording_complete']}; bag {figures['bag_bytes'] / 1e9:.2f} GB; steal "
+        f"{figures['steal_s']:.1f} s; load average at the end {figures['load']}"
+    )
+    print("per 10 minutes of wall time after the warm-up   RSS [MiB]  descriptors")
+    for label, slope in figures["slopes"].items():
+        print(
+            f"  {label:<24}{slope['rss_mib_per_10min']:>+12.2f}{slope['descriptors_per_10min']:>+13.2f}"
+            f"   RSS {slope['rss_first_mib']:.1f} -> {slope['rss_last_mib']:.1f} MiB"
+        )
+    analysis = figures["analysis"]
+    print(
+        f"tdslip analyze: exit {analysis['exit']} in {analysis['seconds']:.1f} s "
+        f"({analysis['seconds'] / analysis['recording_s']:.4f} x the recording, target <= {ANALYZE_TARGET}), "
+        f"peak RSS {analysis['peak_rss_mib']:.0f} MiB"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("role", nargs="?", default="soak", choices=("soak", "hostile", "viewer", "chaos"))
+    parser.add_argument(
+        "role", nargs="?", default="soak", choices=("soak", "lockstep", "hostile", "viewer", "chaos")
+    )
     parser.add_argument("--duration", type=float, default=3600.0, help="s of realtime hopping")
+    parser.add_argument("--strides", type=int, default=20_000, help="lockstep: the run's strides")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument(
         "--out", help="where the bags and the actors' logs go (default: a temporary directory)"
@@ -863,10 +936,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet-after", type=float, default=math.inf, help=argparse.SUPPRESS)
     parser.add_argument("--pace", type=float, default=1.0, help=argparse.SUPPRESS)
     arguments = parser.parse_args(argv)
-    if arguments.role != "soak":
+    if arguments.role == "lockstep":
+        figures = long_lockstep(arguments)
+        print_long_lockstep(figures)
+    elif arguments.role == "soak":
+        try:
+            figures = soak(arguments)
+        except RunError as error:  # the actors are stopped; their reports and logs are in --out
+            print(f"soak failed: {error}", file=sys.stderr)
+            return 1
+        print_summary(figures)
+    else:
         return actor_main(arguments)
-    figures = soak(arguments)
-    print_summary(figures)
     if arguments.json:
         Path(arguments.json).write_text(json.dumps(figures, indent=1))
     return 0
