@@ -13,6 +13,7 @@ import math
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -29,9 +30,11 @@ from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.model.plant.terrain import Blocks
 from tdslip_ros.model.policies.registry import LEARNED, POLICIES
+from tdslip_ros.model.stability.viability import viable_set
+from tdslip_ros.model.stability.viability_spaces import ApexSpace, EnergySpace, q_map
 from tdslip_ros.nodes.runner import RunReport
 from tdslip_ros.reporting.style import lay_out, titles
-from tdslip_ros.studies import chunk, robustness
+from tdslip_ros.studies import chunk, robustness, viability_outputs
 from tdslip_ros.studies.sweep import SWEEPS
 
 MINI = dataclasses.replace(
@@ -48,6 +51,7 @@ MINI = dataclasses.replace(
     speed_step=2.5,
 )
 """Smaller than test_cli_figures.TINY: a figure's titles do not depend on its resolution."""
+ANGLES = np.radians([15.0, 20.0, 25.0])
 
 
 def texts(figure: Figure) -> list[Text]:
@@ -120,6 +124,23 @@ def test_the_robustness_figures_fit_their_titles() -> None:
     )
     assert outside(figure) == []
     assert outside(robustness.draw_failures(summary, list(kinds), policies)) == []
+
+
+@pytest.mark.parametrize("space", ["energy", "apex"])
+def test_the_viability_figures_fit_their_titles(space: str) -> None:
+    """Both layouts: a pair space (one state, one action) and a 2-D state space."""
+    if space == "energy":
+        slip = dataclasses.replace(PAPER_PARAMS, c=0.0)
+        grid = EnergySpace(slip, 3.0 * slip.m * slip.g, np.linspace(0.3, 0.9, 4), ANGLES)
+    else:
+        grid = ApexSpace(
+            PAPER_PARAMS, np.linspace(1.0, 1.3, 3), np.linspace(3.0, 5.0, 3), ANGLES, np.zeros(1), 0.2
+        )
+    qmap = q_map(grid)
+    drawn = viability_outputs.figures(qmap, viable_set(qmap))
+    assert sorted(drawn) == ["kernel.png", "measure.png", "qmap.png"]
+    for name, figure in drawn.items():
+        assert outside(figure) == [], name
 
 
 def test_the_terrain_figure_fits_its_titles(tmp_path: Path) -> None:

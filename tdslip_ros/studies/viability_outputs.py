@@ -21,6 +21,7 @@ matplotlib.use("Agg")
 import numpy as np
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from tdslip_ros.model.events import NO_FAILURE_CODE
 from tdslip_ros.model.stability.viability import QMAP_FAILURES, QMap, ViabilityResult
@@ -90,20 +91,34 @@ def _axis_label(name: str) -> tuple[str, float]:
     return labels.get(name, (name, 1.0))
 
 
-def _figures(out: Path, qmap: QMap, result: ViabilityResult) -> None:
+def figures(qmap: QMap, result: ViabilityResult) -> dict[str, Figure]:
+    """The figures of a Q-map and its viable set, by file name: the Q-map, the kernel and the measure."""
     if len(qmap.states) == 1 and len(qmap.actions) == 1:
-        _pair_figures(out, qmap, result)
-    else:
-        _state_figures(out, qmap, result)
+        return _pair_figures(qmap, result)
+    return _state_figures(qmap, result)
 
 
-def _pair_figures(out: Path, qmap: QMap, result: ViabilityResult) -> None:
+def _figures(out: Path, qmap: QMap, result: ViabilityResult) -> None:
+    for name, figure in figures(qmap, result).items():
+        save_figure(figure, out / name)
+
+
+KERNEL_CLASSES = (
+    ("fails in one stride", "0.85"),
+    ("does not fail at once, not viable", "0.55"),
+    ("viable", "tab:blue"),
+)
+"""The classes of a pair space's kernel figure, in the order of their codes 0, 1, 2, with their colours."""
+
+
+def _pair_figures(qmap: QMap, result: ViabilityResult) -> dict[str, Figure]:
     (state,), (action,) = qmap.states, qmap.actions
     (s_label, s_scale), (a_label, a_scale) = (
         _axis_label(qmap.state_names[0]),
         _axis_label(qmap.action_names[0]),
     )
     extent = _extent(action, state, a_scale, s_scale)
+    drawn = {}
     figure = Figure(figsize=(7.0, 5.0))
     axes = figure.subplots()
     shown = np.where(qmap.failure == NO_FAILURE_CODE, qmap.successor[..., 0], np.nan)
@@ -112,31 +127,28 @@ def _pair_figures(out: Path, qmap: QMap, result: ViabilityResult) -> None:
     axes.set(
         xlabel=a_label, ylabel=s_label, title="Q-map: the next state of each pair (blank: the pair fails)"
     )
-    save_figure(figure, out / "qmap.png")
+    drawn["qmap.png"] = figure
     figure = Figure(figsize=(7.0, 5.0))
     axes = figure.subplots()
     classes = np.where(result.viable, 2, np.where(qmap.failure == NO_FAILURE_CODE, 1, 0))
-    axes.imshow(
-        classes,
-        origin="lower",
-        aspect="auto",
-        extent=extent,
-        cmap=ListedColormap(["0.85", "0.55", "tab:blue"]),
+    colours = [colour for _, colour in KERNEL_CLASSES]
+    axes.imshow(classes, origin="lower", aspect="auto", extent=extent, cmap=ListedColormap(colours))
+    axes.legend(
+        handles=[Patch(facecolor=colour, label=label) for label, colour in reversed(KERNEL_CLASSES)],
+        loc="upper right",
+        fontsize="small",
     )
-    axes.set(
-        xlabel=a_label,
-        ylabel=s_label,
-        title="viable pairs (blue), pairs that do not fail at once but are not viable (grey), failing",
-    )
-    save_figure(figure, out / "kernel.png")
+    axes.set(xlabel=a_label, ylabel=s_label, title="the viable pairs")
+    drawn["kernel.png"] = figure
     figure = Figure(figsize=(6.0, 4.0))
     axes = figure.subplots()
     axes.plot(state * s_scale, result.measure, color="tab:blue")
     axes.set(xlabel=s_label, ylabel="fraction of viable actions", title="measure of each state")
-    save_figure(figure, out / "measure.png")
+    drawn["measure.png"] = figure
+    return drawn
 
 
-def _state_figures(out: Path, qmap: QMap, result: ViabilityResult) -> None:
+def _state_figures(qmap: QMap, result: ViabilityResult) -> dict[str, Figure]:
     first, second = qmap.states[0], qmap.states[1]
     (x_label, x_scale), (y_label, y_scale) = (
         _axis_label(qmap.state_names[0]),
@@ -154,6 +166,7 @@ def _state_figures(out: Path, qmap: QMap, result: ViabilityResult) -> None:
         ("kernel.png", result.kernel.astype(float), "viability kernel (1: viable)"),
         ("measure.png", result.measure, "fraction of viable actions"),
     )
+    drawn = {}
     for name, values, label in panels:
         figure = Figure(figsize=(6.5, 5.0))
         axes = figure.subplots()
@@ -167,4 +180,5 @@ def _state_figures(out: Path, qmap: QMap, result: ViabilityResult) -> None:
         )
         figure.colorbar(image, ax=axes, label=label)
         axes.set(xlabel=y_label, ylabel=x_label, title=label)
-        save_figure(figure, out / name)
+        drawn[name] = figure
+    return drawn
