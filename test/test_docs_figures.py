@@ -51,19 +51,49 @@ SHOWN = {
         "xlabel: step down [m]",
         "ylabel: fraction surviving 50 strides",
     ],
-    "docs/viability/kernel.png": [
+    **{
+        image: [
+            "suptitle: ",
+            "title: the viable pairs",
+            "xlabel: touchdown angle [deg]",
+            "ylabel: height fraction of the energy",
+        ]
+        for image in (
+            "docs/viability/kernel.png",
+            "docs/viability/e3/kernel.png",
+            "docs/viability/e6/kernel.png",
+        )
+    },
+    "docs/viability/torque/measure.png": [
         "suptitle: ",
-        "title: viable pairs (blue), pairs that do not fail at once but are not viable (grey), failing",
-        "xlabel: touchdown angle [deg]",
-        "ylabel: height fraction of the energy",
+        "title: fraction of viable actions",
+        "xlabel: apex speed [m/s]",
+        "ylabel: apex height y [m]",
+        "title: ",
+        "xlabel: ",
+        "ylabel: fraction of viable actions",
     ],
 }
 """The titles and axis labels each figure of docs/ shows, read off the image, axes by axes."""
 TINY = {
     "robustness": ["--samples", "1", "--strides", "3"],
     "viability": ["--fractions", "0.1", "0.995", "12", "--angles-deg", "-10", "70", "9"],
+    "viability apex": [
+        "--heights",
+        "0.9",
+        "1.6",
+        "3",
+        "--speeds",
+        "1",
+        "6",
+        "3",
+        "--angles-deg",
+        "5",
+        "45",
+        "3",
+    ],
 }
-"""Options that make a command's work tiny (the figure's kind stays)."""
+"""Options that make a command's work tiny (the figure's kind stays), by command, or by command and space."""
 
 
 def figures() -> Iterator[tuple[str, str, str]]:
@@ -144,7 +174,7 @@ def test_the_command_of_a_figure_draws_it(
         del rest[rest.index("--out") : rest.index("--out") + 2]
     target = tmp_path / Path(image).name
     out = target if name == "terrain" else tmp_path  # terrain's --out is the PNG, a study's its directory
-    rest += ["--out", str(out), *TINY.get(name, [])]
+    rest += ["--out", str(out), *TINY.get(" ".join(words[1:3]), TINY.get(name, []))]
     if name in ("robustness", "viability"):
         rest += ["--scheduler", request.getfixturevalue("dask_scheduler")]
     saved: dict[Path, list[str]] = {}
