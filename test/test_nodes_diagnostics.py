@@ -293,10 +293,10 @@ def test_the_real_ros2_echoes_each_nodes_diagnostics_and_the_tf_of_a_run(
     environment = ros2_environment(ros.domain_id, tmp_path / "ros_log")
     echo = [str(ros2), "topic", "echo", "--once", "--no-daemon", "--spin-time", "2"]
     names = ("/plant", "/controller", "/recorder")
-    commands = {
-        name: [*echo, "--filter", f"m.status[0].name == '{name}'", topics.DIAGNOSTICS] for name in names
-    }
-    commands["/tf"] = [*echo, topics.TF, "tf2_msgs/msg/TFMessage"]  # typed: no wait for discovery to tell it
+    # Typed: echo subscribes at once instead of waiting --spin-time for discovery to tell it the type.
+    diagnostics = [topics.DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray"]
+    commands = {name: [*echo, "--filter", f"m.status[0].name == '{name}'", *diagnostics] for name in names}
+    commands["/tf"] = [*echo, topics.TF, "tf2_msgs/msg/TFMessage"]
     echoes = {
         what: subprocess.Popen(
             command, env=environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
