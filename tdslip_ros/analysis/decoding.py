@@ -38,7 +38,7 @@ type, an undecodable message, parameters that contradict the recording -- raises
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
@@ -58,9 +58,10 @@ from tdslip_ros.analysis.records import (
     StatusRecord,
     TorqueRecord,
 )
+from tdslip_ros.analysis.sample_keeping import SampleKeeping
 from tdslip_ros.analysis.strides import stride_records
 from tdslip_ros.bag.cdr import decoded_columns, decoder
-from tdslip_ros.bag.reader import Bag, BagReadError, iter_messages, open_bag
+from tdslip_ros.bag.reader import Bag, BagReadError, iter_topic_batches, open_bag, topic_messages
 from tdslip_ros.interfaces import (
     APEX,
     APPLIED_TORQUE,
@@ -90,6 +91,8 @@ DAMPING_CONSISTENCY = 1e-6
 """Largest mismatch of the damping ratio zeta0 = c / (2 sqrt(m k)) with the recorded liftoffs."""
 REQUIRED_TOPICS = (APEX,)
 """The suite topics a run cannot be analysed without; the others may be missing (no messages)."""
+EVENT_TOPICS = (APEX, CONTACT, STATUS, COMMAND, APPLIED_TORQUE)
+"""The suite's topics read whole in the first pass: the strides are rebuilt from them."""
 
 PHASES = {0: Phase.FLIGHT, 1: Phase.STANCE}
 """HopperState.phase of the message (PHASE_FLIGHT, PHASE_STANCE) as the model's."""
@@ -166,53 +169,32 @@ def open_recording(path: Path, namespace: str | None = None) -> Recording:
     return recording
 
 
-def read_run(path: Path, params: HopperParams | None = None, namespace: str | None = None) -> Run:
+def read_run(
+    path: Path,
+    params: HopperParams | None = None,
+    namespace: str | None = None,
+    full_rate_strides: Collection[int] = (),
+) -> Run:
     """Load a run (see the module docstring); ``params`` overrides the inferred hopper parameters,
-    ``namespace`` chooses the hopper in a recording of several (see :func:`suite_namespace`)."""
+    ``namespace`` chooses the hopper in a recording of several (see :func:`suite_namespace`). The
+    recording is read in two streaming passes, the events first, then the 1 kHz samples that
+    :mod:`.sample_keeping` keeps; ``full_rate_strides`` are kept whole in a long recording."""
     recording = open_recording(path, namespace=namespace)
     bag = recording.bag
-    suite_topics = {recording.name(topic): topic for topic in TOPIC_TYPES}
-    events: dict[str, list[bytes]] = {topic: [] for topic in (APEX, CONTACT, STATUS, COMMAND, APPLIED_TORQUE)}
-    log_times: list[int] = []
-    stream_batches: dict[str, list[bytes]] = {STATE: [], GRF: []}
-    columns: dict[str, list[dict[str, np.ndarray]]] = {STATE: [], GRF: []}
-    fields = {STATE: (*STAMP_FIELDS, *STATE_FIELDS), GRF: (*STAMP_FIELDS, *GRF_FIELDS)}
-
-    def flush(topic: str) -> None:
-        batch, schema = stream_batches[topic], recording.schema(topic)
-        columns[topic].append(
-            _checked(
-                recording.name(topic),
-                lambda: (
-                    decoded_columns(_stored(recording, topic, schema), batch, fields[topic])
-                    if batch
-                    else {path: np.empty(0) for path in fields[topic]}
-                ),
-            )
-        )
-        stream_batches[topic] = []
-
+    names = {recording.name(topic): topic for topic in EVENT_TOPICS}
     with _as_run_error():
-        for channel, message in iter_messages(bag, topics=suite_topics):
-            topic = suite_topics[channel.topic]
-            if topic in stream_batches:
-                stream_batches[topic].append(message.data)
-                if len(stream_batches[topic]) >= _BATCH:
-                    flush(topic)
-            else:
-                events[topic].append(message.data)
-                if topic == COMMAND:
-                    log_times.append(message.log_time)
-    for topic in stream_batches:
-        flush(topic)
+        found = topic_messages(bag, names)
 
-    decoded = {topic: _decode_all(recording, topic, datas) for topic, datas in events.items()}
-    apexes = sorted((_apex(m) for m in decoded[APEX]), key=lambda a: a.t)
-    contacts = sorted((_contact(m) for m in decoded[CONTACT]), key=lambda c: c.t)
-    commands = [_command(m, log_time) for m, log_time in zip(decoded[COMMAND], log_times, strict=True)]
-    statuses = sorted((_status(m) for m in decoded[STATUS]), key=lambda s: s.t)
+    def decoded(topic: str) -> Iterator[Any]:
+        return _decoded(recording, topic, found[recording.name(topic)][0])
+
+    apexes = sorted((_apex(m) for m in decoded(APEX)), key=lambda a: a.t)
+    contacts = sorted((_contact(m) for m in decoded(CONTACT)), key=lambda c: c.t)
+    log_times = found[recording.name(COMMAND)][1]
+    commands = [_command(m, log_time) for m, log_time in zip(decoded(COMMAND), log_times, strict=True)]
+    statuses = sorted((_status(m) for m in decoded(STATUS)), key=lambda s: s.t)
     torques = sorted(
-        (TorqueRecord(int(m.stride), int(m.tick), float(m.torque)) for m in decoded[APPLIED_TORQUE]),
+        (TorqueRecord(int(m.stride), int(m.tick), float(m.torque)) for m in decoded(APPLIED_TORQUE)),
         key=lambda r: r.tick,
     )
     resets = [s for s in statuses if s.kind == "reset"]
@@ -225,25 +207,31 @@ def read_run(path: Path, params: HopperParams | None = None, namespace: str | No
         raise RunReadError(
             f"{bag.mcap_path}: topic {recording.name(APEX)} has no messages (not even the initial apex)"
         )
-    samples = _samples(columns)
+    outcome = next((s for s in statuses if s.fatal), None)
+    perturbations = _stored_perturbations(recording)
+    strides = stride_records(apexes, contacts, commands, outcome, perturbations, torques)
+    state = bag.topics.get(recording.name(STATE))
+    samples_recorded = 0 if state is None else state.message_count
+    keeping = SampleKeeping.for_run(samples_recorded, strides, full_rate_strides)
+    samples = _samples(recording, keeping)
     source = "given"
     if params is None:
         params, source = _stored_params(recording), "stored in the recording"
     if params is None:
         params, source = infer_params(apexes, contacts, bag.mcap_path), "inferred from the recording"
     _check_params(params, apexes, contacts, f"{bag.mcap_path}: the hopper parameters {source}")
-    outcome = next((s for s in statuses if s.fatal), None)
-    perturbations = _stored_perturbations(recording)
     return Run(
         path=Path(path),
         params=params,
         params_source=source,
-        strides=stride_records(apexes, contacts, commands, outcome, perturbations, torques),
+        strides=strides,
         apexes=tuple(apexes),
         contacts=tuple(contacts),
         commands=tuple(commands),
         statuses=tuple(statuses),
         samples=samples,
+        samples_recorded=samples_recorded,
+        sample_bucket=keeping.bucket,
         outcome=outcome,
         message_counts={topic: info.message_count for topic, info in bag.topics.items()},
         custom_data=bag.custom_data,
@@ -291,21 +279,52 @@ def _stored(recording: Recording, topic: str, schema: Schema | None) -> Schema:
     return schema
 
 
-def _decode_all(recording: Recording, topic: str, datas: list[bytes]) -> list[Any]:
+def _decoded(recording: Recording, topic: str, datas: list[bytes]) -> Iterator[Any]:
+    """The messages ``datas`` of a suite topic decoded one by one (each is made a record and let go)."""
     if not datas:
-        return []
+        return
     with _as_run_error():
         decode = decoder(_stored(recording, topic, recording.schema(topic)))
-    return [_checked(recording.name(topic), partial(decode, data)) for data in datas]
+    for data in datas:
+        yield _checked(recording.name(topic), partial(decode, data))
 
 
 def _stamp_seconds(sec: np.ndarray, nanosec: np.ndarray) -> FloatArray:
     return np.asarray(sec, dtype=np.float64) + np.asarray(nanosec, dtype=np.float64) * 1e-9
 
 
-def _samples(columns: dict[str, list[dict[str, np.ndarray]]]) -> Samples:
+def _samples(recording: Recording, keeping: SampleKeeping) -> Samples:
+    """The 1 kHz state and force samples of ``recording`` that ``keeping`` keeps, decoded _BATCH messages
+    at a time as the chunks stream past."""
+    fields = {STATE: (*STAMP_FIELDS, *STATE_FIELDS), GRF: (*STAMP_FIELDS, *GRF_FIELDS)}
+    names = {recording.name(topic): topic for topic in fields}
+    pending: dict[str, list[bytes]] = {topic: [] for topic in fields}
+    streams = {topic: keeping.stream() for topic in fields}
+    columns: dict[str, list[dict[str, np.ndarray]]] = {topic: [] for topic in fields}
+
+    def flush(topic: str) -> None:
+        batch, schema = pending[topic], recording.schema(topic)
+        decoded = _checked(
+            recording.name(topic),
+            lambda: decoded_columns(_stored(recording, topic, schema), batch, fields[topic]),
+        )
+        kept = streams[topic].kept(_stamp_seconds(decoded[STAMP_FIELDS[0]], decoded[STAMP_FIELDS[1]]))
+        columns[topic].append({name: column[kept] for name, column in decoded.items()})
+        pending[topic] = []
+
+    with _as_run_error():
+        for batch in iter_topic_batches(recording.bag, names):
+            for name, (datas, _) in batch.items():
+                topic = names[name]
+                pending[topic].extend(datas)
+                if len(pending[topic]) >= _BATCH:
+                    flush(topic)
+    for topic in fields:
+        if pending[topic]:
+            flush(topic)
+
     def joined(topic: str, path: str) -> np.ndarray:
-        return np.concatenate([batch[path] for batch in columns[topic]])
+        return np.concatenate([batch[path] for batch in columns[topic]]) if columns[topic] else np.empty(0)
 
     t = _stamp_seconds(joined(STATE, "header.stamp.sec"), joined(STATE, "header.stamp.nanosec"))
     grf_t = _stamp_seconds(joined(GRF, "header.stamp.sec"), joined(GRF, "header.stamp.nanosec"))

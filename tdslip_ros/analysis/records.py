@@ -202,6 +202,11 @@ class Run:
     perturbations: Perturbations = field(default_factory=Perturbations)
     controller_params: HopperParams | None = None
     """The hopper the controller planned with (None: the plant's, ``params``)."""
+    samples_recorded: int = 0
+    """The state samples recorded; ``samples`` holds them all, up to FULL_RATE_SAMPLES of them."""
+    sample_bucket: float = 0.0
+    """0: ``samples`` holds every recorded sample; else the recording was long, and outside the windows
+    of :mod:`.sample_keeping` it holds one sample per this many seconds [s]."""
 
     @property
     def planner(self) -> HopperParams:

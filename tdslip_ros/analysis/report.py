@@ -79,6 +79,7 @@ UNITLESS_KEYS = {
     "failures": "the number of those a map predicted to fail",
     "apexes_recorded": "the number of recorded apexes",
     "samples": "the number of 1 kHz states recorded",
+    "samples_kept": "the number of those the analysis kept (all of up to 10 minutes, FULL_RATE_SAMPLES)",
     "message_counts": "messages recorded, by topic",
     "saturated_strides": "the number of strides in which the hip saturated",
     "converged_at_stride": "the stride from which the run converged",
@@ -199,7 +200,8 @@ def run_summary(run: Run) -> dict[str, Any]:
         "path": str(run.path),
         "apexes_recorded": len(run.strides),
         "sim_time_s": float(run.samples.t[-1]) if len(run.samples) else run.strides[-1].t,
-        "samples": len(run.samples),
+        "samples": run.samples_recorded,
+        "samples_kept": len(run.samples),
         "outcome": outcome_summary(run),
         "message_counts": run.message_counts,
         "params": {

@@ -169,7 +169,7 @@ def main(argv: list[str]) -> int:
         params = None if args.params is None else hopper_params_from_yaml(args.params)
         if hopper_given(args):  # values given alone replace the recording's (a first read finds them)
             params = hopper_of(args, read_run(args.run).params if args.hopper is None else PAPER_PARAMS)
-        run = read_run(args.run, params)
+        run = read_run(args.run, params, full_rate_strides=() if args.stride is None else (args.stride,))
         output_directory(out)
         analysis = analyze(run, out, overrides, args.stride)
     except (RunReadError, PolicyError, OutputError, ValueError, OSError) as error:
