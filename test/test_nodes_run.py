@@ -369,7 +369,7 @@ def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analy
         controller_status = controller.wait(30)  # the example ends with the plant's run
     finally:
         stop_example(controller)
-    assert run.returncode == 0, stderr[-2000:]
+    assert run.returncode == 0, stdout[-1500:] + stderr[-2000:]
     assert controller_status == 0
     assert stderr.startswith(f"tdslip run: waiting up to 60 s for your controller in ROS domain {domain_id}")
     assert "lockstep run, your own controller: 5 strides" in stdout and "LOST" not in stdout
