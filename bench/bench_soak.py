@@ -1,6 +1,7 @@
 """The soak: the realtime suite for an hour under fire, all at once (issue 35). One command:
 
-    .venv/bin/python bench/bench_soak.py [--duration 3600] [--seed 1] [--out DIR] [--json FILE]
+    .venv/bin/python bench/bench_soak.py [--duration 3600] [--seed 1] [--realtime-priority 50] [--out DIR]
+                                         [--json FILE]
     .venv/bin/python bench/bench_soak.py lockstep [--strides 20000] [--out DIR] [--json FILE]
 
 The second is the long run bounded: a recorded lockstep run of 20,000 strides (about 2 hours simulated,
@@ -696,6 +697,7 @@ def soak(arguments: argparse.Namespace) -> dict[str, Any]:
                 own_controller=True,
                 controller_wait=120.0,
                 domain_id=domain_id,
+                realtime_priority=arguments.realtime_priority,
             ),
             progress,
         )
@@ -928,6 +930,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=3600.0, help="s of realtime hopping")
     parser.add_argument("--strides", type=int, default=20_000, help="lockstep: the run's strides")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=0,
+        help="SCHED_FIFO priority of the plant's tick (0: normal scheduling; docs/realtime.md)",
+    )
     parser.add_argument(
         "--out", help="where the bags and the actors' logs go (default: a temporary directory)"
     )
