@@ -476,10 +476,8 @@ class PlantNode(ManagedNode):
         self._finished(RunOutcome(Status.KIND_PUBLISH_FAILED, reason, self._stride, self.sim_time, wall_time))
 
     def recorded_everything(self) -> bool:
-        """Every recorder waited for has written everything published on the topics it records, and every
-        command and hip torque this plant received (an answer to the last apex comes after the run)."""
-        answers = {self.command_topic: self.received_commands, self.torque_topic: self.received_torques}
-        return self.recorders.caught_up({self.topic_names[t]: n for t, n in self.published.items()} | answers)
+        """Every recorder waited for has written everything published on the topics it records."""
+        return self.recorders.caught_up({self.topic_names[t]: n for t, n in self.published.items()})
 
     def deliver(self, executor: Executor) -> bool:
         """After a run: with ``wait_for_recorder``, spin until the recorder has written everything
