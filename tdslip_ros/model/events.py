@@ -15,7 +15,9 @@ human-readable reason. Their meaning, shared by every integrator in this package
 * ``state_limit``: the motion leaves the hopper's plausibility limits
   (:class:`tdslip_ros.model.limits.PlausibilityLimits`): the leg touches down under a ramp torque beyond
   the actuator limit, lifts off towards an apex beyond the height or speed bounds, or a push at the apex
-  takes the speed beyond its bound.
+  takes the speed beyond its bound;
+* ``tipped``: a rigid body (:class:`tdslip_ros.model.params.RigidBody`) pitches past its tip_limit, in
+  stance or in flight.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ class FailureKind(enum.StrEnum):
     FALL = "fall"
     REVERSAL = "reversal"
     STATE_LIMIT = "state_limit"
+    TIPPED = "tipped"
 
 
 class Phase(enum.StrEnum):
@@ -69,7 +72,9 @@ class HopperState:
     angle it will land at (rdot = thetadot = 0), its toe in the air; in stance the toe is fixed at
     (toe_x, toe_y), toe_y the stance's ground height. energy is the total mechanical energy, spring energy
     included, with m g y from the datum y = 0; (grf_x, grf_y) is the ground reaction force acting on the
-    body; ground_height is the ground height h(x) under the body.
+    body; ground_height is the ground height h(x) under the body. With a rigid body, (x, y) is its centre
+    of mass, (r, theta) the leg from the toe to the hip, and pitch [rad] and pitch_rate [rad/s] the body's;
+    a fixed body keeps them at 0.
     """
 
     t: float
@@ -90,11 +95,14 @@ class HopperState:
     grf_x: float
     grf_y: float
     ground_height: float = 0.0
+    pitch: float = 0.0
+    pitch_rate: float = 0.0
 
 
 @dataclass(frozen=True)
 class StrideEnergy:
-    """Energy flows of one stance [J]: hip work int(tau thetadot dt), damper loss int(c rdot^2 dt),
+    """Energy flows of one stance [J]: hip work int(tau thetadot dt) (int(tau (thetadot - phidot) dt) with a
+    rigid body), damper loss int(c rdot^2 dt),
     and the spring energy k (r_lo - r0)^2 / 2 left in the massless leg at liftoff, which is lost."""
 
     hip_work: float

@@ -9,6 +9,10 @@ Sign convention (the one of the paper's eqs. 2, 6, 7; see shared/paper/NOTES.md)
 * forward running (+x) touches down with ``theta_td = beta > 0`` and theta *decreases*
   through stance (``thetadot < 0``);
 * hip power is ``tau * thetadot``, so forward thrust needs ``tau < 0``.
+
+A rigid body (:class:`RigidBody`, docs/rotating_body.md) adds the body's pitch ``phi``, counter-clockwise in
+the same plane (x forward, y up) as theta: the hip motor's torque acts on the leg and, reversed, on the body,
+and its power is ``tau * (thetadot - phidot)``. Without one the body is held level (the paper's fixed body).
 """
 
 from __future__ import annotations
@@ -61,8 +65,49 @@ def _derived_scales(m: float, k: float, r0: float, g: float) -> Iterator[tuple[s
 
 
 @dataclass(frozen=True)
+class RigidBody:
+    """A body that rotates freely in pitch instead of the paper's fixed body (docs/rotating_body.md).
+
+    inertia [kg m^2] is the pitch inertia J about the centre of mass. (hip_x, hip_y) [m] is the hip's offset
+    from the centre of mass in the body's frame, which is the world's (x forward, y up) at pitch 0: an upright
+    trunk with its hip below the centre of mass has hip_y < 0, a horizontal body with its hip behind it
+    hip_x < 0. tip_limit [rad] bounds |pitch|: a body that tips past it fails (``tipped``).
+
+    Refused (ParameterError naming the field): non-numbers, non-finite values, inertia <= 0, and a tip_limit
+    outside (0, pi].
+    """
+
+    inertia: float
+    hip_x: float = 0.0
+    hip_y: float = 0.0
+    tip_limit: float = math.pi / 2
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "inertia", _require_positive("body inertia", self.inertia))
+        for name in ("hip_x", "hip_y"):
+            object.__setattr__(self, name, _require_finite(f"body {name}", getattr(self, name)))
+        tip_limit = _require_positive("body tip_limit", self.tip_limit)
+        if tip_limit > math.pi:
+            raise ParameterError(f"body tip_limit must lie in (0, pi] rad, got {tip_limit!r}")
+        object.__setattr__(self, "tip_limit", tip_limit)
+
+    @classmethod
+    def from_gyration(
+        cls, m: float, radius: float, hip_x: float = 0.0, hip_y: float = 0.0, tip_limit: float = math.pi / 2
+    ) -> RigidBody:
+        """The body of mass m [kg] with radius of gyration ``radius`` [m]: inertia m radius^2."""
+        return cls(
+            _require_positive("m", m) * _require_positive("radius of gyration", radius) ** 2,
+            hip_x,
+            hip_y,
+            tip_limit,
+        )
+
+
+@dataclass(frozen=True)
 class HopperParams:
-    """Mass m [kg], leg stiffness k [N/m], rest length r0 [m], damping c [N s/m], gravity g [m/s^2].
+    """Mass m [kg], leg stiffness k [N/m], rest length r0 [m], damping c [N s/m], gravity g [m/s^2], and the
+    body: None for the paper's fixed body (a point mass at the hip), else a :class:`RigidBody`.
 
     Refused (ParameterError naming the field): non-numbers, non-finite values, m, k, r0, g <= 0, c < 0,
     and values whose products and ratios in the equations of motion and the unit conversions leave the
@@ -75,8 +120,11 @@ class HopperParams:
     r0: float
     c: float
     g: float = STANDARD_GRAVITY
+    body: RigidBody | None = None
 
     def __post_init__(self) -> None:
+        if self.body is not None and not isinstance(self.body, RigidBody):
+            raise ParameterError(f"body must be a RigidBody or None, got {self.body!r}")
         for name in ("m", "k", "r0", "g"):
             object.__setattr__(self, name, _require_positive(name, getattr(self, name)))
         c = _require_finite("c", self.c)
@@ -101,6 +149,7 @@ class HopperParams:
         m: float = HUMAN_LIKE_MASS,
         r0: float = HUMAN_LIKE_LEG_LENGTH,
         g: float = STANDARD_GRAVITY,
+        body: RigidBody | None = None,
     ) -> HopperParams:
         """Build from the paper's kbar = k r0/(m g) and zeta0 = c/(2 sqrt(m k)) (eq. 24)."""
         kbar = _require_positive("kbar", kbar)
@@ -111,7 +160,7 @@ class HopperParams:
         r0 = _require_positive("r0", r0)
         g = _require_positive("g", g)
         k = kbar * m * g / r0
-        return cls(m=m, k=k, r0=r0, c=2.0 * zeta0 * math.sqrt(m * k), g=g)
+        return cls(m=m, k=k, r0=r0, c=2.0 * zeta0 * math.sqrt(m * k), g=g, body=body)
 
     @property
     def kbar(self) -> float:
@@ -128,13 +177,24 @@ class HopperParams:
         """Natural frequency sqrt(k/m) of the leg spring [rad/s]."""
         return math.sqrt(self.k / self.m)
 
+    def require_fixed_body(self, engine: str) -> None:
+        """ParameterError if this hopper has a rigid body, which ``engine`` does not run yet."""
+        if self.body is not None:
+            raise ParameterError(
+                f"{engine} runs the paper's fixed body only; a rigid body runs on the exact map "
+                f"(tdslip_ros.model.plant.exact_map) for now"
+            )
+
 
 @dataclass(frozen=True)
 class ApexState:
-    """Apex of flight: height y [m] and forward speed xdot [m/s] (vertical speed is zero)."""
+    """Apex of flight: height y [m] and forward speed xdot [m/s] (vertical speed is zero); with a rigid body
+    (:class:`RigidBody`) also its pitch [rad] and pitch_rate [rad/s], which a fixed body keeps at 0."""
 
     y: float
     xdot: float
+    pitch: float = 0.0
+    pitch_rate: float = 0.0
 
     def __post_init__(self) -> None:
         y = _require_positive("apex height y", self.y)
@@ -150,10 +210,17 @@ class ApexState:
                 )
         object.__setattr__(self, "y", y)
         object.__setattr__(self, "xdot", xdot)
+        for name in ("pitch", "pitch_rate"):
+            value = _require_finite(f"apex {name}", getattr(self, name))
+            if not abs(value) < _SQRT_MAX_FLOAT:
+                raise ParameterError(f"apex {name} = {value!r} is out of the floating-point range")
+            object.__setattr__(self, name, value)
 
     def energy(self, params: HopperParams) -> float:
-        """Total mechanical energy m xdot^2/2 + m g y [J] (the spring is at rest in flight)."""
-        return 0.5 * params.m * self.xdot**2 + params.m * params.g * self.y
+        """Total mechanical energy m xdot^2/2 + m g y [J] (the spring is at rest in flight), plus the body's
+        J pitch_rate^2 / 2 with a rigid body."""
+        energy = 0.5 * params.m * self.xdot**2 + params.m * params.g * self.y
+        return energy if params.body is None else energy + 0.5 * params.body.inertia * self.pitch_rate**2
 
     @classmethod
     def from_height_energy(cls, params: HopperParams, y: float, energy: float) -> ApexState:

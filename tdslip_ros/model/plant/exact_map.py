@@ -26,7 +26,7 @@ from scipy.integrate import solve_ivp
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
 from tdslip_ros.model.plant.perturbations import UNPERTURBED, StrideConditions, placed_angle
 from tdslip_ros.model.plant.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
 from tdslip_ros.model.plant.terrain import touchdown
@@ -88,6 +88,10 @@ def apex_return_map(
     perturbation): the apex's x and the ground its height ``apex.y`` is above, the terrain, the torque's
     saturation tau_max, a push after the apex and the leg's placement error.
 
+    A rigid body (``params.body``, :class:`.params.RigidBody`) carries the apex's pitch and pitch rate through
+    the stride, and fails ``tipped`` past its tip_limit; it runs a ramp command on flat ground (with
+    saturation, a push and a placement error) for now, and refuses other ``conditions`` with ParameterError.
+
     Stance feedback (a :class:`.stance_laws.StanceFeedback` command): the apex is at apex_time [s] on the
     sample clock, whose sample instants are the multiples of the command's sample_period; the law's
     torques are clipped at tau_max and at the limits' max_torque. Times in the result (``.t`` of the
@@ -95,6 +99,13 @@ def apex_return_map(
     apex_time.
     """
     check_tolerances(rtol, atol)
+    if params.body is not None:
+        return _rigid_body_stride(params, params.body, apex, command, rtol, atol, limits, conditions)
+    if apex.pitch != 0.0 or apex.pitch_rate != 0.0:
+        raise ParameterError(
+            f"the apex has a pitch ({apex.pitch!r} rad, {apex.pitch_rate!r} rad/s), but the hopper's body is "
+            f"fixed: give HopperParams a RigidBody"
+        )
     x, ground, terrain = conditions.x, conditions.ground, conditions.terrain
     tau_max, push, angle_error = conditions.tau_max, conditions.push, conditions.angle_error
     if isinstance(command, StanceFeedback) and isinstance(command.law, TorqueStream):
@@ -272,6 +283,9 @@ class _StanceEvent:
 
     def __call__(self, s: float, y: np.ndarray) -> float:
         r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
+        if self.index == len(dynamics.STANCE_EVENT_NAMES):  # "tipped": only a rigid body's state has a pitch
+            assert self.params.body is not None
+            return dynamics.tip_margin(self.params.body, float(y[6]))
         return dynamics.stance_event_values(self.params, r, math.cos(theta), rdot, thetadot)[self.index]
 
 
@@ -279,7 +293,9 @@ class _StanceEvent:
 class _StanceOutcome:
     s_end: float
     y_end: np.ndarray
-    terminal: str | None  # "liftoff", "reversal", "fall", "failed" (DOP853 gave up), None at the time limit
+    terminal: (
+        str | None
+    )  # "liftoff", "reversal", "fall", "tipped", "failed" (DOP853 gave up), None at the limit
     bottom: tuple[float, np.ndarray, float] | None  # s, state, torque
     tau_end: float
     message: str = ""  # scipy's reason when the integration failed
@@ -336,20 +352,38 @@ def _integrate_stance(
     rtol: float,
     atol: float,
 ) -> _StanceOutcome:
+    body = params.body
+
     def rhs(torque: Torque) -> Callable[[float, np.ndarray], np.ndarray]:
         def field(s: float, y: np.ndarray) -> np.ndarray:
             r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
-            derivatives = dynamics.stance_derivatives(
-                params, r, math.sin(theta), math.cos(theta), rdot, thetadot, torque(s)
+            if body is None:
+                return np.array(
+                    dynamics.stance_derivatives(
+                        params, r, math.sin(theta), math.cos(theta), rdot, thetadot, torque(s)
+                    )
+                )
+            pitch, pitch_rate = float(y[6]), float(y[7])
+            return np.array(
+                dynamics.rigid_stance_derivatives(
+                    params,
+                    body,
+                    r,
+                    math.sin(theta),
+                    math.cos(theta),
+                    rdot,
+                    thetadot,
+                    math.sin(pitch),
+                    math.cos(pitch),
+                    pitch_rate,
+                    torque(s),
+                )
             )
-            return np.array(derivatives)
 
         return field
 
-    events = [
-        _StanceEvent(params, index, terminal=name != "bottom")
-        for index, name in enumerate(dynamics.STANCE_EVENT_NAMES)
-    ]
+    names = dynamics.STANCE_EVENT_NAMES if body is None else dynamics.RIGID_STANCE_EVENT_NAMES
+    events = [_StanceEvent(params, index, terminal=name != "bottom") for index, name in enumerate(names)]
     bottom: tuple[float, np.ndarray, float] | None = None
     s_start, y = 0.0, y0
     while s_start < t_limit:
@@ -364,9 +398,158 @@ def _integrate_stance(
         if sol.status == -1:  # the last accepted state is where it gave up
             s_end = float(sol.t[-1])
             return _StanceOutcome(s_end, sol.y[:, -1], "failed", bottom, torque(s_end), sol.message)
-        for index, name in enumerate(dynamics.STANCE_EVENT_NAMES[1:], start=1):
+        for index, name in enumerate(names[1:], start=1):
             if sol.t_events[index].size:
                 s_end = float(sol.t_events[index][0])
                 return _StanceOutcome(s_end, sol.y_events[index][0], name, bottom, torque(s_end))
         s_start, y = s_stop, sol.y[:, -1]
     return _StanceOutcome(t_limit, y, None, bottom, torque(t_limit))
+
+
+def _rigid_body_stride(
+    params: HopperParams,
+    body: RigidBody,
+    apex: ApexState,
+    command: StanceCommand | StanceFeedback,
+    rtol: float,
+    atol: float,
+    limits: PlausibilityLimits | None,
+    conditions: StrideConditions,
+) -> StrideResult:
+    """:func:`apex_return_map` for a rigid body: the centre of mass is ballistic in flight and the pitch turns
+    at its constant rate; the stance adds (phi, phidot) to the fixed body's state
+    (:func:`.dynamics.rigid_stance_derivatives`)."""
+    if not isinstance(command, StanceCommand):
+        raise ParameterError("a rigid body runs ramp commands (StanceCommand) on the exact map for now")
+    if not conditions.terrain.is_flat or conditions.ground not in (None, 0.0):
+        raise ParameterError("a rigid body runs on flat ground at height 0 for now")
+    limits = PlausibilityLimits.of(params, limits)
+    limits.check_apex(apex)
+    if abs(apex.pitch) >= body.tip_limit:
+        raise ParameterError(
+            f"the apex pitch {apex.pitch!r} rad is past the body's tip_limit {body.tip_limit!r}"
+        )
+    t_limit = limits.max_stance_time
+    x, xdot, g = conditions.x, apex.xdot + conditions.push, params.g
+    pitch0, pitch_rate = apex.pitch, apex.pitch_rate
+    angle = placed_angle(command.touchdown_angle, conditions.angle_error)
+    sin_td, cos_td = math.sin(angle), math.cos(angle)
+    saturation = None if math.isinf(conditions.tau_max) else conditions.tau_max
+
+    def flight_state(t: float) -> HopperState:
+        x_t, y_t, _, ydot_t = dynamics.ballistic(x, apex.y, xdot, 0.0, t, g)
+        pitch = pitch0 + pitch_rate * t
+        return dynamics.rigid_flight_hopper_state(
+            params, body, t, 0, x_t, y_t, xdot, ydot_t, pitch, pitch_rate, angle
+        )
+
+    def failed(
+        failure: tuple[FailureKind, str],
+        state: HopperState,
+        touchdown: HopperState | None = None,
+        bottom: HopperState | None = None,
+        liftoff: HopperState | None = None,
+        energy: StrideEnergy | None = None,
+    ) -> StrideResult:
+        ground = None if touchdown is None else 0.0
+        return StrideResult(
+            None, failure[0], failure[1], touchdown, bottom, liftoff, None, state, energy, ground
+        )
+
+    if conditions.push != 0.0:
+        pushed_out = limits.push_failure(apex.y, apex.xdot, conditions.push)
+        if pushed_out is not None:
+            return failed(pushed_out, flight_state(0.0))
+    t_td = dynamics.rigid_touchdown_time(params, body, apex.y, pitch0, pitch_rate, cos_td)
+    if t_td is None:
+        hip_y = apex.y + dynamics.hip_offset(body, math.sin(pitch0), math.cos(pitch0))[1]
+        stubbing = dynamics.toe_stubbing(hip_y, dynamics.touchdown_height(params, cos_td))
+        assert stubbing is not None
+        return failed(stubbing, flight_state(0.0))
+    t_tip = dynamics.pitch_limit_time(body, pitch0, pitch_rate)
+    if t_tip <= t_td:
+        state = flight_state(t_tip)
+        return failed(dynamics.tipped(state.pitch, body.tip_limit, "in the flight before touchdown"), state)
+    beyond_limits = limits.torque_failure(command.tau0)
+    if beyond_limits is not None:
+        return failed(beyond_limits, flight_state(t_td))
+    x_td, _, _, ydot_td = dynamics.ballistic(x, apex.y, xdot, 0.0, t_td, g)
+    pitch_td = pitch0 + pitch_rate * t_td
+    sin_p, cos_p = math.sin(pitch_td), math.cos(pitch_td)
+    offset_x = dynamics.hip_offset(body, sin_p, cos_p)[0]
+    relative_vx, relative_vy = dynamics.pitch_velocity_offset(body, sin_p, cos_p, pitch_rate)
+    toe_x = x_td + offset_x + params.r0 * sin_td
+    rdot_td, thetadot_td = dynamics.polar_velocity(
+        params.r0, sin_td, cos_td, xdot + relative_vx, ydot_td + relative_vy
+    )
+
+    def stance_state(s: float, y: np.ndarray, tau: float) -> HopperState:
+        r, theta, rdot, thetadot, pitch, rate = (float(y[index]) for index in (0, 1, 2, 3, 6, 7))
+        return dynamics.rigid_stance_hopper_state(
+            params, body, t_td + s, 0, toe_x, r, theta, rdot, thetadot, pitch, rate, float(tau)
+        )
+
+    y0 = np.array([params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0, pitch_td, pitch_rate])
+    segments = _RampSegments(command, saturation, t_limit)
+    touchdown_state = stance_state(0.0, y0, segments.torque_at_touchdown)
+    reversal = dynamics.touchdown_reversal(thetadot_td)
+    if reversal is not None:
+        return failed(reversal, touchdown_state, touchdown_state)
+    outcome = _integrate_stance(params, segments, y0, t_limit, rtol, atol)
+    bottom = None if outcome.bottom is None else stance_state(*outcome.bottom)
+    end_state = stance_state(outcome.s_end, outcome.y_end, outcome.tau_end)
+    if outcome.terminal == "failed":
+        reason = f"the stance integration failed at {outcome.s_end:.6g} s into stance: {outcome.message}"
+        return failed((FailureKind.STATE_LIMIT, reason), end_state, touchdown_state, bottom)
+    if outcome.terminal is None:
+        return failed(dynamics.no_liftoff(t_limit), end_state, touchdown_state, bottom)
+    if outcome.terminal == "tipped":
+        when = f"{outcome.s_end:.6g} s into stance"
+        return failed(
+            dynamics.tipped(end_state.pitch, body.tip_limit, when), end_state, touchdown_state, bottom
+        )
+    if outcome.terminal != "liftoff":
+        return failed(
+            dynamics.stance_failure(outcome.terminal, outcome.s_end), end_state, touchdown_state, bottom
+        )
+    liftoff = end_state
+    energy = StrideEnergy(
+        hip_work=float(outcome.y_end[4]),
+        damping_loss=float(outcome.y_end[5]),
+        spring_loss=dynamics.spring_energy(params, liftoff.r),
+    )
+    failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
+    if failure is not None:
+        return failed(failure, liftoff, touchdown_state, bottom, liftoff, energy)
+    t_rise = liftoff.ydot / g
+    t_tip = dynamics.pitch_limit_time(body, liftoff.pitch, liftoff.pitch_rate)
+    if t_tip <= t_rise:
+        x_t, y_t, _, ydot_t = dynamics.ballistic(liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_tip, g)
+        state = dynamics.rigid_flight_hopper_state(
+            params,
+            body,
+            liftoff.t + t_tip,
+            0,
+            x_t,
+            y_t,
+            liftoff.xdot,
+            ydot_t,
+            liftoff.pitch + liftoff.pitch_rate * t_tip,
+            liftoff.pitch_rate,
+            angle,
+        )
+        tip = dynamics.tipped(state.pitch, body.tip_limit, "in the flight after liftoff")
+        return failed(tip, state, touchdown_state, bottom, liftoff, energy)
+    apex_x, y_next, _, _ = dynamics.ballistic(liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, g)
+    failure = limits.apex_failure(y_next, liftoff.xdot)
+    if failure is not None:
+        return failed(failure, liftoff, touchdown_state, bottom, liftoff, energy)
+    next_apex = ApexState(
+        y=y_next,
+        xdot=liftoff.xdot,
+        pitch=liftoff.pitch + liftoff.pitch_rate * t_rise,
+        pitch_rate=liftoff.pitch_rate,
+    )
+    return StrideResult(
+        next_apex, None, "", touchdown_state, bottom, liftoff, liftoff.t + t_rise, None, energy, 0.0, apex_x
+    )

@@ -247,7 +247,8 @@ class Mismatch:
             for name, field_name in MISMATCH_FIELDS.items()
         }
         if all(np.ndim(value) == 0 for value in scaled.values()):
-            return HopperParams(**{name: float(value) for name, value in scaled.items()}, g=params.g)
+            m, k, r0, c = (float(scaled[name]) for name in ("m", "k", "r0", "c"))
+            return HopperParams(m=m, k=k, r0=r0, c=c, g=params.g, body=params.body)
         return ParamArrays(**scaled, g=np.asarray(params.g))
 
     def spec(self) -> str:

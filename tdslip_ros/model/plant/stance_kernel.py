@@ -89,6 +89,7 @@ class LaneHopper(NamedTuple):
 def hopper_row(params: HopperParams) -> Array:
     """The hopper as the lane loops take it: the fields of :class:`LaneHopper` in order; made once per
     hopper and shared (the kernels only read it)."""
+    params.require_fixed_body("the compiled lane stride")
     return np.array([getattr(params, name) for name in LaneHopper._fields])
 
 

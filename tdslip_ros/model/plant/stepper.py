@@ -108,6 +108,7 @@ class FixedStepStepper:
         Raises ParameterError too for a dt or a number of substeps that cannot resolve the motion, and for
         perturbations with per-lane values. ``trajectory`` chooses the random draws (module docstring).
         """
+        params.require_fixed_body("the 1 kHz stepper")
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be a positive finite number, got {dt!r}")
         if substeps < 1:
