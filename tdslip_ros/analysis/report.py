@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -229,8 +229,8 @@ the seeds; the others are text (terrain, pushes)."""
 
 
 def hopper_summary(params: HopperParams) -> dict[str, float]:
-    """JSON-ready hopper parameters, each key with its unit."""
-    return {unit_key(name, HOPPER_UNITS[name]): value for name, value in asdict(params).items()}
+    """JSON-ready hopper parameters, each key with its unit (a rigid body's are not recorded yet)."""
+    return {unit_key(name, unit): getattr(params, name) for name, unit in HOPPER_UNITS.items()}
 
 
 def perturbation_summary(run: Run) -> dict[str, Any]:
