@@ -509,6 +509,9 @@ def rigid_stance_derivatives(
     return rdot, thetadot, rddot, thetaddot, hip_power, params.c * rdot * rdot, pitch_rate, pitchddot
 
 
+RIGID_STANCE_STATE_SIZE = 8
+"""Values in a rigid stance state: (r, theta, rdot, thetadot, hip work, damper loss, phi, phidot)."""
+
 RIGID_STANCE_EVENT_NAMES = (*STANCE_EVENT_NAMES, "tipped")
 """Stance events of a rigid body: the fixed body's, then the body pitching past its tip_limit."""
 

@@ -89,8 +89,9 @@ def apex_return_map(
     saturation tau_max, a push after the apex and the leg's placement error.
 
     A rigid body (``params.body``, :class:`.params.RigidBody`) carries the apex's pitch and pitch rate through
-    the stride, and fails ``tipped`` past its tip_limit; it runs a ramp command on flat ground (with
-    saturation, a push and a placement error) for now, and refuses other ``conditions`` with ParameterError.
+    the stride, and fails ``tipped`` past its tip_limit; it runs on flat ground (with saturation, a push and a
+    placement error) for now, and refuses other ``conditions`` with ParameterError. A law under stance
+    feedback sees its pitch and pitch rate (:class:`.stance_laws.StanceSample`).
 
     Stance feedback (a :class:`.stance_laws.StanceFeedback` command): the apex is at apex_time [s] on the
     sample clock, whose sample instants are the multiples of the command's sample_period; the law's
@@ -99,8 +100,12 @@ def apex_return_map(
     apex_time.
     """
     check_tolerances(rtol, atol)
+    if not math.isfinite(apex_time):  # the sample instants would be NaN: the integration would never end
+        raise ParameterError(f"apex_time must be finite, got {apex_time!r}")
     if params.body is not None:
-        return _rigid_body_stride(params, params.body, apex, command, rtol, atol, limits, conditions)
+        return _rigid_body_stride(
+            params, params.body, apex, command, rtol, atol, limits, conditions, apex_time
+        )
     if apex.pitch != 0.0 or apex.pitch_rate != 0.0:
         raise ParameterError(
             f"the apex has a pitch ({apex.pitch!r} rad, {apex.pitch_rate!r} rad/s), but the hopper's body is "
@@ -110,8 +115,6 @@ def apex_return_map(
     tau_max, push, angle_error = conditions.tau_max, conditions.push, conditions.angle_error
     if isinstance(command, StanceFeedback) and isinstance(command.law, TorqueStream):
         raise ParameterError("the exact map cannot run a torque stream: replay it with RecordedTorques")
-    if not math.isfinite(apex_time):  # the sample instants would be NaN: the integration would never end
-        raise ParameterError(f"apex_time must be finite, got {apex_time!r}")
     limits = PlausibilityLimits.of(params, limits)
     limits.check_apex(apex)
     t_limit = limits.max_stance_time
@@ -415,12 +418,13 @@ def _rigid_body_stride(
     atol: float,
     limits: PlausibilityLimits | None,
     conditions: StrideConditions,
+    apex_time: float,
 ) -> StrideResult:
     """:func:`apex_return_map` for a rigid body: the centre of mass is ballistic in flight and the pitch turns
     at its constant rate; the stance adds (phi, phidot) to the fixed body's state
     (:func:`.dynamics.rigid_stance_derivatives`)."""
-    if not isinstance(command, StanceCommand):
-        raise ParameterError("a rigid body runs ramp commands (StanceCommand) on the exact map for now")
+    if isinstance(command, StanceFeedback) and isinstance(command.law, TorqueStream):
+        raise ParameterError("the exact map cannot run a torque stream: replay it with RecordedTorques")
     if not conditions.terrain.is_flat or conditions.ground not in (None, 0.0):
         raise ParameterError("a rigid body runs on flat ground at height 0 for now")
     limits = PlausibilityLimits.of(params, limits)
@@ -443,6 +447,11 @@ def _rigid_body_stride(
             params, body, t, 0, x_t, y_t, xdot, ydot_t, pitch, pitch_rate, angle
         )
 
+    segments: _RampSegments | _SampledSegments | None = None
+
+    def stance_torques() -> tuple[tuple[float, float], ...]:
+        return segments.record if isinstance(segments, _SampledSegments) else ()
+
     def failed(
         failure: tuple[FailureKind, str],
         state: HopperState,
@@ -453,7 +462,17 @@ def _rigid_body_stride(
     ) -> StrideResult:
         ground = None if touchdown is None else 0.0
         return StrideResult(
-            None, failure[0], failure[1], touchdown, bottom, liftoff, None, state, energy, ground
+            None,
+            failure[0],
+            failure[1],
+            touchdown,
+            bottom,
+            liftoff,
+            None,
+            state,
+            energy,
+            ground,
+            stance_torques=stance_torques(),
         )
 
     if conditions.push != 0.0:
@@ -470,9 +489,10 @@ def _rigid_body_stride(
     if t_tip <= t_td:
         state = flight_state(t_tip)
         return failed(dynamics.tipped(state.pitch, body.tip_limit, "in the flight before touchdown"), state)
-    beyond_limits = limits.torque_failure(command.tau0)
-    if beyond_limits is not None:
-        return failed(beyond_limits, flight_state(t_td))
+    if isinstance(command, StanceCommand):
+        beyond_limits = limits.torque_failure(command.tau0)
+        if beyond_limits is not None:
+            return failed(beyond_limits, flight_state(t_td))
     x_td, _, _, ydot_td = dynamics.ballistic(x, apex.y, xdot, 0.0, t_td, g)
     pitch_td = pitch0 + pitch_rate * t_td
     sin_p, cos_p = math.sin(pitch_td), math.cos(pitch_td)
@@ -490,7 +510,11 @@ def _rigid_body_stride(
         )
 
     y0 = np.array([params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0, pitch_td, pitch_rate])
-    segments = _RampSegments(command, saturation, t_limit)
+    if isinstance(command, StanceCommand):
+        segments = _RampSegments(command, saturation, t_limit)
+    else:
+        limit = torque_limit(saturation, limits.max_torque)
+        segments = _SampledSegments(command, apex_time + t_td, limit, saturation, y0)
     touchdown_state = stance_state(0.0, y0, segments.torque_at_touchdown)
     reversal = dynamics.touchdown_reversal(thetadot_td)
     if reversal is not None:
@@ -551,5 +575,16 @@ def _rigid_body_stride(
         pitch_rate=liftoff.pitch_rate,
     )
     return StrideResult(
-        next_apex, None, "", touchdown_state, bottom, liftoff, liftoff.t + t_rise, None, energy, 0.0, apex_x
+        next_apex,
+        None,
+        "",
+        touchdown_state,
+        bottom,
+        liftoff,
+        liftoff.t + t_rise,
+        None,
+        energy,
+        0.0,
+        apex_x,
+        stance_torques=stance_torques(),
     )

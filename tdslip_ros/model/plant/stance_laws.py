@@ -53,7 +53,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model.dynamics import FloatArray
+from tdslip_ros.model.dynamics import RIGID_STANCE_STATE_SIZE, FloatArray
 from tdslip_ros.model.params import ParameterError
 
 DEFAULT_SAMPLE_PERIOD = 1e-3
@@ -65,8 +65,9 @@ clock may be rounded, e.g. to nanoseconds)."""
 
 class StanceSample(NamedTuple):
     """What a law sees at a sample instant (floats, or arrays over lanes): the absolute time t and the
-    time since touchdown s [s], the polar state (r [m], theta [rad], rdot [m/s], thetadot [rad/s]) and
-    the torque held until this instant, ``held`` [N m]."""
+    time since touchdown s [s], the polar state (r [m], theta [rad], rdot [m/s], thetadot [rad/s]), the
+    torque held until this instant, ``held`` [N m], and a rigid body's pitch [rad] and pitch rate [rad/s]
+    (0 for the paper's fixed body)."""
 
     t: Any
     s: Any
@@ -75,6 +76,8 @@ class StanceSample(NamedTuple):
     rdot: Any
     thetadot: Any
     held: Any
+    pitch: Any = 0.0
+    pitch_rate: Any = 0.0
 
 
 class StanceLaw(Protocol):
@@ -213,12 +216,15 @@ class HeldTorque:
 
     def sample(self, y: tuple[float, ...], streamed: float = 0.0) -> float:
         """Sample at the next sample instant, the stance state there being y (r, theta, rdot, thetadot, ...):
-        the law's torque (``streamed`` for a TorqueStream), clipped, is held from now on; returned."""
+        the law's torque (``streamed`` for a TorqueStream), clipped, is held from now on; returned. A rigid
+        body's state holds its pitch and rate at y[6], y[7] (:func:`.dynamics.rigid_stance_derivatives`)."""
         t, s = self._index * self._period, self.next_sample()
         if isinstance(self._law, TorqueStream):
             tau = streamed
         else:
-            tau = float(self._law.torque(StanceSample(t, s, y[0], y[1], y[2], y[3], self.held)))
+            pitch, pitch_rate = (y[6], y[7]) if len(y) == RIGID_STANCE_STATE_SIZE else (0.0, 0.0)
+            seen = StanceSample(t, s, y[0], y[1], y[2], y[3], self.held, pitch, pitch_rate)
+            tau = float(self._law.torque(seen))
         self.saturated |= self._tau_max is not None and abs(tau) > self._tau_max
         self.held = float(clip_torque(tau, self._limit))
         self.record.append((t, self.held))
