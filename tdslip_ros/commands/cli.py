@@ -33,6 +33,7 @@ SUBCOMMANDS: dict[str, str] = {
     ),
     "viability": "viability kernels: the states and commands that keep the hopper running, on Dask",
     "terrain": "energy regulation against open loop over rough ground: COM paths and apex energies (PNG)",
+    "body": "a freely rotating body: stable regulated gaits over hip offset and inertia, posture law (PNG)",
 }
 """Every subcommand by name, with its one-line summary; ``tdslip NAME`` runs ``tdslip_ros.commands.NAME``."""
 
