@@ -522,6 +522,37 @@ def tip_margin(body: Body, pitch: Real) -> Real:
     return margin
 
 
+def rigid_stance_event_values(
+    params: Hopper, body: Body, r: float, cos_t: float, rdot: float, thetadot: float, pitch: float
+) -> tuple[float, float, float, float, float]:
+    """The rigid body's stance event values, in the order of RIGID_STANCE_EVENT_NAMES: the fixed body's
+    (:func:`stance_event_values` of the leg from the toe to the hip), then :func:`tip_margin`. Each event
+    happens when its value crosses from > 0 to <= 0."""
+    bottom, liftoff, reversal, fall = stance_event_values(params, r, cos_t, rdot, thetadot)
+    return bottom, liftoff, reversal, fall, tip_margin(body, pitch)
+
+
+def rigid_stance_event_rates(
+    params: Hopper,
+    r: float,
+    sin_t: float,
+    cos_t: float,
+    rdot: float,
+    thetadot: float,
+    rddot: float,
+    thetaddot: float,
+    pitch: float,
+    pitch_rate: float,
+) -> tuple[float, float, float, float, float]:
+    """Time derivatives of :func:`rigid_stance_event_values` along the motion, for Newton's method: the fixed
+    body's :func:`stance_event_rates`, then d/dt (tip_limit - |phi|) = -sign(phi) phidot (at pitch 0 the
+    margin is the whole tip_limit, far from its event)."""
+    bottom, liftoff, reversal, fall = stance_event_rates(
+        params, r, sin_t, cos_t, rdot, thetadot, rddot, thetaddot
+    )
+    return bottom, liftoff, reversal, fall, -pitch_rate if pitch >= 0.0 else pitch_rate
+
+
 def pitch_velocity_offset(body: Body, sin_p: Real, cos_p: Real, pitch_rate: Real) -> tuple[Real, Real]:
     """The hip's velocity [m/s] relative to the centre of mass's: phidot z^ x R(phi) d."""
     offset_x, offset_y = hip_offset(body, sin_p, cos_p)

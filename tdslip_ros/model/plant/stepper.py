@@ -39,6 +39,19 @@ right after the apex; the toe lands on the terrain (:func:`.terrain.touchdown`, 
 command) and the hip torque saturates at tau_max (a further kink where the stance is split). On uneven
 ground toe stubbing means the toe, placed at the apex, is below the ground under it; a command is too late
 when its toe would have met the ground before it arrived.
+
+A rigid body (``params.body``, docs/rotating_body.md) runs on flat ground with the exact map's behaviour
+(``exact_map._rigid_body_stride``). In flight the centre of mass is ballistic and the pitch turns at its
+constant rate; the leg touches down at :func:`.dynamics.rigid_touchdown_time` (planned once per flight and
+angle), and the body tips at :func:`.dynamics.pitch_limit_time` if that comes first (after a liftoff: before
+the apex). The leg hangs from the hip, so toe stubbing and set_command's tests judge the hip. The stance
+takes the 8-value state of :func:`.dynamics.rigid_stance_derivatives` through the same RK4 on the same grid
+(a stance law sees its pitch and rate) and locates ``tipped`` (:func:`.dynamics.tip_margin`) as the other
+events. Against the exact map over 24 ramp strides of 5 bodies (test_plant_stepper_rigid_body.py), 4
+sub-steps give apex states to 4e-11 (the pitch rate; 1 sub-step 1e-8, 2: 7e-10, 8: 3e-12), event times to
+4e-12 s and the stance's energy balance to 4e-12 of the apex energy. Saturation, pushes and placement
+errors run; uneven terrain and apex noise are refused (:func:`check_body`). What a rigid stance tick costs:
+bench/bench_rigid_body.py.
 """
 
 from __future__ import annotations
@@ -52,7 +65,7 @@ import numpy as np
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits
-from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
 from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
 from tdslip_ros.model.plant.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
 from tdslip_ros.model.plant.terrain import Terrain, touchdown
@@ -68,6 +81,9 @@ _GRID_SLACK = 1e-6  # fraction of a sub-step below which the stepper does not st
 
 _StanceVector = tuple[float, float, float, float, float, float]
 """(r, theta, rdot, thetadot, hip work, damper loss) in stance."""
+_RigidVector = tuple[float, float, float, float, float, float, float, float]
+"""A rigid body's stance state: the fixed body's six values, then (phi, phidot)
+(:func:`.dynamics.rigid_stance_derivatives`)."""
 
 
 class _Landing(NamedTuple):
@@ -107,15 +123,17 @@ class FixedStepStepper:
 
         Raises ParameterError too for a dt or a number of substeps that cannot resolve the motion, and for
         perturbations with per-lane values. ``trajectory`` chooses the random draws (module docstring).
+        A rigid body (``params.body``) starts at the apex's pitch and pitch rate; ParameterError for what the
+        stepper does not run for it (:func:`check_body`), and for a pitch on the fixed body.
         """
-        params.require_fixed_body("the 1 kHz stepper")
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be a positive finite number, got {dt!r}")
         if substeps < 1:
             raise ParameterError(f"substeps must be at least 1, got {substeps!r}")
         self._limits = PlausibilityLimits.of(params, limits)
         self._limits.check_apex(apex)
-        rate = fastest_rate(self._limits)
+        check_body(params, apex, perturbations)
+        rate = max(fastest_rate(self._limits), abs(apex.pitch_rate))
         if rate * dt / substeps > MAX_RATE_STEP:
             raise ParameterError(
                 f"a sub-step of dt/substeps = {dt / substeps:.6g} s cannot resolve this hopper, whose "
@@ -167,6 +185,14 @@ class FixedStepStepper:
         self._saturated_strides = 0
         self._pending_failure: tuple[HopperState, FailureKind, str] | None = None
         self._flight_ref = (0.0, x0, self._ground + apex.y, apex.xdot, 0.0)
+        # A rigid body (None: the fixed body): its (pitch, pitch rate) at the flight reference's time, its
+        # stance state and integrator, and the touchdown time planned for a flight: (apex time, angle, time
+        # from the apex, None when the toe stubs).
+        self._body = params.body
+        self._pitch_ref = (apex.pitch, apex.pitch_rate)
+        self._rigid: _RigidVector = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self._rigid_stance = None if self._body is None else _RigidStance(params, self._body, self._torque)
+        self._rigid_landing: tuple[float, float, float | None] | None = None
         self._begin_stride(0.0)
 
     @property
@@ -261,6 +287,8 @@ class FixedStepStepper:
         if self._failure_state is not None:
             return self._failure_state
         if self._phase is Phase.STANCE:
+            if self._body is not None:
+                return self._rigid_stance_state(self._s, self._rigid)
             return self._stance_state(self._s, self._stance)
         return self._flight_state(self.t)
 
@@ -273,11 +301,17 @@ class FixedStepStepper:
         above the ground of the last stance), and when the command comes too late: the body is already
         below the new touchdown height r0 cos(theta_td) (on uneven ground: the toe would already have met
         the ground). A toe placed below the ground at the apex is not refused: it is toe stubbing. Stance
-        feedback must sample at the tick, dt.
+        feedback must sample at the tick, dt. A rigid body's leg is judged from its hip
+        (:meth:`_check_rigid_placement`).
         """
         if self._phase is Phase.STANCE:
             raise ParameterError("the stance command cannot change during stance")
         self._check_sample_period(command)
+        if self._body is not None:
+            self._check_rigid_placement(self._body, command)
+            self._command = command
+            self._place_leg()
+            return
         _, _, y_ref, _, ydot_ref = self._flight_ref
         apex = y_ref + ydot_ref**2 / (2.0 * self._params.g)  # descending, the reference is the apex
         if self._perturbations is not None and self._descending:
@@ -338,7 +372,7 @@ class FixedStepStepper:
                 return events
         hold = self._hold
         if self._phase is Phase.STANCE and hold is not None and self._s == hold.next_sample():
-            hold.sample(self._stance, self._streamed)
+            hold.sample(self._stance if self._body is None else self._rigid, self._streamed)
         t = t_start
         while t < t_end and self._failed is None:
             if self._phase is Phase.FLIGHT:
@@ -353,6 +387,21 @@ class FixedStepStepper:
     def _flight_state(self, t: float) -> HopperState:
         t_ref, x, y, xdot, ydot = self._flight_ref
         x, y, xdot, ydot = dynamics.ballistic(x, y, xdot, ydot, t - t_ref, self._params.g)
+        if self._body is not None:  # the centre of mass ballistic, the pitch turning at its constant rate
+            pitch, pitch_rate = self._pitch_ref
+            return dynamics.rigid_flight_hopper_state(
+                self._params,
+                self._body,
+                t,
+                self._stride,
+                x,
+                y,
+                xdot,
+                ydot,
+                pitch + pitch_rate * (t - t_ref),
+                pitch_rate,
+                self.placed_angle,
+            )
         return dynamics.flight_hopper_state(
             self._params, t, self._stride, x, y, xdot, ydot, self.placed_angle, self._height
         )
@@ -413,6 +462,8 @@ class FixedStepStepper:
 
     def _stubbing(self) -> tuple[FailureKind, str] | None:
         """Toe stubbing of the command in force at the apex of this (descending) flight, or None."""
+        if self._body is not None:
+            return self._rigid_stubbing(self._body)
         y_apex = self._flight_ref[2]
         y_td = dynamics.touchdown_height(self._params, math.cos(self.placed_angle))
         if self._terrain is None:
@@ -426,21 +477,15 @@ class FixedStepStepper:
 
     def _advance_flight(self, t: float, t_end: float, events: list[Event]) -> float:
         """Advance in flight from t to t_end or to touchdown; return where it stopped."""
+        if self._body is not None:
+            return self._advance_rigid_flight(self._body, t, t_end, events)
         params = self._params
         if not self._descending:
             t_ref, x, y, xdot, ydot = self._flight_ref
             t_apex = t_ref + ydot / params.g
             if t_apex > t_end:
                 return t_end
-            x, y, xdot, _ = dynamics.ballistic(x, y, xdot, ydot, t_apex - t_ref, params.g)
-            self._flight_ref = (t_apex, x, y, xdot, 0.0)
-            self._descending = True
-            self._stride += 1
-            self._last_energy = self._pending_energy
-            self._begin_stride(t_apex)
-            events.append(Event(EventKind.APEX, t_apex, self._stride, self._apex_state))
-            if self._pending_failure is not None:
-                self._fail(events, *self._pending_failure)
+            if self._reach_apex(t_apex, events):
                 return t_apex
             t = t_apex
         t_apex, x_apex, y_apex, xdot, _ = self._flight_ref
@@ -476,6 +521,35 @@ class FixedStepStepper:
         self._t_touchdown = t_touchdown
         self._s = 0.0
         self._stance = (params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0)
+        self._begin_stance_torque(command, t_touchdown, self._stance)
+        touchdown_state = self._stance_state(0.0, self._stance)
+        events.append(Event(EventKind.TOUCHDOWN, t_touchdown, self._stride, touchdown_state))
+        reversal = dynamics.touchdown_reversal(thetadot_td)
+        if reversal is not None:
+            self._fail(events, touchdown_state, *reversal)
+        return t_touchdown
+
+    def _reach_apex(self, t_apex: float, events: list[Event]) -> bool:
+        """The rising flight reaches its apex at t_apex: the apex becomes the flight's reference, a stride
+        begins and its APEX event is emitted. True when a push there ended the run."""
+        t_ref, x, y, xdot, ydot = self._flight_ref
+        x, y, xdot, _ = dynamics.ballistic(x, y, xdot, ydot, t_apex - t_ref, self._params.g)
+        self._flight_ref = (t_apex, x, y, xdot, 0.0)
+        self._descending = True
+        self._stride += 1
+        self._last_energy = self._pending_energy
+        self._begin_stride(t_apex)
+        events.append(Event(EventKind.APEX, t_apex, self._stride, self._apex_state))
+        if self._pending_failure is not None:
+            self._fail(events, *self._pending_failure)
+            return True
+        return False
+
+    def _begin_stance_torque(
+        self, command: StanceCommand | StanceFeedback, t_touchdown: float, y: tuple[float, ...]
+    ) -> None:
+        """The hip's torque for the stance beginning at t_touchdown in the state y: the hold of a law
+        (sampled at once on a tick boundary) or the command's ramp, with its saturation."""
         if self._hold is not None:  # the last stance's, counted now that it is replaced
             self._saturated_strides += self._hold.saturated
             self._hold = None
@@ -483,7 +557,7 @@ class FixedStepStepper:
             # No kinks but the tick boundaries, where the sub-step grid stops anyway.
             self._stance_t_f = self._stance_saturation_end = math.inf
             self._hold = HeldTorque(
-                command, t_touchdown, self._torque_limit, self._tau_max, self._stance, self._streamed
+                command, t_touchdown, self._torque_limit, self._tau_max, y, self._streamed
             )
         else:
             self._stance_tau0, self._stance_t_f = command.tau0, command.t_f
@@ -493,12 +567,137 @@ class FixedStepStepper:
                     dynamics.saturation_end(self._stance_tau0, self._stance_t_f, self._tau_max)
                 )
                 self._saturated_strides += abs(self._stance_tau0) > self._tau_max
-        touchdown_state = self._stance_state(0.0, self._stance)
+
+    # --- the rigid body's flight ---------------------------------------------------------------
+
+    def _advance_rigid_flight(self, body: RigidBody, t: float, t_end: float, events: list[Event]) -> float:
+        """:meth:`_advance_flight` for a rigid body, the exact map's flight (``_rigid_body_stride``): the
+        centre of mass ballistic and the pitch turning at its constant rate; the body tips where
+        :func:`.dynamics.pitch_limit_time` says, if that comes before the apex (after a liftoff) or before
+        the touchdown at :func:`.dynamics.rigid_touchdown_time` (after an apex)."""
+        params = self._params
+        if not self._descending:
+            t_ref, _, _, _, ydot = self._flight_ref
+            t_apex = t_ref + ydot / params.g
+            t_tip = self._tip_time(body)
+            if t_tip <= t_apex:
+                return self._tip_in_flight(body, t_tip, t_end, "in the flight after liftoff", events)
+            if t_apex > t_end:
+                return t_end
+            pitch, pitch_rate = self._pitch_ref
+            self._pitch_ref = (pitch + pitch_rate * (t_apex - t_ref), pitch_rate)  # before the apex's state
+            if self._reach_apex(t_apex, events):
+                return t_apex
+            t = t_apex
+        t_apex, x_apex, y_apex, xdot, _ = self._flight_ref
+        landing = self._rigid_landing_time(body)
+        t_touchdown = math.inf if landing is None else max(t, t_apex + landing)
+        t_tip = self._tip_time(body)
+        # With a stubbed toe too (no touchdown): a tip in this tick comes before the next tick declares it.
+        if t_tip <= t_touchdown:
+            return self._tip_in_flight(body, t_tip, t_end, "in the flight before touchdown", events)
+        if t_touchdown > t_end:
+            return t_end
+        command = self._command
+        beyond_limits = (
+            None if isinstance(command, StanceFeedback) else self._limits.torque_failure(command.tau0)
+        )
+        if beyond_limits is not None:
+            self._fail(events, self._flight_state(t_touchdown), *beyond_limits)
+            return t_touchdown
+        angle = self.placed_angle
+        sin_td, cos_td = math.sin(angle), math.cos(angle)
+        fall = t_touchdown - t_apex
+        x_td, _, _, ydot_td = dynamics.ballistic(x_apex, y_apex, xdot, 0.0, fall, params.g)
+        pitch_apex, pitch_rate = self._pitch_ref
+        pitch = pitch_apex + pitch_rate * fall
+        sin_p, cos_p = math.sin(pitch), math.cos(pitch)
+        offset_x = dynamics.hip_offset(body, sin_p, cos_p)[0]
+        relative_vx, relative_vy = dynamics.pitch_velocity_offset(body, sin_p, cos_p, pitch_rate)
+        rdot_td, thetadot_td = dynamics.polar_velocity(
+            params.r0, sin_td, cos_td, xdot + relative_vx, ydot_td + relative_vy
+        )
+        self._phase = Phase.STANCE
+        self._toe_x, self._toe_y = x_td + offset_x + params.r0 * sin_td, 0.0
+        self._t_touchdown = t_touchdown
+        self._s = 0.0
+        self._rigid = (params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0, pitch, pitch_rate)
+        self._begin_stance_torque(command, t_touchdown, self._rigid)
+        touchdown_state = self._rigid_stance_state(0.0, self._rigid)
         events.append(Event(EventKind.TOUCHDOWN, t_touchdown, self._stride, touchdown_state))
         reversal = dynamics.touchdown_reversal(thetadot_td)
         if reversal is not None:
             self._fail(events, touchdown_state, *reversal)
         return t_touchdown
+
+    def _tip_time(self, body: RigidBody) -> float:
+        """When the body's pitch, turning at its constant rate in this flight, reaches the tip_limit [s]."""
+        pitch, pitch_rate = self._pitch_ref
+        return self._flight_ref[0] + dynamics.pitch_limit_time(body, pitch, pitch_rate)
+
+    def _tip_in_flight(
+        self, body: RigidBody, t_tip: float, t_end: float, when: str, events: list[Event]
+    ) -> float:
+        """The body tips at t_tip in flight if that is in this tick; return where the flight stopped."""
+        if t_tip > t_end:
+            return t_end
+        state = self._flight_state(t_tip)
+        self._fail(events, state, *dynamics.tipped(state.pitch, body.tip_limit, when))
+        return t_tip
+
+    def _rigid_landing_time(self, body: RigidBody) -> float | None:
+        """Time [s] from this (descending) flight's apex to the touchdown of the leg placed now, or None when
+        its toe is below the ground at the apex (:func:`.dynamics.rigid_touchdown_time`, once per flight and
+        angle)."""
+        t_apex, _, y_apex, _, _ = self._flight_ref
+        angle = self.placed_angle
+        planned = self._rigid_landing
+        if planned is None or planned[0] != t_apex or planned[1] != angle:
+            pitch, pitch_rate = self._pitch_ref
+            landing = dynamics.rigid_touchdown_time(
+                self._params, body, y_apex, pitch, pitch_rate, math.cos(angle)
+            )
+            planned = self._rigid_landing = (t_apex, angle, landing)
+        return planned[2]
+
+    def _rigid_stubbing(self, body: RigidBody) -> tuple[FailureKind, str] | None:
+        """The exact map's toe stubbing of a rigid body: the hip below the touchdown height at the apex."""
+        if self._rigid_landing_time(body) is not None:
+            return None
+        y_apex = self._flight_ref[2]
+        pitch = self._pitch_ref[0]
+        hip_y = y_apex + dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
+        y_td = dynamics.touchdown_height(self._params, math.cos(self.placed_angle))
+        # rigid_touchdown_time found the hip below y_td at the apex; a rounding apart, so does this.
+        return dynamics.toe_stubbing(min(hip_y, math.nextafter(y_td, -math.inf)), y_td)
+
+    def _check_rigid_placement(self, body: RigidBody, command: StanceCommand | StanceFeedback) -> None:
+        """set_command's test for a rigid body: the leg must be placeable (:func:`.dynamics.can_place_leg`)
+        from the hip's height at this flight's apex (the planners' view, :mod:`.policies.posture`), and in a
+        descending flight its touchdown (:func:`.dynamics.rigid_touchdown_time`) must not have passed."""
+        params = self._params
+        t_ref, _, y_ref, _, ydot_ref = self._flight_ref
+        rise = ydot_ref / params.g  # 0 when descending: the reference is the apex
+        pitch_ref, pitch_rate = self._pitch_ref
+        pitch = pitch_ref + pitch_rate * rise
+        y_apex = y_ref + ydot_ref**2 / (2.0 * params.g)
+        hip_apex = y_apex + dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
+        cos_td = math.cos(command.touchdown_angle)
+        if not dynamics.can_place_leg(params.r0, params.g, hip_apex, cos_td):
+            raise ParameterError(
+                f"touchdown_angle {command.touchdown_angle!r} rad needs the hip at "
+                f"{dynamics.touchdown_height(params, cos_td):.6g} m, but it is at {hip_apex:.6g} m at this "
+                f"flight's apex, and placement needs a fall of {dynamics.PLACEMENT_LEAD_TIME:g} s from the "
+                f"apex to touchdown"
+            )
+        if self._descending:
+            angle = float(placed_angle(command.touchdown_angle, self._angle_error))
+            landing = dynamics.rigid_touchdown_time(params, body, y_ref, pitch, pitch_rate, math.cos(angle))
+            if landing is not None and t_ref + landing < self.t:
+                raise ParameterError(
+                    f"touchdown_angle {command.touchdown_angle!r} rad puts the toe on the ground at "
+                    f"t = {t_ref + landing:.6g} s, before the command arrived ({self.t:.6g} s)"
+                )
 
     # --- stance -----------------------------------------------------------------------------
 
@@ -555,6 +754,8 @@ class FixedStepStepper:
 
     def _advance_stance(self, t_tick: float, t_end: float, events: list[Event]) -> float:
         """Integrate the stance to t_end or to liftoff/failure; return where it stopped."""
+        if self._rigid_stance is not None:
+            return self._advance_rigid_stance(self._rigid_stance, t_tick, t_end, events)
         h_grid = self._dt / self._substeps
         t_touchdown = self._t_touchdown
         s_end_of_tick = t_end - t_touchdown
@@ -608,31 +809,21 @@ class FixedStepStepper:
     def _locate(
         self, s: float, y: _StanceVector, length: float, index: int, g_start: float, g_end: float
     ) -> float:
-        """Time sigma into the piece where event ``index`` happens: safeguarded Newton on the
-        event value after an RK4 step of length sigma (slope: the event's rate there), started by
-        regula falsi and falling back to bisection when a step leaves the bracket."""
-        low, high = 0.0, length
-        sigma = g_start * length / (g_start - g_end)
-        for _ in range(_MAX_ROOT_ITERATIONS):
+        """Time sigma into the piece where event ``index`` happens (:func:`_locate_event`)."""
+
+        def value_and_rate(sigma: float) -> tuple[float, float]:
             y_sigma = self._rk4(s, y, sigma)
             value = self._event_values(y_sigma)[index]
             if value == 0.0:
-                break
+                return value, 0.0
             r, theta, rdot, thetadot = y_sigma[0], y_sigma[1], y_sigma[2], y_sigma[3]
             _, _, rddot, thetaddot, _, _ = self._derivative(s + sigma, r, theta, rdot, thetadot)
             rate = dynamics.stance_event_rates(
                 self._params, r, math.sin(theta), math.cos(theta), rdot, thetadot, rddot, thetaddot
             )[index]
-            if value > 0.0:
-                low = sigma
-            else:
-                high = sigma
-            newton_step = value / rate if rate != 0.0 else math.inf
-            if abs(newton_step) <= _EVENT_TIME_TOLERANCE:
-                break
-            newton = sigma - newton_step
-            sigma = newton if low < newton < high else 0.5 * (low + high)
-        return sigma
+            return value, rate
+
+        return _locate_event(value_and_rate, length, g_start, g_end)
 
     def _lift_off(self, liftoff: HopperState, y: _StanceVector, events: list[Event]) -> None:
         events.append(Event(EventKind.LIFTOFF, liftoff.t, self._stride, liftoff))
@@ -655,18 +846,299 @@ class FixedStepStepper:
         if failure is not None:
             self._fail(events, liftoff, *failure)
 
+    # --- the rigid body's stance ---------------------------------------------------------------
+
+    def _rigid_stance_state(self, s: float, y: _RigidVector) -> HopperState:
+        assert self._body is not None
+        return dynamics.rigid_stance_hopper_state(
+            self._params,
+            self._body,
+            self._t_touchdown + s,
+            self._stride,
+            self._toe_x,
+            y[0],
+            y[1],
+            y[2],
+            y[3],
+            y[6],
+            y[7],
+            self._torque(s),
+        )
+
+    def _advance_rigid_stance(
+        self, rigid: _RigidStance, t_tick: float, t_end: float, events: list[Event]
+    ) -> float:
+        """:meth:`_advance_stance` for a rigid body: the same grid of sub-steps and kinks, its RK4 on eight
+        values."""
+        h_grid = self._dt / self._substeps
+        t_touchdown = self._t_touchdown
+        s_end_of_tick = t_end - t_touchdown
+        while self._s < s_end_of_tick:
+            s, y = self._s, self._rigid
+            index = math.floor((t_touchdown + s - t_tick) / h_grid + _GRID_SLACK) + 1
+            s_next = s_end_of_tick if index >= self._substeps else t_tick + index * h_grid - t_touchdown
+            if s < self._stance_saturation_end < s_next:
+                s_next = self._stance_saturation_end
+            if s < self._stance_t_f < s_next:
+                s_next = self._stance_t_f
+            s_next = min(s_next, self._stance_limit)
+            y_next = rigid.rk4(s, y, s_next - s)
+            if self._handle_rigid_stance_events(rigid, s, y, s_next, y_next, events):
+                return t_touchdown + self._s
+            self._s, self._rigid = s_next, y_next
+            if s_next >= self._stance_limit:
+                self._fail(
+                    events, self._rigid_stance_state(s_next, y_next), *dynamics.no_liftoff(self._stance_limit)
+                )
+                return t_touchdown + s_next
+        return t_end
+
+    def _handle_rigid_stance_events(
+        self,
+        rigid: _RigidStance,
+        s: float,
+        y: _RigidVector,
+        s_next: float,
+        y_next: _RigidVector,
+        events: list[Event],
+    ) -> bool:
+        """:meth:`_handle_stance_events` for a rigid body, whose events add ``tipped``."""
+        before, after = rigid.event_values(y), rigid.event_values(y_next)
+        crossed = [i for i in range(len(before)) if before[i] > 0.0 and after[i] <= 0.0]
+        if not crossed:
+            return False
+        located = sorted((rigid.locate(s, y, s_next - s, i, before[i], after[i]), i) for i in crossed)
+        for sigma, index in located:
+            name = dynamics.RIGID_STANCE_EVENT_NAMES[index]
+            s_event = s + sigma
+            y_event = rigid.rk4(s, y, sigma)
+            state = self._rigid_stance_state(s_event, y_event)
+            if name == "bottom":
+                events.append(Event(EventKind.BOTTOM, state.t, self._stride, state))
+                continue
+            self._s, self._rigid = s_event, y_event
+            if name == "liftoff":
+                self._rigid_lift_off(rigid.body, state, y_event, events)
+            elif name == "tipped":
+                when = f"{s_event:.6g} s into stance"
+                self._fail(events, state, *dynamics.tipped(state.pitch, rigid.body.tip_limit, when))
+            else:
+                self._fail(events, state, *dynamics.stance_failure(name, s_event))
+            return True
+        return False
+
+    def _rigid_lift_off(
+        self, body: RigidBody, liftoff: HopperState, y: _RigidVector, events: list[Event]
+    ) -> None:
+        """:meth:`_lift_off` for a rigid body, in the exact map's order: no apex ahead, then the body tipping
+        before the apex (the flight ends there, :meth:`_advance_rigid_flight`), then an apex beyond the
+        limits."""
+        events.append(Event(EventKind.LIFTOFF, liftoff.t, self._stride, liftoff))
+        self._pending_energy = StrideEnergy(
+            hip_work=y[4], damping_loss=y[5], spring_loss=dynamics.spring_energy(self._params, y[0])
+        )
+        self._phase = Phase.FLIGHT
+        self._streamed = 0.0  # a stance's streamed torque ends with it
+        self._flight_ref = (liftoff.t, liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot)
+        self._pitch_ref = (liftoff.pitch, liftoff.pitch_rate)
+        self._descending = False
+        self._ground = self._toe_y
+        failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
+        if failure is None:
+            t_apex = liftoff.t + liftoff.ydot / self._params.g  # as _advance_rigid_flight reaches it
+            if self._tip_time(body) <= t_apex:
+                return
+            _, y_apex, _, _ = dynamics.ballistic(
+                liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_apex - liftoff.t, self._params.g
+            )
+            failure = self._limits.apex_failure(y_apex - self._ground, liftoff.xdot)
+        if failure is not None:
+            self._fail(events, liftoff, *failure)
+
     def _fail(self, events: list[Event], state: HopperState, kind: FailureKind, reason: str) -> None:
         self._failed = kind
         self._failure_state = state
         events.append(Event(EventKind.FAILURE, state.t, self._stride, state, kind, reason))
 
 
+class _RigidStance:
+    """A rigid body's stance on the stepper's grid: classical RK4 of
+    :func:`.dynamics.rigid_stance_derivatives` (the one source of its physics) under the stepper's hip torque
+    ``torque(s)``, and its events (:func:`.dynamics.rigid_stance_event_values`) located on the re-taken step
+    as the fixed body's are."""
+
+    def __init__(self, params: HopperParams, body: RigidBody, torque: Callable[[float], float]) -> None:
+        self.params, self.body, self._torque = params, body, torque
+
+    def derivative(
+        self, s: float, r: float, theta: float, rdot: float, thetadot: float, pitch: float, pitch_rate: float
+    ) -> _RigidVector:
+        return dynamics.rigid_stance_derivatives(
+            self.params,
+            self.body,
+            r,
+            math.sin(theta),
+            math.cos(theta),
+            rdot,
+            thetadot,
+            math.sin(pitch),
+            math.cos(pitch),
+            pitch_rate,
+            self._torque(s),
+        )
+
+    def rk4(self, s: float, y: _RigidVector, h: float) -> _RigidVector:
+        """One RK4 step of length h from (s, y); hip work and damper loss (y[4], y[5]) feed nothing back."""
+        f = self.derivative
+        k1 = f(s, y[0], y[1], y[2], y[3], y[6], y[7])
+        half = 0.5 * h
+        k2 = f(
+            s + half,
+            y[0] + half * k1[0],
+            y[1] + half * k1[1],
+            y[2] + half * k1[2],
+            y[3] + half * k1[3],
+            y[6] + half * k1[6],
+            y[7] + half * k1[7],
+        )
+        k3 = f(
+            s + half,
+            y[0] + half * k2[0],
+            y[1] + half * k2[1],
+            y[2] + half * k2[2],
+            y[3] + half * k2[3],
+            y[6] + half * k2[6],
+            y[7] + half * k2[7],
+        )
+        k4 = f(
+            s + h,
+            y[0] + h * k3[0],
+            y[1] + h * k3[1],
+            y[2] + h * k3[2],
+            y[3] + h * k3[3],
+            y[6] + h * k3[6],
+            y[7] + h * k3[7],
+        )
+        sixth = h / 6.0
+        return (
+            y[0] + sixth * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]),
+            y[1] + sixth * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]),
+            y[2] + sixth * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]),
+            y[3] + sixth * (k1[3] + 2.0 * (k2[3] + k3[3]) + k4[3]),
+            y[4] + sixth * (k1[4] + 2.0 * (k2[4] + k3[4]) + k4[4]),
+            y[5] + sixth * (k1[5] + 2.0 * (k2[5] + k3[5]) + k4[5]),
+            y[6] + sixth * (k1[6] + 2.0 * (k2[6] + k3[6]) + k4[6]),
+            y[7] + sixth * (k1[7] + 2.0 * (k2[7] + k3[7]) + k4[7]),
+        )
+
+    def event_values(self, y: _RigidVector) -> tuple[float, float, float, float, float]:
+        return dynamics.rigid_stance_event_values(
+            self.params, self.body, y[0], math.cos(y[1]), y[2], y[3], y[6]
+        )
+
+    def locate(
+        self, s: float, y: _RigidVector, length: float, index: int, g_start: float, g_end: float
+    ) -> float:
+        """Time sigma into the piece [s, s + length] where event ``index`` happens (:func:`_locate_event`)."""
+
+        def value_and_rate(sigma: float) -> tuple[float, float]:
+            y_sigma = self.rk4(s, y, sigma)
+            value = self.event_values(y_sigma)[index]
+            if value == 0.0:
+                return value, 0.0
+            r, theta, rdot, thetadot, pitch, pitch_rate = (y_sigma[i] for i in (0, 1, 2, 3, 6, 7))
+            rates = self.derivative(s + sigma, r, theta, rdot, thetadot, pitch, pitch_rate)
+            rate = dynamics.rigid_stance_event_rates(
+                self.params,
+                r,
+                math.sin(theta),
+                math.cos(theta),
+                rdot,
+                thetadot,
+                rates[2],
+                rates[3],
+                pitch,
+                pitch_rate,
+            )[index]
+            return value, rate
+
+        return _locate_event(value_and_rate, length, g_start, g_end)
+
+
+def _locate_event(
+    value_and_rate: Callable[[float], tuple[float, float]], length: float, g_start: float, g_end: float
+) -> float:
+    """Time sigma into a piece of the given length where an event value, g_start > 0 at its start and
+    g_end <= 0 at its end, crosses zero: safeguarded Newton on (value, rate) = value_and_rate(sigma), the
+    value after an RK4 step of length sigma and its time derivative (the rate need not be given where the
+    value is 0), started by regula falsi and falling back to bisection when a step leaves the bracket."""
+    low, high = 0.0, length
+    sigma = g_start * length / (g_start - g_end)
+    for _ in range(_MAX_ROOT_ITERATIONS):
+        value, rate = value_and_rate(sigma)
+        if value == 0.0:
+            break
+        if value > 0.0:
+            low = sigma
+        else:
+            high = sigma
+        newton_step = value / rate if rate != 0.0 else math.inf
+        if abs(newton_step) <= _EVENT_TIME_TOLERANCE:
+            break
+        newton = sigma - newton_step
+        sigma = newton if low < newton < high else 0.5 * (low + high)
+    return sigma
+
+
+def check_body(params: HopperParams, apex: ApexState, perturbations: Perturbations | None) -> None:
+    """ParameterError for a start the stepper does not run: a pitch on the fixed body; for a rigid body, an
+    apex pitched past its tip_limit and what it does not run for one yet, naming it: uneven terrain (a rigid
+    body runs on flat ground at height 0, as on the exact map) and apex noise (its sensor reads no pitch).
+    Saturation, pushes and placement errors run."""
+    body = params.body
+    if body is None:
+        if apex.pitch != 0.0 or apex.pitch_rate != 0.0:
+            raise ParameterError(
+                f"the apex has a pitch ({apex.pitch!r} rad, {apex.pitch_rate!r} rad/s), but the hopper's "
+                f"body is fixed: give HopperParams a RigidBody"
+            )
+        return
+    if abs(apex.pitch) >= body.tip_limit:
+        raise ParameterError(
+            f"the apex pitch {apex.pitch!r} rad is past the body's tip_limit {body.tip_limit!r}"
+        )
+    if perturbations is None:
+        return
+    if not perturbations.terrain.is_flat:
+        raise ParameterError(
+            f"the 1 kHz stepper runs a rigid body on flat ground at height 0 for now, not on the "
+            f"{perturbations.terrain.kind} terrain"
+        )
+    if perturbations.sensing.active:
+        raise ParameterError(
+            "the 1 kHz stepper has no sensor for a rigid body's apex yet (it would read no pitch): apex "
+            "noise is refused"
+        )
+
+
 def fastest_rate(limits: PlausibilityLimits) -> float:
     """The fastest rate [1/s] of a TD-SLIP motion within ``limits``: the leg's fastest mode
     omega0 (zeta0 + sqrt(zeta0^2 - 1)) (omega0 when underdamped), or the swing rate about the toe at the
-    highest speed the limits allow, sqrt(2 max_energy / m) / r0, whichever is larger."""
+    highest speed the limits allow, sqrt(2 max_energy / m) / r0, whichever is larger.
+
+    A rigid body moves the leg's mode to the hip's smallest effective mass m_h = 1 / (1/m + |d|^2 / J) along
+    the leg (d the hip's offset, J the inertia), the hip's swing by the spin, and adds the spin
+    sqrt(2 max_energy / J) of the whole energy bound put into the rotation."""
     params = limits.params
     zeta0 = params.zeta0
     leg = params.omega0 * (zeta0 + math.sqrt(max(zeta0 * zeta0 - 1.0, 0.0)))
     swing = math.sqrt(2.0 * limits.max_energy / params.m) / params.r0
-    return max(leg, swing)
+    body = params.body
+    if body is None:
+        return max(leg, swing)
+    reach = math.hypot(body.hip_x, body.hip_y)
+    hip_mass = 1.0 / (1.0 / params.m + reach * reach / body.inertia)
+    zeta = params.c / (2.0 * math.sqrt(hip_mass * params.k))
+    leg = math.sqrt(params.k / hip_mass) * (zeta + math.sqrt(max(zeta * zeta - 1.0, 0.0)))
+    spin = math.sqrt(2.0 * limits.max_energy / body.inertia)
+    return max(leg, swing + spin * reach / params.r0, spin)
