@@ -208,12 +208,7 @@ def apex_return_map(
         )
 
     y0 = np.array([params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0])
-    segments: _RampSegments | _SampledSegments
-    if isinstance(command, StanceCommand):
-        segments = _RampSegments(command, saturation, t_limit)
-    else:
-        limit = torque_limit(saturation, limits.max_torque)
-        segments = _SampledSegments(command, apex_time + t_td, limit, saturation, y0)
+    segments = _stance_segments(command, saturation, limits, t_limit, apex_time + t_td, y0)
     touchdown_state = stance_state(0.0, y0, segments.torque_at_touchdown)
     reversal = dynamics.touchdown_reversal(thetadot_td)
     if reversal is not None:
@@ -345,6 +340,22 @@ class _SampledSegments:
             self._hold.sample(tuple(float(v) for v in y))
         held = self._hold.held
         return self._hold.next_sample(), lambda _: held
+
+
+def _stance_segments(
+    command: StanceCommand | StanceFeedback,
+    saturation: float | None,
+    limits: PlausibilityLimits,
+    t_limit: float,
+    t_touchdown: float,
+    y0: np.ndarray,
+) -> _RampSegments | _SampledSegments:
+    """The stance's torque segments: the ramp's, or a law's sampled from the touchdown at t_touchdown [s, the
+    sample clock] in the state y0."""
+    if isinstance(command, StanceCommand):
+        return _RampSegments(command, saturation, t_limit)
+    limit = torque_limit(saturation, limits.max_torque)
+    return _SampledSegments(command, t_touchdown, limit, saturation, y0)
 
 
 def _integrate_stance(
@@ -510,11 +521,7 @@ def _rigid_body_stride(
         )
 
     y0 = np.array([params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0, pitch_td, pitch_rate])
-    if isinstance(command, StanceCommand):
-        segments = _RampSegments(command, saturation, t_limit)
-    else:
-        limit = torque_limit(saturation, limits.max_torque)
-        segments = _SampledSegments(command, apex_time + t_td, limit, saturation, y0)
+    segments = _stance_segments(command, saturation, limits, t_limit, apex_time + t_td, y0)
     touchdown_state = stance_state(0.0, y0, segments.torque_at_touchdown)
     reversal = dynamics.touchdown_reversal(thetadot_td)
     if reversal is not None:
