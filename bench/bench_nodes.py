@@ -165,6 +165,7 @@ def bench_realtime(arguments: argparse.Namespace, scratch: Path) -> None:
     )
     print(f"    while the tick waited for a CPU {timing.missed_waiting:>6d}")
     print(f"    woken late by the kernel {timing.missed_woken_late:>12d}   (asleep past its deadline)")
+    print(f"    interrupted or catching up {timing.missed_interrupted:>10d}   (at work, not its own)")
     print(f"    unexplained (ours)          {timing.missed_unexplained:>8d}   target 0")
     print(
         f"  counted as before Dec 2026 {timing.missed_by_half_period:>8d} "

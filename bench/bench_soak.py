@@ -781,6 +781,7 @@ def summarise(
             "hypervisor steal": missed.stolen,
             "waiting for a CPU": missed.waiting,
             "woken late": missed.woken_late,
+            "interrupted or catching up": missed.interrupted,
             "unexplained": missed.unexplained,
         },
         "slopes": slopes,
@@ -835,7 +836,8 @@ def print_summary(figures: dict[str, Any]) -> None:
         print(
             f"\nmissed ticks {missed['missed']} of {missed['ticks']}: hypervisor steal "
             f"{missed['hypervisor steal']}, waiting for a CPU {missed['waiting for a CPU']}, woken late "
-            f"{missed['woken late']}, unexplained {missed['unexplained']} "
+            f"{missed['woken late']}, interrupted or catching up {missed['interrupted or catching up']}, "
+            f"unexplained {missed['unexplained']} "
             f"(target 0: {verdict(missed['unexplained'] == 0)})"
         )
     print(

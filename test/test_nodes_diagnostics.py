@@ -106,8 +106,11 @@ def test_the_realtime_plants_missed_ticks_on_diagnostics_are_those_of_its_closin
         timing.missed_stolen,
         timing.missed_waiting,
     ]
-    assert [int(values[f"missed: {why}"]) for why in ("woken late", "unexplained")] == [
+    assert [
+        int(values[f"missed: {why}"]) for why in ("woken late", "interrupted or catching up", "unexplained")
+    ] == [
         timing.missed_woken_late,
+        timing.missed_interrupted,
         timing.missed_unexplained,
     ]
     assert float(values["hypervisor steal [s]"]) == pytest.approx(timing.stolen_ns * 1e-9, abs=1e-5)

@@ -145,6 +145,23 @@ def test_a_ticker_that_says_when_it_was_idle_tells_its_own_lateness_from_a_late_
     assert "1 woken late by the kernel" in timing.summary()
 
 
+def test_work_past_the_deadline_that_did_not_run_on_the_cpu_is_the_machines() -> None:
+    """The ticker's process was at work 1.2 ms past the deadline before: with 0.9 ms of it on the CPU that is
+    ours; with 0.1 ms on the CPU and no wait for one, the CPU was taken from the thread below the guest's
+    scheduler (interrupts, the hypervisor): interrupted, the machine's. Without the CPU time: ours."""
+    clocks = ScriptedClocks()
+    timing = TickTiming(PERIOD, clocks)
+    timing.record(0, 1, 0, 0)
+    for firing, cpu in enumerate((900_000, 100_000, None, 499_999), start=1):
+        deadline = 3 * firing * PERIOD
+        timing.record(deadline + 1_200_000, 2, deadline, busy_ns=1_200_000, busy_cpu_ns=cpu)
+    timing.close_window()
+    assert timing.missed == 4
+    assert (timing.missed_unexplained, timing.missed_interrupted) == (2, 2)
+    assert "2 interrupted or catching up, 2 unexplained" in timing.summary()
+    assert timing.counts().interrupted == 2
+
+
 def test_the_proc_clocks_see_this_thread_wait_for_a_cpu_that_others_take() -> None:
     clocks = ProcCpuClocks()
     steal_before, wait_before = clocks.stolen(), clocks.waited()

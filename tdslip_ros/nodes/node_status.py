@@ -117,6 +117,7 @@ class PlantReport:
                 "missed: hypervisor steal": missed.stolen,
                 "missed: waiting for a CPU": missed.waiting,
                 "missed: woken late": missed.woken_late,
+                "missed: interrupted or catching up": missed.interrupted,
                 "missed: unexplained": missed.unexplained,
                 "hypervisor steal [s]": missed.stolen_ns * 1e-9,
             }

@@ -320,10 +320,10 @@ class PlantRun:
                 return True
         return False
 
-    def advance_to(self, now_ns: int, busy_ns: int | None = None) -> None:
+    def advance_to(self, now_ns: int, busy_ns: int | None = None, busy_cpu_ns: int | None = None) -> None:
         """Realtime: step up to the latest tick due by ``now_ns`` of the steady clock (a late call catches up;
         none is stepped before its time, so simulated time never leads wall time), the caller at its own work
-        for ``busy_ns`` past the deadline before (for :class:`TickTiming`)."""
+        for ``busy_ns`` past the deadline before, on a CPU for ``busy_cpu_ns`` of it (:class:`TickTiming`)."""
         deadline_ns = self.next_deadline_ns
         due = self._offset_ticks + (now_ns - self.start_wall_ns) // TICK_NS
         first = self.ticks
@@ -332,7 +332,7 @@ class PlantRun:
             self._tick_or_fail()
         self._firing = False
         assert self.tick_timing is not None
-        self.tick_timing.record(now_ns, self.ticks - first, deadline_ns, busy_ns)
+        self.tick_timing.record(now_ns, self.ticks - first, deadline_ns, busy_ns, busy_cpu_ns)
         if first < self.ticks and not self.running:  # it ended in this firing
             self._end_timing()
 

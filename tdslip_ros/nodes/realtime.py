@@ -83,6 +83,7 @@ class MissedTicks:
     woken_late: int = 0
     unexplained: int = 0
     stolen_ns: int = 0
+    interrupted: int = 0
 
 
 class TickTiming:
@@ -102,8 +103,13 @@ class TickTiming:
       WINDOW_FIRINGS firings (steal is counted in clock ticks of 10 ms: finer windows would not see more);
     - ``missed_waiting``: the tick thread waited for a CPU (other work on this machine) so long since the
       firing before that it would have come within the period without that wait;
+    - ``missed_interrupted``: else, the tick's own process was still at work more than half a period after
+      the firing's deadline, but less than half a period of that work was its own on the CPU (the ticker
+      says so, ``busy_cpu_ns``) and it did not wait for a CPU: the CPU was taken from it below the guest's
+      scheduler (interrupts, or the hypervisor in slices shorter than the steal clock's 10 ms ticks), or it
+      was catching up ticks already missed, which were counted with their own cause;
     - ``missed_unexplained``: else, the tick's own process was still at work more than half a period after
-      the firing's deadline (the firing before, the messages it took, the garbage collector): ours;
+      the deadline, on the CPU (the firing before, the messages it took, the garbage collector): ours;
     - ``missed_woken_late``: else, the thread slept in the kernel past its deadline without waiting for a
       CPU: the kernel's timer, or the hypervisor's, woke it late (only with ``busy_ns``, which says that the
       process was idle; without, these count as unexplained).
@@ -125,6 +131,7 @@ class TickTiming:
         self._window_firings = 0
         self._window_waiting = 0  # missed in the window, in time but for a wait for a CPU
         self._window_woken_late = 0  # missed in the window, the thread woken late by the kernel
+        self._window_interrupted = 0  # missed in the window, the thread's work past the deadline off the CPU
         self._window_ours = 0  # missed in the window, otherwise
         self.firings = 0
         self.ticks = 0
@@ -133,6 +140,7 @@ class TickTiming:
         self.missed_stolen = 0
         self.missed_waiting = 0
         self.missed_woken_late = 0
+        self.missed_interrupted = 0
         self.missed_unexplained = 0
         self.stolen_ns = 0
         """CPU time the hypervisor stole from the machine during the windows timed."""
@@ -151,11 +159,17 @@ class TickTiming:
         self._window_steal = None
 
     def record(
-        self, now_ns: int, ticks: int, deadline_ns: int | None = None, busy_ns: int | None = None
+        self,
+        now_ns: int,
+        ticks: int,
+        deadline_ns: int | None = None,
+        busy_ns: int | None = None,
+        busy_cpu_ns: int | None = None,
     ) -> None:
         """One firing at ``now_ns`` (steady clock) that computed ``ticks`` ticks (on the tick thread:
         the waits are that thread's); due at ``deadline_ns``, its process at its own work for ``busy_ns`` past
-        that deadline before it fired (0: idle at the deadline), if the ticker knows."""
+        that deadline before it fired (0: idle at the deadline), of which its thread ran on a CPU for its own
+        work (not catching up) for ``busy_cpu_ns`` (its CPU clock), if the ticker knows."""
         waited_total = self._cpu_clocks.waited()
         late = (ticks - 1) * self._period_ns
         if self._last_ns is not None:
@@ -175,6 +189,8 @@ class TickTiming:
             self.missed += ticks - 1
             if late - waited < self._period_ns:  # without the wait it would have come in time
                 self._window_waiting += ticks - 1
+            elif busy_ns is not None and busy_ns >= half and busy_cpu_ns is not None and busy_cpu_ns < half:
+                self._window_interrupted += ticks - 1
             elif busy_ns is not None and busy_ns >= half:
                 self._window_ours += ticks - 1
             elif busy_ns is not None:
@@ -190,13 +206,17 @@ class TickTiming:
         steal = self._cpu_clocks.stolen()
         if self._window_steal is not None and steal > self._window_steal:
             self.stolen_ns += steal - self._window_steal
-            self.missed_stolen += self._window_waiting + self._window_woken_late + self._window_ours
+            self.missed_stolen += (
+                self._window_waiting + self._window_woken_late + self._window_interrupted + self._window_ours
+            )
         else:
             self.missed_waiting += self._window_waiting
             self.missed_woken_late += self._window_woken_late
+            self.missed_interrupted += self._window_interrupted
             self.missed_unexplained += self._window_ours
         self._window_steal = steal
-        self._window_firings = self._window_waiting = self._window_woken_late = self._window_ours = 0
+        self._window_firings = self._window_waiting = self._window_woken_late = 0
+        self._window_interrupted = self._window_ours = 0
 
     def counts(self) -> MissedTicks:
         return MissedTicks(
@@ -207,6 +227,7 @@ class TickTiming:
             self.missed_woken_late,
             self.missed_unexplained,
             self.stolen_ns,
+            self.missed_interrupted,
         )
 
     def period_error(self, quantile: float) -> float:
@@ -226,7 +247,8 @@ class TickTiming:
             f"{self.ticks} ticks in {self.firings} firings, {self.missed} missed ({self.missed_stolen} "
             f"while the hypervisor stole {self.stolen_ns * 1e-9:.2f} s of CPU, {self.missed_waiting} while "
             f"the tick waited for a CPU, {self.missed_woken_late} woken late by the kernel, "
-            f"{self.missed_unexplained} unexplained); period error "
+            f"{self.missed_interrupted} interrupted or catching up, {self.missed_unexplained} unexplained); "
+            "period error "
             f"p50 {self.period_error(0.5) * 1e3:.3f} ms, p99 {self.period_error(0.99) * 1e3:.3f} ms"
         )
 

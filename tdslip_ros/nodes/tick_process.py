@@ -305,6 +305,8 @@ class _TickServer:
         self._run = run
         self._sink = sink
         self._busy_ns = 0  # the process's own work past the deadline of the coming firing
+        self._busy_cpu_ns = 0  # of which the thread ran on a CPU for its own work (its CPU clock)
+        self._firing_cpu_ns = 0  # the CPU time of the firing before, its own share
         self._paused_ns: int | None = None  # when the node paused the run (steady clock), while it is
 
     @property
@@ -319,9 +321,11 @@ class _TickServer:
             deadline = self._deadline
             now = time.monotonic_ns()  # idle from now on, unless a message comes first
             self._busy_ns = 0 if deadline is None else max(0, now - deadline)  # the firing before ended late
+            self._busy_cpu_ns = min(self._busy_ns, self._firing_cpu_ns)
+            self._firing_cpu_ns = 0
             timeout = None if deadline is None else max(0.0, (deadline - now) * 1e-9)
             if select.select([inbox], [], [], timeout)[0]:
-                woke = time.monotonic_ns()
+                woke, woke_cpu = time.monotonic_ns(), time.thread_time_ns()
                 data = os.read(inbox, 1 << 16)
                 if not data:
                     return
@@ -332,16 +336,22 @@ class _TickServer:
                 if (
                     deadline is not None
                 ):  # handling them past the deadline was ours, waking past it the kernel's
-                    self._busy_ns += max(0, time.monotonic_ns() - max(woke, deadline))
+                    handled = max(0, time.monotonic_ns() - max(woke, deadline))
+                    self._busy_ns += handled
+                    self._busy_cpu_ns += min(handled, time.thread_time_ns() - woke_cpu)
             deadline = self._deadline
             if deadline is not None and time.monotonic_ns() >= deadline:
                 self._fire()
 
     def _fire(self) -> None:
-        now = time.monotonic_ns()
+        now, cpu = time.monotonic_ns(), time.thread_time_ns()
         run = self._run
-        run.advance_to(now, self._busy_ns)
+        first = run.ticks
+        run.advance_to(now, self._busy_ns, self._busy_cpu_ns)
         self._sink.flush(unless_routine=True)
+        # The work of catching up ticks already missed is the consequence of what made them late, and is
+        # counted with them: the firing's own share is one tick's.
+        self._firing_cpu_ns = (time.thread_time_ns() - cpu) // max(1, run.ticks - first)
 
     def _handle(self, kind: str, *args: Any) -> None:
         run = self._run
