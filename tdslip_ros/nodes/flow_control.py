@@ -21,9 +21,10 @@ from tdslip_msgs.msg import RecorderStatus
 
 from tdslip_ros.nodes.topics import STREAM_DEPTH
 
-FLOW_WINDOW = STREAM_DEPTH // 2
+FLOW_WINDOW = 500
 """Messages per topic a lockstep plant (or a replay) may run ahead of the recorder it waits for: well
-inside the publishers' history, so the recorder never misses one."""
+inside the publishers' history (STREAM_DEPTH), so the recorder never misses one."""
+assert FLOW_WINDOW < STREAM_DEPTH
 
 
 @dataclass

@@ -49,11 +49,11 @@ from tdslip_ros.bag.schema import split_type_name
 from tdslip_ros.interfaces import RECORDER_STATUS
 from tdslip_ros.nodes.entry import SPIN_SLICE, spin_until
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
-from tdslip_ros.nodes.topics import RECORDER_STATUS_QOS
+from tdslip_ros.nodes.topics import RECORDER_STATUS_QOS, STREAM_DEPTH
 
 ACK_TIMEOUT = 10.0  # s for reliable subscribers to acknowledge the last messages
-UNKNOWN_HISTORY_DEPTH = 1000
-"""Depth of a replayed topic whose recorded history is unknown: the plant's own (1 s at 1 kHz)."""
+UNKNOWN_HISTORY_DEPTH = STREAM_DEPTH
+"""Depth of a replayed topic whose recorded history is unknown: the plant's own."""
 MAX_REPLAY_DURATION = 365 * 24 * 3600.0
 """s, the longest replay accepted (recording span / rate)."""
 _NS_PER_S = 1_000_000_000

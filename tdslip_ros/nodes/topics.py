@@ -72,8 +72,10 @@ from tdslip_ros.interfaces import (  # noqa: F401
 
 FRAME_ID = "world"
 
-STREAM_DEPTH = 1000
-"""Samples a plant publisher keeps for a lagging subscriber: 1 s of the 1 kHz state in realtime."""
+STREAM_DEPTH = 10_000
+"""Samples a plant publisher keeps for a lagging subscriber: 10 s of the 1 kHz state in realtime, so that a
+recorder starved of CPU that long loses nothing (at 1 s, a realtime run whose recorder was stopped for 5 s
+lost a seventh of its 1 kHz stance torques: test_nodes_run.py). A few MB per publisher at most."""
 STREAM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=STREAM_DEPTH,
