@@ -14,6 +14,7 @@ from tdslip_ros.model.events import Event, EventKind, FailureKind, Phase
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
+from tdslip_ros.model.plant.stance_models import unrolled_rk4
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 
 PARAMS = PAPER_PARAMS
@@ -247,3 +248,29 @@ def test_bad_stepper_settings_are_refused_by_name() -> None:
         FixedStepStepper(PARAMS, ApexState(1.2, 4.0), StanceCommand(BETA, 0.0, 0.1), dt=0.0)
     with pytest.raises(ParameterError, match="substeps"):
         FixedStepStepper(PARAMS, ApexState(1.2, 4.0), StanceCommand(BETA, 0.0, 0.1), substeps=0)
+
+
+@pytest.mark.parametrize(("size", "fed"), [(6, (0, 1, 2, 3)), (8, (0, 1, 2, 3, 6, 7))])
+def test_the_written_out_rk4_is_classical_rk4(size: int, fed: tuple[int, ...]) -> None:
+    """stance_models writes RK4 out term by term from one template (the point mass's six values and the
+    rigid body's eight): it is the loop of classical RK4, bit for bit, the values not fed integrated only."""
+
+    def field(s: float, *values: float) -> tuple[float, ...]:
+        mixed = math.sin(s) + sum(math.cos(v * (i + 1)) for i, v in enumerate(values))
+        return tuple(mixed * (i + 1) - 0.3 * values[i % len(values)] for i in range(size))
+
+    def loop_rk4(s: float, y: tuple[float, ...], h: float) -> tuple[float, ...]:
+        def at(t: float, k: tuple[float, ...], step: float) -> tuple[float, ...]:
+            return field(t, *[y[i] + step * k[i] for i in fed])
+
+        half = 0.5 * h
+        k1 = field(s, *[y[i] for i in fed])
+        k2 = at(s + half, k1, half)
+        k3 = at(s + half, k2, half)
+        k4 = at(s + h, k3, h)
+        return tuple(y[i] + h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]) for i in range(size))
+
+    step = unrolled_rk4(size, fed)(field)
+    for s, h in ((0.0, 2.5e-4), (0.37, 1e-3), (1.2, 3e-7)):
+        y = tuple(0.1 * i - 0.25 + s for i in range(size))
+        assert step(s, y, h) == loop_rk4(s, y, h)

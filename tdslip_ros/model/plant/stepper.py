@@ -7,7 +7,8 @@ there) and at the no_liftoff bound. A stance event (bottom, liftoff, reversal, f
 is located on the sub-step itself: the RK4 step from the piece start is re-taken with length
 sigma, and sigma is solved for a zero of the event function by safeguarded Newton iteration, to
 ~1e-14 s (2-3 iterations). The phase switches at the event and the tick is finished from there;
-events are never rounded to the tick.
+events are never rounded to the tick. This module is the tick loop; what a stance integrates (the RK4 step,
+the events, the state), per kind of body, is a model of :mod:`.stance_models`.
 
 Why 4 sub-steps per 1 ms tick: RK4's error scales with (omega0 h)^4. Against a DOP853 solve at
 rtol 1e-13 over 20 strides (kbar = 36, zeta0 = 0.08, energy-regulated, test_plant_stepper.py), the
@@ -68,6 +69,7 @@ from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
 from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
 from tdslip_ros.model.plant.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
+from tdslip_ros.model.plant.stance_models import PointMassStance, RigidBodyStance, StanceModel, StanceVector
 from tdslip_ros.model.plant.terrain import Terrain, touchdown
 
 DEFAULT_SUBSTEPS = 4
@@ -75,15 +77,7 @@ MAX_RATE_STEP = 0.5
 """Largest sub-step times the motion's fastest rate (see :func:`fastest_rate`) the stepper accepts: well
 inside RK4's stability limit (2.8), where its local error is still ~1e-4 per sub-step. The paper's
 hopper at 1 kHz with 4 sub-steps is at 0.012."""
-_EVENT_TIME_TOLERANCE = 1e-14  # s, Newton's tolerance on the event time inside a sub-step
-_MAX_ROOT_ITERATIONS = 100
 _GRID_SLACK = 1e-6  # fraction of a sub-step below which the stepper does not stop short of a grid point
-
-_StanceVector = tuple[float, float, float, float, float, float]
-"""(r, theta, rdot, thetadot, hip work, damper loss) in stance."""
-_RigidVector = tuple[float, float, float, float, float, float, float, float]
-"""A rigid body's stance state: the fixed body's six values, then (phi, phidot)
-(:func:`.dynamics.rigid_stance_derivatives`)."""
 
 
 class _Landing(NamedTuple):
@@ -156,11 +150,11 @@ class FixedStepStepper:
         self._phase = Phase.FLIGHT
         # Flight: ballistic from the reference state (t, x, y, xdot, ydot), the last liftoff or apex.
         self._descending = True
-        # Stance: toe position, touchdown time, time since touchdown and the stance vector.
+        # Stance: toe position, touchdown time, time since touchdown and the stance vector (its model's).
         self._toe_x = 0.0
         self._t_touchdown = 0.0
         self._s = 0.0
-        self._stance: _StanceVector = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self._stance: StanceVector = ()
         self._stance_tau0, self._stance_t_f, self._stance_saturation_end = 0.0, math.inf, math.inf
         # Stance feedback: the hold of the current (or last) stance under a law, and the streamed torque.
         self._hold: HeldTorque | None = None
@@ -185,14 +179,17 @@ class FixedStepStepper:
         self._saturated_strides = 0
         self._pending_failure: tuple[HopperState, FailureKind, str] | None = None
         self._flight_ref = (0.0, x0, self._ground + apex.y, apex.xdot, 0.0)
-        # A rigid body (None: the fixed body): its (pitch, pitch rate) at the flight reference's time, its
-        # stance state and integrator, and the touchdown time planned for a flight: (apex time, angle, time
-        # from the apex, None when the toe stubs).
+        # A rigid body (None: the fixed body): its (pitch, pitch rate) at the flight reference's time (0 for
+        # the fixed body), and the touchdown time planned for a flight: (apex time, angle, time from the apex,
+        # None when the toe stubs).
         self._body = params.body
         self._pitch_ref = (apex.pitch, apex.pitch_rate)
-        self._rigid: _RigidVector = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        self._rigid_stance = None if self._body is None else _RigidStance(params, self._body, self._torque)
         self._rigid_landing: tuple[float, float, float | None] | None = None
+        self._stance_model: StanceModel = (
+            PointMassStance(params, self._torque, self._height)
+            if self._body is None
+            else RigidBodyStance(params, self._body, self._torque)
+        )
         self._begin_stride(0.0)
 
     @property
@@ -287,8 +284,6 @@ class FixedStepStepper:
         if self._failure_state is not None:
             return self._failure_state
         if self._phase is Phase.STANCE:
-            if self._body is not None:
-                return self._rigid_stance_state(self._s, self._rigid)
             return self._stance_state(self._s, self._stance)
         return self._flight_state(self.t)
 
@@ -372,7 +367,7 @@ class FixedStepStepper:
                 return events
         hold = self._hold
         if self._phase is Phase.STANCE and hold is not None and self._s == hold.next_sample():
-            hold.sample(self._stance if self._body is None else self._rigid, self._streamed)
+            hold.sample(self._stance, self._streamed)
         t = t_start
         while t < t_end and self._failed is None:
             if self._phase is Phase.FLIGHT:
@@ -476,34 +471,38 @@ class FixedStepStepper:
         return dynamics.toe_below_ground(y_apex, ground + y_td, toe_x, ground)
 
     def _advance_flight(self, t: float, t_end: float, events: list[Event]) -> float:
-        """Advance in flight from t to t_end or to touchdown; return where it stopped."""
-        if self._body is not None:
-            return self._advance_rigid_flight(self._body, t, t_end, events)
-        params = self._params
+        """Advance in flight from t to t_end, to touchdown or to a rigid body's tipping; return where it
+        stopped.
+
+        A rigid body's flight is the exact map's (``_rigid_body_stride``): the centre of mass ballistic and
+        the pitch turning at its constant rate; the body tips where :func:`.dynamics.pitch_limit_time` says,
+        if that comes before the apex (after a liftoff) or before the touchdown (after an apex)."""
+        params, body = self._params, self._body
         if not self._descending:
-            t_ref, x, y, xdot, ydot = self._flight_ref
+            t_ref, _, _, _, ydot = self._flight_ref
             t_apex = t_ref + ydot / params.g
+            if body is not None:
+                t_tip = self._tip_time(body)
+                if t_tip <= t_apex:
+                    return self._tip_in_flight(body, t_tip, t_end, "in the flight after liftoff", events)
             if t_apex > t_end:
                 return t_end
+            pitch, pitch_rate = self._pitch_ref
+            self._pitch_ref = (pitch + pitch_rate * (t_apex - t_ref), pitch_rate)  # before the apex's state
             if self._reach_apex(t_apex, events):
                 return t_apex
             t = t_apex
         t_apex, x_apex, y_apex, xdot, _ = self._flight_ref
-        angle = self.placed_angle
-        sin_td, cos_td = math.sin(angle), math.cos(angle)
-        if self._terrain is None:
-            y_td = dynamics.touchdown_height(params, cos_td)
-            if y_apex < y_td:
-                return t_end  # toe stubbing, declared at the next tick unless the command changes
-            fall = dynamics.fall_time(y_apex, 0.0, y_td, params.g)
-        else:
-            landing = self._current_landing()
-            if landing.stubbed:
-                return t_end
-            fall = landing.t
-        t_touchdown = max(t, t_apex + fall)
+        fall = self._fall_time()
+        t_touchdown = math.inf if fall is None else max(t, t_apex + fall)
+        if body is not None:
+            t_tip = self._tip_time(body)
+            # With a stubbed toe too (no touchdown): a tip in this tick comes before the next tick declares
+            # the stubbing.
+            if t_tip <= t_touchdown:
+                return self._tip_in_flight(body, t_tip, t_end, "in the flight before touchdown", events)
         if t_touchdown > t_end:
-            return t_end
+            return t_end  # a stubbed toe is declared at the next tick, unless the command changes
         command = self._command
         beyond_limits = (
             None if isinstance(command, StanceFeedback) else self._limits.torque_failure(command.tau0)
@@ -511,23 +510,40 @@ class FixedStepStepper:
         if beyond_limits is not None:
             self._fail(events, self._flight_state(t_touchdown), *beyond_limits)
             return t_touchdown
-        x_td, _, _, ydot_td = dynamics.ballistic(x_apex, y_apex, xdot, 0.0, t_touchdown - t_apex, params.g)
-        rdot_td, thetadot_td = dynamics.polar_velocity(params.r0, sin_td, cos_td, xdot, ydot_td)
+        fall = t_touchdown - t_apex
+        x_td, _, _, ydot_td = dynamics.ballistic(x_apex, y_apex, xdot, 0.0, fall, params.g)
+        pitch_apex, pitch_rate = self._pitch_ref
+        angle = self.placed_angle
+        offset_x, stance = self._stance_model.touchdown(
+            angle, xdot, ydot_td, pitch_apex + pitch_rate * fall, pitch_rate
+        )
         self._phase = Phase.STANCE
         if self._terrain is None:
-            self._toe_x, self._toe_y = x_td + params.r0 * sin_td, 0.0
+            self._toe_x, self._toe_y = x_td + offset_x + params.r0 * math.sin(angle), 0.0
         else:
             self._toe_x, self._toe_y = self._current_landing().toe_x, self._current_landing().toe_y
         self._t_touchdown = t_touchdown
         self._s = 0.0
-        self._stance = (params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0)
-        self._begin_stance_torque(command, t_touchdown, self._stance)
-        touchdown_state = self._stance_state(0.0, self._stance)
+        self._stance = stance
+        self._begin_stance_torque(command, t_touchdown, stance)
+        touchdown_state = self._stance_state(0.0, stance)
         events.append(Event(EventKind.TOUCHDOWN, t_touchdown, self._stride, touchdown_state))
-        reversal = dynamics.touchdown_reversal(thetadot_td)
+        reversal = dynamics.touchdown_reversal(stance[3])
         if reversal is not None:
             self._fail(events, touchdown_state, *reversal)
         return t_touchdown
+
+    def _fall_time(self) -> float | None:
+        """Time [s] from this (descending) flight's apex to the touchdown of the leg placed now; None when its
+        toe stubs (:meth:`_stubbing`)."""
+        if self._body is not None:
+            return self._rigid_landing_time(self._body)
+        if self._terrain is not None:
+            landing = self._current_landing()
+            return None if landing.stubbed else landing.t
+        y_apex = self._flight_ref[2]
+        y_td = dynamics.touchdown_height(self._params, math.cos(self.placed_angle))
+        return None if y_apex < y_td else dynamics.fall_time(y_apex, 0.0, y_td, self._params.g)
 
     def _reach_apex(self, t_apex: float, events: list[Event]) -> bool:
         """The rising flight reaches its apex at t_apex: the apex becomes the flight's reference, a stride
@@ -569,66 +585,6 @@ class FixedStepStepper:
                 self._saturated_strides += abs(self._stance_tau0) > self._tau_max
 
     # --- the rigid body's flight ---------------------------------------------------------------
-
-    def _advance_rigid_flight(self, body: RigidBody, t: float, t_end: float, events: list[Event]) -> float:
-        """:meth:`_advance_flight` for a rigid body, the exact map's flight (``_rigid_body_stride``): the
-        centre of mass ballistic and the pitch turning at its constant rate; the body tips where
-        :func:`.dynamics.pitch_limit_time` says, if that comes before the apex (after a liftoff) or before
-        the touchdown at :func:`.dynamics.rigid_touchdown_time` (after an apex)."""
-        params = self._params
-        if not self._descending:
-            t_ref, _, _, _, ydot = self._flight_ref
-            t_apex = t_ref + ydot / params.g
-            t_tip = self._tip_time(body)
-            if t_tip <= t_apex:
-                return self._tip_in_flight(body, t_tip, t_end, "in the flight after liftoff", events)
-            if t_apex > t_end:
-                return t_end
-            pitch, pitch_rate = self._pitch_ref
-            self._pitch_ref = (pitch + pitch_rate * (t_apex - t_ref), pitch_rate)  # before the apex's state
-            if self._reach_apex(t_apex, events):
-                return t_apex
-            t = t_apex
-        t_apex, x_apex, y_apex, xdot, _ = self._flight_ref
-        landing = self._rigid_landing_time(body)
-        t_touchdown = math.inf if landing is None else max(t, t_apex + landing)
-        t_tip = self._tip_time(body)
-        # With a stubbed toe too (no touchdown): a tip in this tick comes before the next tick declares it.
-        if t_tip <= t_touchdown:
-            return self._tip_in_flight(body, t_tip, t_end, "in the flight before touchdown", events)
-        if t_touchdown > t_end:
-            return t_end
-        command = self._command
-        beyond_limits = (
-            None if isinstance(command, StanceFeedback) else self._limits.torque_failure(command.tau0)
-        )
-        if beyond_limits is not None:
-            self._fail(events, self._flight_state(t_touchdown), *beyond_limits)
-            return t_touchdown
-        angle = self.placed_angle
-        sin_td, cos_td = math.sin(angle), math.cos(angle)
-        fall = t_touchdown - t_apex
-        x_td, _, _, ydot_td = dynamics.ballistic(x_apex, y_apex, xdot, 0.0, fall, params.g)
-        pitch_apex, pitch_rate = self._pitch_ref
-        pitch = pitch_apex + pitch_rate * fall
-        sin_p, cos_p = math.sin(pitch), math.cos(pitch)
-        offset_x = dynamics.hip_offset(body, sin_p, cos_p)[0]
-        relative_vx, relative_vy = dynamics.pitch_velocity_offset(body, sin_p, cos_p, pitch_rate)
-        rdot_td, thetadot_td = dynamics.polar_velocity(
-            params.r0, sin_td, cos_td, xdot + relative_vx, ydot_td + relative_vy
-        )
-        self._phase = Phase.STANCE
-        self._toe_x, self._toe_y = x_td + offset_x + params.r0 * sin_td, 0.0
-        self._t_touchdown = t_touchdown
-        self._s = 0.0
-        self._rigid = (params.r0, angle, rdot_td, thetadot_td, 0.0, 0.0, pitch, pitch_rate)
-        self._begin_stance_torque(command, t_touchdown, self._rigid)
-        touchdown_state = self._rigid_stance_state(0.0, self._rigid)
-        events.append(Event(EventKind.TOUCHDOWN, t_touchdown, self._stride, touchdown_state))
-        reversal = dynamics.touchdown_reversal(thetadot_td)
-        if reversal is not None:
-            self._fail(events, touchdown_state, *reversal)
-        return t_touchdown
 
     def _tip_time(self, body: RigidBody) -> float:
         """When the body's pitch, turning at its constant rate in this flight, reaches the tip_limit [s]."""
@@ -708,54 +664,14 @@ class FixedStepStepper:
             return dynamics.ramp_torque(self._stance_tau0, self._stance_t_f, s)
         return float(dynamics.hip_torque(self._stance_tau0, self._stance_t_f, s, self._tau_max))
 
-    def _stance_state(self, s: float, y: _StanceVector) -> HopperState:
-        return dynamics.stance_hopper_state(
-            self._params,
-            self._t_touchdown + s,
-            self._stride,
-            self._toe_x,
-            y[0],
-            y[1],
-            y[2],
-            y[3],
-            self._torque(s),
-            self._toe_y,
-            self._height,
+    def _stance_state(self, s: float, y: StanceVector) -> HopperState:
+        return self._stance_model.state(
+            self._t_touchdown + s, self._stride, self._toe_x, self._toe_y, y, self._torque(s)
         )
-
-    def _derivative(self, s: float, r: float, theta: float, rdot: float, thetadot: float) -> _StanceVector:
-        params = self._params
-        tau = self._torque(s)
-        rddot, thetaddot = dynamics.stance_accelerations(
-            params, r, math.sin(theta), math.cos(theta), rdot, thetadot, tau
-        )
-        hip_power, damper_power = dynamics.stance_powers(params, rdot, thetadot, tau)
-        return rdot, thetadot, rddot, thetaddot, hip_power, damper_power
-
-    def _rk4(self, s: float, y: _StanceVector, h: float) -> _StanceVector:
-        f = self._derivative
-        k1 = f(s, y[0], y[1], y[2], y[3])
-        half = 0.5 * h
-        k2 = f(s + half, y[0] + half * k1[0], y[1] + half * k1[1], y[2] + half * k1[2], y[3] + half * k1[3])
-        k3 = f(s + half, y[0] + half * k2[0], y[1] + half * k2[1], y[2] + half * k2[2], y[3] + half * k2[3])
-        k4 = f(s + h, y[0] + h * k3[0], y[1] + h * k3[1], y[2] + h * k3[2], y[3] + h * k3[3])
-        sixth = h / 6.0
-        return (
-            y[0] + sixth * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]),
-            y[1] + sixth * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]),
-            y[2] + sixth * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]),
-            y[3] + sixth * (k1[3] + 2.0 * (k2[3] + k3[3]) + k4[3]),
-            y[4] + sixth * (k1[4] + 2.0 * (k2[4] + k3[4]) + k4[4]),
-            y[5] + sixth * (k1[5] + 2.0 * (k2[5] + k3[5]) + k4[5]),
-        )
-
-    def _event_values(self, y: _StanceVector) -> tuple[float, float, float, float]:
-        return dynamics.stance_event_values(self._params, y[0], math.cos(y[1]), y[2], y[3])
 
     def _advance_stance(self, t_tick: float, t_end: float, events: list[Event]) -> float:
         """Integrate the stance to t_end or to liftoff/failure; return where it stopped."""
-        if self._rigid_stance is not None:
-            return self._advance_rigid_stance(self._rigid_stance, t_tick, t_end, events)
+        model = self._stance_model
         h_grid = self._dt / self._substeps
         t_touchdown = self._t_touchdown
         s_end_of_tick = t_end - t_touchdown
@@ -770,8 +686,8 @@ class FixedStepStepper:
             if s < self._stance_t_f < s_next:
                 s_next = self._stance_t_f
             s_next = min(s_next, self._stance_limit)
-            y_next = self._rk4(s, y, s_next - s)
-            if self._handle_stance_events(s, y, s_next, y_next, events):
+            y_next = model.rk4(s, y, s_next - s)
+            if self._handle_stance_events(model, s, y, s_next, y_next, events):
                 return t_touchdown + self._s
             self._s, self._stance = s_next, y_next
             if s_next >= self._stance_limit:
@@ -782,18 +698,24 @@ class FixedStepStepper:
         return t_end
 
     def _handle_stance_events(
-        self, s: float, y: _StanceVector, s_next: float, y_next: _StanceVector, events: list[Event]
+        self,
+        model: StanceModel,
+        s: float,
+        y: StanceVector,
+        s_next: float,
+        y_next: StanceVector,
+        events: list[Event],
     ) -> bool:
         """Emit the stance events of the piece [s, s_next]; True when one of them ended the stance."""
-        before, after = self._event_values(y), self._event_values(y_next)
+        before, after = model.event_values(y), model.event_values(y_next)
         crossed = [i for i in range(len(before)) if before[i] > 0.0 and after[i] <= 0.0]
         if not crossed:
             return False
-        located = sorted((self._locate(s, y, s_next - s, i, before[i], after[i]), i) for i in crossed)
+        located = sorted((model.locate(s, y, s_next - s, i, before[i], after[i]), i) for i in crossed)
         for sigma, index in located:
-            name = dynamics.STANCE_EVENT_NAMES[index]
+            name = model.event_names[index]
             s_event = s + sigma
-            y_event = self._rk4(s, y, sigma)
+            y_event = model.rk4(s, y, sigma)
             state = self._stance_state(s_event, y_event)
             if name == "bottom":
                 events.append(Event(EventKind.BOTTOM, state.t, self._stride, state))
@@ -802,137 +724,13 @@ class FixedStepStepper:
             if name == "liftoff":
                 self._lift_off(state, y_event, events)
             else:
-                self._fail(events, state, *dynamics.stance_failure(name, s_event))
+                self._fail(events, state, *model.failure(name, s_event, state))
             return True
         return False
 
-    def _locate(
-        self, s: float, y: _StanceVector, length: float, index: int, g_start: float, g_end: float
-    ) -> float:
-        """Time sigma into the piece where event ``index`` happens (:func:`_locate_event`)."""
-
-        def value_and_rate(sigma: float) -> tuple[float, float]:
-            y_sigma = self._rk4(s, y, sigma)
-            value = self._event_values(y_sigma)[index]
-            if value == 0.0:
-                return value, 0.0
-            r, theta, rdot, thetadot = y_sigma[0], y_sigma[1], y_sigma[2], y_sigma[3]
-            _, _, rddot, thetaddot, _, _ = self._derivative(s + sigma, r, theta, rdot, thetadot)
-            rate = dynamics.stance_event_rates(
-                self._params, r, math.sin(theta), math.cos(theta), rdot, thetadot, rddot, thetaddot
-            )[index]
-            return value, rate
-
-        return _locate_event(value_and_rate, length, g_start, g_end)
-
-    def _lift_off(self, liftoff: HopperState, y: _StanceVector, events: list[Event]) -> None:
-        events.append(Event(EventKind.LIFTOFF, liftoff.t, self._stride, liftoff))
-        self._pending_energy = StrideEnergy(
-            hip_work=y[4], damping_loss=y[5], spring_loss=dynamics.spring_energy(self._params, y[0])
-        )
-        self._phase = Phase.FLIGHT
-        self._streamed = 0.0  # a stance's streamed torque ends with it
-        self._flight_ref = (liftoff.t, liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot)
-        self._descending = False
-        self._ground = self._toe_y
-        failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
-        if failure is None:
-            # The coming apex, computed as _advance_flight will reach it.
-            t_rise = (liftoff.t + liftoff.ydot / self._params.g) - liftoff.t
-            _, y_apex, _, _ = dynamics.ballistic(
-                liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, self._params.g
-            )
-            failure = self._limits.apex_failure(y_apex - self._ground, liftoff.xdot)
-        if failure is not None:
-            self._fail(events, liftoff, *failure)
-
-    # --- the rigid body's stance ---------------------------------------------------------------
-
-    def _rigid_stance_state(self, s: float, y: _RigidVector) -> HopperState:
-        assert self._body is not None
-        return dynamics.rigid_stance_hopper_state(
-            self._params,
-            self._body,
-            self._t_touchdown + s,
-            self._stride,
-            self._toe_x,
-            y[0],
-            y[1],
-            y[2],
-            y[3],
-            y[6],
-            y[7],
-            self._torque(s),
-        )
-
-    def _advance_rigid_stance(
-        self, rigid: _RigidStance, t_tick: float, t_end: float, events: list[Event]
-    ) -> float:
-        """:meth:`_advance_stance` for a rigid body: the same grid of sub-steps and kinks, its RK4 on eight
-        values."""
-        h_grid = self._dt / self._substeps
-        t_touchdown = self._t_touchdown
-        s_end_of_tick = t_end - t_touchdown
-        while self._s < s_end_of_tick:
-            s, y = self._s, self._rigid
-            index = math.floor((t_touchdown + s - t_tick) / h_grid + _GRID_SLACK) + 1
-            s_next = s_end_of_tick if index >= self._substeps else t_tick + index * h_grid - t_touchdown
-            if s < self._stance_saturation_end < s_next:
-                s_next = self._stance_saturation_end
-            if s < self._stance_t_f < s_next:
-                s_next = self._stance_t_f
-            s_next = min(s_next, self._stance_limit)
-            y_next = rigid.rk4(s, y, s_next - s)
-            if self._handle_rigid_stance_events(rigid, s, y, s_next, y_next, events):
-                return t_touchdown + self._s
-            self._s, self._rigid = s_next, y_next
-            if s_next >= self._stance_limit:
-                self._fail(
-                    events, self._rigid_stance_state(s_next, y_next), *dynamics.no_liftoff(self._stance_limit)
-                )
-                return t_touchdown + s_next
-        return t_end
-
-    def _handle_rigid_stance_events(
-        self,
-        rigid: _RigidStance,
-        s: float,
-        y: _RigidVector,
-        s_next: float,
-        y_next: _RigidVector,
-        events: list[Event],
-    ) -> bool:
-        """:meth:`_handle_stance_events` for a rigid body, whose events add ``tipped``."""
-        before, after = rigid.event_values(y), rigid.event_values(y_next)
-        crossed = [i for i in range(len(before)) if before[i] > 0.0 and after[i] <= 0.0]
-        if not crossed:
-            return False
-        located = sorted((rigid.locate(s, y, s_next - s, i, before[i], after[i]), i) for i in crossed)
-        for sigma, index in located:
-            name = dynamics.RIGID_STANCE_EVENT_NAMES[index]
-            s_event = s + sigma
-            y_event = rigid.rk4(s, y, sigma)
-            state = self._rigid_stance_state(s_event, y_event)
-            if name == "bottom":
-                events.append(Event(EventKind.BOTTOM, state.t, self._stride, state))
-                continue
-            self._s, self._rigid = s_event, y_event
-            if name == "liftoff":
-                self._rigid_lift_off(rigid.body, state, y_event, events)
-            elif name == "tipped":
-                when = f"{s_event:.6g} s into stance"
-                self._fail(events, state, *dynamics.tipped(state.pitch, rigid.body.tip_limit, when))
-            else:
-                self._fail(events, state, *dynamics.stance_failure(name, s_event))
-            return True
-        return False
-
-    def _rigid_lift_off(
-        self, body: RigidBody, liftoff: HopperState, y: _RigidVector, events: list[Event]
-    ) -> None:
-        """:meth:`_lift_off` for a rigid body, in the exact map's order: no apex ahead, then the body tipping
-        before the apex (the flight ends there, :meth:`_advance_rigid_flight`), then an apex beyond the
-        limits."""
+    def _lift_off(self, liftoff: HopperState, y: StanceVector, events: list[Event]) -> None:
+        """The flight from liftoff, in the exact map's order: no apex ahead; a rigid body tipping before the
+        apex (the flight ends there, :meth:`_advance_flight`); an apex beyond the limits."""
         events.append(Event(EventKind.LIFTOFF, liftoff.t, self._stride, liftoff))
         self._pending_energy = StrideEnergy(
             hip_work=y[4], damping_loss=y[5], spring_loss=dynamics.spring_energy(self._params, y[0])
@@ -945,8 +743,8 @@ class FixedStepStepper:
         self._ground = self._toe_y
         failure = dynamics.takeoff_failure(liftoff.xdot, liftoff.ydot)
         if failure is None:
-            t_apex = liftoff.t + liftoff.ydot / self._params.g  # as _advance_rigid_flight reaches it
-            if self._tip_time(body) <= t_apex:
+            t_apex = liftoff.t + liftoff.ydot / self._params.g  # as _advance_flight reaches it
+            if self._body is not None and self._tip_time(self._body) <= t_apex:
                 return
             _, y_apex, _, _ = dynamics.ballistic(
                 liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_apex - liftoff.t, self._params.g
@@ -959,135 +757,6 @@ class FixedStepStepper:
         self._failed = kind
         self._failure_state = state
         events.append(Event(EventKind.FAILURE, state.t, self._stride, state, kind, reason))
-
-
-class _RigidStance:
-    """A rigid body's stance on the stepper's grid: classical RK4 of
-    :func:`.dynamics.rigid_stance_derivatives` (the one source of its physics) under the stepper's hip torque
-    ``torque(s)``, and its events (:func:`.dynamics.rigid_stance_event_values`) located on the re-taken step
-    as the fixed body's are."""
-
-    def __init__(self, params: HopperParams, body: RigidBody, torque: Callable[[float], float]) -> None:
-        self.params, self.body, self._torque = params, body, torque
-
-    def derivative(
-        self, s: float, r: float, theta: float, rdot: float, thetadot: float, pitch: float, pitch_rate: float
-    ) -> _RigidVector:
-        return dynamics.rigid_stance_derivatives(
-            self.params,
-            self.body,
-            r,
-            math.sin(theta),
-            math.cos(theta),
-            rdot,
-            thetadot,
-            math.sin(pitch),
-            math.cos(pitch),
-            pitch_rate,
-            self._torque(s),
-        )
-
-    def rk4(self, s: float, y: _RigidVector, h: float) -> _RigidVector:
-        """One RK4 step of length h from (s, y); hip work and damper loss (y[4], y[5]) feed nothing back."""
-        f = self.derivative
-        k1 = f(s, y[0], y[1], y[2], y[3], y[6], y[7])
-        half = 0.5 * h
-        k2 = f(
-            s + half,
-            y[0] + half * k1[0],
-            y[1] + half * k1[1],
-            y[2] + half * k1[2],
-            y[3] + half * k1[3],
-            y[6] + half * k1[6],
-            y[7] + half * k1[7],
-        )
-        k3 = f(
-            s + half,
-            y[0] + half * k2[0],
-            y[1] + half * k2[1],
-            y[2] + half * k2[2],
-            y[3] + half * k2[3],
-            y[6] + half * k2[6],
-            y[7] + half * k2[7],
-        )
-        k4 = f(
-            s + h,
-            y[0] + h * k3[0],
-            y[1] + h * k3[1],
-            y[2] + h * k3[2],
-            y[3] + h * k3[3],
-            y[6] + h * k3[6],
-            y[7] + h * k3[7],
-        )
-        sixth = h / 6.0
-        return (
-            y[0] + sixth * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]),
-            y[1] + sixth * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]),
-            y[2] + sixth * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]),
-            y[3] + sixth * (k1[3] + 2.0 * (k2[3] + k3[3]) + k4[3]),
-            y[4] + sixth * (k1[4] + 2.0 * (k2[4] + k3[4]) + k4[4]),
-            y[5] + sixth * (k1[5] + 2.0 * (k2[5] + k3[5]) + k4[5]),
-            y[6] + sixth * (k1[6] + 2.0 * (k2[6] + k3[6]) + k4[6]),
-            y[7] + sixth * (k1[7] + 2.0 * (k2[7] + k3[7]) + k4[7]),
-        )
-
-    def event_values(self, y: _RigidVector) -> tuple[float, float, float, float, float]:
-        return dynamics.rigid_stance_event_values(
-            self.params, self.body, y[0], math.cos(y[1]), y[2], y[3], y[6]
-        )
-
-    def locate(
-        self, s: float, y: _RigidVector, length: float, index: int, g_start: float, g_end: float
-    ) -> float:
-        """Time sigma into the piece [s, s + length] where event ``index`` happens (:func:`_locate_event`)."""
-
-        def value_and_rate(sigma: float) -> tuple[float, float]:
-            y_sigma = self.rk4(s, y, sigma)
-            value = self.event_values(y_sigma)[index]
-            if value == 0.0:
-                return value, 0.0
-            r, theta, rdot, thetadot, pitch, pitch_rate = (y_sigma[i] for i in (0, 1, 2, 3, 6, 7))
-            rates = self.derivative(s + sigma, r, theta, rdot, thetadot, pitch, pitch_rate)
-            rate = dynamics.rigid_stance_event_rates(
-                self.params,
-                r,
-                math.sin(theta),
-                math.cos(theta),
-                rdot,
-                thetadot,
-                rates[2],
-                rates[3],
-                pitch,
-                pitch_rate,
-            )[index]
-            return value, rate
-
-        return _locate_event(value_and_rate, length, g_start, g_end)
-
-
-def _locate_event(
-    value_and_rate: Callable[[float], tuple[float, float]], length: float, g_start: float, g_end: float
-) -> float:
-    """Time sigma into a piece of the given length where an event value, g_start > 0 at its start and
-    g_end <= 0 at its end, crosses zero: safeguarded Newton on (value, rate) = value_and_rate(sigma), the
-    value after an RK4 step of length sigma and its time derivative (the rate need not be given where the
-    value is 0), started by regula falsi and falling back to bisection when a step leaves the bracket."""
-    low, high = 0.0, length
-    sigma = g_start * length / (g_start - g_end)
-    for _ in range(_MAX_ROOT_ITERATIONS):
-        value, rate = value_and_rate(sigma)
-        if value == 0.0:
-            break
-        if value > 0.0:
-            low = sigma
-        else:
-            high = sigma
-        newton_step = value / rate if rate != 0.0 else math.inf
-        if abs(newton_step) <= _EVENT_TIME_TOLERANCE:
-            break
-        newton = sigma - newton_step
-        sigma = newton if low < newton < high else 0.5 * (low + high)
-    return sigma
 
 
 def check_body(params: HopperParams, apex: ApexState, perturbations: Perturbations | None) -> None:
