@@ -282,7 +282,7 @@ def flight_energy(params: HopperParams, y: Real, xdot: Real, ydot: Real) -> Real
 
 
 def ground_reaction_force(
-    params: HopperParams, r: Real, sin_t: Real, cos_t: Real, rdot: Real, tau: Real
+    params: Hopper, r: Real, sin_t: Real, cos_t: Real, rdot: Real, tau: Real
 ) -> tuple[Real, Real]:
     """Force (F_x, F_y) [N] the ground exerts on the body through the leg in stance.
 
@@ -474,9 +474,7 @@ def rigid_stance_accelerations(
     phiddot follows from the moment of F about the centre of mass and the motor's -tau; the hip's acceleration
     is the centre of mass's, (F/m - g y^), plus the rotation's phiddot z^ x o - phidot^2 o (o = R(phi) d);
     rddot and thetaddot are its polar components, as in eq. 2."""
-    f_leg = leg_force(params, r, rdot)
-    f_normal = tau / r
-    force_x, force_y = -f_leg * sin_t - f_normal * cos_t, f_leg * cos_t - f_normal * sin_t
+    force_x, force_y = ground_reaction_force(params, r, sin_t, cos_t, rdot, tau)
     offset_x, offset_y = hip_offset(body, sin_p, cos_p)
     pitchddot = (offset_x * force_y - offset_y * force_x - tau) / body.inertia
     spin = pitch_rate * pitch_rate
