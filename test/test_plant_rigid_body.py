@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics
 from tdslip_ros.model.events import FailureKind
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
 from tdslip_ros.model.plant.exact_map import apex_return_map
@@ -118,7 +118,9 @@ def test_in_flight_the_centre_of_mass_is_ballistic_and_the_spin_constant():
     )
     assert (touchdown.pitch, touchdown.pitch_rate) == pytest.approx((0.02 + 0.3 * t, 0.3), abs=1e-12)
     # The hip's toe touches the ground at touchdown: the hip at r0 cos(theta_td) above it.
-    hip_y = touchdown.y + dynamics.hip_offset(body, math.sin(touchdown.pitch), math.cos(touchdown.pitch))[1]
+    hip_y = (
+        touchdown.y + body_dynamics.hip_offset(body, math.sin(touchdown.pitch), math.cos(touchdown.pitch))[1]
+    )
     assert hip_y == pytest.approx(params.r0 * math.cos(COMMAND.touchdown_angle), abs=1e-12)
     rise = result.apex_time - liftoff.t
     assert liftoff.ydot - params.g * rise == pytest.approx(0.0, abs=1e-12)
@@ -138,7 +140,7 @@ def test_the_equations_are_mirror_symmetric():
         body, mirrored = RigidBody(5.0, hip_x, hip_y), RigidBody(5.0, -hip_x, hip_y)
 
         def accelerations(body, theta, thetadot, pitch, rate, tau, r=r, rdot=rdot):
-            return dynamics.rigid_stance_accelerations(
+            return body_dynamics.rigid_stance_accelerations(
                 PAPER_HOPPER, body, r, math.sin(theta), math.cos(theta), rdot, thetadot, math.sin(pitch),
                 math.cos(pitch), rate, tau,
             )  # fmt: skip
@@ -164,7 +166,7 @@ def test_the_touchdown_of_a_spinning_body_is_the_first_one():
     params = with_body(body)
     cos_td = math.cos(math.radians(20.0))
     for pitch_rate in (-6.0, -1.0, 2.0, 9.0):
-        t = dynamics.rigid_touchdown_time(params, body, 1.2, 0.1, pitch_rate, cos_td)
+        t = body_dynamics.rigid_touchdown_time(params, body, 1.2, 0.1, pitch_rate, cos_td)
         times = np.linspace(0.0, 1.0, 2_000_001)
         phi = 0.1 + pitch_rate * times
         gap = 1.2 - 0.5 * params.g * times**2 + 0.25 * np.sin(phi) - 0.1 * np.cos(phi) - params.r0 * cos_td

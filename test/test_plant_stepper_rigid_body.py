@@ -18,7 +18,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
@@ -56,7 +56,7 @@ def hip_regulator(params: HopperParams) -> Policy:
     assert body is not None
 
     def command(apex: ApexState) -> StanceCommand:
-        hip_y = apex.y + dynamics.hip_offset(body, math.sin(apex.pitch), math.cos(apex.pitch))[1]
+        hip_y = apex.y + body_dynamics.hip_offset(body, math.sin(apex.pitch), math.cos(apex.pitch))[1]
         energy = params.m * (params.g * hip_y + 0.5 * apex.xdot**2)
         tau0 = -600.0 + 3.0 * (energy - TARGET_ENERGY) + 1000.0 * apex.pitch + 100.0 * apex.pitch_rate
         return StanceCommand(BETA, tau0, 0.15)

@@ -35,7 +35,7 @@ from matplotlib.figure import Figure
 
 from tdslip_ros.analysis.figures.ground_reaction import BETA_DEG as GRF_BETA_DEG
 from tdslip_ros.analysis.figures.ground_reaction import fig12_hopper, regulated_gait, sample_stance
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics, dynamics
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody
 from tdslip_ros.model.plant.stance_laws import StanceFeedback, StanceLaw, StanceSample
@@ -99,7 +99,7 @@ def gait_guess(params: HopperParams, hip_apex: ApexState = MAP_HIP_APEX) -> Apex
         lean = balance_lean(params, level, ramp)
     except ParameterError:
         return None
-    hip_y = dynamics.hip_offset(body, math.sin(lean), math.cos(lean))[1]
+    hip_y = body_dynamics.hip_offset(body, math.sin(lean), math.cos(lean))[1]
     return ApexState(hip_apex.y - hip_y, hip_apex.xdot, lean, 0.0)
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics, dynamics
 from tdslip_ros.model.events import FailureKind, HopperState, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits, check_tolerances
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
@@ -283,7 +283,7 @@ class _StanceEvent:
         r, theta, rdot, thetadot = float(y[0]), float(y[1]), float(y[2]), float(y[3])
         if self.index == len(dynamics.STANCE_EVENT_NAMES):  # "tipped": only a rigid body's state has a pitch
             assert self.params.body is not None
-            return dynamics.tip_margin(self.params.body, float(y[6]))
+            return body_dynamics.tip_margin(self.params.body, float(y[6]))
         return dynamics.stance_event_values(self.params, r, math.cos(theta), rdot, thetadot)[self.index]
 
 
@@ -379,7 +379,7 @@ def _integrate_stance(
                 )
             pitch, pitch_rate = float(y[6]), float(y[7])
             return np.array(
-                dynamics.rigid_stance_derivatives(
+                body_dynamics.rigid_stance_derivatives(
                     params,
                     body,
                     r,
@@ -396,7 +396,7 @@ def _integrate_stance(
 
         return field
 
-    names = dynamics.STANCE_EVENT_NAMES if body is None else dynamics.RIGID_STANCE_EVENT_NAMES
+    names = dynamics.STANCE_EVENT_NAMES if body is None else body_dynamics.RIGID_STANCE_EVENT_NAMES
     events = [_StanceEvent(params, index, terminal=name != "bottom") for index, name in enumerate(names)]
     bottom: tuple[float, np.ndarray, float] | None = None
     s_start, y = 0.0, y0
@@ -433,7 +433,7 @@ def _rigid_body_stride(
 ) -> StrideResult:
     """:func:`apex_return_map` for a rigid body: the centre of mass is ballistic in flight and the pitch turns
     at its constant rate; the stance adds (phi, phidot) to the fixed body's state
-    (:func:`.dynamics.rigid_stance_derivatives`)."""
+    (:func:`.body_dynamics.rigid_stance_derivatives`)."""
     if isinstance(command, StanceFeedback) and isinstance(command.law, TorqueStream):
         raise ParameterError("the exact map cannot run a torque stream: replay it with RecordedTorques")
     if not conditions.terrain.is_flat or conditions.ground not in (None, 0.0):
@@ -454,7 +454,7 @@ def _rigid_body_stride(
     def flight_state(t: float) -> HopperState:
         x_t, y_t, _, ydot_t = dynamics.ballistic(x, apex.y, xdot, 0.0, t, g)
         pitch = pitch0 + pitch_rate * t
-        return dynamics.rigid_flight_hopper_state(
+        return body_dynamics.rigid_flight_hopper_state(
             params, body, t, 0, x_t, y_t, xdot, ydot_t, pitch, pitch_rate, angle
         )
 
@@ -490,16 +490,18 @@ def _rigid_body_stride(
         pushed_out = limits.push_failure(apex.y, apex.xdot, conditions.push)
         if pushed_out is not None:
             return failed(pushed_out, flight_state(0.0))
-    t_td = dynamics.rigid_touchdown_time(params, body, apex.y, pitch0, pitch_rate, cos_td)
+    t_td = body_dynamics.rigid_touchdown_time(params, body, apex.y, pitch0, pitch_rate, cos_td)
     if t_td is None:
-        hip_y = apex.y + dynamics.hip_offset(body, math.sin(pitch0), math.cos(pitch0))[1]
+        hip_y = apex.y + body_dynamics.hip_offset(body, math.sin(pitch0), math.cos(pitch0))[1]
         stubbing = dynamics.toe_stubbing(hip_y, dynamics.touchdown_height(params, cos_td))
         assert stubbing is not None
         return failed(stubbing, flight_state(0.0))
-    t_tip = dynamics.pitch_limit_time(body, pitch0, pitch_rate)
+    t_tip = body_dynamics.pitch_limit_time(body, pitch0, pitch_rate)
     if t_tip <= t_td:
         state = flight_state(t_tip)
-        return failed(dynamics.tipped(state.pitch, body.tip_limit, "in the flight before touchdown"), state)
+        return failed(
+            body_dynamics.tipped(state.pitch, body.tip_limit, "in the flight before touchdown"), state
+        )
     if isinstance(command, StanceCommand):
         beyond_limits = limits.torque_failure(command.tau0)
         if beyond_limits is not None:
@@ -507,8 +509,8 @@ def _rigid_body_stride(
     x_td, _, _, ydot_td = dynamics.ballistic(x, apex.y, xdot, 0.0, t_td, g)
     pitch_td = pitch0 + pitch_rate * t_td
     sin_p, cos_p = math.sin(pitch_td), math.cos(pitch_td)
-    offset_x = dynamics.hip_offset(body, sin_p, cos_p)[0]
-    relative_vx, relative_vy = dynamics.pitch_velocity_offset(body, sin_p, cos_p, pitch_rate)
+    offset_x = body_dynamics.hip_offset(body, sin_p, cos_p)[0]
+    relative_vx, relative_vy = body_dynamics.pitch_velocity_offset(body, sin_p, cos_p, pitch_rate)
     toe_x = x_td + offset_x + params.r0 * sin_td
     rdot_td, thetadot_td = dynamics.polar_velocity(
         params.r0, sin_td, cos_td, xdot + relative_vx, ydot_td + relative_vy
@@ -516,7 +518,7 @@ def _rigid_body_stride(
 
     def stance_state(s: float, y: np.ndarray, tau: float) -> HopperState:
         r, theta, rdot, thetadot, pitch, rate = (float(y[index]) for index in (0, 1, 2, 3, 6, 7))
-        return dynamics.rigid_stance_hopper_state(
+        return body_dynamics.rigid_stance_hopper_state(
             params, body, t_td + s, 0, toe_x, r, theta, rdot, thetadot, pitch, rate, float(tau)
         )
 
@@ -537,7 +539,7 @@ def _rigid_body_stride(
     if outcome.terminal == "tipped":
         when = f"{outcome.s_end:.6g} s into stance"
         return failed(
-            dynamics.tipped(end_state.pitch, body.tip_limit, when), end_state, touchdown_state, bottom
+            body_dynamics.tipped(end_state.pitch, body.tip_limit, when), end_state, touchdown_state, bottom
         )
     if outcome.terminal != "liftoff":
         return failed(
@@ -553,10 +555,10 @@ def _rigid_body_stride(
     if failure is not None:
         return failed(failure, liftoff, touchdown_state, bottom, liftoff, energy)
     t_rise = liftoff.ydot / g
-    t_tip = dynamics.pitch_limit_time(body, liftoff.pitch, liftoff.pitch_rate)
+    t_tip = body_dynamics.pitch_limit_time(body, liftoff.pitch, liftoff.pitch_rate)
     if t_tip <= t_rise:
         x_t, y_t, _, ydot_t = dynamics.ballistic(liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_tip, g)
-        state = dynamics.rigid_flight_hopper_state(
+        state = body_dynamics.rigid_flight_hopper_state(
             params,
             body,
             liftoff.t + t_tip,
@@ -569,7 +571,7 @@ def _rigid_body_stride(
             liftoff.pitch_rate,
             angle,
         )
-        tip = dynamics.tipped(state.pitch, body.tip_limit, "in the flight after liftoff")
+        tip = body_dynamics.tipped(state.pitch, body.tip_limit, "in the flight after liftoff")
         return failed(tip, state, touchdown_state, bottom, liftoff, energy)
     apex_x, y_next, _, _ = dynamics.ballistic(liftoff.x, liftoff.y, liftoff.xdot, liftoff.ydot, t_rise, g)
     failure = limits.apex_failure(y_next, liftoff.xdot)

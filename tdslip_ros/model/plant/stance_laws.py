@@ -53,7 +53,8 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model.dynamics import RIGID_STANCE_STATE_SIZE, FloatArray
+from tdslip_ros.model.body_dynamics import RIGID_STANCE_STATE_SIZE
+from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.params import ParameterError
 
 DEFAULT_SAMPLE_PERIOD = 1e-3
@@ -217,7 +218,7 @@ class HeldTorque:
     def sample(self, y: tuple[float, ...], streamed: float = 0.0) -> float:
         """Sample at the next sample instant, the stance state there being y (r, theta, rdot, thetadot, ...):
         the law's torque (``streamed`` for a TorqueStream), clipped, is held from now on; returned. A rigid
-        body's state holds its pitch and rate at y[6], y[7] (:func:`.dynamics.rigid_stance_derivatives`)."""
+        body's state holds its pitch and rate at y[6], y[7] (:func:`~.rigid_stance_derivatives`)."""
         t, s = self._index * self._period, self.next_sample()
         if isinstance(self._law, TorqueStream):
             tau = streamed

@@ -13,13 +13,13 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics, dynamics
 from tdslip_ros.model.events import FailureKind, HopperState
 from tdslip_ros.model.params import HopperParams, RigidBody
 
 StanceVector = tuple[float, ...]
 """(r, theta, rdot, thetadot, hip work, damper loss) in stance; a rigid body's adds (phi, phidot)
-(:func:`.dynamics.rigid_stance_derivatives`)."""
+(:func:`.body_dynamics.rigid_stance_derivatives`)."""
 Torque = Callable[[float], float]
 """The hip torque [N m] at time s [s] since touchdown (the stepper's ramp or held sample)."""
 Step = Callable[[float, StanceVector, float], StanceVector]
@@ -66,7 +66,7 @@ def unrolled_rk4(size: int, fed: tuple[int, ...]) -> Callable[[Callable[..., Sta
 
 
 _POINT_MASS_RK4 = unrolled_rk4(6, (0, 1, 2, 3))
-_RIGID_BODY_RK4 = unrolled_rk4(dynamics.RIGID_STANCE_STATE_SIZE, (0, 1, 2, 3, 6, 7))
+_RIGID_BODY_RK4 = unrolled_rk4(body_dynamics.RIGID_STANCE_STATE_SIZE, (0, 1, 2, 3, 6, 7))
 
 
 class StanceModel(ABC):
@@ -185,10 +185,10 @@ class PointMassStance(StanceModel):
 
 
 class RigidBodyStance(StanceModel):
-    """A rigid body's stance on flat ground: :func:`.dynamics.rigid_stance_derivatives`, its events
-    (:data:`.dynamics.RIGID_STANCE_EVENT_NAMES`, the fixed body's and ``tipped``) and its state."""
+    """A rigid body's stance on flat ground: :func:`.body_dynamics.rigid_stance_derivatives`, its events
+    (:data:`.body_dynamics.RIGID_STANCE_EVENT_NAMES`, the fixed body's and ``tipped``) and its state."""
 
-    event_names = dynamics.RIGID_STANCE_EVENT_NAMES
+    event_names = body_dynamics.RIGID_STANCE_EVENT_NAMES
 
     def __init__(self, params: HopperParams, body: RigidBody, torque: Torque) -> None:
         super().__init__(params, torque)
@@ -198,7 +198,7 @@ class RigidBodyStance(StanceModel):
     def derivative(
         self, s: float, r: float, theta: float, rdot: float, thetadot: float, pitch: float, pitch_rate: float
     ) -> StanceVector:
-        return dynamics.rigid_stance_derivatives(
+        return body_dynamics.rigid_stance_derivatives(
             self.params,
             self.body,
             r,
@@ -213,14 +213,14 @@ class RigidBodyStance(StanceModel):
         )
 
     def event_values(self, y: StanceVector) -> tuple[float, ...]:
-        return dynamics.rigid_stance_event_values(
+        return body_dynamics.rigid_stance_event_values(
             self.params, self.body, y[0], math.cos(y[1]), y[2], y[3], y[6]
         )
 
     def event_rate(self, s: float, y: StanceVector, index: int) -> float:
         r, theta, rdot, thetadot, pitch, pitch_rate = y[0], y[1], y[2], y[3], y[6], y[7]
         rates = self.derivative(s, r, theta, rdot, thetadot, pitch, pitch_rate)
-        return dynamics.rigid_stance_event_rates(
+        return body_dynamics.rigid_stance_event_rates(
             self.params,
             r,
             math.sin(theta),
@@ -237,23 +237,23 @@ class RigidBodyStance(StanceModel):
         self, t: float, stride: int, toe_x: float, toe_y: float, y: StanceVector, tau: float
     ) -> HopperState:
         """The state on flat ground (the toe at height toe_y = 0)."""
-        return dynamics.rigid_stance_hopper_state(
+        return body_dynamics.rigid_stance_hopper_state(
             self.params, self.body, t, stride, toe_x, y[0], y[1], y[2], y[3], y[6], y[7], tau
         )
 
     def failure(self, name: str, s: float, state: HopperState) -> tuple[FailureKind, str]:
         if name == "tipped":
-            return dynamics.tipped(state.pitch, self.body.tip_limit, f"{s:.6g} s into stance")
+            return body_dynamics.tipped(state.pitch, self.body.tip_limit, f"{s:.6g} s into stance")
         return dynamics.stance_failure(name, s)
 
     def touchdown(
         self, angle: float, xdot: float, ydot: float, pitch: float, pitch_rate: float
     ) -> tuple[float, StanceVector]:
-        """The hip moves with the centre of mass and the turning body (:func:`.dynamics.hip_offset`)."""
+        """The hip moves with the centre of mass and the turning body (:func:`.body_dynamics.hip_offset`)."""
         r0, body = self.params.r0, self.body
         sin_p, cos_p = math.sin(pitch), math.cos(pitch)
-        offset_x = dynamics.hip_offset(body, sin_p, cos_p)[0]
-        relative_vx, relative_vy = dynamics.pitch_velocity_offset(body, sin_p, cos_p, pitch_rate)
+        offset_x = body_dynamics.hip_offset(body, sin_p, cos_p)[0]
+        relative_vx, relative_vy = body_dynamics.pitch_velocity_offset(body, sin_p, cos_p, pitch_rate)
         rdot, thetadot = dynamics.polar_velocity(
             r0, math.sin(angle), math.cos(angle), xdot + relative_vx, ydot + relative_vy
         )

@@ -43,11 +43,11 @@ when its toe would have met the ground before it arrived.
 
 A rigid body (``params.body``, docs/rotating_body.md) runs on flat ground with the exact map's behaviour
 (``exact_map._rigid_body_stride``). In flight the centre of mass is ballistic and the pitch turns at its
-constant rate; the leg touches down at :func:`.dynamics.rigid_touchdown_time` (planned once per flight and
-angle), and the body tips at :func:`.dynamics.pitch_limit_time` if that comes first (after a liftoff: before
+constant rate; the leg touches down at :func:`~.rigid_touchdown_time` (planned once per flight and
+angle), and the body tips at :func:`~.pitch_limit_time` if that comes first (after a liftoff: before
 the apex). The leg hangs from the hip, so toe stubbing and set_command's tests judge the hip. The stance
-takes the 8-value state of :func:`.dynamics.rigid_stance_derivatives` through the same RK4 on the same grid
-(a stance law sees its pitch and rate) and locates ``tipped`` (:func:`.dynamics.tip_margin`) as the other
+takes the 8-value state of :func:`~.rigid_stance_derivatives` through the same RK4 on the same grid
+(a stance law sees its pitch and rate) and locates ``tipped`` (:func:`~.tip_margin`) as the other
 events. Against the exact map over 24 ramp strides of 5 bodies (test_plant_stepper_rigid_body.py), 4
 sub-steps give apex states to 4e-11 (the pitch rate; 1 sub-step 1e-8, 2: 7e-10, 8: 3e-12), event times to
 4e-12 s and the stance's energy balance to 4e-12 of the apex energy. Saturation, pushes and placement
@@ -63,7 +63,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics, dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
@@ -384,7 +384,7 @@ class FixedStepStepper:
         x, y, xdot, ydot = dynamics.ballistic(x, y, xdot, ydot, t - t_ref, self._params.g)
         if self._body is not None:  # the centre of mass ballistic, the pitch turning at its constant rate
             pitch, pitch_rate = self._pitch_ref
-            return dynamics.rigid_flight_hopper_state(
+            return body_dynamics.rigid_flight_hopper_state(
                 self._params,
                 self._body,
                 t,
@@ -475,7 +475,7 @@ class FixedStepStepper:
         stopped.
 
         A rigid body's flight is the exact map's (``_rigid_body_stride``): the centre of mass ballistic and
-        the pitch turning at its constant rate; the body tips where :func:`.dynamics.pitch_limit_time` says,
+        the pitch turning at its constant rate; the body tips where :func:`~.pitch_limit_time` says,
         if that comes before the apex (after a liftoff) or before the touchdown (after an apex)."""
         params, body = self._params, self._body
         if not self._descending:
@@ -589,7 +589,7 @@ class FixedStepStepper:
     def _tip_time(self, body: RigidBody) -> float:
         """When the body's pitch, turning at its constant rate in this flight, reaches the tip_limit [s]."""
         pitch, pitch_rate = self._pitch_ref
-        return self._flight_ref[0] + dynamics.pitch_limit_time(body, pitch, pitch_rate)
+        return self._flight_ref[0] + body_dynamics.pitch_limit_time(body, pitch, pitch_rate)
 
     def _tip_in_flight(
         self, body: RigidBody, t_tip: float, t_end: float, when: str, events: list[Event]
@@ -598,19 +598,19 @@ class FixedStepStepper:
         if t_tip > t_end:
             return t_end
         state = self._flight_state(t_tip)
-        self._fail(events, state, *dynamics.tipped(state.pitch, body.tip_limit, when))
+        self._fail(events, state, *body_dynamics.tipped(state.pitch, body.tip_limit, when))
         return t_tip
 
     def _rigid_landing_time(self, body: RigidBody) -> float | None:
         """Time [s] from this (descending) flight's apex to the touchdown of the leg placed now, or None when
-        its toe is below the ground at the apex (:func:`.dynamics.rigid_touchdown_time`, once per flight and
+        its toe is below the ground at the apex (:func:`~.rigid_touchdown_time`, once per flight and
         angle)."""
         t_apex, _, y_apex, _, _ = self._flight_ref
         angle = self.placed_angle
         planned = self._rigid_landing
         if planned is None or planned[0] != t_apex or planned[1] != angle:
             pitch, pitch_rate = self._pitch_ref
-            landing = dynamics.rigid_touchdown_time(
+            landing = body_dynamics.rigid_touchdown_time(
                 self._params, body, y_apex, pitch, pitch_rate, math.cos(angle)
             )
             planned = self._rigid_landing = (t_apex, angle, landing)
@@ -622,7 +622,7 @@ class FixedStepStepper:
             return None
         y_apex = self._flight_ref[2]
         pitch = self._pitch_ref[0]
-        hip_y = y_apex + dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
+        hip_y = y_apex + body_dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
         y_td = dynamics.touchdown_height(self._params, math.cos(self.placed_angle))
         # rigid_touchdown_time found the hip below y_td at the apex; a rounding apart, so does this.
         return dynamics.toe_stubbing(min(hip_y, math.nextafter(y_td, -math.inf)), y_td)
@@ -630,14 +630,14 @@ class FixedStepStepper:
     def _check_rigid_placement(self, body: RigidBody, command: StanceCommand | StanceFeedback) -> None:
         """set_command's test for a rigid body: the leg must be placeable (:func:`.dynamics.can_place_leg`)
         from the hip's height at this flight's apex (the planners' view, :mod:`.policies.posture`), and in a
-        descending flight its touchdown (:func:`.dynamics.rigid_touchdown_time`) must not have passed."""
+        descending flight its touchdown (:func:`~.rigid_touchdown_time`) must not have passed."""
         params = self._params
         t_ref, _, y_ref, _, ydot_ref = self._flight_ref
         rise = ydot_ref / params.g  # 0 when descending: the reference is the apex
         pitch_ref, pitch_rate = self._pitch_ref
         pitch = pitch_ref + pitch_rate * rise
         y_apex = y_ref + ydot_ref**2 / (2.0 * params.g)
-        hip_apex = y_apex + dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
+        hip_apex = y_apex + body_dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
         cos_td = math.cos(command.touchdown_angle)
         if not dynamics.can_place_leg(params.r0, params.g, hip_apex, cos_td):
             raise ParameterError(
@@ -648,7 +648,9 @@ class FixedStepStepper:
             )
         if self._descending:
             angle = float(placed_angle(command.touchdown_angle, self._angle_error))
-            landing = dynamics.rigid_touchdown_time(params, body, y_ref, pitch, pitch_rate, math.cos(angle))
+            landing = body_dynamics.rigid_touchdown_time(
+                params, body, y_ref, pitch, pitch_rate, math.cos(angle)
+            )
             if landing is not None and t_ref + landing < self.t:
                 raise ParameterError(
                     f"touchdown_angle {command.touchdown_angle!r} rad puts the toe on the ground at "

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics, dynamics
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
 from tdslip_ros.model.plant.stance_laws import StanceFeedback, StanceSample, finite_field
 from tdslip_ros.model.policies.controllers import energy_regulation
@@ -51,7 +51,7 @@ def _rigid_body(params: HopperParams) -> RigidBody:
 
 def hip_height(body: RigidBody, apex: ApexState) -> float:
     """The hip's height [m] at the apex."""
-    return apex.y + dynamics.hip_offset(body, math.sin(apex.pitch), math.cos(apex.pitch))[1]
+    return apex.y + body_dynamics.hip_offset(body, math.sin(apex.pitch), math.cos(apex.pitch))[1]
 
 
 @dataclass(frozen=True)

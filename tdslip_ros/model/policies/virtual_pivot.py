@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics, dynamics
 from tdslip_ros.model.params import HopperParams, ParameterError
 from tdslip_ros.model.plant.stance_laws import StanceSample, finite_field
 
@@ -35,7 +35,7 @@ def pivot_torque(model: HopperParams, sample: StanceSample, above: float, forwar
         raise ParameterError("the virtual pivot point needs a hopper with a rigid body (HopperParams.body)")
     sin_t, cos_t = np.sin(sample.theta), np.cos(sample.theta)
     sin_p, cos_p = np.sin(sample.pitch), np.cos(sample.pitch)
-    hip_x, hip_y = dynamics.hip_offset(body, sin_p, cos_p)
+    hip_x, hip_y = body_dynamics.hip_offset(body, sin_p, cos_p)
     # V - toe = (hip - toe) - (hip - com) + (V - com), the last turned into the world by the pitch.
     w_x = -sample.r * sin_t - hip_x + forward * cos_p - above * sin_p
     w_y = sample.r * cos_t - hip_y + forward * sin_p + above * cos_p
@@ -71,7 +71,7 @@ class VirtualPivot:
             return tau
         body = self.model.body
         assert body is not None
-        energy = dynamics.rigid_stance_energy(
+        energy = body_dynamics.rigid_stance_energy(
             self.model,
             body,
             sample.r,

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import root
 
-from tdslip_ros.model import dynamics
+from tdslip_ros.model import body_dynamics
 from tdslip_ros.model.dynamics import FloatArray
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, StanceCommand
 from tdslip_ros.model.plant.exact_map import StrideResult, apex_return_map
@@ -52,7 +52,7 @@ def closed_loop_stride(params: HopperParams, policy: ApexPolicy, apex: ApexState
     apex_time = 0.0
     if isinstance(command, StanceFeedback):
         cos_td = math.cos(command.touchdown_angle)
-        t_td = dynamics.rigid_touchdown_time(params, body, apex.y, apex.pitch, apex.pitch_rate, cos_td)
+        t_td = body_dynamics.rigid_touchdown_time(params, body, apex.y, apex.pitch, apex.pitch_rate, cos_td)
         apex_time = 0.0 if t_td is None else -t_td
     return apex_return_map(params, apex, command, apex_time=apex_time)
 
