@@ -75,7 +75,7 @@ FRAME_ID = "world"
 STREAM_DEPTH = 10_000
 """Samples a plant publisher keeps for a lagging subscriber: 10 s of the 1 kHz state in realtime, so that a
 recorder starved of CPU that long loses nothing (at 1 s, a realtime run whose recorder was stopped for 5 s
-lost a seventh of its 1 kHz stance torques: test_nodes_run.py). A few MB per publisher at most."""
+lost a seventh of its 1 kHz stance torques). A few MB per publisher at most."""
 STREAM_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=STREAM_DEPTH,
