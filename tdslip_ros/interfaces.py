@@ -55,6 +55,9 @@ records for them."""
 
 STAMP_FIELDS = ("header.stamp.sec", "header.stamp.nanosec")
 """The header stamp of the 1 kHz messages, as dotted field paths."""
+PITCH_FIELDS = ("pitch", "pitch_rate")
+"""A rigid body's pitch [rad] and rate [rad/s] in HopperState and ApexEvent, since tdslip_msgs 0.2.0: a bag
+recorded before them is read with both 0."""
 STATE_FIELDS = (
     "stride",
     "phase",
@@ -71,6 +74,7 @@ STATE_FIELDS = (
     "hip_torque",
     "energy",
     "ground_height",
+    *PITCH_FIELDS,
 )
 """The fields of a HopperState after its header, in the message's order."""
 GRF_FIELDS = ("wrench.force.x", "wrench.force.y")

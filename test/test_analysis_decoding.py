@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from support.analysis_runs import raw_messages, rewrite
+from support.analysis_runs import as_recorded_before_pitch, raw_messages, rewrite
 
 from tdslip_ros import interfaces
 from tdslip_ros.analysis.decoding import RunReadError, infer_params, read_run
@@ -124,6 +124,8 @@ def test_vectorised_1khz_columns_equal_mcap_ros2_decoding(energy: RunReport, mca
         "energy": "energy",
         "stride": "stride",
         "phase": "phase",
+        "pitch": "pitch",
+        "pitch_rate": "pitch_rate",
     }
     decoded: dict[str, list[object]] = {name: [] for name in (*fields, "t", "fx", "fy")}
     with open(mcap_path, "rb") as stream:
@@ -146,6 +148,23 @@ def test_vectorised_1khz_columns_equal_mcap_ros2_decoding(energy: RunReport, mca
     assert np.array_equal(samples.grf_x, np.array(decoded["fx"]))
     assert np.array_equal(samples.grf_y, np.array(decoded["fy"]))
     assert np.count_nonzero(samples.phase == 1) > 0 and np.count_nonzero(samples.grf_y) > 0
+
+
+def test_a_bag_recorded_before_the_pitch_reads_with_the_fixed_bodys_zeros(
+    energy: RunReport, mcap_path: Path, tmp_path: Path
+) -> None:
+    old = as_recorded_before_pitch(mcap_path, tmp_path / "old.mcap")
+    with open(old, "rb") as stream:  # the old bag is sound: mcap_ros2 decodes it by its own schemas
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        kinds = {channel.topic: type(msg).__name__ for _, channel, _, msg in reader.iter_decoded_messages()}
+        stream.seek(0)
+        apex = next(msg for _, _, _, msg in reader.iter_decoded_messages(topics=[resolve(topics.APEX)]))
+    assert not hasattr(apex, "pitch") and kinds[resolve(topics.STATE)] == "HopperState"
+    new, before = read_run(mcap_path), read_run(old)
+    assert before.apexes == new.apexes and before.contacts == new.contacts and before.strides == new.strides
+    for field in ("t", "x", "y", "energy", "hip_torque", "pitch", "pitch_rate", "grf_y"):
+        assert np.array_equal(getattr(before.samples, field), getattr(new.samples, field)), field
+    assert len(before.samples) > 1000 and not np.any(before.samples.pitch)
 
 
 def test_parameters_come_from_the_bag_or_are_inferred_from_the_recording(energy: RunReport) -> None:

@@ -38,6 +38,8 @@ MESSAGE_FIELDS: dict[str, list[FieldSpec]] = {
         ("hip_torque", "double", "N m"),
         ("energy", "double", "J"),
         ("ground_height", "double", "m"),
+        ("pitch", "double", "rad"),
+        ("pitch_rate", "double", "rad/s"),
     ],
     "ApexEvent": [
         HEADER,
@@ -54,6 +56,8 @@ MESSAGE_FIELDS: dict[str, list[FieldSpec]] = {
         ("hip_work", "double", "J"),
         ("damping_loss", "double", "J"),
         ("spring_loss", "double", "J"),
+        ("pitch", "double", "rad"),
+        ("pitch_rate", "double", "rad/s"),
     ],
     "StanceCommand": [
         HEADER,

@@ -14,13 +14,13 @@ from mcap.reader import make_reader
 from rclpy.context import Context
 from rclpy.qos import HistoryPolicy
 from rclpy.signals import SignalHandlerOptions
-from support.analysis_runs import by_topic, raw_messages
+from support.analysis_runs import as_recorded_before_pitch, by_topic, raw_messages
 
 from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.commands.replay import main
 from tdslip_ros.interfaces import config_file, resolve
 from tdslip_ros.nodes import isolation, topics
-from tdslip_ros.nodes.replay import ReplayError, check_rate, offered_qos, replay, send_offset
+from tdslip_ros.nodes.replay import ReplayError, check_rate, checked_bag, offered_qos, replay, send_offset
 from tdslip_ros.nodes.runner import ChildNode, RunReport
 
 
@@ -114,6 +114,19 @@ def test_a_rate_that_cannot_replay_the_recording_is_one_line(
     assert main([str(energy.bag), "--rate", rate]) == 2
     error = capsys.readouterr().err
     assert error.startswith("tdslip replay: ") and error.count("\n") == 1 and "rate" in error
+
+
+def test_a_recording_of_older_messages_is_refused_by_name_before_ros_starts(
+    energy: RunReport, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bag of tdslip_msgs 0.1.0 holds HopperState, ApexEvent and ContactEvent without the pitch: replayed
+    as recorded, today's subscribers could not decode them. The command says so in one line."""
+    old = as_recorded_before_pitch(mcap_file(energy.bag), tmp_path / "old.mcap")
+    assert main([str(old), "--rate", "inf"]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("tdslip replay: ") and error.count("\n") == 1
+    assert "differing: pitch, pitch_rate" in error and "tdslip analyze reads" in error
+    assert checked_bag(energy.bag).message_count == open_bag(old).message_count  # today's bag passes
 
 
 def test_replay_of_a_damaged_recording_fails_cleanly(

@@ -62,6 +62,7 @@ from tdslip_ros.analysis.sample_keeping import SampleKeeping
 from tdslip_ros.analysis.strides import stride_records
 from tdslip_ros.bag.cdr import decoded_columns, decoder
 from tdslip_ros.bag.reader import Bag, BagReadError, iter_topic_batches, open_bag, topic_messages
+from tdslip_ros.bag.schema import message_fields
 from tdslip_ros.interfaces import (
     APEX,
     APPLIED_TORQUE,
@@ -70,6 +71,7 @@ from tdslip_ros.interfaces import (
     GRF,
     GRF_FIELDS,
     HOPPER_PARAMETERS,
+    PITCH_FIELDS,
     STAMP_FIELDS,
     STATE,
     STATE_FIELDS,
@@ -279,6 +281,18 @@ def _stored(recording: Recording, topic: str, schema: Schema | None) -> Schema:
     return schema
 
 
+def _stored_fields(recording: Recording, topic: str, wanted: tuple[str, ...]) -> tuple[str, ...]:
+    """Those of ``wanted`` (a message's top-level fields) that the topic's stored schema has: a bag recorded
+    before PITCH_FIELDS came has none of them, and reads as the fixed body's zeros."""
+    schema = recording.schema(topic)
+    if schema is None:
+        return wanted
+    with _as_run_error():
+        name, definitions = message_fields(schema.name, schema.data.decode())
+    stored = {field.name for field in definitions[name]}
+    return tuple(field for field in wanted if field in stored or field not in PITCH_FIELDS)
+
+
 def _decoded(recording: Recording, topic: str, datas: list[bytes]) -> Iterator[Any]:
     """The messages ``datas`` of a suite topic decoded one by one (each is made a record and let go)."""
     if not datas:
@@ -296,7 +310,10 @@ def _stamp_seconds(sec: np.ndarray, nanosec: np.ndarray) -> FloatArray:
 def _samples(recording: Recording, keeping: SampleKeeping) -> Samples:
     """The 1 kHz state and force samples of ``recording`` that ``keeping`` keeps, decoded _BATCH messages
     at a time as the chunks stream past."""
-    fields = {STATE: (*STAMP_FIELDS, *STATE_FIELDS), GRF: (*STAMP_FIELDS, *GRF_FIELDS)}
+    fields = {
+        STATE: (*STAMP_FIELDS, *_stored_fields(recording, STATE, STATE_FIELDS)),
+        GRF: (*STAMP_FIELDS, *GRF_FIELDS),
+    }
     names = {recording.name(topic): topic for topic in fields}
     pending: dict[str, list[bytes]] = {topic: [] for topic in fields}
     streams = {topic: keeping.stream() for topic in fields}
@@ -324,6 +341,8 @@ def _samples(recording: Recording, keeping: SampleKeeping) -> Samples:
             flush(topic)
 
     def joined(topic: str, path: str) -> np.ndarray:
+        if path not in fields[topic]:  # a field the bag's schema predates: 0, its value on the fixed body
+            return np.zeros(sum(len(batch[STAMP_FIELDS[0]]) for batch in columns[topic]))
         return np.concatenate([batch[path] for batch in columns[topic]]) if columns[topic] else np.empty(0)
 
     t = _stamp_seconds(joined(STATE, "header.stamp.sec"), joined(STATE, "header.stamp.nanosec"))
@@ -347,6 +366,8 @@ def _samples(recording: Recording, keeping: SampleKeeping) -> Samples:
         hip_torque=state["hip_torque"],
         energy=state["energy"],
         ground_height=state["ground_height"],
+        pitch=state["pitch"],
+        pitch_rate=state["pitch_rate"],
         grf_t=grf_t[grf_order],
         grf_x=joined(GRF, "wrench.force.x")[grf_order],
         grf_y=joined(GRF, "wrench.force.y")[grf_order],
@@ -367,7 +388,13 @@ def _apex(msg: Any) -> ApexRecord:
         float(msg.ground_height),
         float(msg.measured_height),
         float(msg.measured_forward_speed),
+        *_pitch(msg),
     )
+
+
+def _pitch(msg: Any) -> tuple[float, float]:
+    """A message's (pitch, pitch rate): (0, 0) where its bag predates them (tdslip_msgs 0.1.0)."""
+    return float(getattr(msg, "pitch", 0.0)), float(getattr(msg, "pitch_rate", 0.0))
 
 
 def _state(msg: Any) -> HopperState:
@@ -394,6 +421,8 @@ def _state(msg: Any) -> HopperState:
         grf_x=math.nan,
         grf_y=math.nan,
         ground_height=float(msg.ground_height),
+        pitch=_pitch(msg)[0],
+        pitch_rate=_pitch(msg)[1],
     )
 
 

@@ -40,7 +40,8 @@ STANCE_FEEDBACK = 1
 @dataclass(frozen=True)
 class ApexRecord:
     """An ApexEvent: apex ``stride`` at sim time t [s]; energy flows of the stance before it [J]; ground
-    height of that stance [m] and the apex the controller's sensor reported (world frame)."""
+    height of that stance [m] and the apex the controller's sensor reported (world frame); a rigid body's
+    pitch [rad] and pitch rate [rad/s] (0 for the fixed body)."""
 
     stride: int
     t: float
@@ -54,6 +55,8 @@ class ApexRecord:
     ground: float = 0.0
     measured_y: float = math.nan
     measured_xdot: float = math.nan
+    pitch: float = 0.0
+    pitch_rate: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -155,7 +158,8 @@ class StrideRecord:
 
 @dataclass(frozen=True)
 class Samples:
-    """1 kHz state and ground reaction force, as arrays over the samples (SI; phase 1 = stance)."""
+    """1 kHz state and ground reaction force, as arrays over the samples (SI; phase 1 = stance); a rigid
+    body's pitch and pitch rate (0 for the fixed body, and in a bag recorded before tdslip_msgs 0.2.0)."""
 
     t: FloatArray
     stride: npt.NDArray[np.int64]
@@ -173,6 +177,8 @@ class Samples:
     hip_torque: FloatArray
     energy: FloatArray
     ground_height: FloatArray
+    pitch: FloatArray
+    pitch_rate: FloatArray
     grf_t: FloatArray
     grf_x: FloatArray
     grf_y: FloatArray

@@ -24,7 +24,7 @@ from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock as ClockMsg
 from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, Status
 
-from tdslip_ros.interfaces import STAMP_FIELDS
+from tdslip_ros.interfaces import PITCH_FIELDS, STAMP_FIELDS
 from tdslip_ros.model.events import Event, EventKind
 from tdslip_ros.model.events import HopperState as ModelState
 from tdslip_ros.nodes import topics
@@ -63,6 +63,7 @@ APEX_FIELDS = (
     "hip_work",
     "damping_loss",
     "spring_loss",
+    *PITCH_FIELDS,
 )
 """The fields of an ApexEvent that the plant sets, in the message's order."""
 CONTACT_FIELDS = (*STAMP_FIELDS, "kind", "epoch", "stride", "sim_time", "ground_height")
@@ -202,7 +203,7 @@ class PlantOutput:
             report.ground,
             *report.measured,
         )
-        self._apex_pub.publish(self._apex_encoder.encode((*values, *energy)))
+        self._apex_pub.publish(self._apex_encoder.encode((*values, *energy, state.pitch, state.pitch_rate)))
         self.published[topics.APEX] += 1
         self.check_graph()  # after the apex is out (the controller waits for it), before the next sample
 

@@ -45,7 +45,13 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from tdslip_msgs.msg import RecorderStatus
 
 from tdslip_ros.bag.reader import Bag, BagReadError, TopicInfo, iter_messages, open_bag, verify
-from tdslip_ros.bag.schema import split_type_name
+from tdslip_ros.bag.schema import (
+    MessageDefinitionError,
+    canonical_type_name,
+    message_definition,
+    message_fields,
+    split_type_name,
+)
 from tdslip_ros.interfaces import RECORDER_STATUS
 from tdslip_ros.nodes.entry import SPIN_SLICE, spin_until
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW, RecorderProgress
@@ -82,6 +88,29 @@ def message_class(type_name: str) -> type:
         return getattr(importlib.import_module(f"{package}.msg"), name)  # type: ignore[no-any-return]
     except (ImportError, AttributeError):
         raise ReplayError(f"message type {type_name} is not installed (no {package}.msg.{name})") from None
+
+
+def check_layout(topic: TopicInfo) -> None:
+    """ReplayError unless the topic's recorded messages have the fields of the installed type: its bytes are
+    published as they are, and subscribers decode them by the installed definition (a bag of tdslip_msgs
+    0.1.0 lacks 0.2.0's pitch, which ``tdslip analyze`` reads as 0, but which replay cannot add)."""
+    if topic.schema is None:
+        return
+    name = canonical_type_name(topic.type_name)
+    try:
+        installed = message_fields(name, message_definition(name))
+    except MessageDefinitionError:
+        return  # not installed: refused by name when its publisher is made (message_class)
+    recorded = message_fields(name, topic.schema.data.decode())
+    if recorded != installed:
+        own = {field.name for field in installed[1][installed[0]]}
+        stored = {field.name for field in recorded[1][recorded[0]]}
+        differ = ", ".join(sorted(own ^ stored)) or "a nested type's"
+        raise ReplayError(
+            f"{topic.topic}: recorded as a {name} of other fields than the installed one (differing: "
+            f"{differ}); replay publishes the recorded bytes, which today's subscribers could not decode. "
+            "tdslip analyze reads the recording as it is"
+        )
 
 
 def offered_qos(topic: TopicInfo) -> QoSProfile:
@@ -122,12 +151,15 @@ def check_rate(rate: float, bag: Bag | None = None) -> float:
 
 
 def checked_bag(path: Path) -> Bag:
-    """The recording at ``path``, opened and read through once with every check (ReplayError if not)."""
+    """The recording at ``path``, opened and read through once with every check, each topic's fields those of
+    its installed type (ReplayError if not)."""
     try:
         bag = open_bag(path)
         verify(bag)
     except BagReadError as error:
         raise ReplayError(str(error)) from None
+    for topic in bag.topics.values():
+        check_layout(topic)
     return bag
 
 

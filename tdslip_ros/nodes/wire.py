@@ -88,6 +88,8 @@ def state_values(state: ModelState, t: float) -> tuple[int | float, ...]:
         state.hip_torque,
         state.energy,
         state.ground_height,
+        state.pitch,
+        state.pitch_rate,
     )
 
 

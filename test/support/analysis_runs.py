@@ -14,6 +14,7 @@ import json
 import math
 import os
 import pickle
+import re
 import signal
 import subprocess
 import sys
@@ -26,6 +27,7 @@ from typing import Any, cast
 
 import pytest
 from mcap.reader import make_reader
+from mcap.records import Schema
 from rclpy.serialization import deserialize_message, serialize_message
 from tdslip_msgs.msg import StanceCommand
 
@@ -304,3 +306,27 @@ def _background(
 
 if __name__ == "__main__":
     _background(Path(sys.argv[1]), *json.loads(sys.argv[2]))
+
+
+PITCH_LINE = re.compile(r"^float64 pitch(_rate)? .*\n", re.MULTILINE)
+"""A field line of tdslip_msgs 0.2.0's pitch (HopperState, ApexEvent), with its comment."""
+
+
+def as_recorded_before_pitch(mcap_path: Path, target: Path) -> Path:
+    """The recording as tdslip_msgs 0.1.0 wrote it: every schema without the pitch fields, and each message
+    with them without its last 16 bytes (both messages end with pitch, pitch_rate; so does ContactEvent, whose
+    last field is a HopperState)."""
+    with open(mcap_path, "rb") as stream, RosbagMcapWriter(target, bag_directory=False) as writer:
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            assert schema is not None
+            text = schema.data.decode()
+            old = PITCH_LINE.sub("", text)
+            writer.add_topic(
+                channel.topic,
+                schema.name,
+                schema=Schema(id=schema.id, name=schema.name, encoding=schema.encoding, data=old.encode()),
+                type_hash=channel.metadata.get("topic_type_hash"),
+            )
+            data = message.data[:-16] if old != text else message.data
+            writer.write(channel.topic, data, message.log_time, message.publish_time)
+    return target
