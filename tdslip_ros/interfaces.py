@@ -15,7 +15,7 @@ from typing import Any
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
 from tdslip_ros.bag.schema import package_share_directory
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.params import HopperParams, ParameterError, RigidBody
 from tdslip_ros.model.plant.perturbations import Perturbations, PlacementNoise, Pushes, SensingNoise
 from tdslip_ros.model.plant.terrain import parse_terrain
 
@@ -103,6 +103,19 @@ def resolve(name: str, namespace: str = "/") -> str:
 
 HOPPER_PARAMETERS = {"m": "mass", "k": "stiffness", "r0": "rest_length", "c": "damping", "g": "gravity"}
 """HopperParams fields and the names of the plant's and controller's parameters that hold them (SI)."""
+BODY_PARAMETER = "body"
+"""The node parameter choosing the body: one of BODY_KINDS."""
+FIXED_BODY, RIGID_BODY = "fixed", "rigid"
+BODY_KINDS = (FIXED_BODY, RIGID_BODY)
+"""``fixed``: the paper's body, held level (HopperParams.body None); ``rigid``: a freely rotating body of the
+RIGID_BODY_PARAMETERS (docs/rotating_body.md)."""
+RIGID_BODY_PARAMETERS = {
+    "inertia": "body_inertia",
+    "hip_x": "hip_x",
+    "hip_y": "hip_y",
+    "tip_limit": "tip_limit",
+}
+"""RigidBody fields and the names of the node parameters that hold them (SI), read where ``body`` is rigid."""
 
 
 PERTURBATION_PARAMETERS = {
@@ -168,10 +181,30 @@ HOPPER_FILE_PARAMETER = "hopper_file"
 
 def hopper_from_parameters(values: Mapping[str, Any]) -> HopperParams:
     """The HopperParams of a node's parameter values by name: the hopper file's where ``hopper_file`` names
-    one, else the HOPPER_PARAMETERS' (ParameterError names a bad one; KeyError a missing one)."""
+    one, else the HOPPER_PARAMETERS', with the body of ``body`` (its RIGID_BODY_PARAMETERS where rigid; fixed
+    where the values have no ``body``). ParameterError names a bad one; KeyError a missing one."""
     if values.get(HOPPER_FILE_PARAMETER):
-        return read_hopper_file(Path(str(values[HOPPER_FILE_PARAMETER])))
-    return HopperParams(**{field: float(values[name]) for field, name in HOPPER_PARAMETERS.items()})
+        params = read_hopper_file(Path(str(values[HOPPER_FILE_PARAMETER])))
+    else:
+        params = HopperParams(**{field: float(values[name]) for field, name in HOPPER_PARAMETERS.items()})
+    body = str(values.get(BODY_PARAMETER, FIXED_BODY))  # a bag recorded before the body was one stores none
+    if body == FIXED_BODY:
+        return params
+    if body != RIGID_BODY:
+        raise ParameterError(f"{BODY_PARAMETER} must be one of {', '.join(BODY_KINDS)}, got {body!r}")
+    rigid = RigidBody(**{field: float(values[name]) for field, name in RIGID_BODY_PARAMETERS.items()})
+    return dataclasses.replace(params, body=rigid)
+
+
+def hopper_parameters(params: HopperParams) -> dict[str, float | str]:
+    """The node parameters of ``params`` by name (what :func:`hopper_from_parameters` reads back)."""
+    values: dict[str, float | str] = {
+        name: getattr(params, field) for field, name in HOPPER_PARAMETERS.items()
+    }
+    values[BODY_PARAMETER] = FIXED_BODY if params.body is None else RIGID_BODY
+    if params.body is not None:
+        values.update({name: getattr(params.body, field) for field, name in RIGID_BODY_PARAMETERS.items()})
+    return values
 
 
 HOPPER_FILE_KEY = "hopper"

@@ -268,6 +268,12 @@ def wall(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
 
 
 @pytest.fixture(scope="session")
+def posture(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
+    """A rigid body balanced by the posture policy, 8 strides (analysis_runs.RUNS)."""
+    return _recorded("posture", tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
 def stance_pd(tmp_path_factory: pytest.TempPathFactory) -> RunReport:
     """The baseline of ref. 36 streaming hip torques at 1 kHz, 8 strides (analysis_runs.RUNS)."""
     return _recorded("stance_pd", tmp_path_factory)

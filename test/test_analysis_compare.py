@@ -33,6 +33,7 @@ from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.policies import controllers
 from tdslip_ros.model.policies.registry import (
     LEARNED,
+    POSTURE,
     STANCE_PD_SPEED_ENERGY,
     PolicyError,
     PolicySpec,
@@ -312,8 +313,9 @@ def _spec(name: str, **values: float) -> PolicySpec:
         "foot_placement_kd": 0.03,
         "corrections": 1,
         "analytic_map": "ours",
-        # The stance-feedback policy's and the learned one's, which these policies do not read.
+        # The stance-feedback policies' and the learned one's, which these policies do not read.
         **{setting.name: setting.default for setting in settings_of(STANCE_PD_SPEED_ENERGY)},
+        **{setting.name: setting.default for setting in settings_of(POSTURE)},
         **{setting.name: setting.default for setting in settings_of(LEARNED)},
     }
     return PolicySpec(name=name, **{**defaults, **values})  # type: ignore[arg-type]

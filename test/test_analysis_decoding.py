@@ -289,21 +289,26 @@ def test_truncated_file(mcap_path: Path, tmp_path: Path, kept: float) -> None:
     _expect_error(path, "truncated or not finalised", "footer")
 
 
-@pytest.mark.parametrize("where", ["start", "end"])
+ZSTD_FRAME = 1 + 8 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8
+"""Bytes from a chunk record's start to its zstd frame: opcode, length, start and end time, uncompressed size
+and CRC, the compression's name (length-prefixed) and the records' length (the MCAP specification)."""
+
+
+@pytest.mark.parametrize("where", ["data", "frame"])
 def test_corrupt_chunk(mcap_path: Path, tmp_path: Path, where: str) -> None:
     with open(mcap_path, "rb") as stream:
         summary = make_reader(stream).get_summary()
     assert summary is not None
     chunk = summary.chunk_indexes[0]
-    # Early in the compressed data the zstd frame still decodes (to wrong bytes: the CRC catches it);
-    # near its end the decompressor itself fails.
-    offset = chunk.chunk_start_offset + (2000 if where == "start" else chunk.chunk_length - 50)
+    # Inside the compressed data the zstd frame still decodes (to wrong bytes: the CRC catches it); in the
+    # frame's header (its magic number) the decompressor itself fails.
+    offset = chunk.chunk_start_offset + (2000 if where == "data" else ZSTD_FRAME)
     data = bytearray(mcap_path.read_bytes())
     data[offset : offset + 10] = bytes(b ^ 0xFF for b in data[offset : offset + 10])
     path = tmp_path / "corrupt.mcap"
     path.write_bytes(bytes(data))
     message = _expect_error(path, f"the chunk at byte {chunk.chunk_start_offset} is corrupt")
-    assert ("CRC" if where == "start" else "ZstdError") in message
+    assert ("CRC" if where == "data" else "ZstdError") in message
 
 
 def test_the_apex_topic_is_required(mcap_path: Path, tmp_path: Path) -> None:

@@ -42,8 +42,8 @@ def test_analyze_writes_summary_figures_and_report(
     assert comparison["policy"]["name"] == "energy" and comparison["policy_reproduced"]
     assert comparison["converged_at_stride"] is not None
     # No perturbation: the path over flat ground and the measured (= true) apexes would repeat the others.
-    assert set(summary["figures"]) == set(FIGURES) - {"terrain_path", "measured_apex"}
-    assert set(summary["figures_omitted"]) == {"terrain_path", "measured_apex"}
+    assert set(summary["figures"]) == set(FIGURES) - {"terrain_path", "measured_apex", "body_pitch"}
+    assert set(summary["figures_omitted"]) == {"terrain_path", "measured_apex", "body_pitch"}
     for name in summary["figures"].values():
         assert (out / name).stat().st_size > 10_000
     markdown = (out / "report.md").read_text()
@@ -111,7 +111,7 @@ def test_analyze_a_run_of_ones_own_controller_and_name_a_policy_to_compare_with(
     assert comparison["policy"] is None and comparison["policy_reproduced"] is None
     assert comparison["command_deviation_ratio"] is None and comparison["analytic_fixed_point"] is None
     assert comparison["prediction_errors"]["exact_map"]["strides"] == len(energy.apexes) - 1
-    assert set(summary["figures"]) == set(FIGURES) - {"terrain_path", "measured_apex"}
+    assert set(summary["figures"]) == set(FIGURES) - {"terrain_path", "measured_apex", "body_pitch"}
     # The policy it was, named, is replayed as for the original recording (settings from the recording).
     assert main([str(path), "--out", str(tmp_path / "named"), "--policy", "energy"]) == 0
     printed = capsys.readouterr().out

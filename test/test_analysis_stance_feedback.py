@@ -17,6 +17,7 @@ from tdslip_ros.analysis.report import analyze, headline
 from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary
 from tdslip_ros.analysis.strides import applied_commands
 from tdslip_ros.model.events import HopperState, Phase
+from tdslip_ros.model.paper import UPRIGHT_TRUNK
 from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.model.plant.stance_laws import RecordedTorques
 from tdslip_ros.model.policies.registry import STANCE_PD_SPEED_ENERGY
@@ -51,6 +52,33 @@ def test_tdslip_analyze_reports_the_replay(stance_pd: RunReport, tmp_path: Path)
         "its recorded torques replayed on the exact map over 8 strides"
         in analysis.files["report"].read_text()
     )
+
+
+def test_a_rigid_bodys_pitch_is_recorded_and_replayed_per_stride(posture: RunReport, tmp_path: Path) -> None:
+    """Issue 36: the posture policy on the upright trunk, recorded and analysed. The exact map, from each
+    recorded apex (pitch included) and the stance's recorded torques, gives the next apex's pitch and rate as
+    recorded; the policy replayed on the recorded states gives the torques held; the report says so, draws the
+    pitch and draws no analytic return map, which is the fixed body's."""
+    assert posture.ok, posture.outcome
+    run = read_run(posture.bag)
+    assert run.params.body == UPRIGHT_TRUNK and run.params_source == "stored in the recording"
+    pitches = [s.pitch for s in run.strides]
+    assert pitches[0] == 0.0 and all(-0.6 < pitch < -0.3 for pitch in pitches[1:])  # it leans forward
+    assert np.array_equal(run.samples.pitch[:1], [0.0]) and np.ptp(run.samples.pitch) > 0.3
+    comparison = compare_run(run)
+    replay = comparison.stance_feedback
+    assert replay.failures == [None] * 8
+    assert np.max(replay.error) < REPRODUCED, replay.error
+    assert np.max(np.abs(replay.exact_pitch - replay.recorded_pitch)) < REPRODUCED, replay.exact_pitch
+    assert comparison.command_deviation is not None and comparison.command_deviation < 1e-9
+    analysis = analyze(run, tmp_path / "report")
+    summary = json.loads(analysis.files["summary"].read_text())
+    replayed = summary["comparison"]["stance_feedback_replay"]
+    assert replayed["max_pitch_error_rad"] < REPRODUCED and replayed["max_pitch_rate_error_rad_per_s"] < 1e-8
+    assert summary["run"]["params"]["body"]["inertia_kg_m2"] == UPRIGHT_TRUNK.inertia
+    assert "body_pitch" in summary["figures"] and "return_map" in summary["figures_omitted"]
+    report = analysis.files["report"].read_text()
+    assert "body: rigid, J = 7.2 kg m^2" in report and ", pitch " in report
 
 
 def test_the_stance_feedback_policy_is_replayed_and_reproduces_every_torque(stance_pd: RunReport) -> None:
@@ -89,8 +117,11 @@ def test_a_replay_predicted_to_fail_does_not_hide_the_other_strides_errors() -> 
         recorded=np.array([[1.0, 4.0], [1.1, 4.2]]),
         exact=np.array([[1.0 + 2e-12, 4.0 - 3e-12], [np.nan, np.nan]]),
         failures=[None, "fall"],
+        recorded_pitch=np.array([[0.1, 0.2], [0.3, 0.4]]),
+        exact_pitch=np.array([[0.1 + 5e-12, 0.2], [np.nan, np.nan]]),
     )
     summary = feedback_summary(predictions)
+    assert summary["max_pitch_error_rad"] == pytest.approx(5e-12, rel=1e-3)
     assert summary["failures"] == 1
     assert summary["max_height_error_m"] == pytest.approx(2e-12, rel=1e-3)
     assert summary["max_speed_error_m_per_s"] == pytest.approx(3e-12, rel=1e-3)

@@ -11,9 +11,16 @@ from pathlib import Path
 import pytest
 
 from tdslip_ros.commands.options import add_hopper, hopper_of
-from tdslip_ros.interfaces import HOPPER_PARAMETERS, HopperFileError, read_hopper_file, write_hopper_file
+from tdslip_ros.interfaces import (
+    HOPPER_PARAMETERS,
+    HopperFileError,
+    hopper_from_parameters,
+    hopper_parameters,
+    read_hopper_file,
+    write_hopper_file,
+)
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.params import HopperParams, ParameterError, RigidBody
 
 
 def test_a_hopper_file_round_trips_exactly(tmp_path: Path) -> None:
@@ -91,3 +98,20 @@ def test_the_hopper_options_replace_the_files_values(tmp_path: Path) -> None:
     assert hopper_of(parser.parse_args([]), PAPER_PARAMS) == PAPER_PARAMS
     with pytest.raises(ParameterError, match="give --damping or --zeta0, not both"):
         hopper_of(parser.parse_args(["--damping", "1", "--zeta0", "0.1"]), PAPER_PARAMS)
+
+
+def test_a_rigid_body_round_trips_through_the_node_parameters() -> None:
+    """hopper_parameters and hopper_from_parameters are each other's inverse, the body included; values
+    without ``body`` (a bag recorded before it was one) are the fixed body's; a body of another kind is
+    refused by name."""
+    rigid = replace(PAPER_PARAMS, body=RigidBody(3.5, hip_x=0.05, hip_y=-0.25, tip_limit=1.2))
+    for params in (PAPER_PARAMS, rigid):
+        values = hopper_parameters(params)
+        assert hopper_from_parameters(values) == params
+        as_text = {name: str(value) for name, value in values.items()}  # as custom_data stores them
+        assert hopper_from_parameters(as_text) == params
+    assert hopper_parameters(PAPER_PARAMS)["body"] == "fixed"
+    old = {name: value for name, value in hopper_parameters(rigid).items() if name != "body"}
+    assert hopper_from_parameters(old) == PAPER_PARAMS
+    with pytest.raises(ParameterError, match="body must be one of fixed, rigid, got 'wobbly'"):
+        hopper_from_parameters({**hopper_parameters(rigid), "body": "wobbly"})

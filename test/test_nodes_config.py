@@ -17,16 +17,31 @@ from support.ros_harness import RosGraph, overrides
 
 from tdslip_ros.interfaces import hopper_from_parameters
 from tdslip_ros.model.params import ParameterError
-from tdslip_ros.nodes import controller_node, isolation, parameters, plant_parameters, recorder_node
+from tdslip_ros.nodes import (
+    controller_node,
+    isolation,
+    parameters,
+    plant_parameters,
+    recorder_node,
+    stance_controller_node,
+)
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.entry import BAD_PARAMETERS, with_default_params_file
 from tdslip_ros.nodes.parameters import ParameterSpec
 from tdslip_ros.nodes.plant_node import PlantNode
 from tdslip_ros.nodes.recorder_node import RecorderNode
+from tdslip_ros.nodes.stance_controller_node import StanceControllerNode
 
+CONTROLLERS_SPECS = tuple(
+    spec
+    for own in controller_node.SPECS
+    for spec in ((own, stance_controller_node.STANCE_POLICY) if own.name == "policy" else (own,))
+)
+"""controller.yaml serves both controller nodes: the ramp controller's parameters, and after its ``policy``
+the stance controller's; the stance controller's others are among the ramp controller's."""
 NODE_SPECS = {
     "plant.yaml": plant_parameters.SPECS,
-    "controller.yaml": controller_node.SPECS,
+    "controller.yaml": CONTROLLERS_SPECS,
     "recorder.yaml": recorder_node.SPECS,
 }
 HOPPER_KEYS = [spec.name for spec in parameters.HOPPER]
@@ -49,6 +64,12 @@ def test_yaml_sets_exactly_the_declared_parameters_to_their_defaults(repo_root: 
         assert type(value) is type(spec.default), spec.name  # rclpy refuses e.g. an int for a double
         # Bit for bit: a run from the YAML and one from the defaults must be the same run.
         assert value == spec.default, spec.name
+
+
+def test_controller_yaml_holds_every_parameter_of_the_stance_controller(repo_root: Path) -> None:
+    values = yaml_parameters(repo_root / "config" / "controller.yaml")
+    for spec in stance_controller_node.SPECS:
+        assert values[spec.name] == spec.default, spec.name
 
 
 def test_plant_and_controller_share_the_paper_hopper(repo_root: Path) -> None:
@@ -78,18 +99,19 @@ def check_descriptor(node: Node, spec: ParameterSpec) -> None:
 
 def test_every_parameter_is_described_with_its_range(ros: RosGraph, tmp_path: Path) -> None:
     nodes = {
-        "plant.yaml": PlantNode(context=ros.context, start_when_ready=False),
-        "controller.yaml": ControllerNode(context=ros.context),
-        "recorder.yaml": RecorderNode(
+        PlantNode(context=ros.context, start_when_ready=False): plant_parameters.SPECS,
+        ControllerNode(context=ros.context): controller_node.SPECS,
+        StanceControllerNode(context=ros.context): stance_controller_node.SPECS,
+        RecorderNode(
             context=ros.context, parameter_overrides=overrides(output=str(tmp_path / "b"))
-        ),
+        ): recorder_node.SPECS,
     }
-    for file_name, node in nodes.items():
+    for node, specs in nodes.items():
         ros.add(node)
         rclpy_own = ("use_sim_time", "start_type_description_service")
         own = {name for name in node.list_parameters([], 0).names if name not in rclpy_own}
-        assert own == {spec.name for spec in NODE_SPECS[file_name]}
-        for spec in NODE_SPECS[file_name]:
+        assert own == {spec.name for spec in specs}
+        for spec in specs:
             check_descriptor(node, spec)
 
 

@@ -151,6 +151,15 @@ def test_an_apex_the_leg_cannot_be_placed_from_is_refused_before_anything_starts
             "plant parameters: realtime_priority must lie",
         ),
         (["--mode", "realtime", "--realtime-cpu", "4096"], "realtime CPU 4096 is not one this run may use"),
+        # A rigid body: what balances it, and what it cannot run on yet.
+        (["--policy", "posture"], "the posture policy balances a rigid body: give --body rigid"),
+        (["--hip", "0", "-0.3"], "--hip needs --body rigid"),
+        (["--body", "rigid", "--height", "1.2", "--body-inertia", "-1"], "body inertia must be"),
+        (
+            ["--body", "rigid", "--height", "1.2", "--terrain", "step:height=0.1,x=3"],
+            "the 1 kHz stepper runs a rigid body on flat ground",
+        ),
+        (["--body", "rigid"], "the leg cannot be placed from an apex at 0.8 m"),  # the hip's, 0.2 m below
     ],
 )
 def test_a_setting_out_of_range_is_refused_before_anything_starts(

@@ -3,22 +3,27 @@ ref. 36) and hand-made torque streams, in a private in-process graph (lockstep u
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from support.ros_harness import RosGraph, overrides
 from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, Status
 
+from tdslip_ros.interfaces import hopper_parameters
 from tdslip_ros.model.events import EventKind
+from tdslip_ros.model.paper import UPRIGHT_TRUNK
 from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
+    POSTURE,
     STANCE_PD_SPEED_ENERGY,
     PolicySpec,
 )
@@ -82,6 +87,66 @@ def test_the_baseline_node_drives_the_plant_as_the_law_drives_the_stepper(ros: R
     assert [(a.tick, a.torque) for a in applied] == [(round(t / TICK_PERIOD), tau) for t, tau in torques]
     assert controller.torques == len(torques) and plant.counts.late_torques == plant.counts.stale_torques == 0
     assert plant.counts.rejected == 0
+
+
+RIGID = dataclasses.replace(PARAMS, body=UPRIGHT_TRUNK)
+RIGID_START = ApexState(1.2, 5.0)
+"""The upright trunk's hip at 1 m (the centre of mass 0.2 m above it)."""
+
+
+def posture_apexes(strides: int) -> tuple[list[tuple[float, ...]], list[tuple[float, float]]]:
+    """(t, y, xdot, pitch, pitch rate) of apexes 0..strides and every torque held, of the posture policy
+    (at its defaults) answering each apex of the stepper's rigid body."""
+    spec = PolicySpec.default(POSTURE)
+    stepper = FixedStepStepper(RIGID, RIGID_START, spec.stance_feedback(RIGID, RIGID_START), dt=TICK_PERIOD)
+    apexes: list[tuple[float, ...]] = [(0.0, *dataclasses.astuple(RIGID_START))]
+    torques: list[tuple[float, float]] = []
+    while len(apexes) <= strides:
+        for event in stepper.step():
+            assert event.kind is not EventKind.FAILURE, event.reason
+            if event.kind is EventKind.LIFTOFF:
+                torques += stepper.stance_torques
+            if event.kind is EventKind.APEX:
+                state = event.state
+                apex = ApexState(state.y, state.xdot, state.pitch, state.pitch_rate)
+                apexes.append((event.t, *dataclasses.astuple(apex)))
+                stepper.set_command(spec.stance_feedback(RIGID, apex))
+    return apexes, torques
+
+
+def test_the_posture_node_balances_a_rigid_body_as_the_policy_does_in_the_stepper(ros: RosGraph) -> None:
+    """A rigid body on the wire: the plant publishes its pitch in every state and apex, the stance controller
+    plans each stride from the apex's pitch and holds the lean from each sample's. Lockstep makes the run the
+    model's own: the same apexes, pitch included, and the same torques held, to rounding (the law's ramp runs
+    on the time since touchdown, which the node takes from the stamps: 1e-16 s apart)."""
+    strides = 4
+    plant = ros.add(
+        PlantNode(
+            context=ros.context,
+            parameter_overrides=overrides(
+                **hopper_parameters(RIGID), initial_height=RIGID_START.y, max_strides=strides
+            ),
+        )
+    )
+    controller = ros.add(
+        StanceControllerNode(
+            context=ros.context,
+            parameter_overrides=overrides(**hopper_parameters(RIGID), stance_policy=POSTURE),
+        )
+    )
+    apexes = ros.collect(ApexEvent, topics.APEX)
+    applied = ros.collect(HipTorque, topics.APPLIED_TORQUE)
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome is not None and plant.outcome.ok, plant.outcome
+    ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
+    expected, torques = posture_apexes(strides)
+    recorded = [(a.sim_time, a.height, a.forward_speed, a.pitch, a.pitch_rate) for a in apexes]
+    assert np.allclose(recorded, expected, rtol=1e-12, atol=1e-12)
+    assert all(abs(pitch) > 0.3 for _, _, _, pitch, _ in expected[1:])  # it leans: a pitch, not zeros
+    ros.spin_until(lambda: len(applied) == len(torques), "every applied torque")
+    assert [a.tick for a in applied] == [round(t / TICK_PERIOD) for t, _ in torques]
+    assert np.allclose([a.torque for a in applied], [tau for _, tau in torques], rtol=1e-12, atol=1e-9)
+    assert controller.torques == len(torques) and plant.counts.rejected == 0
 
 
 def test_bad_torques_are_refused_and_the_plant_waits_for_the_right_one(ros: RosGraph) -> None:

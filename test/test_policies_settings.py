@@ -31,6 +31,7 @@ from tdslip_ros.model.policies.registry import (
     LEARNED,
     POLICIES,
     POLICY_SETTINGS,
+    STANCE_FEEDBACK_POLICIES,
     STANCE_PD_SPEED_ENERGY,
     PolicyError,
     PolicySetting,
@@ -267,16 +268,17 @@ def test_the_controller_node_has_a_parameter_per_setting() -> None:
         assert not descriptor.read_only, setting.name  # tunable at runtime
 
 
-def test_the_stance_controller_node_has_a_parameter_per_setting_of_its_policy() -> None:
-    """The baseline of ref. 36 runs in a node of its own: the lifecycle's, the hopper, its policy's settings,
-    then its diagnostics."""
-    settings = settings_of(STANCE_PD_SPEED_ENERGY)
-    ahead = (AUTOSTART, END_WITH_RUN, *parameters.HOPPER)
+def test_the_stance_controller_node_has_a_parameter_per_setting_of_its_policies() -> None:
+    """The stance-feedback policies run in a node of their own: the lifecycle's, the hopper, the policy, the
+    settings of its policies (each once, in the declaration's order), then its diagnostics."""
+    settings = [s for s in POLICY_SETTINGS if set(s.policies) & set(STANCE_FEEDBACK_POLICIES)]
+    ahead = (AUTOSTART, END_WITH_RUN, *parameters.HOPPER, stance_controller_node.STANCE_POLICY)
     assert stance_controller_node.SPECS[: len(ahead)] == ahead
+    assert stance_controller_node.STANCE_POLICY.choices == STANCE_FEEDBACK_POLICIES
     tunable = stance_controller_node.SPECS[len(ahead) : len(ahead) + len(settings)]
     assert stance_controller_node.SPECS[len(ahead) + len(settings) :] == specs_of(())
     assert [spec.name for spec in tunable] == [s.name for s in settings]
-    for spec, setting in zip(tunable, settings_of(STANCE_PD_SPEED_ENERGY), strict=True):
+    for spec, setting in zip(tunable, settings, strict=True):
         assert (spec.default, spec.descriptor().description) == (setting.default, setting.text)
 
 
@@ -308,11 +310,14 @@ def test_controller_yaml_sets_each_setting_to_its_default_and_describes_it(repo_
         *lifecycle,
         *(spec.name for spec in parameters.HOPPER),
         "policy",
+        stance_controller_node.STANCE_POLICY.name,
         *SETTINGS,
         *diagnostics,
     ]
     assert values["policy"] == DEFAULT_POLICY
     assert comments["policy"] == " | ".join(POLICIES)
+    assert values["stance_policy"] == STANCE_PD_SPEED_ENERGY
+    assert comments["stance_policy"].endswith(": " + " | ".join(STANCE_FEEDBACK_POLICIES) + " (a rigid body)")
     for setting in POLICY_SETTINGS:
         value, comment = values[setting.name], comments[setting.name]
         assert type(value) is setting.kind and value == setting.default, setting.name

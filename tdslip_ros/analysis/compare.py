@@ -79,6 +79,7 @@ from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.plant.batch import batch_apex_return_map
+from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.policies.registry import (
     FIXED_ANGLE_POLICIES,
@@ -321,6 +322,8 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
     )
     start_y = column("y") - stance_ground
     start_xdot = column("xdot") + column("push")
+    if params.body is not None:
+        return _rigid_body_predictions(run, rows, stride, recorded)
     analytic, failures, energy = {}, {}, {}
     for corrections in CORRECTIONS:
         result = approximate_map(params, start_y, start_xdot, applied, corrections, speed=speed)
@@ -355,6 +358,43 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
         analytic_failures=failures,
         analytic_energy=energy,
         exact=exact_next,
+    )
+
+
+def _rigid_body_predictions(
+    run: Run, rows: list[StrideRecord], stride: npt.NDArray[np.int64], recorded: FloatArray
+) -> Predictions:
+    """A rigid body's ramp strides, each on the exact map (the one engine that runs it with every condition
+    here); the analytic map is the fixed body's, and predicts none (NaN)."""
+    perturbations = run.perturbations
+    exact = []
+    for s in rows:
+        assert s.command is not None  # rows hold the strides with a command
+        result = apex_return_map(
+            run.params,
+            s.apex,
+            s.command,
+            conditions=StrideConditions(
+                x=s.x,
+                ground=s.ground,
+                terrain=perturbations.terrain,
+                tau_max=float(perturbations.tau_max),
+                push=s.push,
+                angle_error=s.angle_error,
+            ),
+        )
+        if result.apex is None or result.ground is None:
+            exact.append((math.nan, math.nan))
+        else:
+            exact.append((result.ground + result.apex.y, result.apex.xdot))
+    none = np.full((len(rows), 2), math.nan)
+    return Predictions(
+        stride=stride,
+        recorded=recorded,
+        analytic=dict.fromkeys(CORRECTIONS, none),
+        analytic_failures={c: [None] * len(rows) for c in CORRECTIONS},
+        analytic_energy=dict.fromkeys(CORRECTIONS, np.full((len(rows), 3), math.nan)),
+        exact=np.array(exact, dtype=float).reshape(-1, 2),
     )
 
 
@@ -540,14 +580,9 @@ def command_deviation(run: Run, policy: PolicySpec) -> float:
     if not rows:
         return math.nan
 
-    def seen(stride: StrideRecord) -> tuple[float, float]:
-        if math.isnan(stride.measured_y):  # recorded before the sensor was modelled: the true apex
-            return stride.y - stride.ground, stride.xdot
-        return stride.measured_y - stride.ground, stride.measured_xdot
-
-    y = np.array([seen(s)[0] for _, s in rows])
-    xdot = np.array([seen(s)[1] for _, s in rows])
-    previous = np.array([seen(run.strides[i - 1])[1] if i > 0 else seen(s)[1] for i, s in rows])
+    y = np.array([s.seen_apex.y for _, s in rows])
+    xdot = np.array([s.seen_apex.xdot for _, s in rows])
+    previous = np.array([run.strides[i - 1].seen_apex.xdot if i > 0 else s.seen_apex.xdot for i, s in rows])
     replayed = policy.commands(run.planner, y, xdot, previous)
     worst = 0.0
     for name, values in zip(("touchdown_angle", "tau0", "t_f"), replayed, strict=True):

@@ -500,15 +500,17 @@ def _check_params(
     of apexes and stance events (mass, stiffness, rest length, gravity) and, at every liftoff, a leg
     force k (r0 - r) - c rdot of zero (the damping, which no energy shows)."""
     worst, where = 0.0, ""
+    inertia = 0.0 if params.body is None else params.body.inertia  # a rigid body's J phidot^2 / 2 counts
     for apex in apexes:
-        expected = params.m * (params.g * apex.y + 0.5 * apex.xdot**2)
+        expected = params.m * (params.g * apex.y + 0.5 * apex.xdot**2) + 0.5 * inertia * apex.pitch_rate**2
         error = abs(expected - apex.energy) / abs(apex.energy)
         if error > worst:
             worst, where = error, f"apex {apex.stride}"
     for contact in contacts:
-        s = contact.state
+        s = contact.state  # (x, y) the centre of mass's
         expected = (
-            0.5 * params.m * (s.rdot**2 + (s.r * s.thetadot) ** 2)
+            0.5 * params.m * (s.xdot**2 + s.ydot**2)
+            + 0.5 * inertia * s.pitch_rate**2
             + params.m * params.g * s.y
             + 0.5 * params.k * (s.r - params.r0) ** 2
         )

@@ -313,3 +313,28 @@ def energy_flows(comparison: Comparison, path: Path) -> Figure:
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3, axis="y")
     return _save(figure, path)
+
+
+def body_pitch(comparison: Comparison, path: Path) -> Figure:
+    """A rigid body's pitch and pitch rate at each apex: recorded, and each stride's stance replayed on the
+    exact map from the recorded apex before it (stance feedback; a ramp stride has no pitch prediction
+    drawn), with the body's tip limit."""
+    run, replay = comparison.run, comparison.stance_feedback
+    body = run.params.body
+    if body is None:
+        raise ValueError("the fixed body has no pitch to draw")
+    strides = np.array([s.stride for s in run.strides])
+    recorded = np.array([(s.pitch, s.pitch_rate) for s in run.strides]).reshape(-1, 2)
+    figure = Figure(figsize=(8, 5))
+    axes = figure.subplots(2, 1, sharex=True)
+    for column, (ax, label) in enumerate(zip(axes, ("pitch [rad]", "pitch rate [rad/s]"), strict=True)):
+        ax.plot(strides, recorded[:, column], "o-", color=RECORDED, ms=3, label="recorded")
+        ax.plot(replay.stride + 1, replay.exact_pitch[:, column], "x", color=EXACT, ms=5, label="exact map")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    for limit in (-body.tip_limit, body.tip_limit):
+        axes[0].axhline(limit, color="tab:red", ls="--", lw=1, label="tip limit" if limit > 0 else None)
+    axes[0].legend(fontsize=7, loc="best")
+    axes[1].set_xlabel("stride")
+    axes[0].set_title(f"{run.path.name}: the body's pitch at each apex ({comparison.policy_name})")
+    return _save(figure, path)

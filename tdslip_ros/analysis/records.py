@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tdslip_ros.model.events import HopperState
-from tdslip_ros.model.params import HopperParams, StanceCommand
+from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
 from tdslip_ros.model.plant.perturbations import Perturbations
 from tdslip_ros.model.plant.stance_laws import StanceFeedback
 
@@ -123,6 +123,8 @@ class StrideRecord:
     Stance feedback: ``command`` is None and ``stance_feedback`` the stance as applied, its touchdown angle
     and the torques held (sample times on the plant's clock,
     :class:`~tdslip_ros.model.plant.stance_laws.RecordedTorques`); saturated: one of them is at tau_max.
+
+    A rigid body: pitch [rad] and pitch_rate [rad/s] at the apex (0 for the fixed body).
     """
 
     stride: int
@@ -149,11 +151,26 @@ class StrideRecord:
     push: float = 0.0
     saturated: bool = False
     stance_feedback: StanceFeedback | None = None
+    pitch: float = 0.0
+    pitch_rate: float = 0.0
 
     @property
     def height(self) -> float:
         """The apex height above the ground of the last stance [m]."""
         return self.y - self.ground
+
+    @property
+    def apex(self) -> ApexState:
+        """The apex as the model takes it: its height above the ground of the last stance, speed and pitch."""
+        return ApexState(self.height, self.xdot, self.pitch, self.pitch_rate)
+
+    @property
+    def seen_apex(self) -> ApexState:
+        """The apex as the controller was given it: measured, above the ground of the last stance (the true
+        one where the recording predates the sensor's model), with the pitch."""
+        if math.isnan(self.measured_y):
+            return self.apex
+        return ApexState(self.measured_y - self.ground, self.measured_xdot, self.pitch, self.pitch_rate)
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from tdslip_ros.analysis.compare import (
 )
 from tdslip_ros.analysis.decoding import RunReadError
 from tdslip_ros.analysis.records import FAILURE_KINDS, Run
-from tdslip_ros.analysis.stance_feedback import largest_errors
+from tdslip_ros.analysis.stance_feedback import largest_errors, largest_pitch_errors
 from tdslip_ros.interfaces import (
     RUN_COMPLETE,
     STOP_REQUESTED,
@@ -59,6 +59,7 @@ FIGURES = {
     "energy_flows": "energy input against losses per stride",
     "terrain_path": "COM path over the ground, toe landings and saturated stances",
     "measured_apex": "true and measured apexes per stride, saturated strides",
+    "body_pitch": "a rigid body's pitch and pitch rate per stride, recorded and replayed on the exact map",
 }
 
 
@@ -228,9 +229,20 @@ PERTURBATION_UNITS = {
 the seeds; the others are text (terrain, pushes)."""
 
 
-def hopper_summary(params: HopperParams) -> dict[str, float]:
-    """JSON-ready hopper parameters, each key with its unit (a rigid body's are not recorded yet)."""
-    return {unit_key(name, unit): getattr(params, name) for name, unit in HOPPER_UNITS.items()}
+BODY_UNITS = {"inertia": "kg m^2", "hip_x": "m", "hip_y": "m", "tip_limit": "rad"}
+"""The units of a RigidBody's fields."""
+
+
+def hopper_summary(params: HopperParams) -> dict[str, Any]:
+    """JSON-ready hopper parameters, each key with its unit, and ``body``: null for the paper's fixed body,
+    else the rigid body's."""
+    body = None
+    if params.body is not None:
+        body = {unit_key(name, unit): getattr(params.body, name) for name, unit in BODY_UNITS.items()}
+    return {
+        **{unit_key(name, unit): getattr(params, name) for name, unit in HOPPER_UNITS.items()},
+        "body": body,
+    }
 
 
 def perturbation_summary(run: Run) -> dict[str, Any]:
@@ -268,6 +280,10 @@ def omitted_figures(run: Run, stride: int | None = None) -> dict[str, str]:
     measured apexes where the sensor reported the true ones and the hip never saturated. ``stride``: the
     stride com_trajectory is asked to draw (None: the last complete one)."""
     omitted = {}
+    if run.params.body is None:
+        omitted["body_pitch"] = "the paper's fixed body: its pitch is 0"
+    else:
+        omitted["return_map"] = "the analytic map is the fixed body's: it predicts no stride of a rigid body"
     if plots.last_complete_stride(run) is None:
         omitted["com_trajectory"] = omitted["energy_flows"] = (
             "no complete stride: the run failed in its first"
@@ -319,6 +335,7 @@ def analyze(
         "energy_flows": lambda path: plots.energy_flows(comparison, path),
         "terrain_path": lambda path: plots.terrain_path(run, path),
         "measured_apex": lambda path: plots.measured_apex(comparison, path),
+        "body_pitch": lambda path: plots.body_pitch(comparison, path),
     }
     for name, path in files.items():
         drawers[name](path)
@@ -337,6 +354,17 @@ def analyze(
 
 
 # --- text ---------------------------------------------------------------------------------------
+
+
+def _body_lines(params: HopperParams) -> list[str]:
+    body = params.body
+    if body is None:
+        return []
+    return [
+        f"body: rigid, J = {body.inertia:.4g} kg m^2, hip at ({body.hip_x:.4g}, {body.hip_y:.4g}) m from the "
+        f"centre of mass at pitch 0, tips past {body.tip_limit:.4g} rad (docs/rotating_body.md); the "
+        "analytic map is the fixed body's and predicts none of its strides"
+    ]
 
 
 def _outcome_text(run: Run) -> str:
@@ -445,6 +473,7 @@ def headline(comparison: Comparison) -> str:
         f"hopper: m = {params.m:.4g} kg, k = {params.k:.6g} N/m, r0 = {params.r0:.4g} m, "
         f"c = {params.c:.5g} N s/m, g = {params.g:.4g} m/s^2 "
         f"(kbar {params.kbar:.4g}, zeta0 {params.zeta0:.4g}; {run.params_source})",
+        *_body_lines(params),
         *_perturbation_lines(run),
         _policy_text(comparison),
         *_analytic_map_lines(comparison),
@@ -472,6 +501,9 @@ def headline(comparison: Comparison) -> str:
         errors = (
             "no apex" if largest is None else f"next-apex error max {largest[0]:.2e} m, {largest[1]:.2e} m/s"
         )
+        pitch = largest_pitch_errors(replay)
+        if params.body is not None and pitch is not None:
+            errors += f", pitch {pitch[0]:.2e} rad, pitch rate {pitch[1]:.2e} rad/s"
         failures = sum(f is not None for f in replay.failures)
         lines.append(
             f"stance feedback, its recorded torques replayed on the exact map over {len(replay.stride)} "

@@ -36,7 +36,7 @@ from matplotlib.figure import Figure
 from tdslip_ros.analysis.figures.ground_reaction import BETA_DEG as GRF_BETA_DEG
 from tdslip_ros.analysis.figures.ground_reaction import fig12_hopper, regulated_gait, sample_stance
 from tdslip_ros.model import body_dynamics, dynamics
-from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.model.paper import PAPER_PARAMS, UPRIGHT_TRUNK_GYRATION_RADIUS, UPRIGHT_TRUNK_HIP_Y
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody
 from tdslip_ros.model.plant.stance_laws import StanceFeedback, StanceLaw, StanceSample
 from tdslip_ros.model.policies.posture import HipEnergyRegulation, PostureRegulation, balance_lean
@@ -55,8 +55,8 @@ GYRATION_RADII = (0.1, 0.2, 0.3, 0.45, 0.6)
 """m: the body's radius of gyration, J = m radius^2, the map's rows (a human trunk is about 0.3 m)."""
 BRANCHES = {"standing": -1.0, "hanging": 1.0}
 """The sign of hip_y: the body stands on its hip (below the centre of mass) or hangs from it."""
-EXAMPLE_HIP_Y, EXAMPLE_RADIUS = -0.2, 0.3
-"""The upright trunk of ``body_strides`` and ``body_grf``: hip 0.2 m below, radius of gyration 0.3 m."""
+EXAMPLE_HIP_Y, EXAMPLE_RADIUS = UPRIGHT_TRUNK_HIP_Y, UPRIGHT_TRUNK_GYRATION_RADIUS
+"""The upright trunk of ``body_strides`` and ``body_grf`` (model/paper.py)."""
 OFF_GAIT = (0.15, -0.2, 0.1, 0.3)
 """``body_strides``' start: the gait's apex moved by these (y [m], xdot [m/s], pitch [rad], rate [rad/s])."""
 STRIDES = 40

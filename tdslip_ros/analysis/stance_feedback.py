@@ -28,7 +28,6 @@ import numpy.typing as npt
 
 from tdslip_ros.analysis.records import Run
 from tdslip_ros.model.limits import PlausibilityLimits
-from tdslip_ros.model.params import ApexState
 from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.plant.stance_laws import (
@@ -46,12 +45,16 @@ FloatArray = npt.NDArray[np.float64]
 class FeedbackPredictions:
     """Next apexes of the strides under stance feedback with a recorded next apex: recorded and replayed
     on the exact map, (n, 2) of (y [m, world frame], xdot [m/s]); NaN where the map foresaw a failure
-    (``failures``: its kind, else None)."""
+    (``failures``: its kind, else None); a rigid body's pitch beside them."""
 
     stride: npt.NDArray[np.int64]
     recorded: FloatArray
     exact: FloatArray
     failures: list[str | None]
+    recorded_pitch: FloatArray
+    exact_pitch: FloatArray
+    """A rigid body's next-apex (pitch [rad], pitch rate [rad/s]), (n, 2), recorded and replayed (NaN where
+    the replay failed); 0 for the fixed body."""
 
     @property
     def error(self) -> FloatArray:
@@ -64,14 +67,14 @@ def predict_stance_feedback(run: Run) -> FeedbackPredictions:
     by_stride = {s.stride: s for s in run.strides}
     perturbations = run.perturbations
     tau_max = float(perturbations.tau_max)
-    rows, recorded, exact, failures = [], [], [], []
+    rows, recorded, exact, failures, recorded_pitch, exact_pitch = [], [], [], [], [], []
     for stride in run.strides:
         after = by_stride.get(stride.stride + 1)
         if stride.stance_feedback is None or after is None:
             continue
         result = apex_return_map(
             run.params,
-            ApexState(stride.height, stride.xdot),
+            stride.apex,
             stride.stance_feedback,
             apex_time=stride.t,
             conditions=StrideConditions(
@@ -85,18 +88,27 @@ def predict_stance_feedback(run: Run) -> FeedbackPredictions:
         )
         rows.append(stride.stride)
         recorded.append((after.y, after.xdot))
+        recorded_pitch.append((after.pitch, after.pitch_rate))
         if result.apex is None:
             exact.append((np.nan, np.nan))
+            exact_pitch.append((np.nan, np.nan))
             failures.append(None if result.failure is None else str(result.failure.value))
         else:
             assert result.ground is not None  # a stride that reached its next apex touched down
             exact.append((result.ground + result.apex.y, result.apex.xdot))
+            exact_pitch.append((result.apex.pitch, result.apex.pitch_rate))
             failures.append(None)
+
+    def pairs(values: list[tuple[float, float]]) -> FloatArray:
+        return np.array(values, dtype=float).reshape(-1, 2)
+
     return FeedbackPredictions(
         stride=np.array(rows, dtype=np.int64),
-        recorded=np.array(recorded, dtype=float).reshape(-1, 2),
-        exact=np.array(exact, dtype=float).reshape(-1, 2),
+        recorded=pairs(recorded),
+        exact=pairs(exact),
         failures=failures,
+        recorded_pitch=pairs(recorded_pitch),
+        exact_pitch=pairs(exact_pitch),
     )
 
 
@@ -104,13 +116,13 @@ def law_deviation(run: Run, policy: PolicySpec) -> float:
     """Largest deviation of ``policy``'s stance feedback, replayed on the recorded stances (module docstring),
     from what was applied: each torque relative to the largest applied |torque| of the run, the touchdown
     angle relative to itself; NaN without a stance under feedback or with a torque at no recorded state."""
-    feedback = policy.stance_feedback(run.planner)
     limit = min(PlausibilityLimits.for_hopper(run.planner).max_torque, float(run.perturbations.tau_max))
     samples = run.samples
     replayed, applied, angle_deviation = [], [], 0.0
     for stride in run.strides:
         if stride.stance_feedback is None or not isinstance(stride.stance_feedback.law, RecordedTorques):
             continue
+        feedback = policy.stance_feedback(run.planner, stride.seen_apex)
         recorded = stride.stance_feedback.law
         angle = stride.stance_feedback.touchdown_angle
         angle_deviation = max(angle_deviation, abs(feedback.touchdown_angle - angle) / abs(angle))
@@ -125,6 +137,8 @@ def law_deviation(run: Run, policy: PolicySpec) -> float:
             samples.rdot[at],
             samples.thetadot[at],
             samples.hip_torque[at],
+            samples.pitch[at],
+            samples.pitch_rate[at],
         )
         replayed.append(clip_torque(np.asarray(feedback.law.torque(sample), dtype=float), limit))
         applied.append(recorded.torques)
@@ -138,17 +152,29 @@ def law_deviation(run: Run, policy: PolicySpec) -> float:
 def largest_errors(predictions: FeedbackPredictions) -> tuple[float, float] | None:
     """The largest next-apex errors (height [m], speed [m/s]) of the strides whose replay has an apex (a
     replay predicted to fail has none, and is counted among the failures); None without one."""
-    error = predictions.error
+    return _largest(predictions.error)
+
+
+def largest_pitch_errors(predictions: FeedbackPredictions) -> tuple[float, float] | None:
+    """The largest next-apex errors of a rigid body's pitch [rad] and pitch rate [rad/s] where the replay has
+    an apex; None without one."""
+    return _largest(np.abs(predictions.exact_pitch - predictions.recorded_pitch))
+
+
+def _largest(error: FloatArray) -> tuple[float, float] | None:
     replayed = error[~np.isnan(error).any(axis=1)]
     return (float(replayed[:, 0].max()), float(replayed[:, 1].max())) if len(replayed) else None
 
 
 def feedback_summary(predictions: FeedbackPredictions) -> dict[str, Any]:
-    """The replay's errors for the summary: strides, largest height and speed errors (SI)."""
-    largest = largest_errors(predictions)
+    """The replay's errors for the summary: strides, largest height and speed errors, and a rigid body's
+    pitch and pitch rate errors (SI)."""
+    largest, pitch = largest_errors(predictions), largest_pitch_errors(predictions)
     return {
         "strides": len(predictions.stride),
         "failures": sum(f is not None for f in predictions.failures),
         "max_height_error_m": None if largest is None else largest[0],
         "max_speed_error_m_per_s": None if largest is None else largest[1],
+        "max_pitch_error_rad": None if pitch is None else pitch[0],
+        "max_pitch_rate_error_rad_per_s": None if pitch is None else pitch[1],
     }

@@ -138,6 +138,8 @@ def stride_records(
                 push=float(draws.push[apex.stride, 0]),
                 saturated=saturated,
                 stance_feedback=feedback,
+                pitch=apex.pitch,
+                pitch_rate=apex.pitch_rate,
             )
         )
     return tuple(records)

@@ -13,12 +13,14 @@ import difflib
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, NoReturn
 
-from tdslip_ros.interfaces import HOPPER_PARAMETERS, read_hopper_file
+from tdslip_ros.interfaces import BODY_KINDS, FIXED_BODY, HOPPER_PARAMETERS, read_hopper_file
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.paper import UPRIGHT_TRUNK
+from tdslip_ros.model.params import HopperParams, ParameterError, RigidBody
 from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
@@ -298,3 +300,58 @@ def hopper_of(args: argparse.Namespace, default: HopperParams) -> HopperParams:
             values["k"] * r0 / (m * g), args.zeta0, m=m, r0=r0, g=g
         ).c
     return HopperParams(**values)
+
+
+def add_body(parser: argparse.ArgumentParser) -> None:
+    """The body options (one group): ``--body fixed|rigid`` and a rigid body's ``--body-inertia``,
+    ``--hip X Y`` and ``--tip-limit`` [SI], by default the upright trunk's (model/paper.py). Read them with
+    :func:`body_of`."""
+    trunk = UPRIGHT_TRUNK
+    group = parser.add_argument_group(
+        "the body (docs/rotating_body.md; default: the paper's, fixed level; rigid: the upright trunk, "
+        f"J {trunk.inertia:g} kg m^2, hip {-trunk.hip_y:g} m below the centre of mass)"
+    )
+    group.add_argument(
+        "--body", choices=BODY_KINDS, default=FIXED_BODY, help="fixed or freely rotating in pitch"
+    )
+    group.add_argument(
+        "--body-inertia",
+        type=float,
+        metavar="J",
+        help=f"rigid: pitch inertia [kg m^2] (default: {trunk.inertia:g})",
+    )
+    group.add_argument(
+        "--hip",
+        type=float,
+        nargs=2,
+        metavar=("X", "Y"),
+        help=f"rigid: the hip from the centre of mass at pitch 0 [m] (default: {trunk.hip_x:g} "
+        f"{trunk.hip_y:g})",
+    )
+    group.add_argument(
+        "--tip-limit",
+        type=float,
+        metavar="RAD",
+        help=f"rigid: |pitch| past which it has tipped [rad] (default: {trunk.tip_limit:.4g})",
+    )
+
+
+def body_given(args: argparse.Namespace) -> bool:
+    """Whether a rigid body, or any of its options, was given (:func:`add_body`)."""
+    return args.body != FIXED_BODY or any(
+        getattr(args, name) is not None for name in ("body_inertia", "hip", "tip_limit")
+    )
+
+
+def body_of(args: argparse.Namespace, hopper: HopperParams) -> HopperParams:
+    """``hopper`` with :func:`add_body`'s body; ParameterError, one line, for a rigid body's option given
+    without ``--body rigid`` or a bad value."""
+    given = [name for name in ("body_inertia", "hip", "tip_limit") if getattr(args, name) is not None]
+    if args.body == FIXED_BODY:
+        if given:
+            raise ParameterError(f"--{given[0].replace('_', '-')} needs --body rigid")
+        return replace(hopper, body=None)
+    hip_x, hip_y = (UPRIGHT_TRUNK.hip_x, UPRIGHT_TRUNK.hip_y) if args.hip is None else args.hip
+    inertia = UPRIGHT_TRUNK.inertia if args.body_inertia is None else args.body_inertia
+    tip_limit = UPRIGHT_TRUNK.tip_limit if args.tip_limit is None else args.tip_limit
+    return replace(hopper, body=RigidBody(inertia, hip_x, hip_y, tip_limit))

@@ -20,10 +20,13 @@ from tdslip_msgs.msg import ApexEvent
 
 from tdslip_ros.commands.options import (
     add_analytic_map,
+    add_body,
     add_hopper,
     add_initial_apex,
     add_policy_file,
     add_touchdown_angle,
+    body_given,
+    body_of,
     command_parser,
     hopper_given,
     hopper_of,
@@ -44,10 +47,13 @@ from tdslip_ros.nodes.runner import RunError, RunOptionError, RunOptions, check_
 
 def apex_table(params: HopperParams, apexes: Sequence[Any], ground: bool = False) -> str:
     """The apex states, SI (world frame) and dimensionless (eq. 24), one row per stride; with ``ground``,
-    the ground height of the stance before each apex too."""
+    the ground height of the stance before each apex too, and a rigid body's pitch and its rate."""
+    rigid = params.body is not None
     header = (
         f"{'stride':>6} {'t [s]':>9} {'y [m]':>9} {'xdot [m/s]':>11} {'E [J]':>10}"
-        f" | {'ybar':>8} {'xdotbar':>8} {'Ebar':>8}" + (f" | {'ground [m]':>10}" if ground else "")
+        f" | {'ybar':>8} {'xdotbar':>8} {'Ebar':>8}"
+        + (f" | {'ground [m]':>10}" if ground else "")
+        + (f" | {'pitch [rad]':>11} {'rate [rad/s]':>12}" if rigid else "")
     )
     rows = [header, "-" * len(header)]
     for apex in apexes:
@@ -57,6 +63,7 @@ def apex_table(params: HopperParams, apexes: Sequence[Any], ground: bool = False
             f" {units.speed_to_bar(params, apex.forward_speed):>8.5f}"
             f" {units.energy_to_bar(params, apex.energy):>8.5f}"
             + (f" | {apex.ground_height:>10.5f}" if ground else "")
+            + (f" | {apex.pitch:>11.5f} {apex.pitch_rate:>12.5f}" if rigid else "")
         )
     return "\n".join(rows)
 
@@ -220,6 +227,7 @@ def parser() -> argparse.ArgumentParser:
         help="a push of DV [m/s] right after the apex of STRIDE, or random ones (repeatable; default: none)",
     )
     add_hopper(parser, "config/plant.yaml's, the paper's; the plant's and the controller's model alike")
+    add_body(parser)
     return parser
 
 
@@ -263,11 +271,11 @@ def main(argv: list[str]) -> int:
         if angle_error is not None:
             raise RunOptionError(angle_error)
         perturbations = perturbations_of(args)
-        hopper = (
-            hopper_of(args, hopper_from_parameters(installed_parameters("plant.yaml")))
-            if hopper_given(args)
-            else None
-        )
+        hopper = None  # the installed files'
+        if hopper_given(args) or body_given(args):
+            hopper = body_of(
+                args, hopper_of(args, hopper_from_parameters(installed_parameters("plant.yaml")))
+            )
         domain_id = own_controller_domain(args) if args.controller == "none" else args.domain_id
     except (RunError, ParameterError) as error:
         print(f"tdslip run: {error}", file=sys.stderr)

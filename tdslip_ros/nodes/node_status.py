@@ -182,19 +182,22 @@ def controller_diagnostics(controller: ControllerCounters, node: Node) -> Diagno
 class StanceControllerCounters(Protocol):
     commands: int
     torques: int
+    unanswered: int
+
+    @property
+    def policy(self) -> str: ...
 
 
-def stance_controller_diagnostics(
-    controller: StanceControllerCounters, node: Node, policy: str
-) -> DiagnosticsPublisher:
+def stance_controller_diagnostics(controller: StanceControllerCounters, node: Node) -> DiagnosticsPublisher:
     """The stance controller's status: its policy, the commands and hip torques it sent."""
 
     def report(heard: Heard) -> NodeStatus:
         values = {
             "lifecycle state": lifecycle_state(node),
-            "policy": policy,
+            "policy": controller.policy,
             "apexes answered": controller.commands,
             "hip torques sent": controller.torques,
+            "apexes unanswered": controller.unanswered,
         }
         return NodeStatus(values, f"{controller.commands} apexes answered")
 

@@ -14,6 +14,7 @@ Their defaults are the paper's figures 8-10: kbar = 36, zeta0 = 0.08, m = 80 kg,
 from __future__ import annotations
 
 import difflib
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,8 +24,14 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from tdslip_ros.interfaces import HOPPER_FILE_PARAMETER
-from tdslip_ros.model.paper import PAPER_PARAMS
+from tdslip_ros.interfaces import (
+    BODY_KINDS,
+    BODY_PARAMETER,
+    FIXED_BODY,
+    HOPPER_FILE_PARAMETER,
+    RIGID_BODY_PARAMETERS,
+)
+from tdslip_ros.model.paper import PAPER_PARAMS, UPRIGHT_TRUNK
 from tdslip_ros.model.params import ParameterError
 from tdslip_ros.model.plant.terrain import TERRAIN_FORMS
 
@@ -77,9 +84,45 @@ HOPPER: tuple[ParameterSpec, ...] = (
     _hopper("damping", PAPER_PARAMS.c, "leg damping c [N s/m] (zeta0 = c / (2 sqrt(m k)) < 1)", 0.0, 1e7),
     _hopper("gravity", PAPER_PARAMS.g, "gravitational acceleration g [m/s^2]", 1e-3, 1e3),
     ParameterSpec(
+        BODY_PARAMETER,
+        FIXED_BODY,
+        "fixed: the paper's body, held level; rigid: a body that rotates freely in pitch, of the four below "
+        "(docs/rotating_body.md)",
+        choices=BODY_KINDS,
+        read_only=True,
+    ),
+    _hopper(
+        RIGID_BODY_PARAMETERS["inertia"],
+        UPRIGHT_TRUNK.inertia,
+        "rigid body: pitch inertia J about the centre of mass [kg m^2]",
+        1e-6,
+        1e6,
+    ),
+    _hopper(
+        RIGID_BODY_PARAMETERS["hip_x"],
+        UPRIGHT_TRUNK.hip_x,
+        "rigid body: the hip's offset from the centre of mass along x at pitch 0 [m]",
+        -10.0,
+        10.0,
+    ),
+    _hopper(
+        RIGID_BODY_PARAMETERS["hip_y"],
+        UPRIGHT_TRUNK.hip_y,
+        "rigid body: the hip's offset along y at pitch 0 [m] (< 0: below)",
+        -10.0,
+        10.0,
+    ),
+    _hopper(
+        RIGID_BODY_PARAMETERS["tip_limit"],
+        UPRIGHT_TRUNK.tip_limit,
+        "rigid body: |pitch| beyond which it has tipped, a failure [rad]",
+        1e-3,
+        math.pi,
+    ),
+    ParameterSpec(
         HOPPER_FILE_PARAMETER,
         "",
-        "a hopper file (YAML, SI; tdslip identify writes one) whose hopper replaces the five above "
+        "a hopper file (YAML, SI; tdslip identify writes one) whose hopper replaces mass to gravity "
         "(empty: none)",
         read_only=True,
     ),

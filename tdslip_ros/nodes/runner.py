@@ -54,11 +54,11 @@ from tdslip_msgs.msg import ApexEvent
 
 from tdslip_ros.bag.recover import recoverable_counts
 from tdslip_ros.interfaces import (
-    HOPPER_PARAMETERS,
     STOP_REQUESTED,
     config_file,
     custom_data_key,
     hopper_from_parameters,
+    hopper_parameters,
     installed_parameters,
     perturbation_parameters,
     qualified_namespace,
@@ -67,8 +67,9 @@ from tdslip_ros.interfaces import (
 from tdslip_ros.model import dynamics
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS
 from tdslip_ros.model.limits import check_hopper
-from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.stepper import check_body
 from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,
@@ -77,6 +78,7 @@ from tdslip_ros.model.policies.registry import (
     FIXED_ANGLE_POLICIES,
     LEARNED,
     POLICIES,
+    POSTURE,
     STANCE_FEEDBACK_POLICIES,
     PolicyError,
     check_policy_file,
@@ -307,7 +309,7 @@ def hopper_overrides(hopper: HopperParams | None) -> dict[str, object]:
     """The node parameters of ``hopper`` (none: the installed files'), the same for plant and controller."""
     if hopper is None:
         return {}
-    return {name: getattr(hopper, field) for field, name in HOPPER_PARAMETERS.items()}
+    return dict(hopper_parameters(hopper))
 
 
 def plant_overrides(options: RunOptions) -> dict[str, object]:
@@ -328,20 +330,25 @@ def plant_overrides(options: RunOptions) -> dict[str, object]:
 
 def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str, object]:
     target_energy = options.target_energy
-    if target_energy is None:
-        target_energy = params.m * (params.g * options.height + 0.5 * options.speed**2)
+    if (
+        target_energy is None
+    ):  # the initial apex's; a rigid body's hip's at pitch 0 (posture plans on the hip)
+        hip_height = options.height + (0.0 if params.body is None else params.body.hip_y)
+        target_energy = params.m * (params.g * hip_height + 0.5 * options.speed**2)
     model = hopper_overrides(options.hopper)
     mismatch = options.perturbations.mismatch
     if mismatch.active:  # the controller plans with another hopper
         planned = mismatch.controller_params(params)
         assert isinstance(planned, HopperParams)  # scalar factors
         check_hopper(planned)
-        model = {name: getattr(planned, key) for key, name in HOPPER_PARAMETERS.items()}
+        model = hopper_overrides(planned)
     if options.policy in STANCE_FEEDBACK_POLICIES:
         return {
             **model,
-            "policy": options.policy,
+            "policy": options.policy,  # stored with the run; the node's parameter is stance_policy
+            "stance_policy": options.policy,
             "stance_touchdown_angle": options.stance_touchdown_angle,
+            "target_energy": target_energy,
             "target_height": options.target_height,
             "target_speed": options.target_speed,
         }
@@ -452,6 +459,12 @@ def check_options(options: RunOptions) -> None:
         except ParameterError as error:
             raise RunOptionError(f"the hopper: {error}") from None
     hopper = options.hopper or hopper_from_parameters(installed_parameters("plant.yaml"))
+    if options.policy == POSTURE and hopper.body is None:
+        raise RunOptionError(f"the {POSTURE} policy balances a rigid body: give --body rigid")
+    try:
+        check_body(hopper, ApexState(options.height, options.speed), options.perturbations)
+    except ParameterError as error:
+        raise RunOptionError(str(error)) from None
     check_placement(options, hopper)
     if not options.own_controller:
         check_controller_parameters(options, hopper)
@@ -484,10 +497,12 @@ def check_placement(options: RunOptions, params: HopperParams) -> None:
         if angle is None:
             installed = installed_parameters("controller.yaml")
             angle = float(installed.get("stance_touchdown_angle", DEFAULT_STANCE_TOUCHDOWN_ANGLE))
+    hip_height = options.height + (0.0 if params.body is None else params.body.hip_y)  # at pitch 0
     try:
-        dynamics.check_placement(params, options.height, angle)
+        dynamics.check_placement(params, hip_height, angle)
     except ParameterError as error:
-        raise RunOptionError(str(error)) from None
+        where = "" if params.body is None else f" (the hip's: the height {options.height:g} m plus hip_y)"
+        raise RunOptionError(f"{error}{where}") from None
 
 
 def run(

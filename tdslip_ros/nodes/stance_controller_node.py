@@ -1,16 +1,21 @@
 """The stance controller node: a stance-feedback policy at 1 kHz on the plant's torque interface.
 
-Its policy is :data:`~tdslip_ros.model.policies.registry.STANCE_PD_SPEED_ENERGY`, the baseline of the paper's
-ref. 36 (:class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy`: an energy term toward the target
-apex, PD on forward speed). It answers every apex with stance feedback (StanceCommand ``stance``
-STANCE_FEEDBACK) at the policy's fixed touchdown angle ``stance_touchdown_angle``, and every state sample in
-stance (``tdslip/state``, phase STANCE) with the law's torque for that sample's tick on ``tdslip/hip_torque``
-(:mod:`tdslip_ros.nodes.torque_stream`). All maths is the model's; this node only converts messages.
+Its policy (``stance_policy``) is one of :data:`~tdslip_ros.model.policies.registry.STANCE_FEEDBACK_POLICIES`:
+the baseline of the paper's ref. 36 (``stance_pd_speed_energy``,
+:class:`~tdslip_ros.model.policies.stance_pd.StancePDSpeedEnergy`: an energy term toward the target apex, PD
+on forward speed), or, for a rigid body, ``posture``
+(:class:`~tdslip_ros.model.policies.posture.PostureRegulation`: energy regulation planned on the hip at each
+apex, and a PD holding the balancing lean). It answers every apex with stance feedback (StanceCommand
+``stance`` STANCE_FEEDBACK) at the policy's fixed touchdown angle ``stance_touchdown_angle``, and every state
+sample in stance (``tdslip/state``, phase STANCE) with the law's torque for that sample's tick on
+``tdslip/hip_torque`` (:mod:`tdslip_ros.nodes.torque_stream`). All maths is the model's; this node only
+converts messages.
 
-What the law sees is what the model's engines give it: the sampled leg state and the torque held until the
-sample (the sample's ``hip_torque``); the sample's time t is the plant's simulated time, and s the time
-since the touchdown event of the stride (``tdslip/contact``; NaN until it is heard, which the baseline
-does not read). The torque is clipped at this hopper's plausible torque, as the engines clip a law's
+What the law sees is what the model's engines give it: at the apex, the measured height above the ground of
+the last stance, the measured speed and the pitch; in stance, the sampled leg state, the pitch and the torque
+held until the sample (the sample's ``hip_torque``); the sample's time t is the plant's simulated time, and s
+the time since the touchdown event of the stride (``tdslip/contact``; NaN until it is heard, which neither
+law reads). The torque is clipped at this hopper's plausible torque, as the engines clip a law's
 output (the plant refuses a torque beyond it).
 
 Parameters: the hopper the law computes with (``mass``, ...: the plant's, or others for model mismatch) and
@@ -27,10 +32,14 @@ from tdslip_msgs.msg import ApexEvent, ContactEvent, HipTorque, HopperState, Sta
 
 from tdslip_ros.interfaces import STAMP_FIELDS, hopper_from_parameters
 from tdslip_ros.model.limits import PlausibilityLimits, check_hopper
+from tdslip_ros.model.params import ApexState, ParameterError
 from tdslip_ros.model.plant.stance_laws import StanceFeedback, StanceSample, clip_torque
 from tdslip_ros.model.policies.registry import (
+    POLICY_SETTINGS,
     SETTING_DEFAULTS,
+    STANCE_FEEDBACK_POLICIES,
     STANCE_PD_SPEED_ENERGY,
+    PolicyError,
     PolicySpec,
     settings_of,
 )
@@ -44,12 +53,22 @@ from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.torque_stream import tick_of
 from tdslip_ros.nodes.wire import fixed_layout_encoder, serialized
 
-POLICY = STANCE_PD_SPEED_ENERGY
+STANCE_POLICY = ParameterSpec(
+    "stance_policy",
+    STANCE_PD_SPEED_ENERGY,
+    "the stance controller's policy (stance feedback at each tick of the stance)",
+    choices=STANCE_FEEDBACK_POLICIES,
+)
+SETTINGS = tuple(
+    dict.fromkeys(setting for policy in STANCE_FEEDBACK_POLICIES for setting in settings_of(policy))
+)
+"""The settings of every stance-feedback policy, each once, in POLICY_SETTINGS' order."""
 SPECS: tuple[ParameterSpec, ...] = (
     AUTOSTART,
     END_WITH_RUN,
     *parameters.HOPPER,
-    *map(setting_parameter, settings_of(POLICY)),
+    STANCE_POLICY,
+    *map(setting_parameter, sorted(SETTINGS, key=POLICY_SETTINGS.index)),
     *specs_of(()),
 )
 
@@ -61,6 +80,7 @@ class StanceControllerNode(ManagedNode):
     def __init__(self, **node_options: object) -> None:
         self.commands = 0
         self.torques = 0
+        self.unanswered = 0
         self._answering = False
         super().__init__("stance_controller", SPECS, **node_options)
 
@@ -81,7 +101,7 @@ class StanceControllerNode(ManagedNode):
         ).topic_name
         self.create_subscription(ContactEvent, topics.CONTACT, self._on_contact, topics.STREAM_QOS)
         self.create_subscription(HopperState, topics.STATE, self._on_state, topics.STREAM_QOS)
-        self.diagnostics = stance_controller_diagnostics(self, self, POLICY)
+        self.diagnostics = stance_controller_diagnostics(self, self)
 
     def activate(self) -> None:
         self._answering = True
@@ -90,21 +110,43 @@ class StanceControllerNode(ManagedNode):
         self._answering = False
         self._feedback = None  # no torque for a stance whose apex this node did not answer
 
-    def feedback(self) -> StanceFeedback:
-        """The policy's stance feedback with the current parameters."""
+    @property
+    def policy(self) -> str:
+        """The policy answering the next apex (``stance_policy``)."""
+        return str(self.get_parameter(STANCE_POLICY.name).value)
+
+    def feedback(self, apex: ApexState) -> StanceFeedback:
+        """The policy's stance feedback to ``apex`` (as the controller sees it), with the parameters now."""
         values = {**SETTING_DEFAULTS}
-        values |= {setting.name: self.get_parameter(setting.name).value for setting in settings_of(POLICY)}
-        return PolicySpec.of(POLICY, values).stance_feedback(self.hopper)
+        values |= {setting.name: self.get_parameter(setting.name).value for setting in SETTINGS}
+        return PolicySpec.of(self.policy, values).stance_feedback(self.hopper, apex)
 
     def _on_apex(self, apex: ApexEvent) -> None:
         if not self._answering:
             return
-        self._epoch, self._feedback = apex.epoch, self.feedback()
+        policy = self.policy
+        seen = ApexState(
+            apex.measured_height - apex.ground_height,
+            apex.measured_forward_speed,
+            apex.pitch,
+            apex.pitch_rate,
+        )
+        try:
+            feedback = self.feedback(seen)
+        except (ParameterError, PolicyError) as error:  # no command: the plant's timeout says so
+            self.unanswered += 1
+            self._feedback = None
+            self.get_logger().error(
+                f"{policy}: no command for apex {apex.stride} (y = {seen.y:.6g} m above the ground, "
+                f"xdot = {seen.xdot:.6g} m/s, pitch = {seen.pitch:.6g} rad): {error}"
+            )
+            return
+        self._epoch, self._feedback = apex.epoch, feedback
         msg = StanceCommand(
             epoch=apex.epoch,
             stride=apex.stride,
             touchdown_angle=self._feedback.touchdown_angle,
-            policy=POLICY,
+            policy=policy,
             stance=StanceCommand.STANCE_FEEDBACK,
         )
         msg.header = apex.header
@@ -133,6 +175,8 @@ class StanceControllerNode(ManagedNode):
             state.leg_length_rate,
             state.leg_angle_rate,
             state.hip_torque,
+            state.pitch,
+            state.pitch_rate,
         )
         torque = clip_torque(float(self._feedback.law.torque(sample)), self._max_torque)
         values = (sec, nanosec, self._epoch, state.stride, tick_of(sec, nanosec), torque)

@@ -9,6 +9,7 @@ controller of the user's own would leave them.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import math
@@ -34,6 +35,7 @@ from tdslip_msgs.msg import StanceCommand
 from tdslip_ros.bag import RosbagMcapWriter
 from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import custom_data_key, resolve
+from tdslip_ros.model.paper import PAPER_PARAMS, UPRIGHT_TRUNK
 from tdslip_ros.model.plant.perturbations import Mismatch, Perturbations, PlacementNoise, Pushes, SensingNoise
 from tdslip_ros.model.plant.terrain import Blocks, Step
 from tdslip_ros.nodes import topics
@@ -66,6 +68,13 @@ RUNS: dict[str, dict[str, Any]] = {
     },
     # The baseline of ref. 36: stance_controller_node streams a hip torque per stance tick.
     "stance_pd": {"strides": 8, "policy": "stance_pd_speed_energy"},
+    # A rigid body (the upright trunk) balanced by the posture policy, its hip starting at 1 m.
+    "posture": {
+        "strides": 8,
+        "policy": "posture",
+        "height": 1.2,
+        "hopper": dataclasses.replace(PAPER_PARAMS, body=UPRIGHT_TRUNK),
+    },
     # A 30 cm wall 8 m ahead: the toe cannot clear it.
     "wall": {"strides": 8, "perturbations": Perturbations(terrain=Step(0.3, 8.0))},
 }

@@ -28,7 +28,7 @@ from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS, DEFAULT_ANALYTIC_MAP, SpeedSource
 from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.model.params import HopperParams
+from tdslip_ros.model.params import ApexState, HopperParams
 from tdslip_ros.model.plant.stance_laws import StanceFeedback
 from tdslip_ros.model.policies import learned
 from tdslip_ros.model.policies.controllers import (
@@ -39,6 +39,11 @@ from tdslip_ros.model.policies.controllers import (
     energy_regulation,
     exact_energy_regulation,
     fixed_power,
+)
+from tdslip_ros.model.policies.posture import (
+    DEFAULT_DAMPING_RATIO,
+    DEFAULT_NATURAL_FREQUENCY,
+    PostureRegulation,
 )
 from tdslip_ros.model.policies.stance_pd import (
     DEFAULT_ENERGY_GAIN,
@@ -54,7 +59,10 @@ POLICIES = ("open_loop", "energy", "energy_exact", "deadbeat", "apex_foot_placem
 STANCE_PD_SPEED_ENERGY = "stance_pd_speed_energy"
 """The baseline of the paper's ref. 36: an energy term for height and PD on forward speed, fed back at every
 tick of the stance (:class:`.stance_pd.StancePDSpeedEnergy`), at a fixed touchdown angle."""
-STANCE_FEEDBACK_POLICIES = (STANCE_PD_SPEED_ENERGY,)
+POSTURE = "posture"
+"""For a rigid body (docs/rotating_body.md): the paper's energy regulation planned on the hip, at a fixed
+touchdown angle, with a stance PD that holds the balancing lean (:class:`.posture.PostureRegulation`)."""
+STANCE_FEEDBACK_POLICIES = (STANCE_PD_SPEED_ENERGY, POSTURE)
 """The policies that answer an apex with stance feedback (:meth:`PolicySpec.stance_feedback`)."""
 FIXED_ANGLE_POLICIES = ("open_loop", "energy", "energy_exact")
 """Policies that touch down at the fixed ``touchdown_angle``."""
@@ -138,8 +146,8 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         1e-6,
         1e9,
         DEFAULT_TARGET_ENERGY,
-        "apex energy to hold",
-        ("energy", "energy_exact"),
+        "apex energy to hold (posture: the hip's, m g y_hip + m xdot^2 / 2)",
+        ("energy", "energy_exact", POSTURE),
     ),
     PolicySetting(
         "target_height",
@@ -220,7 +228,7 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         1.5707953,
         DEFAULT_STANCE_TOUCHDOWN_ANGLE,
         "fixed touchdown angle of the stance feedback",
-        (STANCE_PD_SPEED_ENERGY,),
+        STANCE_FEEDBACK_POLICIES,
     ),
     PolicySetting(
         "stance_energy_gain",
@@ -251,6 +259,26 @@ POLICY_SETTINGS: tuple[PolicySetting, ...] = (
         DEFAULT_SPEED_RATE_GAIN,
         "k_d: torque per m/s^2 of forward acceleration",
         (STANCE_PD_SPEED_ENERGY,),
+    ),
+    PolicySetting(
+        "posture_natural_frequency",
+        float,
+        "rad/s",
+        1e-3,
+        1e4,
+        DEFAULT_NATURAL_FREQUENCY,
+        "omega of the stance PD about the lean (gains J omega^2 and 2 zeta J omega)",
+        (POSTURE,),
+    ),
+    PolicySetting(
+        "posture_damping_ratio",
+        float,
+        "",
+        0.0,
+        1e2,
+        DEFAULT_DAMPING_RATIO,
+        "zeta of the stance PD about the lean",
+        (POSTURE,),
     ),
 )
 """Every setting of the policies, in the order the controller's parameters and a study's columns take."""
@@ -290,6 +318,8 @@ class PolicySpec:
     stance_energy_gain: float
     stance_speed_gain: float
     stance_speed_rate_gain: float
+    posture_natural_frequency: float
+    posture_damping_ratio: float
     source: str = ""
 
     def __post_init__(self) -> None:
@@ -364,9 +394,21 @@ class PolicySpec:
             raise PolicyError(f"the learned policy's file {self.policy_file}: {error}") from None
         return residual, base
 
-    def stance_feedback(self, params: HopperParams) -> StanceFeedback:
-        """The stance feedback a policy of :data:`STANCE_FEEDBACK_POLICIES` answers every apex with, the law
-        computing with ``params`` (the controller's hopper); sampled at the plant node's tick."""
+    def stance_feedback(self, params: HopperParams, apex: ApexState | None = None) -> StanceFeedback:
+        """The stance feedback a policy of :data:`STANCE_FEEDBACK_POLICIES` answers ``apex`` with (its height
+        above the ground of the last stance, its speed and pitch as the controller sees them), the law
+        computing with ``params`` (the controller's hopper); sampled at the plant node's tick.
+        STANCE_PD_SPEED_ENERGY answers every apex alike (``apex`` may be None); POSTURE plans on it."""
+        if self.name == POSTURE:
+            if apex is None:
+                raise PolicyError(f"{POSTURE} plans on the apex it answers (stance_feedback(params, apex))")
+            posture = PostureRegulation(
+                self.stance_touchdown_angle,
+                self.target_energy,
+                self.posture_natural_frequency,
+                self.posture_damping_ratio,
+            )
+            return posture(params, apex)
         if self.name != STANCE_PD_SPEED_ENERGY:
             raise PolicyError(f"{self.name} answers with a ramp, not stance feedback (commands)")
         law = StancePDSpeedEnergy(
