@@ -126,10 +126,17 @@ class LaneRigidHopper(NamedTuple):
 
 @lru_cache(maxsize=16)
 def hopper_row(params: HopperParams) -> Array:
-    """The hopper as the lane loops take it: the fields of :class:`LaneHopper` in order; made once per
-    hopper and shared (the kernels only read it)."""
-    params.require_fixed_body("the compiled lane stride")
-    return np.array([getattr(params, name) for name in LaneHopper._fields])
+    """The hopper as the lane loops take it: the fields of :class:`LaneHopper` in order, of
+    :class:`LaneRigidHopper` with a rigid body; made once per hopper and shared (the kernels only read it)."""
+    if params.body is None:
+        return np.array([getattr(params, name) for name in LaneHopper._fields])
+    body_fields = LaneRigidHopper._fields[len(LaneHopper._fields) :]
+    return np.array(
+        [
+            *(getattr(params, name) for name in LaneHopper._fields),
+            *(getattr(params.body, f) for f in body_fields),
+        ]
+    )
 
 
 def first_step(hopper: dynamics.Hopper) -> float:
