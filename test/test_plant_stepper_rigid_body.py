@@ -17,8 +17,16 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from support.rigid_bodies import (
+    BETA,
+    PIVOT_BODIES,
+    RAMP_BODIES,
+    TIPPING,
+    hip_regulator,
+    ramp_start,
+    with_body,
+)
 
-from tdslip_ros.model import body_dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.paper import PAPER_PARAMS
@@ -36,32 +44,10 @@ from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.plant.terrain import Step
 from tdslip_ros.model.policies.virtual_pivot import VirtualPivot
 
-BETA = math.radians(20.0)
-TARGET_ENERGY = ApexState(1.2, 4.0).energy(PAPER_PARAMS)
 LEVEL_TOLERANCE = 1e-9
 """m, m/s, rad, rad/s and s: the stepper's strides against the exact map's (module docstring)."""
 
 Policy = Callable[[ApexState], StanceCommand | StanceFeedback]
-
-
-def with_body(body: RigidBody, params: HopperParams = PAPER_PARAMS) -> HopperParams:
-    return HopperParams(params.m, params.k, params.r0, params.c, params.g, body)
-
-
-def hip_regulator(params: HopperParams) -> Policy:
-    """The proportional energy regulator of test_plant_stepper.py on the hip's height, with pitch and
-    pitch-rate terms on tau0 (found by trial): a ramp per stride that keeps the bodies below hopping for 4-5
-    strides while they turn."""
-    body = params.body
-    assert body is not None
-
-    def command(apex: ApexState) -> StanceCommand:
-        hip_y = apex.y + body_dynamics.hip_offset(body, math.sin(apex.pitch), math.cos(apex.pitch))[1]
-        energy = params.m * (params.g * hip_y + 0.5 * apex.xdot**2)
-        tau0 = -600.0 + 3.0 * (energy - TARGET_ENERGY) + 1000.0 * apex.pitch + 100.0 * apex.pitch_rate
-        return StanceCommand(BETA, tau0, 0.15)
-
-    return command
 
 
 def apex_of(state: HopperState) -> ApexState:
@@ -121,22 +107,11 @@ def assert_stride_is_the_exact_maps(stride: Stride, exact: StrideResult) -> None
     assert times == pytest.approx(exact_times, abs=LEVEL_TOLERANCE)
 
 
-# The hip behind, below, above and far below the centre of mass; inertias from a light trunk's to a heavy
-# body's. tip_limit pi: the bodies turn by up to 2 rad over the strides, the test is the stepper's accuracy.
-RAMP_BODIES = {
-    "behind_and_below_J7": (RigidBody(7.2, -0.15, -0.1, math.pi), 4),
-    "behind_J20": (RigidBody(20.0, -0.15, 0.0, math.pi), 5),
-    "ahead_and_above_J100": (RigidBody(100.0, 0.1, 0.15, math.pi), 5),
-    "below_J100": (RigidBody(100.0, 0.0, -0.1, math.pi), 5),
-    "far_below_J1000": (RigidBody(1000.0, 0.1, -0.3, math.pi), 5),
-}
-
-
 def ramp_run(name: str) -> tuple[HopperParams, list[Stride]]:
     body, count = RAMP_BODIES[name]
     params = with_body(body)
     policy = hip_regulator(params)
-    start = ApexState(1.2 - body.hip_y, 4.0, 0.05, -0.3)
+    start = ramp_start(body)
     strides = run_strides(FixedStepStepper(params, start, policy(start)), count, policy)
     assert len(strides) == count and all(EventKind.FAILURE not in stride.events for stride in strides)
     return params, strides
@@ -152,13 +127,6 @@ def test_ramp_strides_are_the_exact_maps(name: str) -> None:
         assert kinds == [EventKind.TOUCHDOWN, EventKind.BOTTOM, EventKind.LIFTOFF, EventKind.APEX]
     # The bodies turn: the strides test the pitch, not a body held still.
     assert max(abs(stride.apex.pitch_rate - strides[0].apex.pitch_rate) for stride in strides) > 0.1
-
-
-PIVOT_BODIES = {
-    "below": RigidBody.from_gyration(80.0, 0.3, hip_y=-0.2),
-    "above": RigidBody.from_gyration(80.0, 0.3, hip_y=0.2),
-    "behind_and_below": RigidBody(20.0, -0.1, -0.15),
-}
 
 
 @pytest.mark.parametrize("name", PIVOT_BODIES)
@@ -246,31 +214,6 @@ def test_the_energy_balance_closes_with_the_rotation(name: str) -> None:
         assert reached - scale == pytest.approx(flows.net_gain, abs=1e-10 * scale)
         rotation = 0.5 * params.body.inertia * (liftoff.pitch_rate**2 - touchdown.pitch_rate**2)
         assert abs(rotation) > 1e-3 * abs(flows.hip_work)  # the rotation's share is not negligible
-
-
-TIPPING = {
-    # tip_limit 0.05: the ramp's reaction turns a light body past it early in the stance.
-    "in_stance": (RigidBody(2.0, tip_limit=0.05), ApexState(1.2, 3.0), -40.0, "into stance", None),
-    # Turning at -1 rad/s from 0.04 rad: past -0.05 rad after 0.09 s, before touchdown.
-    "before_touchdown": (
-        RigidBody(2.0, tip_limit=0.05),
-        ApexState(1.2, 3.0, 0.04, -1.0),
-        -40.0,
-        "before touchdown",
-        None,
-    ),
-    # The stance spins the body up to 1.5 rad/s; it passes 0.35 rad in the rise.
-    "after_liftoff": (RigidBody(2.0, tip_limit=0.35), ApexState(1.2, 3.0), -40.0, "after liftoff", None),
-    # Lifting off at 0.13 rad and 1.1 rad/s towards an apex at 1.20 m, beyond a bound of 1.15 m: the body
-    # passes 0.25 rad before that apex, and the exact map says tipped, not state_limit.
-    "after_liftoff_towards_an_apex_beyond_the_limits": (
-        RigidBody(20.0, tip_limit=0.25),
-        ApexState(1.1, 3.0),
-        -300.0,
-        "after liftoff",
-        1.15,
-    ),
-}
 
 
 @pytest.mark.parametrize("name", TIPPING)

@@ -80,10 +80,10 @@ class ParamArrays:
         if isinstance(params, ParamArrays):
             return params
         if isinstance(params, HopperParams):
-            params.require_fixed_body("the lane engines (analytic map, batched engine, policies)")
+            params.require_fixed_body("the lane engines (analytic map, policies)")
             return _arrays_of_hopper(params)
         for each in params:
-            each.require_fixed_body("the lane engines (analytic map, batched engine, policies)")
+            each.require_fixed_body("the lane engines (analytic map, policies)")
         return cls(*(np.array([getattr(p, name) for p in params]) for name in ("m", "k", "r0", "c", "g")))
 
     @classmethod

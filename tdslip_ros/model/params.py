@@ -182,7 +182,8 @@ class HopperParams:
         if self.body is not None:
             raise ParameterError(
                 f"{engine} runs the paper's fixed body only; a rigid body runs on the exact map "
-                f"(tdslip_ros.model.plant.exact_map) for now"
+                f"(tdslip_ros.model.plant.exact_map), the 1 kHz stepper and the batched engine's "
+                f"batch_apex_return_map for now"
             )
 
 

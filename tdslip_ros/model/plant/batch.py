@@ -8,6 +8,14 @@ as in :mod:`.exact_map`; stance is integrated lane by lane by the compiled DOP85
 Failures are per lane, as integer codes (:func:`.events.failure_code`, -1 for none), with the
 same rules as the single-trajectory paths, plausibility limits (:mod:`.limits`) included. A lane whose step
 size collapses (scipy's rule: below ten spacings of s) fails as ``state_limit`` rather than stall the batch.
+
+A rigid body (``params.body``, docs/rotating_body.md) hops one stride a call, as the exact map's
+``_rigid_body_stride`` does: the lanes carry its pitch and pitch rate, the flight is :mod:`.batch_body`'s,
+the stance the compiled rigid stance (:mod:`.stance_kernel`, ``tipped`` located as the other events), on
+flat ground with saturation, a push and a placement error; ramps and stance feedback. What the engine does
+not run for a body is refused by name: other ground (:func:`.batch_body.rigid_lanes`),
+:func:`simulate_strides`, and the compiled stride (:mod:`.stride_kernels`). What a rigid stride costs:
+bench/bench_rigid_body.py.
 """
 
 from __future__ import annotations
@@ -32,9 +40,16 @@ from tdslip_ros.model.limits import (
     validate_lanes,
 )
 from tdslip_ros.model.params import HopperParams, ParameterError
+from tdslip_ros.model.plant.batch_body import (
+    RigidLanes,
+    hip_beside_centre_of_mass,
+    rigid_lanes,
+    tip_times,
+    touchdown_times,
+)
 from tdslip_ros.model.plant.batch_stance import IntArray, feedback_stance, ramp_stance
 from tdslip_ros.model.plant.perturbations import UNPERTURBED, Perturbations, StrideConditions, placed_angle
-from tdslip_ros.model.plant.stance_kernel import STANCE_FAILURES, STANCE_LIFTOFF, STATE_SIZE
+from tdslip_ros.model.plant.stance_kernel import RIGID_STATE_SIZE, STANCE_FAILURES, STANCE_LIFTOFF, STATE_SIZE
 from tdslip_ros.model.plant.stance_laws import DEFAULT_SAMPLE_PERIOD, StanceLaw, TorqueStream, torque_limit
 from tdslip_ros.model.plant.terrain import FLAT, Terrain, touchdown
 
@@ -52,7 +67,8 @@ class BatchStrideResult:
     duration (touchdown to liftoff), NaN where the leg did not lift off; stride_time [s]: apex to
     next apex, NaN on failure; ground [m]: the stance's ground height (world frame, the toe's), NaN
     without a stance; x [m]: the next apex's position, NaN on failure; saturated: the hip saturated at
-    tau_max (a ramp's |tau0| beyond it, a law's sample clipped).
+    tau_max (a ramp's |tau0| beyond it, a law's sample clipped); pitch [rad], pitch_rate [rad/s]: a rigid
+    body's at the next apex (0 for the fixed body), NaN where the lane failed.
     """
 
     y: FloatArray
@@ -66,6 +82,8 @@ class BatchStrideResult:
     ground: FloatArray
     x: FloatArray
     saturated: npt.NDArray[np.bool_]
+    pitch: FloatArray
+    pitch_rate: FloatArray
 
 
 @dataclass(frozen=True)
@@ -94,13 +112,16 @@ def batch_apex_return_map(
     tau0: npt.ArrayLike,
     t_f: npt.ArrayLike,
     *,
+    pitch: npt.ArrayLike = 0.0,
+    pitch_rate: npt.ArrayLike = 0.0,
     rtol: float = 1e-12,
     atol: float = 1e-12,
     limits: PlausibilityLimits | None = None,
     conditions: StrideConditions = UNPERTURBED,
 ) -> BatchStrideResult:
     """The exact return map of :func:`.exact_map.apex_return_map` for broadcastable arrays of apex
-    states (y [m], xdot [m/s]) and commands (touchdown_angle [rad], tau0 [N m], t_f [s]).
+    states (y [m], xdot [m/s]; with a rigid body also pitch [rad] and pitch_rate [rad/s], 0 for the fixed
+    body) and commands (touchdown_angle [rad], tau0 [N m], t_f [s]).
 
     rtol/atol: per-lane DOP853 tolerances on the stance state, as in the exact map; the defaults
     give apex states within ~1e-12 (dimensionless) of it. limits: the plausibility limits (default:
@@ -108,9 +129,19 @@ def batch_apex_return_map(
     an invalid input, an apex beyond the limits included, or the invalid tolerance.
 
     ``conditions`` as in the exact map, per lane: each field a float or an array broadcast with the lanes
-    (the terrain's per-lane fields in the lanes' shape).
+    (the terrain's per-lane fields in the lanes' shape). A rigid body runs on flat ground at height 0
+    (:func:`.batch_body.rigid_lanes`).
     """
-    return _return_map(params, (y, xdot, touchdown_angle), (tau0, t_f), None, rtol, atol, limits, conditions)
+    return _return_map(
+        params,
+        (y, xdot, touchdown_angle, pitch, pitch_rate),
+        (tau0, t_f),
+        None,
+        rtol,
+        atol,
+        limits,
+        conditions,
+    )
 
 
 def batch_feedback_return_map(
@@ -120,6 +151,8 @@ def batch_feedback_return_map(
     touchdown_angle: npt.ArrayLike,
     law: StanceLaw,
     *,
+    pitch: npt.ArrayLike = 0.0,
+    pitch_rate: npt.ArrayLike = 0.0,
     sample_period: float = DEFAULT_SAMPLE_PERIOD,
     apex_time: npt.ArrayLike = 0.0,
     rtol: float = 1e-12,
@@ -131,15 +164,22 @@ def batch_feedback_return_map(
     (:class:`.stance_laws.StanceFeedback`), for broadcastable arrays of apex states, touchdown angles
     [rad] and apex times [s] on the sample clock, whose sample instants are the multiples of
     sample_period [s]. The law's per-lane fields are over the broadcast lanes, in flat order. The law's
-    torques are clipped at tau_max and the limits' max_torque. The rest as in
-    :func:`batch_apex_return_map`; ParameterError for a TorqueStream law.
+    torques are clipped at tau_max and the limits' max_torque; a rigid body's law sees the lanes' pitch and
+    pitch rate. The rest as in :func:`batch_apex_return_map`; ParameterError for a TorqueStream law.
     """
     if isinstance(law, TorqueStream):
         raise ParameterError("the batched engine cannot run a torque stream: replay it with RecordedTorques")
     if not (math.isfinite(sample_period) and sample_period > 0.0):
         raise ParameterError(f"sample_period must be a positive finite number, got {sample_period!r}")
     return _return_map(
-        params, (y, xdot, touchdown_angle), (apex_time,), (law, sample_period), rtol, atol, limits, conditions
+        params,
+        (y, xdot, touchdown_angle, pitch, pitch_rate),
+        (apex_time,),
+        (law, sample_period),
+        rtol,
+        atol,
+        limits,
+        conditions,
     )
 
 
@@ -153,8 +193,9 @@ def _return_map(
     limits: PlausibilityLimits | None,
     conditions: StrideConditions,
 ) -> BatchStrideResult:
-    """One stride of broadcast lanes: inputs (y, xdot, touchdown_angle), the conditions, and the stance's
-    inputs: (tau0, t_f) of ramps, or (apex_time,) under the law and period of ``feedback``."""
+    """One stride of broadcast lanes: inputs (y, xdot, touchdown_angle, pitch, pitch_rate), the conditions,
+    and the stance's inputs: (tau0, t_f) of ramps, or (apex_time,) under the law and period of
+    ``feedback``."""
     check_tolerances(rtol, atol)
     limits = PlausibilityLimits.of(params, limits)
     ground, terrain = conditions.ground, conditions.terrain
@@ -163,9 +204,10 @@ def _return_map(
         *(np.asarray(v, dtype=np.float64) for v in (*inputs, *per_lane, *stance_inputs))
     )
     shape = arrays[0].shape
-    y_a, xdot_a, angle, x_a, tau_max_a, push_a, error_a, *stance_a = (
+    y_a, xdot_a, angle, pitch_a, pitch_rate_a, x_a, tau_max_a, push_a, error_a, *stance_a = (
         np.array(a, dtype=np.float64).ravel() for a in arrays
     )
+    rigid = rigid_lanes(params, pitch_a, pitch_rate_a, conditions)
     if ground is None:
         ground_a = (
             np.zeros(y_a.size) if terrain.is_flat else np.broadcast_to(terrain.height(x_a), y_a.shape).copy()
@@ -186,6 +228,7 @@ def _return_map(
         rtol,
         atol,
         _Perturbed.of(terrain, x_a, ground_a, tau_max_a, push_a),
+        rigid,
     )
     return BatchStrideResult(**{f.name: getattr(result, f.name).reshape(shape) for f in fields(result)})
 
@@ -293,6 +336,11 @@ def simulate_strides(
     gets the same results. y0 is the initial apex height above the ground under the body at x0 [m].
     """
     check_tolerances(rtol, atol)
+    if params.body is not None:
+        raise ParameterError(
+            "simulate_strides runs the paper's fixed body only (its policies see no pitch, its perturbations "
+            "no body): a rigid body's lanes hop one stride a call on batch_apex_return_map"
+        )
     limits = PlausibilityLimits.of(params, limits)
     if n_strides < 0:
         raise ParameterError(f"n_strides must be non-negative, got {n_strides!r}")
@@ -434,14 +482,19 @@ def _stride(
     rtol: float,
     atol: float,
     perturbed: _Perturbed,
+    rigid: RigidLanes | None = None,
 ) -> BatchStrideResult:
-    """One stride of 1-D lanes (the arrays are validated; angle is where the leg lands)."""
+    """One stride of 1-D lanes (the arrays are validated; angle is where the leg lands); ``rigid``: a rigid
+    body's lanes (on flat ground), None for the fixed body."""
     params = limits.params
     lanes = y.size
     failure = np.full(lanes, NO_FAILURE_CODE, dtype=np.int64)
     out = {
         name: np.full(lanes, np.nan)
-        for name in ("y", "xdot", "hip_work", "damping_loss", "spring_loss", "stance", "t", "ground", "x")
+        for name in (
+            *("y", "xdot", "hip_work", "damping_loss", "spring_loss", "stance", "t", "ground", "x"),
+            *("pitch", "pitch_rate"),
+        )
     }
     if perturbed.push is not None:  # as limits.push_failure
         pushed_out = (perturbed.push != 0.0) & limits.apex_exceeded(y, xdot + perturbed.push)
@@ -449,7 +502,21 @@ def _stride(
         xdot = xdot + perturbed.push
     sin_td, cos_td = np.sin(angle), np.cos(angle)
     y_td = dynamics.touchdown_height(params, cos_td)
-    if perturbed.terrain is None:
+    # The hip's velocity beside the centre of mass's at touchdown (a rigid body's turning).
+    relative_vx: FloatArray | float = 0.0
+    relative_vy: FloatArray | float = 0.0
+    if rigid is not None:  # as the exact map's _rigid_body_stride: the hip stubs the toe, then tipping
+        t_td = touchdown_times(params, rigid.body, y, rigid.pitch, rigid.pitch_rate, cos_td)
+        failure[(failure == NO_FAILURE_CODE) & np.isnan(t_td)] = failure_code(FailureKind.TOE_STUBBING)
+        tipping = tip_times(rigid.body, rigid.pitch, rigid.pitch_rate)
+        failure[(failure == NO_FAILURE_CODE) & (tipping <= t_td)] = failure_code(FailureKind.TIPPED)
+        pitch_td = rigid.pitch + rigid.pitch_rate * t_td
+        offset_x, _, relative_vx, relative_vy = hip_beside_centre_of_mass(
+            rigid.body, pitch_td, rigid.pitch_rate
+        )
+        toe_x = perturbed.x + xdot * t_td + offset_x + params.r0 * sin_td
+        toe_y = np.zeros(lanes)
+    elif perturbed.terrain is None:
         failure[(failure == NO_FAILURE_CODE) & (y < y_td)] = failure_code(FailureKind.TOE_STUBBING)
         t_td = dynamics.fall_time(y, np.zeros(lanes), np.minimum(y_td, y), params.g)
         toe_x = perturbed.x + xdot * t_td + params.r0 * sin_td
@@ -470,13 +537,18 @@ def _stride(
     touched = failure == NO_FAILURE_CODE
     out["ground"][touched] = toe_y[touched]
     ydot_td = -params.g * t_td
-    rdot_td, thetadot_td = dynamics.polar_velocity(np.full(lanes, params.r0), sin_td, cos_td, xdot, ydot_td)
+    rdot_td, thetadot_td = dynamics.polar_velocity(
+        np.full(lanes, params.r0), sin_td, cos_td, xdot + relative_vx, ydot_td + relative_vy
+    )
     failure[(failure == NO_FAILURE_CODE) & (thetadot_td >= 0.0)] = failure_code(FailureKind.REVERSAL)
 
     in_stance = np.flatnonzero(failure == NO_FAILURE_CODE)
-    y_end = np.zeros((in_stance.size, STATE_SIZE))  # the touchdown states, then the stances' ends
+    # The touchdown states, then the stances' ends; a rigid body's end with its pitch and rate.
+    y_end = np.zeros((in_stance.size, STATE_SIZE if rigid is None else RIGID_STATE_SIZE))
     y_end[:, 0], y_end[:, 1] = params.r0, angle[in_stance]
     y_end[:, 2], y_end[:, 3] = rdot_td[in_stance], thetadot_td[in_stance]
+    if rigid is not None:
+        y_end[:, 6], y_end[:, 7] = pitch_td[in_stance], rigid.pitch_rate[in_stance]
     tau_max = None if perturbed.tau_max is None else perturbed.tau_max[in_stance]
     t_limit = limits.max_stance_time
     if isinstance(stance, _Ramp):
@@ -512,29 +584,42 @@ def _stride(
     lanes_lo = in_stance[lifted]
     r, theta, rdot, thetadot = y_end[lifted, 0], y_end[lifted, 1], y_end[lifted, 2], y_end[lifted, 3]
     sin_lo, cos_lo = np.sin(theta), np.cos(theta)
+    # The centre of mass at liftoff, above the stance's ground: the hip's, less a rigid body's offset.
     xdot_lo, ydot_lo = dynamics.cartesian_velocity(r, sin_lo, cos_lo, rdot, thetadot)
+    x_lo, y_lo = toe_x[lanes_lo] - r * sin_lo, r * cos_lo
+    pitch_lo, pitch_rate_lo = np.zeros(lanes_lo.size), np.zeros(lanes_lo.size)
+    if rigid is not None:
+        pitch_lo, pitch_rate_lo = y_end[lifted, 6], y_end[lifted, 7]
+        offset_x, offset_y, hip_vx, hip_vy = hip_beside_centre_of_mass(rigid.body, pitch_lo, pitch_rate_lo)
+        xdot_lo, ydot_lo, x_lo, y_lo = xdot_lo - hip_vx, ydot_lo - hip_vy, x_lo - offset_x, y_lo - offset_y
     out["hip_work"][lanes_lo] = y_end[lifted, 4]
     out["damping_loss"][lanes_lo] = y_end[lifted, 5]
     out["spring_loss"][lanes_lo] = dynamics.spring_energy(params, r)
     out["stance"][lanes_lo] = s_end[lifted]
-    # The same rules, in the same order, as dynamics.takeoff_failure.
+    # The same rules, in the same order, as dynamics.takeoff_failure, then a rigid body's tipping in the rise.
     falls = ydot_lo <= 0.0
     reversals = ~falls & (xdot_lo <= 0.0)
     failure[lanes_lo[falls]] = failure_code(FailureKind.FALL)
     failure[lanes_lo[reversals]] = failure_code(FailureKind.REVERSAL)
     rising = ~falls & ~reversals
     t_rise = ydot_lo[rising] / params.g
-    y_lo = r[rising] * cos_lo[rising]  # above the stance's ground
-    x_lo = toe_x[lanes_lo[rising]] - r[rising] * sin_lo[rising]
-    x_apex, y_apex, _, _ = dynamics.ballistic(x_lo, y_lo, xdot_lo[rising], ydot_lo[rising], t_rise, params.g)
-    beyond = limits.apex_exceeded(y_apex, xdot_lo[rising])  # as limits.apex_failure
+    tips = np.zeros(t_rise.size, dtype=bool)
+    if rigid is not None:
+        tips = tip_times(rigid.body, pitch_lo[rising], pitch_rate_lo[rising]) <= t_rise
+        failure[lanes_lo[rising][tips]] = failure_code(FailureKind.TIPPED)
+    x_apex, y_apex, _, _ = dynamics.ballistic(
+        x_lo[rising], y_lo[rising], xdot_lo[rising], ydot_lo[rising], t_rise, params.g
+    )
+    beyond = ~tips & limits.apex_exceeded(y_apex, xdot_lo[rising])  # as limits.apex_failure
     failure[lanes_lo[rising][beyond]] = failure_code(FailureKind.STATE_LIMIT)
-    ok = ~beyond
+    ok = ~tips & ~beyond
     lanes_ok = lanes_lo[rising][ok]
     out["y"][lanes_ok] = y_apex[ok]
     out["xdot"][lanes_ok] = xdot_lo[rising][ok]
     out["x"][lanes_ok] = x_apex[ok]
     out["t"][lanes_ok] = t_td[lanes_ok] + s_end[lifted][rising][ok] + t_rise[ok]
+    out["pitch"][lanes_ok] = (pitch_lo[rising] + pitch_rate_lo[rising] * t_rise)[ok]
+    out["pitch_rate"][lanes_ok] = pitch_rate_lo[rising][ok]
     return BatchStrideResult(
         y=out["y"],
         xdot=out["xdot"],
@@ -547,4 +632,6 @@ def _stride(
         ground=out["ground"],
         x=out["x"],
         saturated=saturated,
+        pitch=out["pitch"],
+        pitch_rate=out["pitch_rate"],
     )

@@ -79,8 +79,16 @@ STANCE_FAILURE_CODES = np.array(
     [failure_code(STANCE_FAILURES.get(outcome)) for outcome in range(max(STANCE_FAILURES) + 1)]
 )
 """The failure code of each stance outcome (stance_kernel.STANCE_FAILURES; none for liftoff)."""
-ROW = {field.name: row for row, field in enumerate(fields(BatchStrideResult))}
-"""The row of each field of :class:`.batch.BatchStrideResult` in a block of strides."""
+PITCH_FIELDS = ("pitch", "pitch_rate")
+"""The fields of :class:`.batch.BatchStrideResult` that a fixed body holds at 0 (NaN on failure): not in a
+block."""
+ROW = {
+    name: row
+    for row, name in enumerate(
+        field.name for field in fields(BatchStrideResult) if field.name not in PITCH_FIELDS
+    )
+}
+"""The row of each other field of :class:`.batch.BatchStrideResult` in a block of strides."""
 STRIDE_ROWS = len(ROW)
 Y_ROW, XDOT_ROW, FAILURE_ROW, X_ROW, GROUND_ROW = (
     ROW["y"],
@@ -221,7 +229,9 @@ def default_limits(params: HopperParams) -> PlausibilityLimits:
 @lru_cache(maxsize=16)
 def kernel_rows(limits: PlausibilityLimits) -> tuple[Array, Array]:
     """The hopper (m, k, r0, c, g) and the limits (the fields of :class:`LaneLimits`) as the lane loops
-    take them; made once per limits and shared (the kernels only read them)."""
+    take them; made once per limits and shared (the kernels only read them). ParameterError for a rigid
+    body, which the compiled stride does not run yet."""
+    limits.params.require_fixed_body("the compiled lane stride (stride_kernels)")
     return hopper_row(limits.params), np.array([getattr(limits, name) for name in LaneLimits._fields])
 
 
@@ -256,11 +266,11 @@ def compiled_apex_return_map(
     hopper, bounds = kernel_rows(limits)
     out = np.empty((STRIDE_ROWS, y_a.size))
     stride_lanes(hopper, bounds, y_a, xdot_a, angle, tau0_a, t_f_a, tau_max_a, float(rtol), float(atol), out)
-    rows: dict[str, Any] = {
-        f.name: row.reshape(shape) for f, row in zip(fields(BatchStrideResult), out, strict=True)
-    }
+    rows: dict[str, Any] = {name: out[row].reshape(shape) for name, row in ROW.items()}
     rows["failure"] = rows["failure"].astype(np.int64)
     rows["saturated"] = rows["saturated"] != 0.0
+    for name in PITCH_FIELDS:
+        rows[name] = np.where(np.isnan(rows["y"]), np.nan, 0.0)
     return BatchStrideResult(**rows)
 
 
