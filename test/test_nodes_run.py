@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
@@ -156,10 +157,11 @@ def test_an_apex_the_leg_cannot_be_placed_from_is_refused_before_anything_starts
         (["--hip", "0", "-0.3"], "--hip needs --body rigid"),
         (["--body", "rigid", "--height", "1.2", "--body-inertia", "-1"], "body inertia must be"),
         (
-            ["--body", "rigid", "--height", "1.2", "--terrain", "step:height=0.1,x=3"],
+            ["--body", "rigid", "--height", "1.2", "--policy", "posture", "--terrain", "step:height=0.1,x=3"],
             "the 1 kHz stepper runs a rigid body on flat ground",
         ),
-        (["--body", "rigid"], "the leg cannot be placed from an apex at 0.8 m"),  # the hip's, 0.2 m below
+        (["--body", "rigid", "--policy", "posture"], "the leg cannot be placed from an apex at 0.8 m"),
+        (["--body", "rigid", "--height", "1.2"], "the energy policy plans on the paper's fixed body"),
     ],
 )
 def test_a_setting_out_of_range_is_refused_before_anything_starts(
@@ -346,14 +348,11 @@ def test_a_double_ctrl_c_leaves_a_finalised_bag(tmp_path: Path) -> None:
     assert (bag / "metadata.yaml").is_file()
 
 
-def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analysable(tmp_path: Path) -> None:
-    """``tdslip run --controller none`` starts the plant and the recorder only and waits for the user's own
-    controller (examples/my_controller.py, started a few seconds later in the same domain); the run ends by
-    itself, and so does the example, everything is recorded, and tdslip analyze reads it as a controller of
-    one's own."""
+def run_with_my_controller(bag: Path, *options: str) -> tuple[int, int, str, str, int]:
+    """``tdslip run --controller none OPTIONS`` with examples/my_controller.py started beside it in a free
+    domain of its own: (the run's exit status, the example's, the run's stdout and stderr, the domain)."""
     from tdslip_ros.nodes import isolation
 
-    bag = tmp_path / "mine"
     # A free domain from the pool; released at once, the run reserves it (its ROS_DOMAIN_ID), and the pool's
     # cool-down keeps other runs off it meanwhile.
     with isolation.reserved_domain() as domain_id:
@@ -361,7 +360,7 @@ def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analy
     environment = isolation.isolated_environment(domain_id)
     command = [sys.executable, "-m", "tdslip_ros.commands.cli", "run", "--controller", "none"]
     run = subprocess.Popen(
-        [*command, "--strides", "5", "--wait-for-controller", "60", "--out", str(bag)],
+        [*command, *options, "--wait-for-controller", "60", "--out", str(bag)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -378,7 +377,17 @@ def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analy
         controller_status = controller.wait(30)  # the example ends with the plant's run
     finally:
         stop_example(controller)
-    assert run.returncode == 0, stdout[-1500:] + stderr[-2000:]
+    return run.returncode, controller_status, stdout, stderr, domain_id
+
+
+def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analysable(tmp_path: Path) -> None:
+    """``tdslip run --controller none`` starts the plant and the recorder only and waits for the user's own
+    controller (examples/my_controller.py, started a few seconds later in the same domain); the run ends by
+    itself, and so does the example, everything is recorded, and tdslip analyze reads it as a controller of
+    one's own."""
+    bag = tmp_path / "mine"
+    returncode, controller_status, stdout, stderr, domain_id = run_with_my_controller(bag, "--strides", "5")
+    assert returncode == 0, stdout[-1500:] + stderr[-2000:]
     assert controller_status == 0
     assert stderr.startswith(f"tdslip run: waiting up to 60 s for your controller in ROS domain {domain_id}")
     assert "lockstep run, your own controller: 5 strides" in stdout and "LOST" not in stdout
@@ -393,3 +402,23 @@ def test_a_run_with_ones_own_controller_waits_for_it_and_ends_recorded_and_analy
     )
     assert analysed.returncode == 0, analysed.stderr[-2000:]
     assert "skip" in analysed.stdout + analysed.stderr  # the replay of a known policy is skipped, and said
+
+
+def test_ones_own_ramp_controller_on_a_rigid_body_is_predicted_by_the_batched_engine(tmp_path: Path) -> None:
+    """A rigid body under a controller of one's own that answers with ramps (examples/my_controller.py):
+    its recording reads, and the batched engine (the analysis' exact map for ramps) predicts each recorded
+    next apex from the recorded apex, pitch included, and the command, to the plant's RK4 error."""
+    from tdslip_ros.analysis.compare import compare_run
+
+    bag = tmp_path / "rigid"
+    returncode, _, stdout, stderr, _ = run_with_my_controller(
+        bag, "--strides", "3", "--body", "rigid", "--body-inertia", "100", "--height", "1.2"
+    )
+    assert returncode == 0, stdout[-1500:] + stderr[-2000:]
+    run = read_run(bag)
+    assert run.params.body is not None and len(run.strides) == 4
+    assert all(abs(s.pitch) > 1e-3 for s in run.strides[1:])  # the hip torque turns the body
+    comparison = compare_run(run)
+    assert comparison.exact_errors.strides == 3 and comparison.exact_errors.failures == 0
+    assert max(comparison.exact_errors.max_height, comparison.exact_errors.max_speed) < 1e-9
+    assert np.all(np.isnan(comparison.predictions.analytic[1]))  # the analytic map is the fixed body's

@@ -58,7 +58,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml  # type: ignore[import-untyped]  # PyYAML ships no type stubs
 
-from tdslip_ros.analysis.records import Run, StrideRecord
+from tdslip_ros.analysis.records import Run
 from tdslip_ros.analysis.stance_feedback import (
     FeedbackPredictions,
     feedback_summary,
@@ -79,7 +79,6 @@ from tdslip_ros.model.arrays import CommandArrays
 from tdslip_ros.model.events import failure_from_code
 from tdslip_ros.model.params import HopperParams
 from tdslip_ros.model.plant.batch import batch_apex_return_map
-from tdslip_ros.model.plant.exact_map import apex_return_map
 from tdslip_ros.model.plant.perturbations import StrideConditions
 from tdslip_ros.model.policies.registry import (
     FIXED_ANGLE_POLICIES,
@@ -322,10 +321,8 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
     )
     start_y = column("y") - stance_ground
     start_xdot = column("xdot") + column("push")
-    if params.body is not None:
-        return _rigid_body_predictions(run, rows, stride, recorded)
     analytic, failures, energy = {}, {}, {}
-    for corrections in CORRECTIONS:
+    for corrections in CORRECTIONS if params.body is None else ():
         result = approximate_map(params, start_y, start_xdot, applied, corrections, speed=speed)
         analytic[corrections] = np.stack([stance_ground + result.y, result.xdot], axis=-1).reshape(-1, 2)
         codes = np.atleast_1d(result.failure)
@@ -333,12 +330,18 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
         energy[corrections] = np.stack(
             [result.stance.hip_energy, result.stance.damping_loss, result.stance.spring_energy], axis=-1
         ).reshape(-1, 3)
+    if params.body is not None:  # the analytic map is the fixed body's: it predicts none of these
+        analytic = dict.fromkeys(CORRECTIONS, np.full((len(rows), 2), math.nan))
+        failures = {corrections: [None] * len(rows) for corrections in CORRECTIONS}
+        energy = dict.fromkeys(CORRECTIONS, np.full((len(rows), 3), math.nan))
     if len(rows):
         exact = batch_apex_return_map(
             params,
             column("y") - column("ground"),
             column("xdot"),
             *command,
+            pitch=column("pitch"),
+            pitch_rate=column("pitch_rate"),
             conditions=StrideConditions(
                 x=column("x"),
                 ground=column("ground"),
@@ -358,43 +361,6 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
         analytic_failures=failures,
         analytic_energy=energy,
         exact=exact_next,
-    )
-
-
-def _rigid_body_predictions(
-    run: Run, rows: list[StrideRecord], stride: npt.NDArray[np.int64], recorded: FloatArray
-) -> Predictions:
-    """A rigid body's ramp strides, each on the exact map (the one engine that runs it with every condition
-    here); the analytic map is the fixed body's, and predicts none (NaN)."""
-    perturbations = run.perturbations
-    exact = []
-    for s in rows:
-        assert s.command is not None  # rows hold the strides with a command
-        result = apex_return_map(
-            run.params,
-            s.apex,
-            s.command,
-            conditions=StrideConditions(
-                x=s.x,
-                ground=s.ground,
-                terrain=perturbations.terrain,
-                tau_max=float(perturbations.tau_max),
-                push=s.push,
-                angle_error=s.angle_error,
-            ),
-        )
-        if result.apex is None or result.ground is None:
-            exact.append((math.nan, math.nan))
-        else:
-            exact.append((result.ground + result.apex.y, result.apex.xdot))
-    none = np.full((len(rows), 2), math.nan)
-    return Predictions(
-        stride=stride,
-        recorded=recorded,
-        analytic=dict.fromkeys(CORRECTIONS, none),
-        analytic_failures={c: [None] * len(rows) for c in CORRECTIONS},
-        analytic_energy=dict.fromkeys(CORRECTIONS, np.full((len(rows), 3), math.nan)),
-        exact=np.array(exact, dtype=float).reshape(-1, 2),
     )
 
 

@@ -461,6 +461,11 @@ def check_options(options: RunOptions) -> None:
     hopper = options.hopper or hopper_from_parameters(installed_parameters("plant.yaml"))
     if options.policy == POSTURE and hopper.body is None:
         raise RunOptionError(f"the {POSTURE} policy balances a rigid body: give --body rigid")
+    if hopper.body is not None and options.policy in POLICIES and not options.own_controller:
+        raise RunOptionError(
+            f"the {options.policy} policy plans on the paper's fixed body; a rigid body runs under --policy "
+            f"{POSTURE} or stance_pd_speed_energy, or a controller of one's own (--controller none)"
+        )
     try:
         check_body(hopper, ApexState(options.height, options.speed), options.perturbations)
     except ParameterError as error:
