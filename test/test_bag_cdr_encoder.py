@@ -186,25 +186,28 @@ def test_markers_encode_in_place_to_the_bytes_of_serialize_message() -> None:
     """Arrays keep the lengths of the template (two points a line): the drawing's stamps and coordinates
     land where rclpy puts them, every other byte as rclpy serialises the template."""
     rng = random.Random(13)
-    drawing = HopperMarkers("world")
-    for _ in range(100):
+    for index in range(100):
+        rigid = index % 2 == 1  # a rigid body's trunk drawn, the fixed body's deleted
+        drawing = HopperMarkers("world", rigid)
         state, t, ground = random_state(rng), rng.uniform(0.0, 1e4), rng.uniform(-1.0, 1.0)
         if rng.random() < 0.3:
             state = replace(state, grf_x=0.0, grf_y=0.0)  # flight: the arrow deleted
         data = drawing.encoded(state, t, ground)
         message = deserialize_message(data, MarkerArray)
         assert serialized(message) == data
-        body, leg, toe, ground_line, grf = message.markers
+        body, leg, toe, ground_line, grf, trunk = message.markers
         sec, nanosec = divmod(round(t * 1e9), 1_000_000_000)
         assert {(m.header.stamp.sec, m.header.stamp.nanosec) for m in message.markers} == {(sec, nanosec)}
         assert (body.pose.position.x, body.pose.position.z) == (state.x, state.y)
         assert (toe.pose.position.x, toe.pose.position.z) == (state.toe_x, state.toe_y)
-        assert [(p.x, p.z) for p in leg.points] == [(state.x, state.y), (state.toe_x, state.toe_y)]
+        if not rigid:
+            assert [(p.x, p.z) for p in leg.points] == [(state.x, state.y), (state.toe_x, state.toe_y)]
+        assert trunk.action == (Marker.ADD if rigid else Marker.DELETE)
         assert [p.z for p in ground_line.points] == [ground, ground]
         assert ground_line.points[1].x - ground_line.points[0].x == pytest.approx(2 * GROUND_HALF_WINDOW)
         assert grf.action == (Marker.DELETE if state.grf_x == state.grf_y == 0.0 else Marker.ADD)
         assert (grf.points[1].x - state.toe_x) * GRF_SCALE == pytest.approx(state.grf_x, abs=1e-9)
-        assert [m.id for m in message.markers] == list(range(5)) and body.color.b == pytest.approx(0.9)
+        assert [m.id for m in message.markers] == list(range(6)) and body.color.b == pytest.approx(0.9)
 
 
 def test_apex_and_contact_events_encode_to_the_bytes_of_serialize_message() -> None:

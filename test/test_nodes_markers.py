@@ -5,6 +5,7 @@ draws the recorded state of its tick."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -52,14 +53,16 @@ def test_every_marker_array_draws_the_recorded_state_of_its_tick(energy: RunRepo
         assert len(arrays) == -(-len(states) // 17), name
         stances = 0
         for array in arrays:
-            body, leg, toe, ground, grf = array.markers
+            body, leg, toe, ground, grf, trunk = array.markers
             assert [m.id for m in array.markers] == [
                 markers.BODY,
                 markers.LEG,
                 markers.TOE,
                 markers.GROUND,
                 markers.GRF,
+                markers.TRUNK,
             ]
+            assert trunk.action == 2  # Marker.DELETE: the fixed body has no trunk of its own
             state, force = states[stamp(body)], forces[stamp(body)]
             assert all(m.header.frame_id == "world" for m in array.markers), name
             assert (body.pose.position.x, body.pose.position.z) == (state.x, state.y)
@@ -81,6 +84,33 @@ def test_every_marker_array_draws_the_recorded_state_of_its_tick(energy: RunRepo
             else:
                 assert grf.action == 2  # Marker.DELETE
         assert stances > 0, name
+
+
+def test_a_rigid_body_is_drawn_with_its_trunk_along_its_pitch(posture: RunReport) -> None:
+    """The posture run's rigid body: the leg from the hip (the toe plus the state's leg, not the centre of
+    mass), and the trunk through the centre of mass along the body's axis, turned by the recorded pitch."""
+    for name, messages in decoded(posture.bag).items():
+        states = {stamp(s): s for s in messages[resolve(topics.STATE)]}
+        leaning = 0
+        for array in messages[resolve(topics.MARKERS)]:
+            body, leg, _, _, _, trunk = array.markers
+            state = states[stamp(body)]
+            assert (body.pose.position.x, body.pose.position.z) == (state.x, state.y)
+            hip, foot = leg.points
+            assert (foot.x, foot.z) == (state.toe_x, state.toe_y)
+            assert (hip.x - foot.x, hip.z - foot.z) == pytest.approx(
+                (-state.leg_length * math.sin(state.leg_angle), state.leg_length * math.cos(state.leg_angle)),
+                abs=1e-12,
+            )
+            # the hip 0.2 m below the centre of mass, along the body's axis
+            assert math.dist((hip.x, hip.z), (state.x, state.y)) == pytest.approx(0.2, abs=1e-9), name
+            tail, head = trunk.points
+            assert trunk.action == 0 and ((tail.x + head.x) / 2, (tail.z + head.z) / 2) == pytest.approx(
+                (state.x, state.y), abs=1e-12
+            )
+            assert math.atan2(-(head.x - tail.x), head.z - tail.z) == pytest.approx(state.pitch, abs=1e-12)
+            leaning += abs(state.pitch) > 0.3
+        assert leaning > 10, name
 
 
 def test_the_foxglove_layout_shows_the_suites_topics(repo_root: Path) -> None:

@@ -198,7 +198,10 @@ class PlantNode(ManagedNode):
         marker_rate = float(values["marker_rate"])
         marker_period_ticks = max(1, round(1.0 / (marker_rate * TICK_PERIOD))) if marker_rate else 0
         self._out = PlantOutput(
-            self, publish_clock=bool(values["publish_clock"]), marker_period_ticks=marker_period_ticks
+            self,
+            publish_clock=bool(values["publish_clock"]),
+            marker_period_ticks=marker_period_ticks,
+            rigid=self.hopper.body is not None,
         )
         self.robot_model = RobotModelPublisher(self, self.hopper, marker_period_ticks)
         self.published = self._out.published

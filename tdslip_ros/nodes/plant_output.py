@@ -82,7 +82,9 @@ class PlantOutput:
     """The plant's publishers on ``node`` (topics.PLANT_TOPICS, and /clock with ``publish_clock``) and what
     goes out on them; markers every ``marker_period_ticks`` ticks (0: never)."""
 
-    def __init__(self, node: Node, *, publish_clock: bool, marker_period_ticks: int) -> None:
+    def __init__(
+        self, node: Node, *, publish_clock: bool, marker_period_ticks: int, rigid: bool = False
+    ) -> None:
         # tdslip/samples first: a recorder that sees the plant's state publisher knows its batches too.
         published_topics = [topics.SAMPLES, *topics.PLANT_TOPICS, *((topics.CLOCK,) if publish_clock else ())]
         self._publishers: dict[str, Publisher[Any]] = {
@@ -105,7 +107,7 @@ class PlantOutput:
         self._markers_pub = self._publishers[topics.MARKERS]
         self._marker_period_ticks = marker_period_ticks
         self._markers_out = False  # markers are drawn while someone subscribes to them
-        self._markers = HopperMarkers(topics.FRAME_ID)
+        self._markers = HopperMarkers(topics.FRAME_ID, rigid)  # rigid: a rigid body's trunk is drawn
         self._state_encoder = state_encoder()
         self._grf_encoder = grf_encoder()
         self._clock_encoder = fixed_layout_encoder(ClockMsg, ("clock.sec", "clock.nanosec"))
