@@ -37,7 +37,17 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 
 IN_XDIST_WORKER = "PYTEST_XDIST_WORKER" in os.environ
 """Whether this process is a worker of pytest-xdist (the fast tier's ``-n 2``)."""
-RECORDED_RUNS = ("energy", "fall", "energy_exact", "deadbeat", "rough", "wall", "energy_again", "stance_pd")
+RECORDED_RUNS = (
+    "energy",
+    "fall",
+    "energy_exact",
+    "deadbeat",
+    "rough",
+    "wall",
+    "energy_again",
+    "stance_pd",
+    "posture",
+)
 """Session fixtures, one per run of analysis_runs.RUNS and AGAIN: its RunReport, recorded by the node suite
 once per test process (by the background child, or here on first use)."""
 NODE_FIXTURES = frozenset({"ros", "readme_colcon_build", "compare_sweep", *RECORDED_RUNS})

@@ -177,7 +177,7 @@ def test_a_malformed_batch_is_skipped_and_recording_goes_on(ros: RosGraph, tmp_p
     ros.spin_until(lambda: batches.get_subscription_count() >= 1, "the recorder to subscribe")
     wait_for_matching(node, [batches], 5.0)
     batches.publish(HopperSamples(sec=[1, 2], nanosec=[0]))  # columns of unequal length
-    rows = [(tick, 0, 0, 0, *([float(tick)] * 15)) for tick in range(3)]
+    rows = [(tick, 0, 0, 0, *([float(tick)] * (len(SAMPLE_COLUMNS) - 4))) for tick in range(3)]
     batches.publish(
         HopperSamples(**{name: [row[i] for row in rows] for i, name in enumerate(SAMPLE_COLUMNS)})
     )

@@ -15,7 +15,8 @@ from typing import Any
 
 import pytest
 
-pytestmark = pytest.mark.nodes
+# One soak per test run: on two xdist workers, one would see the other's processes as left behind.
+pytestmark = [pytest.mark.nodes, pytest.mark.xdist_group("soak")]
 
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "bench_soak.py"
 DURATION = 50  # s of realtime hopping
