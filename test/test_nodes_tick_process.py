@@ -3,6 +3,7 @@ scheduling wish or dies."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
 import time
@@ -160,21 +161,61 @@ def test_the_pipe_sink_writes_events_at_once_and_routine_ticks_every_few() -> No
             sink.tick(state(k * 1e-3), k * 1e-3, k)
             sink.counted(None)
             sink.flush(unless_routine=True)
+        sink.drain()
         assert written(read) == b""  # routine calls wait for the batch
         sink.tick(state(0.009), 0.009, SAMPLES_PER_BATCH - 1)
         sink.flush(unless_routine=True)
+        sink.drain()
         received = calls(written(read))
         assert [name for name, _, _ in received].count("tick") == SAMPLES_PER_BATCH
         sink.tick(state(0.010), 0.010, SAMPLES_PER_BATCH)
         sink.log("warning", "an event")
         sink.flush(unless_routine=True)
+        sink.drain()
         assert [name for name, _, _ in calls(written(read))] == ["tick", "log"]
         sink.live = True  # someone takes the samples live: every tick goes out at once
         sink.tick(state(0.011), 0.011, SAMPLES_PER_BATCH + 1)
         sink.flush(unless_routine=True)
+        sink.drain()
         assert [name for name, _, _ in calls(written(read))] == ["tick"]
         with pytest.raises(AttributeError):
             sink.not_a_sink_call  # noqa: B018
+        sink.close()
+    finally:
+        os.close(read)
+        os.close(write)
+
+
+def test_the_tick_hands_its_calls_to_the_writer_and_does_not_wait_for_the_pipe() -> None:
+    """A flush returns while the pipe is full (the node's process not reading): its thread writes, in order
+    and whole, once the reader reads again; close writes the rest."""
+    read, write = os.pipe()
+    os.set_blocking(read, False)
+    try:
+        filler = b"x" * fcntl.fcntl(write, fcntl.F_GETPIPE_SZ)
+        os.write(write, filler)  # full: a write on this thread would block here
+        sink = PipeSink(write)
+
+        def blocked(signum: int, frame: object) -> None:
+            raise AssertionError("the flush waited for the pipe")
+
+        previous = signal.signal(signal.SIGALRM, blocked)
+        signal.alarm(10)  # a write on the tick's thread would block until the reader reads: end it instead
+        try:
+            sink.log("warning", "first")
+            sink.flush()  # returns: the writer thread waits for room instead
+            sink.log("warning", "second")
+            sink.flush()
+        finally:
+            signal.alarm(0)
+            signal.signal(signal.SIGALRM, previous)
+        drained = b""
+        while len(drained) < len(filler):
+            drained += written(read)
+        assert drained[: len(filler)] == filler
+        sink.close()
+        rest = drained[len(filler) :] + written(read)
+        assert [args for _, args, _ in calls(rest)] == [("warning", "first"), ("warning", "second")]
     finally:
         os.close(read)
         os.close(write)

@@ -22,6 +22,7 @@ import fcntl
 import gc
 import os
 import pickle
+import queue
 import select
 import signal
 import struct
@@ -45,6 +46,7 @@ SINK_CALLS = frozenset(name for name, value in vars(PlantSink).items() if callab
 _ROUTINE_CALLS = frozenset({"tick", "counted"})
 """Sink calls that may wait for the next write (the rest are events, wanted at once)."""
 TICK_THREAD = "tdslip-tick"  # the names ps -L and top -H show: the tick process,
+WRITER_THREAD = "tdslip-write"  # its writer,
 REPLAY_THREAD = "tdslip-replay"  # and the node's thread that publishes what it steps
 CLOSE_TIMEOUT = 5.0  # s the process is given to end after "stop" before it is killed
 RESET_TIMEOUT = 5.0  # s a reset waits for the process to have restarted the run
@@ -103,10 +105,21 @@ class PipeSink:
     or samples someone takes live: :attr:`live`), else every :data:`SAMPLES_PER_BATCH` ticks: the node's
     process then wakes a tenth as often, and competes less with the tick for the CPU. One pickle a list costs
     less than one a call (the classes of a tick's state are named once).
+
+    The tick pickles a list and hands it to a thread of the sink's own, which writes it (in order, whole):
+    the write releases the GIL, so the tick steps on while the kernel takes its time. On this VM a write
+    sometimes takes 1-2.6 ms of the writer's CPU, in the kernel (its pipe's fresh pages, which the hypervisor
+    fills on first touch: docs/realtime.md); on the tick's thread those firings were the soak's unexplained
+    misses. :meth:`close` writes what is left and ends the thread.
     """
 
     def __init__(self, fd: int) -> None:
         self._fd = fd
+        self._lists: queue.Queue[bytes | None] = queue.Queue()
+        # The writer inherits the tick's scheduling: one of normal priority holding the GIL would keep a
+        # SCHED_FIFO tick waiting behind other programs.
+        self._writer = threading.Thread(target=self._write_lists, name=WRITER_THREAD, daemon=True)
+        self._writer.start()
         self._pending: list[tuple[str, tuple[object, ...], dict[str, object]]] = []
         self._ticks_pending = 0
         self._urgent = False
@@ -134,13 +147,28 @@ class PipeSink:
             unless_routine and not (self._urgent or self.live or self._ticks_pending >= SAMPLES_PER_BATCH)
         ):
             return
-        data = framed(self._pending)
+        self._lists.put(framed(self._pending))
         self._pending = []
         self._ticks_pending, self._urgent = 0, False
-        try:
-            _write(self._fd, data)
-        except BrokenPipeError:  # the node's process is gone: nobody is left to tick for
-            os._exit(0)
+
+    def drain(self) -> None:
+        """Until everything flushed so far is written."""
+        self._lists.join()
+
+    def close(self) -> None:
+        """Write what was gathered and what waits, then end the writer."""
+        self.flush()
+        self._lists.put(None)
+        self._writer.join()
+
+    def _write_lists(self) -> None:
+        name_this_thread(WRITER_THREAD)
+        while (data := self._lists.get()) is not None:
+            try:
+                _write(self._fd, data)
+            except BrokenPipeError:  # the node's process is gone: nobody is left to tick for
+                os._exit(0)
+            self._lists.task_done()
 
 
 class TickProcess:
@@ -383,7 +411,6 @@ def main(argv: list[str]) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node decides when to stop
     name_this_thread(TICK_THREAD)
     inbox, outbox = int(argv[1]), int(argv[2])
-    sink = PipeSink(outbox)
     frames = FrameReader()
     first: list[Any] = []
     while not first:
@@ -394,6 +421,7 @@ def main(argv: list[str]) -> int:
     kind, settings, apex, priority, cpu = first[0]
     assert kind == "settings" and len(first) == 1  # the node waits for "ready" before it sends more
     refusals = schedule_realtime(priority, cpu)
+    sink = PipeSink(outbox)  # its writer thread scheduled as the tick is
     server = _TickServer(PlantRun(settings, apex, sink), sink)
     PlantRun.load_message_support()
     # Everything alive now (modules, the run) is moved out of the collector's reach: a full collection then
@@ -407,7 +435,7 @@ def main(argv: list[str]) -> int:
     try:
         server.serve(inbox, frames)
     finally:
-        sink.flush()
+        sink.close()
     return 0
 
 
