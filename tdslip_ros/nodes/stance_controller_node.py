@@ -43,7 +43,6 @@ from tdslip_ros.model.policies.registry import (
     STANCE_PD_SPEED_ENERGY,
     PolicyError,
     PolicySpec,
-    settings_of,
 )
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
@@ -61,16 +60,14 @@ STANCE_POLICY = ParameterSpec(
     "the stance controller's policy (stance feedback at each tick of the stance)",
     choices=STANCE_FEEDBACK_POLICIES,
 )
-SETTINGS = tuple(
-    dict.fromkeys(setting for policy in STANCE_FEEDBACK_POLICIES for setting in settings_of(policy))
-)
-"""The settings of every stance-feedback policy, each once, in POLICY_SETTINGS' order."""
+SETTINGS = tuple(s for s in POLICY_SETTINGS if set(s.policies) & set(STANCE_FEEDBACK_POLICIES))
+"""The settings of the stance-feedback policies, in POLICY_SETTINGS' order."""
 SPECS: tuple[ParameterSpec, ...] = (
     AUTOSTART,
     END_WITH_RUN,
     *parameters.HOPPER,
     STANCE_POLICY,
-    *map(setting_parameter, sorted(SETTINGS, key=POLICY_SETTINGS.index)),
+    *map(setting_parameter, SETTINGS),
     *specs_of(()),
 )
 
@@ -120,11 +117,11 @@ class StanceControllerNode(ManagedNode):
         """The policy answering the next apex (``stance_policy``)."""
         return str(self.get_parameter(STANCE_POLICY.name).value)
 
-    def feedback(self, apex: ApexState) -> StanceFeedback:
-        """The policy's stance feedback to ``apex`` (as the controller sees it), with the parameters now."""
+    def feedback(self, policy: str, apex: ApexState) -> StanceFeedback:
+        """``policy``'s stance feedback to ``apex`` (as the controller sees it), with the parameters now."""
         values = {**SETTING_DEFAULTS}
         values |= {setting.name: self.get_parameter(setting.name).value for setting in SETTINGS}
-        return PolicySpec.of(self.policy, values).stance_feedback(self.hopper, apex)
+        return PolicySpec.of(policy, values).stance_feedback(self.hopper, apex)
 
     def _on_apex(self, apex: ApexEvent) -> None:
         if not self._answering:
@@ -137,7 +134,7 @@ class StanceControllerNode(ManagedNode):
             apex.pitch_rate,
         )
         try:
-            feedback = self.feedback(seen)
+            feedback = self.feedback(policy, seen)  # the command and its label of one policy
         except (ParameterError, PolicyError) as error:  # no command: the plant's timeout says so
             self.unanswered += 1
             self._feedback = None
