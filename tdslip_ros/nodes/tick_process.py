@@ -325,9 +325,10 @@ class TickProcess:
 
 
 class _TickServer:
-    """The process's side: a run, ticked at its deadlines and told between them what reaches the node, all on
-    one thread (a second one would take the GIL from the tick: at SCHED_FIFO, while the holder waits behind
-    programs of normal priority)."""
+    """The process's side: a run, ticked at its deadlines and told between them what reaches the node, on one
+    thread (a reader thread of normal priority took the GIL from the tick: at SCHED_FIFO, the holder waited
+    behind programs of normal priority). Only the sink's writes go to a thread of their own, scheduled as the
+    tick is (:class:`PipeSink`)."""
 
     def __init__(self, run: PlantRun, sink: PipeSink) -> None:
         self._run = run
