@@ -11,10 +11,11 @@ import pytest
 from support.analysis_runs import as_if_from_ones_own_controller, rewrite
 from support.helpers import strict_json
 
-from tdslip_ros.analysis import report
+from tdslip_ros.analysis import report_text as report
 from tdslip_ros.analysis.compare import compare_run
 from tdslip_ros.analysis.decoding import RunReadError, read_run
-from tdslip_ros.analysis.report import FIGURES, hopper_params_from_yaml
+from tdslip_ros.analysis.report import hopper_params_from_yaml
+from tdslip_ros.analysis.report_text import FIGURES
 from tdslip_ros.bag.reader import mcap_file
 from tdslip_ros.commands import cli
 from tdslip_ros.commands.analyze import main

@@ -13,13 +13,12 @@ import pytest
 
 from tdslip_ros.analysis.compare import compare_run
 from tdslip_ros.analysis.decoding import read_run
-from tdslip_ros.analysis.report import (
+from tdslip_ros.analysis.report_text import (
     FIGURES,
     RUN_ENDINGS,
     UNITLESS_KEYS,
     glossary,
     glossary_markdown,
-    run_ending,
 )
 from tdslip_ros.commands.analyze import main
 from tdslip_ros.interfaces import STOP_REQUESTED
@@ -211,10 +210,10 @@ def test_a_completed_run_says_it_completed_and_did_not_fail(reports: dict[str, P
 
 def test_a_stopped_run_and_one_without_its_end_say_so(energy: RunReport) -> None:
     run = read_run(energy.bag)
-    assert run.outcome is not None and run_ending(run) == "completed"
+    assert run.outcome is not None and run.ending == "completed"
     stopped = dataclasses.replace(run, outcome=dataclasses.replace(run.outcome, reason=STOP_REQUESTED))
-    assert run_ending(stopped) == "stopped"
-    assert run_ending(dataclasses.replace(run, outcome=None)) == "unknown"
+    assert stopped.ending == "stopped"
+    assert dataclasses.replace(run, outcome=None).ending == "unknown"
     assert set(RUN_ENDINGS) == {"completed", "stopped", "failed", "unknown"}
 
 

@@ -13,7 +13,8 @@ import pytest
 from tdslip_ros.analysis.compare import compare_run, policy_for_run
 from tdslip_ros.analysis.decoding import read_run
 from tdslip_ros.analysis.records import STANCE_FEEDBACK, CommandRecord, ContactRecord
-from tdslip_ros.analysis.report import analyze, headline
+from tdslip_ros.analysis.report import analyze
+from tdslip_ros.analysis.report_text import headline
 from tdslip_ros.analysis.stance_feedback import FeedbackPredictions, feedback_summary
 from tdslip_ros.analysis.strides import applied_commands
 from tdslip_ros.model.events import HopperState, Phase

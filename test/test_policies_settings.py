@@ -19,7 +19,7 @@ import yaml  # type: ignore[import-untyped]
 from rclpy.parameter import Parameter
 from support.learned_policy import WEIGHTS, learned_file
 
-from tdslip_ros.analysis.report import policy_settings_text
+from tdslip_ros.analysis.report_text import policy_settings_text
 from tdslip_ros.model import units
 from tdslip_ros.model.analytic.apex_map import approximate_map
 from tdslip_ros.model.paper import PAPER_PARAMS

@@ -16,9 +16,10 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from tdslip_ros.interfaces import RUN_COMPLETE, STOP_REQUESTED
 from tdslip_ros.model.events import HopperState
 from tdslip_ros.model.params import ApexState, HopperParams, StanceCommand
-from tdslip_ros.model.plant.perturbations import Perturbations
+from tdslip_ros.model.plant.perturbations import MISMATCH_FIELDS, Perturbations
 from tdslip_ros.model.plant.stance_laws import StanceFeedback
 
 FloatArray = npt.NDArray[np.float64]
@@ -245,6 +246,45 @@ class Run:
         """Names of the policies whose commands were applied, in order of first use."""
         applied = (s for s in self.strides if s.command is not None or s.stance_feedback is not None)
         return tuple(dict.fromkeys(s.policy for s in applied))
+
+    @property
+    def ending(self) -> str:
+        """How the run ended: one of report_text.RUN_ENDINGS ("completed", "stopped", "failed", "unknown"),
+        from the Status that ended it (the plant marks it ``fatal``, whether the run failed or completed)."""
+        outcome = self.outcome
+        if outcome is None:
+            return "unknown"
+        if outcome.kind != RUN_COMPLETE:
+            return "failed"
+        return "stopped" if outcome.reason == STOP_REQUESTED else "completed"
+
+    @property
+    def mismatch(self) -> dict[str, float] | None:
+        """The factors by which the controller's model differs from the plant's (None: it does not)."""
+        if self.planner == self.params:
+            return None
+        return {
+            name: getattr(self.planner, field) / getattr(self.params, field)
+            for name, field in MISMATCH_FIELDS.items()
+        }
+
+    @property
+    def failure_location(self) -> dict[str, float] | None:
+        """Where a failed run failed: the body's x and the ground under it at the last sample, and the toe
+        and ground of the failed stride's stance if it touched down (None for a run that did not fail)."""
+        if self.outcome is None or self.outcome.kind not in FAILURE_KINDS:
+            return None
+        failed = next((s for s in self.strides if s.failure is not None), self.strides[-1])
+        touchdown = next(
+            (c for c in self.contacts if c.kind == "touchdown" and c.stride == failed.stride), None
+        )
+        samples = self.samples
+        return {
+            "x_m": float(samples.x[-1]) if len(samples) else failed.x,
+            "ground_under_body_m": float(samples.ground_height[-1]) if len(samples) else failed.ground,
+            "toe_x_m": math.nan if touchdown is None else touchdown.state.toe_x,
+            "stance_ground_m": math.nan if touchdown is None else touchdown.ground,
+        }
 
     def apex_array(self) -> FloatArray:
         """(n, 2) apex heights above the ground of the last stance [m] and speeds [m/s] of the recorded

@@ -17,7 +17,8 @@ from tdslip_ros.analysis.compare import KNOWN_POLICIES
 from tdslip_ros.analysis.decoding import RunReadError, read_run
 from tdslip_ros.analysis.measured_comparison import compare_measured, measured_headline, write_measured_report
 from tdslip_ros.analysis.measured_reading import MeasuredDataError, measured_run_from_bag
-from tdslip_ros.analysis.report import analyze, headline, hopper_params_from_yaml
+from tdslip_ros.analysis.report import analyze, hopper_params_from_yaml
+from tdslip_ros.analysis.report_text import headline
 from tdslip_ros.analysis.stride_detection import find_strides
 from tdslip_ros.analysis.topic_map import TopicMapError, load_topic_map
 from tdslip_ros.bag.reader import BagReadError
