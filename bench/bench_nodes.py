@@ -61,7 +61,8 @@ from tdslip_ros.model.policies.registry import LEARNED, POLICIES
 from tdslip_ros.nodes import isolation, topics
 from tdslip_ros.nodes.command_admission import command_key
 from tdslip_ros.nodes.controller_node import ControllerNode
-from tdslip_ros.nodes.runner import RunOptions, RunReport, controller_overrides, run
+from tdslip_ros.nodes.run_options import RunOptions, controller_overrides
+from tdslip_ros.nodes.runner import RunReport, run
 
 REALTIME_TARGET_P99 = 0.3e-3  # s
 REALTIME_BUSY_MISSED_TARGET = 1e-3  # fraction of the ticks

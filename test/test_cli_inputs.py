@@ -14,15 +14,15 @@ import pytest
 
 from tdslip_ros.commands import cli
 from tdslip_ros.model.paper import PAPER_PARAMS
-from tdslip_ros.nodes.runner import (
+from tdslip_ros.nodes.run_options import (
     RunOptionError,
     RunOptions,
-    RunReport,
     check_options,
     check_placement,
     controller_overrides,
     run_custom_data,
 )
+from tdslip_ros.nodes.runner import RunReport
 
 REPO = Path(__file__).resolve().parents[1]
 

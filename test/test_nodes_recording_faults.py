@@ -23,7 +23,7 @@ from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.flow_control import FLOW_WINDOW
 from tdslip_ros.nodes.recorder_node import TAKER_THREAD, RecorderNode
 from tdslip_ros.nodes.replay import checked_bag
-from tdslip_ros.nodes.runner import RunOptions, run_custom_data
+from tdslip_ros.nodes.run_options import RunOptions, run_custom_data
 
 CHUNK_SIZE = 64 * 1024
 

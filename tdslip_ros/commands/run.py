@@ -42,7 +42,8 @@ from tdslip_ros.model.policies.registry import POLICIES, STANCE_FEEDBACK_POLICIE
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.entry import stop_on_signals
 from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
-from tdslip_ros.nodes.runner import RunError, RunOptionError, RunOptions, check_options, run
+from tdslip_ros.nodes.run_options import RunError, RunOptionError, RunOptions, check_options
+from tdslip_ros.nodes.runner import run
 
 
 def apex_table(params: HopperParams, apexes: Sequence[Any], ground: bool = False) -> str:
