@@ -104,6 +104,7 @@ from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.plant_run import (
     TICK_PERIOD,
     ApexReport,
+    LockedRun,
     PlantRun,
     PublishFailed,
     RunCounts,
@@ -144,7 +145,7 @@ class PlantNode(ManagedNode):
 
     def __init__(self, *, start_when_ready: bool = True, **node_options: object) -> None:
         self._ticking: TickProcess | None = None  # first: destroy_node must work if the rest raises
-        self._driver: _InProcessRun | TickProcess | None = None  # None: not configured
+        self._driver: LockedRun | TickProcess | None = None  # None: not configured
         self._starts_when_ready = start_when_ready
         self._lock = threading.Lock()
         self._timers_on_hold: set[Timer] | None = None  # paused (inactive): the timers to run on activate
@@ -245,7 +246,7 @@ class PlantNode(ManagedNode):
         self._run: PlantRun | None = None  # lockstep: the run this node steps
         if self.lockstep:
             self._run = PlantRun(settings, initial_apex, sink)
-            self._driver = _InProcessRun(self._run, self._lock)
+            self._driver = LockedRun(self._run, self._lock)
         else:
             self._driver = self._ticking = TickProcess(
                 settings,
@@ -572,41 +573,6 @@ class PlantNode(ManagedNode):
             return response
         response.success, response.epoch = True, self._epoch
         return response
-
-
-class _InProcessRun:
-    """Lockstep: the run stepped in the node's process, reached as the tick process is (under the node's
-    lock, which the timers that step it take too)."""
-
-    def __init__(self, run: PlantRun, lock: threading.Lock) -> None:
-        self._run = run
-        self._lock = lock
-
-    def start(self, start_wall_ns: int) -> None:
-        with self._lock:
-            self._run.start(start_wall_ns)
-
-    def take_command(self, data: bytes) -> None:
-        with self._lock:
-            self._run.take_command(data)
-
-    def take_torque(self, data: bytes) -> None:
-        with self._lock:
-            self._run.take_torque(data)
-
-    def end(self, kind: str, reason: str) -> None:
-        with self._lock:
-            self._run.end(kind, reason)
-
-    def reset(self, apex: ApexState) -> str:
-        with self._lock:
-            return self._run.reset(apex)
-
-    def pause(self) -> None:
-        """Nothing to do: the node's timers, which step this run, are held."""
-
-    def resume(self) -> None:
-        """Nothing to do: the node's timers run again."""
 
 
 class _NodeSink:

@@ -12,6 +12,7 @@ A run is not thread-safe: its driver calls it from one thread at a time (under a
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 from typing import Protocol
@@ -539,3 +540,39 @@ class PlantRun:
 
     def _status(self, kind: str, reason: str, t: float, *, fatal: bool) -> None:
         self._sink.status(self.epoch, self._stepper.stride, kind, reason, t, fatal=fatal)
+
+
+class LockedRun:
+    """Lockstep: a run stepped in the node's process, reached as the realtime run in its tick process is
+    (:class:`~tdslip_ros.nodes.tick_process.TickProcess`), each call under ``lock``, which the node's timers
+    that step it take too."""
+
+    def __init__(self, run: PlantRun, lock: threading.Lock) -> None:
+        self._run = run
+        self._lock = lock
+
+    def start(self, start_wall_ns: int) -> None:
+        with self._lock:
+            self._run.start(start_wall_ns)
+
+    def take_command(self, data: bytes) -> None:
+        with self._lock:
+            self._run.take_command(data)
+
+    def take_torque(self, data: bytes) -> None:
+        with self._lock:
+            self._run.take_torque(data)
+
+    def end(self, kind: str, reason: str) -> None:
+        with self._lock:
+            self._run.end(kind, reason)
+
+    def reset(self, apex: ApexState) -> str:
+        with self._lock:
+            return self._run.reset(apex)
+
+    def pause(self) -> None:
+        """Nothing to do: the node's timers, which step this run, are held."""
+
+    def resume(self) -> None:
+        """Nothing to do: the node's timers run again."""
