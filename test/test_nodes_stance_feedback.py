@@ -18,7 +18,7 @@ from tdslip_msgs.msg import ApexEvent, HipTorque, HopperState, StanceCommand, St
 from tdslip_ros.interfaces import hopper_parameters
 from tdslip_ros.model.events import EventKind
 from tdslip_ros.model.paper import UPRIGHT_TRUNK
-from tdslip_ros.model.params import ApexState
+from tdslip_ros.model.params import ApexState, HopperParams
 from tdslip_ros.model.plant.stepper import FixedStepStepper
 from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
@@ -39,19 +39,25 @@ START = ApexState(DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED)
 REPO = Path(__file__).parents[1]
 
 
-def model_apexes(strides: int) -> tuple[list[tuple[float, float, float]], list[tuple[float, float]]]:
-    """(t, y, xdot) of apexes 0..strides and every torque held, of the baseline run inside the stepper."""
-    stepper = FixedStepStepper(
-        PARAMS, START, PolicySpec.default(STANCE_PD_SPEED_ENERGY).stance_feedback(PARAMS), dt=TICK_PERIOD
-    )
-    apexes, torques = [(0.0, START.y, START.xdot)], []
+def model_apexes(
+    policy: str, params: HopperParams, start: ApexState, strides: int
+) -> tuple[list[tuple[float, ...]], list[tuple[float, float]]]:
+    """(t, y, xdot, pitch, pitch rate) of apexes 0..strides and every torque held, of ``policy`` (at its
+    defaults) answering each apex of the stepper, as the stance controller node answers the plant's."""
+    spec = PolicySpec.default(policy)
+    stepper = FixedStepStepper(params, start, spec.stance_feedback(params, start), dt=TICK_PERIOD)
+    apexes: list[tuple[float, ...]] = [(0.0, *dataclasses.astuple(start))]
+    torques: list[tuple[float, float]] = []
     while len(apexes) <= strides:
         for event in stepper.step():
             assert event.kind is not EventKind.FAILURE, event.reason
             if event.kind is EventKind.LIFTOFF:
                 torques += stepper.stance_torques
             if event.kind is EventKind.APEX:
-                apexes.append((event.t, event.state.y, event.state.xdot))
+                state = event.state
+                apex = ApexState(state.y, state.xdot, state.pitch, state.pitch_rate)
+                apexes.append((event.t, *dataclasses.astuple(apex)))
+                stepper.set_command(spec.stance_feedback(params, apex))
     return apexes, torques
 
 
@@ -81,8 +87,8 @@ def test_the_baseline_node_drives_the_plant_as_the_law_drives_the_stepper(ros: R
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and plant.outcome.ok, plant.outcome
     ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
-    expected, torques = model_apexes(strides)
-    assert [(a.sim_time, a.height, a.forward_speed) for a in apexes] == expected
+    expected, torques = model_apexes(STANCE_PD_SPEED_ENERGY, PARAMS, START, strides)
+    assert [(a.sim_time, a.height, a.forward_speed) for a in apexes] == [e[:3] for e in expected]
     ros.spin_until(lambda: len(applied) == len(torques), "every applied torque")
     assert [(a.tick, a.torque) for a in applied] == [(round(t / TICK_PERIOD), tau) for t, tau in torques]
     assert controller.torques == len(torques) and plant.counts.late_torques == plant.counts.stale_torques == 0
@@ -92,26 +98,6 @@ def test_the_baseline_node_drives_the_plant_as_the_law_drives_the_stepper(ros: R
 RIGID = dataclasses.replace(PARAMS, body=UPRIGHT_TRUNK)
 RIGID_START = ApexState(1.2, 5.0)
 """The upright trunk's hip at 1 m (the centre of mass 0.2 m above it)."""
-
-
-def posture_apexes(strides: int) -> tuple[list[tuple[float, ...]], list[tuple[float, float]]]:
-    """(t, y, xdot, pitch, pitch rate) of apexes 0..strides and every torque held, of the posture policy
-    (at its defaults) answering each apex of the stepper's rigid body."""
-    spec = PolicySpec.default(POSTURE)
-    stepper = FixedStepStepper(RIGID, RIGID_START, spec.stance_feedback(RIGID, RIGID_START), dt=TICK_PERIOD)
-    apexes: list[tuple[float, ...]] = [(0.0, *dataclasses.astuple(RIGID_START))]
-    torques: list[tuple[float, float]] = []
-    while len(apexes) <= strides:
-        for event in stepper.step():
-            assert event.kind is not EventKind.FAILURE, event.reason
-            if event.kind is EventKind.LIFTOFF:
-                torques += stepper.stance_torques
-            if event.kind is EventKind.APEX:
-                state = event.state
-                apex = ApexState(state.y, state.xdot, state.pitch, state.pitch_rate)
-                apexes.append((event.t, *dataclasses.astuple(apex)))
-                stepper.set_command(spec.stance_feedback(RIGID, apex))
-    return apexes, torques
 
 
 def test_the_posture_node_balances_a_rigid_body_as_the_policy_does_in_the_stepper(ros: RosGraph) -> None:
@@ -139,7 +125,7 @@ def test_the_posture_node_balances_a_rigid_body_as_the_policy_does_in_the_steppe
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome is not None and plant.outcome.ok, plant.outcome
     ros.spin_until(lambda: len(apexes) == strides + 1, "every apex event")
-    expected, torques = posture_apexes(strides)
+    expected, torques = model_apexes(POSTURE, RIGID, RIGID_START, strides)
     recorded = [(a.sim_time, a.height, a.forward_speed, a.pitch, a.pitch_rate) for a in apexes]
     assert np.allclose(recorded, expected, rtol=1e-12, atol=1e-12)
     assert all(abs(pitch) > 0.3 for _, _, _, pitch, _ in expected[1:])  # it leans: a pitch, not zeros

@@ -322,7 +322,12 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
     start_y = column("y") - stance_ground
     start_xdot = column("xdot") + column("push")
     analytic, failures, energy = {}, {}, {}
-    for corrections in CORRECTIONS if params.body is None else ():
+    for corrections in CORRECTIONS:
+        if params.body is not None:  # the analytic map is the fixed body's: it predicts none of these
+            analytic[corrections] = np.full((len(rows), 2), math.nan)
+            failures[corrections] = [None] * len(rows)
+            energy[corrections] = np.full((len(rows), 3), math.nan)
+            continue
         result = approximate_map(params, start_y, start_xdot, applied, corrections, speed=speed)
         analytic[corrections] = np.stack([stance_ground + result.y, result.xdot], axis=-1).reshape(-1, 2)
         codes = np.atleast_1d(result.failure)
@@ -330,10 +335,6 @@ def predict(run: Run, speed: SpeedSource = "energy") -> Predictions:
         energy[corrections] = np.stack(
             [result.stance.hip_energy, result.stance.damping_loss, result.stance.spring_energy], axis=-1
         ).reshape(-1, 3)
-    if params.body is not None:  # the analytic map is the fixed body's: it predicts none of these
-        analytic = dict.fromkeys(CORRECTIONS, np.full((len(rows), 2), math.nan))
-        failures = {corrections: [None] * len(rows) for corrections in CORRECTIONS}
-        energy = dict.fromkeys(CORRECTIONS, np.full((len(rows), 3), math.nan))
     if len(rows):
         exact = batch_apex_return_map(
             params,

@@ -402,6 +402,7 @@ def _state(msg: Any) -> HopperState:
     phase = PHASES.get(int(msg.phase))
     if phase is None:
         raise RunReadError(f"topic {CONTACT}: unknown phase {msg.phase} of an event's state")
+    pitch, pitch_rate = _pitch(msg)
     return HopperState(
         t=float(msg.header.stamp.sec) + float(msg.header.stamp.nanosec) * 1e-9,
         stride=int(msg.stride),
@@ -421,8 +422,8 @@ def _state(msg: Any) -> HopperState:
         grf_x=math.nan,
         grf_y=math.nan,
         ground_height=float(msg.ground_height),
-        pitch=_pitch(msg)[0],
-        pitch_rate=_pitch(msg)[1],
+        pitch=pitch,
+        pitch_rate=pitch_rate,
     )
 
 

@@ -165,7 +165,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
         target_energy is None
     ):  # the initial apex's; a rigid body's hip's at pitch 0 (posture plans on the hip)
         hip_height = options.height + (0.0 if params.body is None else params.body.hip_y)
-        target_energy = params.m * (params.g * hip_height + 0.5 * options.speed**2)
+        target_energy = float(dynamics.apex_energy(params.m, params.g, hip_height, options.speed))
     model = hopper_overrides(options.hopper)
     mismatch = options.perturbations.mismatch
     if mismatch.active:  # the controller plans with another hopper
