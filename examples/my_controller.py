@@ -14,6 +14,7 @@ command_timeout:=60.0`, then this script.)
 """
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
@@ -47,6 +48,9 @@ def main() -> None:
         with rclpy.init():
             controller = MyController()
             rclpy.spin_until_future_complete(controller, controller.run_ended)
+            # Its last answers reach the recorder before it goes: a reliable writer that is destroyed drops
+            # what it has not yet delivered.
+            controller.commands.wait_for_all_acked(Duration(seconds=2))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 

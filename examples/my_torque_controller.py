@@ -13,6 +13,7 @@ what it answers; in lockstep the plant waits for it at every stance tick.
 """
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
@@ -60,6 +61,10 @@ def main() -> None:
         with rclpy.init():
             controller = MyTorqueController()
             rclpy.spin_until_future_complete(controller, controller.run_ended)
+            # Its last answers reach the recorder before it goes: a reliable writer that is destroyed drops
+            # what it has not yet delivered.
+            controller.commands.wait_for_all_acked(Duration(seconds=2))
+            controller.torques.wait_for_all_acked(Duration(seconds=2))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 

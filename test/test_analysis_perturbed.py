@@ -25,7 +25,7 @@ from tdslip_ros.commands.analyze import main as analyze
 from tdslip_ros.interfaces import PERTURBATION_PARAMETERS, perturbation_parameters, stored_parameters
 from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.plant.perturbations import Perturbations
-from tdslip_ros.nodes import runner
+from tdslip_ros.nodes import run_options
 from tdslip_ros.nodes.parameters import PERTURBATIONS
 from tdslip_ros.nodes.runner import RunReport
 from tdslip_ros.reporting.style import DPI, POLICY_COLOURS
@@ -42,7 +42,7 @@ def test_the_recording_says_how_to_reproduce_the_run(rough: RunReport, rough_run
     assert isinstance(given, Perturbations)
     stored = stored_parameters(rough_run.custom_data, "plant")
     assert {name: stored[name] for name in PERTURBATION_PARAMETERS.values()} == {
-        name: runner._ros_value(value) for name, value in perturbation_parameters(given).items()
+        name: run_options._ros_value(value) for name, value in perturbation_parameters(given).items()
     }
     assert perturbation_parameters(rough_run.perturbations) == perturbation_parameters(given)
     planner = given.mismatch.controller_params(PAPER_PARAMS)
