@@ -28,7 +28,7 @@ Every 10 s the RSS, open descriptors and threads of every process are sampled fr
 prints, each against its target:
 
 * per topic, the messages published, recorded (over every bag the recorder's pauses made) and dropped
-  while the recorder was paused: lost, 0;
+  while the recorder was paused (the recorder's count, in its last bag's metadata): lost, 0;
 * every command and torque the hostile controller sent, by kind, beside the Statuses that refused them;
   the plant's rejections, each accounted for by a Status of its own, the sum a later one carries, or as an
   answer to an earlier apex;
@@ -83,6 +83,7 @@ from tdslip_ros.model.paper import PAPER_PARAMS
 from tdslip_ros.model.plant.stance_laws import StanceSample, clip_torque
 from tdslip_ros.model.policies.registry import SETTING_DEFAULTS, STANCE_PD_SPEED_ENERGY, PolicySpec
 from tdslip_ros.nodes import isolation, topics
+from tdslip_ros.nodes.recorder_node import DROPPED_WHILE_PAUSED_KEY
 from tdslip_ros.nodes.runner import RunError, RunOptions, RunReport, read_bag_counts, run
 from tdslip_ros.nodes.torque_stream import tick_of
 
@@ -724,11 +725,15 @@ def summarise(
 ) -> dict[str, Any]:
     chaos, hostile = reports["chaos"], reports["hostile"]["sent"]
     recorder_diagnostics = chaos["diagnostics"].get("/recorder", {})
-    dropped = int(recorder_diagnostics.get("dropped while paused", 0))
     bags = bags_of(run_bag)
     finalised = all((bag / "metadata.yaml").is_file() for bag in bags)
-    for bag in bags:
-        verify(open_bag(bag))
+    opened = [open_bag(bag) for bag in bags]
+    for bag in opened:
+        verify(bag)
+    # The last bag's metadata holds the recorder's total (the diagnostics the chaos agent heard last may be
+    # older than the recorder's last count).
+    dropped_per_topic = json.loads(opened[-1].custom_data.get(DROPPED_WHILE_PAUSED_KEY, "{}"))
+    dropped = sum(dropped_per_topic.values())
     recorded: Counter[str] = Counter()
     for bag in bags:
         recorded.update(read_bag_counts(bag))
@@ -738,10 +743,15 @@ def summarise(
     for topic in HOSTILE_TOPICS:
         published[topic] = hostile.get(topic.lstrip("/"), 0)
     topics_table = {
-        topic: {"published": n, "recorded": recorded.get(topic, 0), "plant": report.published.get(topic)}
+        topic: {
+            "published": n,
+            "recorded": recorded.get(topic, 0),
+            "dropped": dropped_per_topic.get(topic, 0),
+            "plant": report.published.get(topic),
+        }
         for topic, n in sorted(published.items())
     }
-    lost = sum(row["published"] - row["recorded"] for row in topics_table.values()) - dropped
+    lost = sum(row["published"] - row["recorded"] - row["dropped"] for row in topics_table.values())
     counts = report.counts
     reported = sum(n for kind, n in chaos["refusals"].items())
     accounted = reported + chaos["summed"] + counts.earlier_answers + counts.unreported_rejections
@@ -759,6 +769,8 @@ def summarise(
         "strides": len(report.apexes),
         "topics": topics_table,
         "dropped_while_paused": dropped,
+        "dropped_while_paused_per_topic": dropped_per_topic,
+        "recorder_diagnostics": recorder_diagnostics,
         "lost": lost,
         "hostile_sent": hostile,
         "hostile_sent_at_last_apex": reports["hostile"]["sent_at_last_apex"],
@@ -805,10 +817,13 @@ def print_summary(figures: dict[str, Any]) -> None:
         f"  {figures['strides']} strides; steal {figures['steal_s']:.1f} s; "
         f"load average at the end {figures['load']}"
     )
-    print("\nmessages per topic                   published   recorded  (published = recorded + dropped)")
+    print(
+        "\nmessages per topic                   published   recorded    dropped"
+        "  (published = recorded + dropped while the recorder was paused)"
+    )
     for topic, row in figures["topics"].items():
         received = "" if topic not in HOSTILE_TOPICS else f"   (the plant received {row['plant']})"
-        print(f"  {topic:<32}{row['published']:>11}{row['recorded']:>11}{received}")
+        print(f"  {topic:<32}{row['published']:>11}{row['recorded']:>11}{row['dropped']:>11}{received}")
     print(
         f"  dropped while the recorder was paused: {figures['dropped_while_paused']}; "
         f"lost: {figures['lost']} (target 0: {verdict(figures['lost'] == 0)})"

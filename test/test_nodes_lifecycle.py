@@ -10,6 +10,7 @@ refused configure 4 s, the recorder paused under a lockstep plant 9 s, the manag
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -34,6 +35,7 @@ from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.plant_node import PlantNode
+from tdslip_ros.nodes.recorder_node import DROPPED_WHILE_PAUSED_KEY
 
 PAUSE = 1.0  # s a paused node is watched for anything it should not do
 APEX_PERIOD = 0.02  # s between two apexes the recorder's walk publishes
@@ -390,6 +392,12 @@ def test_a_lockstep_plant_hops_on_through_its_recorders_pause(ros: RosGraph, tmp
     dropped = int(final["dropped while paused"])
     assert dropped > 0 and dropped == sum(published.values()) - sum(in_bags[t] for t in published)
     assert final["messages lost"] == "0"
+    # The second bag's metadata holds the same count per topic; the first, closed before the pause, none.
+    assert DROPPED_WHILE_PAUSED_KEY not in bags[0].custom_data
+    per_topic = json.loads(bags[1].custom_data[DROPPED_WHILE_PAUSED_KEY])
+    assert {topic: published[topic] - in_bags[topic] for topic in published} == {
+        topic: per_topic.get(topic, 0) for topic in published
+    }
 
 
 def recorded_apexes(bag: Bag) -> list[int]:

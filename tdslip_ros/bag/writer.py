@@ -511,6 +511,12 @@ class RosbagMcapWriter:
                 "ros_distro": self._ros_distro,
             }
 
+    def update_custom_data(self, items: Mapping[str, str]) -> None:
+        """Set ``items`` in the ``custom_data`` that the closing record and ``metadata.yaml`` carry
+        (what is known only at the end of a bag, such as the recorder's drops while paused)."""
+        with self._lock:
+            self._custom_data = (self._custom_data or {}) | dict(items)
+
     # -- closing -------------------------------------------------------------------------------
 
     def close(self) -> None:

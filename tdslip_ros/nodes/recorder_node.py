@@ -36,7 +36,9 @@ closed on tdslip/recorder_status, so that a plant stops waiting for it.
 A managed node (:mod:`tdslip_ros.nodes.lifecycle`): configure opens the bag, activate starts writing,
 deactivate stops writing (what arrives meanwhile is taken and dropped) and finalises the bag, so that it is
 complete and valid while the recorder waits; activating again opens the next bag beside it (``<output>_2``,
-``<output>_3``, ...: :attr:`RecorderNode.bags`); cleanup and shutdown finalise the open one. With
+``<output>_3``, ...: :attr:`RecorderNode.bags`); cleanup and shutdown finalise the open one. A bag closed
+after a pause says in its metadata's ``custom_data`` how many messages per topic the recorder had dropped
+while paused until then (:data:`DROPPED_WHILE_PAUSED_KEY`, JSON): the last bag's is the run's total. With
 ``end_with_run`` the executable stops as on SIGINT when the plant's run ends.
 
 Run it in a process of its own next to a 1 kHz plant: every message written costs Python work.
@@ -45,6 +47,7 @@ Run it in a process of its own next to a 1 kHz plant: every message written cost
 from __future__ import annotations
 
 import contextlib
+import json
 import sys
 import threading
 import time
@@ -77,6 +80,8 @@ TAKE_PERIOD = 0.001
 """s the taker thread pauses after a take that found messages, before it waits for the next ones: under a
 fast stream (lockstep) each take then finds a batch of them, and a slow one (realtime, ~200 messages a
 second) wakes it about twice per burst instead of every TAKE_PERIOD."""
+DROPPED_WHILE_PAUSED_KEY = "tdslip_dropped_while_paused"
+"""The ``custom_data`` key of a bag's metadata that holds the messages per topic dropped while paused."""
 TAKER_THREAD = "tdslip-take"  # the taker thread's name, as ps -L and top -H show it
 WAIT_LIMIT_NS = 50_000_000  # the longest the taker sleeps in its wait set before it looks at its stop flag
 STATUS_MESSAGES = 100
@@ -461,6 +466,9 @@ class RecorderNode(ManagedNode):
 
     def _finalise(self) -> None:
         if self.bag is not None and not self.bag.closed:
+            if self.dropped_while_paused:
+                dropped = json.dumps(dict(self.dropped_while_paused))
+                self.bag.update_custom_data({DROPPED_WHILE_PAUSED_KEY: dropped})
             self.bag.close()
             counts = ", ".join(f"{topic} {count}" for topic, count in self.bag.message_counts.items())
             self.get_logger().info(f"bag {self.bag.mcap_path} closed: {counts}")
