@@ -143,6 +143,28 @@ def test_an_apex_without_a_command_gets_no_answer(ros: RosGraph) -> None:
     assert answer.stride == 1 and len(bench.commands) == 1
 
 
+def test_an_apex_published_again_gets_the_same_answer_without_planning_again(ros: RosGraph) -> None:
+    """A lockstep plant publishes an apex no command reached again: the controller sends its answer again,
+    byte for byte, and neither plans again (the PD's previous speed would move on) nor refuses twice."""
+    bench = Bench(ros)
+    assert bench.set(policy="energy")
+    bench.answer(0, 1.0, 5.0)
+    first = bench.answer(1, 1.02, 4.9)
+    planned = len(bench.controller.planning_times)
+    again = bench.answer(1, 1.02, 4.9)
+    assert again == first and len(bench.controller.planning_times) == planned
+    bench.apex.publish(apex_event(2, 0.5, 5.0))  # no command exists (see below), twice
+    bench.apex.publish(apex_event(2, 0.5, 5.0))
+    assert bench.answer(3, 1.0, 5.0).stride == 3
+    assert bench.controller.unanswered == 1
+    assert bench.set(target_energy=1800.0)  # new settings: an equal apex is planned anew
+    assert fields(bench.answer(3, 1.0, 5.0)) == fields(
+        controllers.energy_regulation(
+            PARAMS, 1.0, 5.0, bench.controller.get_parameter("touchdown_angle").value, 1800.0
+        ).command()
+    )
+
+
 def test_the_learned_policy_answers_from_its_file_and_not_without_one(ros: RosGraph, tmp_path: Path) -> None:
     bench = Bench(ros)
     assert bench.set(policy="learned", policy_file=str(tmp_path / "missing.json"))

@@ -40,7 +40,7 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
-from tdslip_ros.nodes.entry import run_node, wait_to_answer
+from tdslip_ros.nodes.entry import ApexAnswers, run_node, wait_to_answer
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
 from tdslip_ros.nodes.node_status import PlanningTimes, controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
@@ -78,6 +78,7 @@ class ControllerNode(ManagedNode):
         self.unanswered = 0
         self.planning_times = PlanningTimes()
         self._answering = False
+        self._answers = ApexAnswers()
         self._configured = False
         super().__init__("controller", SPECS, **node_options)
         self.add_post_set_parameters_callback(self._parameters_changed)
@@ -111,6 +112,7 @@ class ControllerNode(ManagedNode):
 
     def _parameters_changed(self, changed: object) -> None:
         self._policy = None
+        self._answers.forget()
         if self._configured:
             self._ready_exact_plant()
 
@@ -154,7 +156,7 @@ class ControllerNode(ManagedNode):
         )
 
     def _on_apex(self, apex: ApexEvent) -> None:
-        if not self._answering:
+        if not self._answering or self._answers.repeated(apex, self._publisher):
             return
         if apex.stride == 0:
             self._previous_speed = None  # a new run: no previous apex for the PD's derivative term
@@ -191,6 +193,7 @@ class ControllerNode(ManagedNode):
         # A recorder or plant this publisher has not matched (or discovered) yet would miss it.
         wait_to_answer(self, self._publisher, self._apex_topic, first=apex.stride == 0, timeout=MATCH_TIMEOUT)
         self._publisher.publish(data)
+        self._answers.answered(data)
         self.published += 1
 
 

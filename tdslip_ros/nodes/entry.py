@@ -124,6 +124,33 @@ def wait_to_answer(
         node.get_logger().warning(f"{answers.topic_name}: not every subscriber matched in time")
 
 
+class ApexAnswers:
+    """A controller's answer to the latest apex, sent again, not planned anew, when that apex comes again: a
+    lockstep plant publishes an apex no command reached again (``PlantRun.repeat_apex``), and planning twice
+    would log a refusal twice or move a policy's memory (the PD's previous speed) on."""
+
+    def __init__(self) -> None:
+        self._apex: Any = None
+        self._answer: bytes | None = None
+
+    def repeated(self, apex: Any, publisher: Publisher[Any]) -> bool:
+        """Whether ``apex`` is the latest one again; if so, its answer (if it had one) is published again."""
+        if apex != self._apex:
+            self._apex, self._answer = apex, None
+            return False
+        if self._answer is not None:
+            publisher.publish(self._answer)
+        return True
+
+    def answered(self, data: bytes) -> None:
+        """``data`` (a serialised command) answers the latest apex."""
+        self._answer = data
+
+    def forget(self) -> None:
+        """The settings changed: an equal apex (of a new run) is planned anew."""
+        self._apex = self._answer = None
+
+
 def wait_for_delivery(node: Node, timeout: float = DELIVERY_TIMEOUT) -> bool:
     """Wait until each of ``node``'s publishers has matched every subscription the graph shows on
     its topic and every reliable subscriber has acknowledged everything published (False if not

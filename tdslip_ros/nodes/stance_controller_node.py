@@ -47,7 +47,7 @@ from tdslip_ros.model.policies.registry import (
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
 from tdslip_ros.nodes.diagnostics import specs_of
-from tdslip_ros.nodes.entry import run_node, wait_to_answer
+from tdslip_ros.nodes.entry import ApexAnswers, run_node, wait_to_answer
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
 from tdslip_ros.nodes.node_status import stance_controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
@@ -81,7 +81,9 @@ class StanceControllerNode(ManagedNode):
         self.torques = 0
         self.unanswered = 0
         self._answering = False
+        self._answers = ApexAnswers()
         super().__init__("stance_controller", SPECS, **node_options)
+        self.add_post_set_parameters_callback(lambda _: self._answers.forget())
 
     def configure(self, values: dict[str, ParameterValue]) -> None:
         self.hopper = hopper_from_parameters(values)
@@ -124,7 +126,7 @@ class StanceControllerNode(ManagedNode):
         return PolicySpec.of(policy, values).stance_feedback(self.hopper, apex)
 
     def _on_apex(self, apex: ApexEvent) -> None:
-        if not self._answering:
+        if not self._answering or self._answers.repeated(apex, self._command_publisher):
             return
         policy = self.policy
         seen = ApexState(
@@ -156,7 +158,9 @@ class StanceControllerNode(ManagedNode):
         wait_to_answer(
             self, self._command_publisher, self._apex_topic, first=apex.stride == 0, timeout=MATCH_TIMEOUT
         )
-        self._command_publisher.publish(serialized(msg))
+        data = serialized(msg)
+        self._command_publisher.publish(data)
+        self._answers.answered(data)
         self.commands += 1
 
     def _on_contact(self, contact: ContactEvent) -> None:
