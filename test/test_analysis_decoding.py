@@ -6,6 +6,7 @@ import math
 import shutil
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from tdslip_ros import interfaces
 from tdslip_ros.analysis.decoding import RunReadError, infer_params, read_run
 from tdslip_ros.analysis.records import CommandRecord, ContactRecord
 from tdslip_ros.analysis.strides import applied_commands
+from tdslip_ros.bag import RosbagMcapWriter
 from tdslip_ros.bag.reader import mcap_file, open_bag
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.model.events import HopperState, Phase
@@ -165,6 +167,21 @@ def test_a_bag_recorded_before_the_pitch_reads_with_the_fixed_bodys_zeros(
     for field in ("t", "x", "y", "energy", "hip_torque", "pitch", "pitch_rate", "grf_y"):
         assert np.array_equal(getattr(before.samples, field), getattr(new.samples, field)), field
     assert len(before.samples) > 1000 and not np.any(before.samples.pitch)
+
+
+def test_an_apex_published_again_reads_once(energy: RunReport, mcap_path: Path, tmp_path: Path) -> None:
+    """A lockstep plant publishes an apex no command answered again (PlantRun.repeat_apex): a recording with
+    every apex twice reads as the recording with each once."""
+    twice = tmp_path / "twice.mcap"
+    with RosbagMcapWriter(twice, bag_directory=False) as writer:
+        for topic, type_name, log_time, publish_time, data in raw_messages(mcap_path):
+            writer.add_topic(topic, type_name)
+            for _ in range(2 if topic == resolve(topics.APEX) else 1):
+                writer.write(topic, data, log_time, publish_time)
+    assert Counter(topic for topic, *_ in raw_messages(twice))[resolve(topics.APEX)] == 2 * len(energy.apexes)
+    once, repeated = read_run(mcap_path), read_run(twice)
+    assert repeated.apexes == once.apexes and repeated.strides == once.strides
+    assert len(once.apexes) == len(energy.apexes)
 
 
 def test_parameters_come_from_the_bag_or_are_inferred_from_the_recording(energy: RunReport) -> None:

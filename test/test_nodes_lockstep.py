@@ -36,6 +36,7 @@ from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.parameters import PAPER_PARAMS as PARAMS
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
+from tdslip_ros.nodes.plant_run import APEX_REPEAT
 
 START = ApexState(DEFAULT_APEX_HEIGHT, DEFAULT_APEX_SPEED)
 Policy = Callable[[float, float], ModelCommand]
@@ -172,6 +173,54 @@ def test_bad_commands_are_rejected_and_the_plant_runs_on(ros: RosGraph) -> None:
     ros.spin_until(lambda: len(touchdowns) >= 1, "the touchdown event")
     assert touchdowns[0].kind == ContactEvent.TOUCHDOWN
     assert touchdowns[0].state.leg_angle == good.touchdown_angle
+
+
+def test_an_apex_no_command_answers_is_published_again_for_a_controller_that_missed_it(ros: RosGraph) -> None:
+    """A controller whose answer to the first apex was lost (it had not discovered the plant's subscription)
+    or that started after it: the lockstep plant publishes the apex it waits on again, the same message, every
+    APEX_REPEAT s while no command at all has come, and the run goes on once one answers it. A command that
+    came, even a rejected one, stops the repeats: the controller is there."""
+    strides = 2
+    plant = ros.add(
+        PlantNode(
+            context=ros.context,
+            start_when_ready=False,
+            parameter_overrides=overrides(max_strides=strides, command_timeout=30.0),
+        )
+    )
+    probe = ros.node("probe")
+    commands = probe.create_publisher(StanceCommand, topics.COMMAND, topics.COMMAND_QOS)
+    apexes = ros.collect(ApexEvent, topics.APEX, probe)
+    statuses = ros.collect(Status, topics.STATUS, probe)
+    ros.spin_until(
+        lambda: plant.count_publishers(topics.COMMAND) >= 1 and plant.count_subscribers(topics.APEX) >= 1,
+        "the probe",
+    )
+    plant.start()
+    ros.spin_until(lambda: len(apexes) >= 3, "the first apex and two repeats")
+    fields = [(a.epoch, a.stride, a.sim_time, a.height, a.forward_speed, a.energy) for a in apexes]
+    assert fields == [fields[0]] * len(apexes) and fields[0][:2] == (0, 0)
+
+    def answer(stride: int, **values: float) -> StanceCommand:
+        good = energy_policy(apexes[-1].height, apexes[-1].forward_speed)
+        fields = {"touchdown_angle": good.touchdown_angle, "tau0": good.tau0, "t_f": good.t_f} | values
+        return StanceCommand(stride=stride, policy="probe", **fields)
+
+    commands.publish(answer(0, tau0=math.nan))
+    ros.spin_until(lambda: len(statuses) == 1, "the rejection")
+    assert statuses[0].kind == Status.KIND_COMMAND_REJECTED
+    heard = len(apexes)
+    deadline = time.monotonic() + 2.5 * APEX_REPEAT
+    ros.spin_until(lambda: time.monotonic() > deadline, "2.5 repeat periods")
+    assert len(apexes) == heard  # a command came: no more repeats
+
+    for stride in range(strides):
+        commands.publish(answer(stride))
+        ros.spin_until(lambda s=stride: apexes[-1].stride > s or plant.outcome is not None, "the next apex")
+    ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
+    assert plant.outcome.kind == Status.KIND_RUN_COMPLETE, plant.outcome
+    ros.spin_until(lambda: len(apexes) == plant.published[topics.APEX], "every apex published")
+    assert sorted({a.stride for a in apexes}) == list(range(strides + 1))
 
 
 def test_missing_controller_ends_the_run_with_command_timeout(ros: RosGraph) -> None:

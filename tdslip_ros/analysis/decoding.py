@@ -190,7 +190,8 @@ def read_run(
     def decoded(topic: str) -> Iterator[Any]:
         return _decoded(recording, topic, found[recording.name(topic)][0])
 
-    apexes = sorted((_apex(m) for m in decoded(APEX)), key=lambda a: a.t)
+    # Each apex once: a lockstep plant publishes an unanswered one again, with the same stride and time.
+    apexes = sorted({(a.stride, a.t): a for a in map(_apex, decoded(APEX))}.values(), key=lambda a: a.t)
     contacts = sorted((_contact(m) for m in decoded(CONTACT)), key=lambda c: c.t)
     log_times = found[recording.name(COMMAND)][1]
     commands = [_command(m, log_time) for m, log_time in zip(decoded(COMMAND), log_times, strict=True)]

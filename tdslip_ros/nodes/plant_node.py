@@ -23,7 +23,9 @@ Clock modes (parameter ``clock_mode``):
 * ``lockstep``: as fast as possible. At each apex (the initial one included) the plant stops and
   waits for the command answering that stride; nothing but the command decides what happens next,
   so runs with equal parameters give bit-identical results. No valid command within
-  ``command_timeout`` seconds of wall time ends the run (Status ``command_timeout``).
+  ``command_timeout`` seconds of wall time ends the run (Status ``command_timeout``). An apex that no
+  command at all has answered is published again every ``APEX_REPEAT`` s until one comes
+  (:meth:`~tdslip_ros.nodes.plant_run.PlantRun.repeat_apex`): a controller that missed it answers it.
 
 Perturbations (:mod:`tdslip_ros.model.plant.perturbations`; parameters ``terrain``, ``apex_height_noise``,
 ``apex_speed_noise``, ``apex_noise_seed``, ``angle_noise``, ``angle_noise_seed``, ``tau_max``, ``pushes``:
@@ -102,6 +104,7 @@ from tdslip_ros.nodes.parameters import ParameterValue
 from tdslip_ros.nodes.plant_output import GRAPH_CHECK_TICKS, PlantOutput
 from tdslip_ros.nodes.plant_parameters import SPECS
 from tdslip_ros.nodes.plant_run import (
+    APEX_REPEAT,
     TICK_PERIOD,
     ApexReport,
     LockedRun,
@@ -231,10 +234,18 @@ class PlantNode(ManagedNode):
         self._timeout_timer = self.create_timer(
             self._command_timeout, self._on_command_timeout, clock=steady, autostart=False
         )
+        self._repeat_timer = self.create_timer(APEX_REPEAT, self._on_repeat, clock=steady, autostart=False)
         self._held_by_recorder = False  # lockstep stepping paused until the recorder catches up
         self._recorder_timer = self.create_timer(
             self._command_timeout, self._on_recorder_timeout, clock=steady, autostart=False
         )
+        self._run_timers = (
+            self._lockstep_timer,
+            self._timeout_timer,
+            self._repeat_timer,
+            self._recorder_timer,
+        )
+        """Every timer of a running run: held while paused, stopped when it ends or restarts."""
         self._started = False
         self._tick_process_lost: str | None = None  # why the realtime tick process ended by itself
         self._epoch = 0
@@ -291,9 +302,8 @@ class PlantNode(ManagedNode):
         with self._lock:
             if not self.running:
                 return
-            timers = (self._lockstep_timer, self._timeout_timer, self._recorder_timer)
-            self._timers_on_hold = {timer for timer in timers if not timer.is_canceled()}
-            for timer in timers:
+            self._timers_on_hold = {timer for timer in self._run_timers if not timer.is_canceled()}
+            for timer in self._run_timers:
                 timer.cancel()
         assert self._driver is not None
         self._driver.pause()
@@ -444,9 +454,8 @@ class PlantNode(ManagedNode):
 
     def _finished(self, outcome: RunOutcome) -> None:
         """The run ended (under the lock)."""
-        self._stop_timer(self._lockstep_timer)
-        self._stop_timer(self._timeout_timer)
-        self._stop_timer(self._recorder_timer)
+        for timer in self._run_timers:
+            self._stop_timer(timer)
         self._held_by_recorder = False
         self.outcome = outcome
         if not self.done.done():
@@ -454,9 +463,8 @@ class PlantNode(ManagedNode):
 
     def _restarted(self, epoch: int, ended: RunOutcome) -> None:
         """A reset began ``epoch`` (under the lock); ``ended``: how the run before ended, if it had not."""
-        self._stop_timer(self._lockstep_timer)
-        self._stop_timer(self._timeout_timer)
-        self._stop_timer(self._recorder_timer)
+        for timer in self._run_timers:
+            self._stop_timer(timer)
         self._held_by_recorder = False
         if not self.done.done():
             self.done.set_result(ended)
@@ -547,6 +555,11 @@ class PlantNode(ManagedNode):
             if self._run is not None:
                 self._run.time_out(self._command_timeout)
 
+    def _on_repeat(self) -> None:
+        with self._lock:
+            if self._run is not None:
+                self._run.repeat_apex()
+
     # --- commands, torques and reset ------------------------------------------------------------
 
     def _on_command(self, data: bytes) -> None:
@@ -619,9 +632,11 @@ class _NodeSink:
 
     def awaiting(self) -> None:
         self._node._run_timer(self._node._timeout_timer)
+        self._node._run_timer(self._node._repeat_timer)
 
     def resumed(self) -> None:
         self._node._stop_timer(self._node._timeout_timer)
+        self._node._stop_timer(self._node._repeat_timer)
         self._node._run_timer(self._node._lockstep_timer)
 
     def command_applied(self, epoch: int, stride: int, applied_ns: int) -> None:

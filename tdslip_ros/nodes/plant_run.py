@@ -34,6 +34,8 @@ from tdslip_ros.nodes.torque_stream import TICK_NS, LateTorque, TorqueInput, tor
 
 TICK_PERIOD = TICK_NS / 1e9  # s, the plant's fixed step
 SAMPLES_PER_BATCH = 10
+APEX_REPEAT = 1.0
+"""Lockstep: wall time [s] after which an apex no command has answered is published again (repeat_apex)."""
 """Ticks per tdslip/samples message at most (and per write of the realtime tick process to the node): a
 realtime recording trails the plant by up to 10 ms. Larger batches cost the tick that sends them more and gain
 little in lockstep (``bench_nodes.py realtime`` and ``lockstep`` measure both; docs/benchmarks.md)."""
@@ -216,6 +218,9 @@ class PlantRun:
         self._applied_published = 0  # samples of the current stance published on tdslip/applied_torque
         self.torques.restart()
         self._awaiting: int | None = None
+        self._last_apex: ApexReport | None = None  # as published, for repeat_apex
+        self._heard_since_apex = False  # a command (any) came after the latest apex went out
+        self._apex_repeated = False
         self._answered = -1  # the latest stride whose command was applied
         self._late_stride = -1  # the latest stride counted in late_commands
         self._stale_strides = 0  # realtime: strides in a row that no valid command answered
@@ -415,11 +420,28 @@ class PlantRun:
         self._awaiting = self._stepper.stride
         self._sink.awaiting()
 
+    def repeat_apex(self) -> None:
+        """Lockstep: publish the apex awaited again if no command at all has come since it went out. A
+        controller that started after it, or had not yet discovered the plant's command subscription when
+        it answered (discovery is not symmetric; a volatile writer never resends to a reader it matches
+        later), then answers it. Logged once per apex."""
+        if not self.running or self._awaiting is None or self._heard_since_apex or self._last_apex is None:
+            return
+        if not self._apex_repeated:
+            self._apex_repeated = True
+            self._sink.log(
+                "info",
+                f"no command for epoch {self.epoch}, stride {self._awaiting} yet: its apex is published "
+                f"again every {APEX_REPEAT:g} s until one comes, for a controller that missed it",
+            )
+        self._sink.apex(self._last_apex)
+
     # --- commands and torques -------------------------------------------------------------------
 
     def take_command(self, data: bytes) -> None:
         """A serialised StanceCommand: applied if it answers the current apex and is admissible, else
         counted and (unless merely late) reported."""
+        self._heard_since_apex = True
         key = command_key(data)
         current = (self.epoch, self._stepper.stride)
         # An answer to another apex is recognised from its bytes, unparsed: a flood of them costs next to
@@ -523,6 +545,7 @@ class PlantRun:
         report = ApexReport(
             self.epoch, stride, self._offset + state.t, state, stepper.measured_apex, stepper.ground, flows
         )
+        self._last_apex, self._heard_since_apex, self._apex_repeated = report, False, False
         self._sink.apex(report)
         self._sink.counted(self.counts())
 

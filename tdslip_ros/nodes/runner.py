@@ -135,15 +135,22 @@ class RunReport:
 
 
 class ApexMonitor(Node):
-    """Collects the apex events of the run (for progress and the summary)."""
+    """Collects the apex events of the run (for progress and the summary), each once: a lockstep plant
+    publishes an unanswered apex again (PlantRun.repeat_apex)."""
 
     def __init__(self, progress: ProgressCallback | None, **node_options: object) -> None:
         super().__init__("run_monitor", **node_options)  # type: ignore[arg-type]
         self.apexes = Rows.of_message(ApexEvent)
+        self.heard = 0  # apex messages, repeats included
+        self._last: tuple[int, int] | None = None  # (epoch, stride) of the latest
         self._progress = progress
         self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS)
 
     def _on_apex(self, msg: ApexEvent) -> None:
+        self.heard += 1
+        if (msg.epoch, msg.stride) == self._last:
+            return
+        self._last = (msg.epoch, msg.stride)
         self.apexes.append_message(msg)
         if self._progress is not None:
             self._progress(msg)
@@ -363,7 +370,7 @@ def run(
         if controller is not None:
             controller.stop()
         _spin_until_quiet(executor, lambda: plant.received_commands + plant.received_torques)
-        spin_until(executor, lambda: len(monitor.apexes) == plant.published[topics.APEX], timeout=5.0)
+        spin_until(executor, lambda: monitor.heard == plant.published[topics.APEX], timeout=5.0)
         recorder.stop()
         published = published_counts()
         in_bag = read_bag_counts(bag)
