@@ -79,6 +79,8 @@ def test_two_lockstep_runs_with_the_same_options_record_the_same_bytes(
     assert again.recording_complete
     first, second = by_topic(mcap_file(energy.bag)), by_topic(mcap_file(again.bag))
     assert set(first) == set(second) == {resolve(topic) for topic in topics.RECORDED_TOPICS} - STREAMED
+    for recording in (first, second):  # the answer to the last apex too, sent as the run ends
+        assert len(recording[resolve(topics.COMMAND)]) == len(recording[resolve(topics.APEX)])
     for topic in first:
         assert len(first[topic]) == len(second[topic]), topic
         differing = [i for i, (a, b) in enumerate(zip(first[topic], second[topic], strict=True)) if a != b]

@@ -89,6 +89,7 @@ STARTUP_TIMEOUT = 30.0  # s for the child nodes to start and match the plant's t
 STOP_TIMEOUT = 30.0  # s for a child to stop after SIGINT
 CLOSE_GRACE = 15.0  # s a child gets to stop on an error path before it is killed
 QUIET = 0.2  # s without a new command: the controller's last commands have been received
+LAST_ANSWER_WAIT = 1.0  # s the suite's controller is given to answer the last apex before it is stopped
 
 ProgressCallback = Callable[[ApexEvent], None]
 
@@ -367,10 +368,15 @@ def run(
         if not plant.deliver(executor):
             problems.append("the recorder did not write everything the plant published")
         delivery_time = (time.monotonic_ns() - plant.start_wall_ns) * 1e-9
+        spin_until(executor, lambda: monitor.heard == plant.published[topics.APEX], timeout=5.0)
         if controller is not None:
+            # Its answer to the last apex, sent as the run ends, is in every bag of equal options alike
+            # (unless it has none to give), not only in those where it came before the stop.
+            spin_until(
+                executor, lambda: plant.received_commands >= len(monitor.apexes), timeout=LAST_ANSWER_WAIT
+            )
             controller.stop()
         _spin_until_quiet(executor, lambda: plant.received_commands + plant.received_torques)
-        spin_until(executor, lambda: monitor.heard == plant.published[topics.APEX], timeout=5.0)
         recorder.stop()
         published = published_counts()
         in_bag = read_bag_counts(bag)
