@@ -34,13 +34,13 @@ from tdslip_ros.nodes.torque_stream import TICK_NS, LateTorque, TorqueInput, tor
 
 TICK_PERIOD = TICK_NS / 1e9  # s, the plant's fixed step
 SAMPLES_PER_BATCH = 10
+"""Ticks per tdslip/samples message at most (and per write of the realtime tick process to the node): a
+realtime recording trails the plant by up to 10 ms. Larger batches cost the tick that sends them more and gain
+little in lockstep (``bench_nodes.py realtime`` and ``lockstep`` measure both; docs/benchmarks.md)."""
 APEX_REPEAT = 2.5
 """Lockstep: wall time [s] after which an apex no command has answered is published again (repeat_apex):
 longer than the suite's controllers may wait for discovery before their first answer (2 s), less than the
 default command_timeout (5 s)."""
-"""Ticks per tdslip/samples message at most (and per write of the realtime tick process to the node): a
-realtime recording trails the plant by up to 10 ms. Larger batches cost the tick that sends them more and gain
-little in lockstep (``bench_nodes.py realtime`` and ``lockstep`` measure both; docs/benchmarks.md)."""
 
 
 @dataclass(frozen=True)
