@@ -250,24 +250,3 @@ def test_a_tick_process_that_dies_ends_the_run_instead_of_hanging_it(ros: RosGra
     ros.spin_until(lambda: plant.outcome is not None, "the end of the run")
     assert plant.outcome.kind == Status.KIND_PUBLISH_FAILED
     assert "the tick process ended unexpectedly" in plant.outcome.reason
-
-
-def test_the_tick_thread_takes_no_new_page_once_it_hops(ros: RosGraph) -> None:
-    """With the process's allocator (tick_process.ALLOCATOR: a heap written at the start and kept), the tick
-    thread's minor page faults stay put over 30 strides once it hops: on this VM a page's first touch can
-    cost the tick milliseconds. With Python's and glibc's defaults it took about 29 a minute
-    (bench_tick_faults.py); without the heap written at the start, 2 in these strides."""
-    plant = ros.add(
-        PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=0, clock_mode="realtime"))
-    )
-    ros.add(ControllerNode(context=ros.context))
-    apexes = ros.collect(ApexEvent, topics.APEX)
-
-    def faults() -> int:
-        stat = Path(f"/proc/{plant.tick_process_id}/task/{plant.tick_process_id}/stat").read_text()
-        return int(stat.rsplit(")", 1)[1].split()[7])
-
-    ros.spin_until(lambda: len(apexes) >= 10, "ten apexes", timeout=60.0)
-    before = faults()
-    ros.spin_until(lambda: len(apexes) >= 40, "thirty more", timeout=60.0)
-    assert faults() == before

@@ -51,18 +51,6 @@ REPLAY_THREAD = "tdslip-replay"  # and the node's thread that publishes what it 
 CLOSE_TIMEOUT = 5.0  # s the process is given to end after "stop" before it is killed
 RESET_TIMEOUT = 5.0  # s a reset waits for the process to have restarted the run
 READY_TIMEOUT = 60.0  # s the process is given to start (a cold cache of compiled kernels: tens of seconds)
-HEAP_RESERVE = "TDSLIP_HEAP_RESERVE"
-"""The environment variable with the bytes of heap the process writes once at its start, before the run."""
-ALLOCATOR = {
-    "PYTHONMALLOC": "malloc",  # not pymalloc, whose arenas are mapped and unmapped as they fill and empty
-    "MALLOC_MMAP_THRESHOLD_": str(32 << 20),  # glibc's largest: arrays too come from the heap
-    "MALLOC_TRIM_THRESHOLD_": str(1 << 40),  # freed heap is kept, never handed back
-    HEAP_RESERVE: str(16 << 20),
-}
-"""The process's allocator (its environment): a heap written once at the start and kept, so that what the run
-allocates later reuses pages already touched. On this VM a page's first touch can cost the toucher
-milliseconds (bench_first_touch.py). bench/bench_tick_faults.py counts the tick thread's page faults with
-these settings and without."""
 
 
 def framed(message: object) -> bytes:
@@ -208,7 +196,6 @@ class TickProcess:
             _enlarge(fd)
         self._process = subprocess.Popen(
             [sys.executable, "-m", __name__, str(inbox_read), str(outbox_write)],
-            env=os.environ | ALLOCATOR,
             pass_fds=(inbox_read, outbox_write),
             stdin=subprocess.DEVNULL,
             # A session of its own is a scheduling group of its own (Linux's autogroup): the tick's CPU share
@@ -420,17 +407,10 @@ class _TickServer:
         self._sink.flush()
 
 
-def _touch_heap(size: int) -> None:
-    """Write ``size`` bytes of heap (zeros) and free them: the allocator keeps the pages (ALLOCATOR)."""
-    reserve = bytearray(size)
-    del reserve
-
-
 def main(argv: list[str]) -> int:
     """``python -m tdslip_ros.nodes.tick_process INBOX_FD OUTBOX_FD``, as TickProcess starts it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node decides when to stop
     name_this_thread(TICK_THREAD)
-    _touch_heap(int(os.environ.get(HEAP_RESERVE, "0")))
     inbox, outbox = int(argv[1]), int(argv[2])
     frames = FrameReader()
     first: list[Any] = []
