@@ -51,11 +51,6 @@ from tdslip_ros.nodes import (
 from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.reporting.output import OutputError, check_output_directory
 
-STARTUP_TIMEOUT = 30.0  # s for the child nodes to start and match the plant's topics
-STOP_TIMEOUT = 30.0  # s for a child to stop after SIGINT
-CLOSE_GRACE = 15.0  # s a child gets to stop on an error path before it is killed
-QUIET = 0.2  # s without a new command: the controller's last commands have been received
-
 
 class RunError(RuntimeError):
     """The suite could not run or record (a node did not start, crashed, or lost messages). When a node
