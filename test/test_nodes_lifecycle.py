@@ -26,6 +26,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.serialization import deserialize_message
+from rclpy.task import Future
 from support.ros2_tools import ros2_command, ros2_environment
 from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import ApexEvent, Status
@@ -56,6 +57,9 @@ class Lifecycle(Protocol):
     def set(self, label: str) -> bool: ...
 
 
+STATE_ASK_PERIOD = 2.0  # s
+
+
 class Manager:
     """The ChangeState and GetState clients of one managed node, as a lifecycle manager holds them."""
 
@@ -67,9 +71,19 @@ class Manager:
         ros.spin_until(lambda: self._change.service_is_ready() and self._get.service_is_ready(), node)
 
     def state(self) -> int:
-        future = self._get.call_async(GetState.Request())
-        self._ros.spin_until(future.done, "get_state")
-        return int(future.result().current_state.id)
+        """Asked again every STATE_ASK_PERIOD s until answered: a server sends its response only if it has
+        matched the client's response reader within 100 ms (rmw_fastrtps), which a loaded machine can miss
+        (a fresh clone's suite: the first get_state unanswered for 20 s)."""
+        futures: list[Future] = []
+        deadline = time.monotonic() + 20.0
+        while not any(future.done() for future in futures):
+            assert time.monotonic() < deadline, "get_state unanswered for 20 s"
+            futures.append(self._get.call_async(GetState.Request()))
+            until = time.monotonic() + STATE_ASK_PERIOD
+            self._ros.spin_until(
+                lambda until=until: any(f.done() for f in futures) or time.monotonic() > until, "get_state"
+            )
+        return int(next(f for f in futures if f.done()).result().current_state.id)
 
     def set(self, label: str) -> bool:
         future = self._change.call_async(ChangeState.Request(transition=Transition(label=label)))
