@@ -260,6 +260,11 @@ class HostileController(Node):
 
     def send_late(self, timer: Any, good: StanceCommand) -> None:
         self.destroy_timer(timer)
+        if self.run_ended.done():
+            # ``tdslip run`` stops its recorder once no command has come for QUIET (0.2 s) after the run's
+            # end, so an answer sent later is nobody's to record (one was counted lost in a 600 s soak).
+            self.sent["late, after the run's end: not sent"] += 1
+            return
         self.publish_command(good)
         self.sent["late"] += 1
 
