@@ -26,7 +26,7 @@ from tdslip_ros.model.analytic.apex_map import ANALYTIC_MAPS
 from tdslip_ros.model.limits import check_hopper
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError
 from tdslip_ros.model.plant.perturbations import Perturbations
-from tdslip_ros.model.plant.stepper import check_body
+from tdslip_ros.model.plant.stepper_bounds import check_body
 from tdslip_ros.model.policies.registry import (
     DEFAULT_APEX_HEIGHT,
     DEFAULT_APEX_SPEED,

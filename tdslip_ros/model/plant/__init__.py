@@ -2,7 +2,8 @@
 inside the step, and what perturbs a stride.
 
 - :mod:`.exact_map`: one apex to the next, DOP853 with dense-output event location (the reference);
-- :mod:`.stepper`: the 1 kHz fixed-step plant of the plant node;
+- :mod:`.stepper`: the 1 kHz fixed-step plant of the plant node; :mod:`.stepper_bounds`, what it accepts, and
+  :mod:`.flight_landing`, where one of its flights lands;
 - :mod:`.batch` (with :mod:`.batch_stance` and the integrator :mod:`.stance_kernel`): many apexes at once;
 - :mod:`.stride_kernels`: the batched engine's ramp stride compiled for one lane;
 - :mod:`.stance_laws`: the interface of a hip torque decided during stance (the laws themselves are policies);

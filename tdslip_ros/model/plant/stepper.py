@@ -18,9 +18,9 @@ meet it with margin. What a stance tick costs: bench/bench_stepper.py (numbers i
 
 Plausibility limits (:mod:`.limits`): the stepper refuses to start from an apex beyond them; a touchdown
 under a torque beyond the actuator limit, or a liftoff towards an apex beyond the limits, ends the run as
-``state_limit``, so every state it reports is finite and every flight bounded. The sub-step must resolve
-the motion's fastest rate (MAX_RATE_STEP): a stiff or heavily damped leg that 1 kHz RK4 cannot follow is
-refused at construction rather than integrated into nonsense.
+``state_limit``, so every state it reports is finite and every flight bounded. What else it refuses (a leg
+too fast for its sub-step, a body it does not run, a rigid body's leg that cannot be placed) is
+:mod:`.stepper_bounds`.
 
 Stance feedback (:class:`.stance_laws.StanceFeedback`, its sample period the tick dt): the sample
 instants are the tick boundaries, so they are grid points of the sub-steps already. At the start of each
@@ -51,7 +51,7 @@ takes the 8-value state of :func:`~.rigid_stance_derivatives` through the same R
 events. Against the exact map over 24 ramp strides of 5 bodies (test_plant_stepper_rigid_body.py), 4
 sub-steps give apex states to 4e-11 (the pitch rate; 1 sub-step 1e-8, 2: 7e-10, 8: 3e-12), event times to
 4e-12 s and the stance's energy balance to 4e-12 of the apex energy. Saturation, pushes and placement
-errors run; uneven terrain and apex noise are refused (:func:`check_body`). What a rigid stance tick costs:
+errors run; uneven terrain and apex noise are refused (:func:`.check_body`). What a rigid stance tick costs:
 bench/bench_rigid_body.py.
 """
 
@@ -59,36 +59,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import NamedTuple
-
-import numpy as np
 
 from tdslip_ros.model import body_dynamics, dynamics
 from tdslip_ros.model.events import Event, EventKind, FailureKind, HopperState, Phase, StrideEnergy
 from tdslip_ros.model.limits import PlausibilityLimits
 from tdslip_ros.model.params import ApexState, HopperParams, ParameterError, RigidBody, StanceCommand
+from tdslip_ros.model.plant.flight_landing import FlightReference, Landing, plan_landing, rigid_stubbing
 from tdslip_ros.model.plant.perturbations import Perturbations, placed_angle
 from tdslip_ros.model.plant.stance_laws import HeldTorque, StanceFeedback, TorqueStream, torque_limit
 from tdslip_ros.model.plant.stance_models import PointMassStance, RigidBodyStance, StanceModel, StanceVector
-from tdslip_ros.model.plant.terrain import Terrain, touchdown
+from tdslip_ros.model.plant.stepper_bounds import check_body, check_rigid_placement, check_step
+from tdslip_ros.model.plant.terrain import Terrain
 
 DEFAULT_SUBSTEPS = 4
-MAX_RATE_STEP = 0.5
-"""Largest sub-step times the motion's fastest rate (see :func:`fastest_rate`) the stepper accepts: well
-inside RK4's stability limit (2.8), where its local error is still ~1e-4 per sub-step. The paper's
-hopper at 1 kHz with 4 sub-steps is at 0.012."""
 _GRID_SLACK = 1e-6  # fraction of a sub-step below which the stepper does not stop short of a grid point
-
-
-class _Landing(NamedTuple):
-    """Where the leg placed at the current apex lands on uneven ground: (stubbed, time from the apex to
-    touchdown, toe position) and the ground under the toe at placement."""
-
-    stubbed: bool
-    t: float
-    toe_x: float
-    toe_y: float
-    placement_ground: float
 
 
 class FixedStepStepper:
@@ -118,21 +102,12 @@ class FixedStepStepper:
         Raises ParameterError too for a dt or a number of substeps that cannot resolve the motion, and for
         perturbations with per-lane values. ``trajectory`` chooses the random draws (module docstring).
         A rigid body (``params.body``) starts at the apex's pitch and pitch rate; ParameterError for what the
-        stepper does not run for it (:func:`check_body`), and for a pitch on the fixed body.
+        stepper does not run for it (:func:`.check_body`), and for a pitch on the fixed body.
         """
-        if not (math.isfinite(dt) and dt > 0.0):
-            raise ParameterError(f"dt must be a positive finite number, got {dt!r}")
-        if substeps < 1:
-            raise ParameterError(f"substeps must be at least 1, got {substeps!r}")
         self._limits = PlausibilityLimits.of(params, limits)
+        check_step(self._limits, apex.pitch_rate, dt, substeps)
         self._limits.check_apex(apex)
         check_body(params, apex, perturbations)
-        rate = max(fastest_rate(self._limits), abs(apex.pitch_rate))
-        if rate * dt / substeps > MAX_RATE_STEP:
-            raise ParameterError(
-                f"a sub-step of dt/substeps = {dt / substeps:.6g} s cannot resolve this hopper, whose "
-                f"fastest rate is {rate:.6g} 1/s: at most {MAX_RATE_STEP / rate:.6g} s"
-            )
         if not math.isfinite(x0):
             raise ParameterError(f"x0 must be a finite number, got {x0!r}")
         self._params = params
@@ -173,12 +148,12 @@ class FixedStepStepper:
         self._torque_limit = torque_limit(self._tau_max, self._limits.max_torque)
         self._ground = 0.0 if self._terrain is None else self._terrain.height_at(x0)
         self._toe_y = 0.0
-        self._landing: _Landing | None = None  # planned once per flight and touchdown angle
+        self._landing: Landing | None = None  # planned once per flight and touchdown angle
         self._angle_error = 0.0
         self._place_leg()
         self._saturated_strides = 0
         self._pending_failure: tuple[HopperState, FailureKind, str] | None = None
-        self._flight_ref = (0.0, x0, self._ground + apex.y, apex.xdot, 0.0)
+        self._flight_ref: FlightReference = (0.0, x0, self._ground + apex.y, apex.xdot, 0.0)
         # A rigid body (None: the fixed body): its (pitch, pitch rate) at the flight reference's time (0 for
         # the fixed body), and the touchdown time planned for a flight: (apex time, angle, time from the apex,
         # None when the toe stubs).
@@ -297,13 +272,22 @@ class FixedStepStepper:
         below the new touchdown height r0 cos(theta_td) (on uneven ground: the toe would already have met
         the ground). A toe placed below the ground at the apex is not refused: it is toe stubbing. Stance
         feedback must sample at the tick, dt. A rigid body's leg is judged from its hip
-        (:meth:`_check_rigid_placement`).
+        (:func:`.check_rigid_placement`).
         """
         if self._phase is Phase.STANCE:
             raise ParameterError("the stance command cannot change during stance")
         self._check_sample_period(command)
         if self._body is not None:
-            self._check_rigid_placement(self._body, command)
+            check_rigid_placement(
+                self._params,
+                self._body,
+                command.touchdown_angle,
+                float(placed_angle(command.touchdown_angle, self._angle_error)),
+                self._flight_ref,
+                self._pitch_ref,
+                self.t,
+                self._descending,
+            )
             self._command = command
             self._place_leg()
             return
@@ -326,7 +310,7 @@ class FixedStepStepper:
                     f"but it is already below, at {self._flight_state(self.t).y:.6g} m"
                 )
         elif self._descending:
-            landing = self._plan_landing(float(placed_angle(command.touchdown_angle, self._angle_error)))
+            landing = self._plan_landing_at(float(placed_angle(command.touchdown_angle, self._angle_error)))
             if not landing.stubbed and self._flight_ref[0] + landing.t < self.t:
                 raise ParameterError(
                     f"touchdown_angle {command.touchdown_angle!r} rad puts the toe on the ground at "
@@ -434,25 +418,13 @@ class FixedStepStepper:
             self._placed_angle = float(placed_angle(self._command.touchdown_angle, self._angle_error))
         self._landing = None
 
-    def _plan_landing(self, angle: float) -> _Landing:
-        """Where a leg placed at ``angle`` at the apex of this flight lands (uneven ground)."""
+    def _plan_landing_at(self, angle: float) -> Landing:
         assert self._terrain is not None
-        _, x, y, xdot, _ = self._flight_ref
-        x_a, y_a, xdot_a, sin_a, cos_a = (
-            np.array([v]) for v in (x, y, xdot, math.sin(angle), math.cos(angle))
-        )
-        landing = touchdown(self._terrain, x_a, y_a, xdot_a, sin_a, cos_a, self._params.r0, self._params.g)
-        return _Landing(
-            bool(landing.stubbed[0]),
-            float(landing.t[0]),
-            float(landing.toe_x[0]),
-            float(landing.toe_y[0]),
-            float(landing.placement_ground[0]),
-        )
+        return plan_landing(self._params, self._terrain, self._flight_ref, angle)
 
-    def _current_landing(self) -> _Landing:
+    def _current_landing(self) -> Landing:
         if self._landing is None:
-            self._landing = self._plan_landing(self.placed_angle)
+            self._landing = self._plan_landing_at(self.placed_angle)
         return self._landing
 
     def _stubbing(self) -> tuple[FailureKind, str] | None:
@@ -620,42 +592,7 @@ class FixedStepStepper:
         """The exact map's toe stubbing of a rigid body: the hip below the touchdown height at the apex."""
         if self._rigid_landing_time(body) is not None:
             return None
-        y_apex = self._flight_ref[2]
-        pitch = self._pitch_ref[0]
-        hip_y = y_apex + body_dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
-        y_td = dynamics.touchdown_height(self._params, math.cos(self.placed_angle))
-        # rigid_touchdown_time found the hip below y_td at the apex; a rounding apart, so does this.
-        return dynamics.toe_stubbing(min(hip_y, math.nextafter(y_td, -math.inf)), y_td)
-
-    def _check_rigid_placement(self, body: RigidBody, command: StanceCommand | StanceFeedback) -> None:
-        """set_command's test for a rigid body: the leg must be placeable (:func:`.dynamics.can_place_leg`)
-        from the hip's height at this flight's apex (the planners' view, :mod:`.policies.posture`), and in a
-        descending flight its touchdown (:func:`~.rigid_touchdown_time`) must not have passed."""
-        params = self._params
-        t_ref, _, y_ref, _, ydot_ref = self._flight_ref
-        rise = ydot_ref / params.g  # 0 when descending: the reference is the apex
-        pitch_ref, pitch_rate = self._pitch_ref
-        pitch = pitch_ref + pitch_rate * rise
-        y_apex = y_ref + ydot_ref**2 / (2.0 * params.g)
-        hip_apex = y_apex + body_dynamics.hip_offset(body, math.sin(pitch), math.cos(pitch))[1]
-        cos_td = math.cos(command.touchdown_angle)
-        if not dynamics.can_place_leg(params.r0, params.g, hip_apex, cos_td):
-            raise ParameterError(
-                f"touchdown_angle {command.touchdown_angle!r} rad needs the hip at "
-                f"{dynamics.touchdown_height(params, cos_td):.6g} m, but it is at {hip_apex:.6g} m at this "
-                f"flight's apex, and placement needs a fall of {dynamics.PLACEMENT_LEAD_TIME:g} s from the "
-                f"apex to touchdown"
-            )
-        if self._descending:
-            angle = float(placed_angle(command.touchdown_angle, self._angle_error))
-            landing = body_dynamics.rigid_touchdown_time(
-                params, body, y_ref, pitch, pitch_rate, math.cos(angle)
-            )
-            if landing is not None and t_ref + landing < self.t:
-                raise ParameterError(
-                    f"touchdown_angle {command.touchdown_angle!r} rad puts the toe on the ground at "
-                    f"t = {t_ref + landing:.6g} s, before the command arrived ({self.t:.6g} s)"
-                )
+        return rigid_stubbing(self._params, body, self._flight_ref[2], self._pitch_ref[0], self.placed_angle)
 
     # --- stance -----------------------------------------------------------------------------
 
@@ -759,57 +696,3 @@ class FixedStepStepper:
         self._failed = kind
         self._failure_state = state
         events.append(Event(EventKind.FAILURE, state.t, self._stride, state, kind, reason))
-
-
-def check_body(params: HopperParams, apex: ApexState, perturbations: Perturbations | None) -> None:
-    """ParameterError for a start the stepper does not run: a pitch on the fixed body; for a rigid body, an
-    apex pitched past its tip_limit and what it does not run for one yet, naming it: uneven terrain (a rigid
-    body runs on flat ground at height 0, as on the exact map) and apex noise (its sensor reads no pitch).
-    Saturation, pushes and placement errors run."""
-    body = params.body
-    if body is None:
-        if apex.pitch != 0.0 or apex.pitch_rate != 0.0:
-            raise ParameterError(
-                f"the apex has a pitch ({apex.pitch!r} rad, {apex.pitch_rate!r} rad/s), but the hopper's "
-                f"body is fixed: give HopperParams a RigidBody"
-            )
-        return
-    if abs(apex.pitch) >= body.tip_limit:
-        raise ParameterError(
-            f"the apex pitch {apex.pitch!r} rad is past the body's tip_limit {body.tip_limit!r}"
-        )
-    if perturbations is None:
-        return
-    if not perturbations.terrain.is_flat:
-        raise ParameterError(
-            f"the 1 kHz stepper runs a rigid body on flat ground at height 0 for now, not on the "
-            f"{perturbations.terrain.kind} terrain"
-        )
-    if perturbations.sensing.active:
-        raise ParameterError(
-            "the 1 kHz stepper has no sensor for a rigid body's apex yet (it would read no pitch): apex "
-            "noise is refused"
-        )
-
-
-def fastest_rate(limits: PlausibilityLimits) -> float:
-    """The fastest rate [1/s] of a TD-SLIP motion within ``limits``: the leg's fastest mode
-    omega0 (zeta0 + sqrt(zeta0^2 - 1)) (omega0 when underdamped), or the swing rate about the toe at the
-    highest speed the limits allow, sqrt(2 max_energy / m) / r0, whichever is larger.
-
-    A rigid body moves the leg's mode to the hip's smallest effective mass m_h = 1 / (1/m + |d|^2 / J) along
-    the leg (d the hip's offset, J the inertia), the hip's swing by the spin, and adds the spin
-    sqrt(2 max_energy / J) of the whole energy bound put into the rotation."""
-    params = limits.params
-    zeta0 = params.zeta0
-    leg = params.omega0 * (zeta0 + math.sqrt(max(zeta0 * zeta0 - 1.0, 0.0)))
-    swing = math.sqrt(2.0 * limits.max_energy / params.m) / params.r0
-    body = params.body
-    if body is None:
-        return max(leg, swing)
-    reach = math.hypot(body.hip_x, body.hip_y)
-    hip_mass = 1.0 / (1.0 / params.m + reach * reach / body.inertia)
-    zeta = params.c / (2.0 * math.sqrt(hip_mass * params.k))
-    leg = math.sqrt(params.k / hip_mass) * (zeta + math.sqrt(max(zeta * zeta - 1.0, 0.0)))
-    spin = math.sqrt(2.0 * limits.max_energy / body.inertia)
-    return max(leg, swing + spin * reach / params.r0, spin)
