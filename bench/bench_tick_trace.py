@@ -62,18 +62,14 @@ LINE = re.compile(rb"-(\d+)\s+\[(\d+)\]\s+\S+\s+(\d+)\.(\d{6}): (\w+): ?(.*)$")
 SWITCHED_IN = re.compile(rb"next_pid=(\d+)")
 
 
-def trace_file(name: str) -> Path:
-    return TRACING / name
-
-
 def configure_tracing(duration: float) -> None:
     if not (TRACING / "trace_clock").exists():
         subprocess.run(["mount", "-t", "tracefs", "nodev", str(TRACING)], check=True)
-    trace_file("tracing_on").write_text("0")
-    trace_file("trace").write_text("")
-    trace_file("trace_clock").write_text("mono")
-    trace_file("buffer_size_kb").write_text(str(int((duration + 120) * TRACE_KB_PER_SECOND)))
-    trace_file("set_event").write_text("\n".join(EVENTS) + "\n")
+    (TRACING / "tracing_on").write_text("0")
+    (TRACING / "trace").write_text("")
+    (TRACING / "trace_clock").write_text("mono")
+    (TRACING / "buffer_size_kb").write_text(str(int((duration + 120) * TRACE_KB_PER_SECOND)))
+    (TRACING / "set_event").write_text("\n".join(EVENTS) + "\n")
 
 
 def read_probe(out: Path) -> tuple[int, list[dict[str, Any]], list[dict[str, int]]]:
@@ -99,7 +95,7 @@ def scan_trace(tick_tid: int, windows: list[tuple[int, int]]) -> dict[str, Any]:
     starts = [start for start, _ in windows]
     charged = [0] * len(windows)
     previous = first = None
-    with trace_file("trace").open("rb") as trace:
+    with (TRACING / "trace").open("rb") as trace:
         for line in trace:
             match = LINE.search(line)
             if match is None:
@@ -167,12 +163,12 @@ def main() -> int:
     soak = [sys.executable, str(ROOT / "bench" / "bench_soak.py"), "--duration", str(arguments.duration)]
     soak += ["--realtime-priority", str(arguments.realtime_priority), "--seed", str(arguments.seed)]
     soak += ["--json", str(out / "soak.json")]
-    trace_file("tracing_on").write_text("1")
+    (TRACING / "tracing_on").write_text("1")
     try:
         with (out / "soak.log").open("w") as log:
             status = subprocess.run(soak, env=environment, stdout=log, stderr=subprocess.STDOUT).returncode
     finally:
-        trace_file("tracing_on").write_text("0")
+        (TRACING / "tracing_on").write_text("0")
     if status != 0:
         print(f"the soak failed (exit status {status}); its output: {out / 'soak.log'}", file=sys.stderr)
         return 1
