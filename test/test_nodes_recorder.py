@@ -8,6 +8,8 @@ stream without a gap.
 from __future__ import annotations
 
 import signal
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +17,7 @@ import pytest
 import yaml  # type: ignore[import-untyped]
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rclpy.parameter import Parameter
 from rosbags.highlevel import AnyReader
 from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import ApexEvent, HopperSamples
@@ -24,6 +27,7 @@ from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
 from tdslip_ros.nodes.entry import wait_for_delivery, wait_for_matching
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
+from tdslip_ros.nodes.recorder_node import RecorderNode
 from tdslip_ros.nodes.wire import SAMPLE_COLUMNS
 
 NS = 1_000_000_000
@@ -169,6 +173,50 @@ def test_a_recorder_of_the_batches_counts_as_a_subscriber_of_the_state_for_min_s
     assert stop_process(recorder) == 0
 
 
+def samples_batch(ticks: int) -> HopperSamples:
+    """A batch of ``ticks`` rows; row k holds k in every column from x on."""
+    rows = [(tick, 0, 0, 0, *([float(tick)] * (len(SAMPLE_COLUMNS) - 4))) for tick in range(ticks)]
+    return HopperSamples(**{name: [row[i] for row in rows] for i, name in enumerate(SAMPLE_COLUMNS)})
+
+
+def test_an_autostarting_recorder_records_what_its_taker_takes_before_the_activate_hook(
+    ros: RosGraph, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Autostarting, configure and activate are one step: a batch that arrives and is taken while configure
+    still runs (in-process here, sent from inside its first discovery) is recorded, not dropped as if the
+    recorder were paused. A loaded machine can stall configure that long after the subscriptions exist."""
+    node = ros.node("someone")
+    batches = node.create_publisher(HopperSamples, topics.SAMPLES, topics.STREAM_QOS)
+    discover = RecorderNode._discover
+    sent: list[bool] = []
+
+    def discover_after_a_batch_was_taken(recorder: RecorderNode) -> None:
+        if not sent:
+            sent.append(True)
+            deadline = time.monotonic() + 20.0
+
+            def sleep_until(condition: Callable[[], object]) -> None:
+                while not condition() and time.monotonic() < deadline:
+                    time.sleep(0.01)
+
+            sleep_until(lambda: batches.get_subscription_count() >= 1)
+            batches.publish(samples_batch(3))
+            sleep_until(lambda: recorder.message_count or recorder.dropped_while_paused)
+        discover(recorder)
+
+    monkeypatch.setattr(RecorderNode, "_discover", discover_after_a_batch_was_taken)
+    bag = tmp_path / "bag"
+    recorder = RecorderNode(context=ros.context, parameter_overrides=[Parameter("output", value=str(bag))])
+    try:
+        recorder.close()
+        assert recorder.dropped_while_paused == {}
+    finally:
+        recorder.destroy_node()
+    _, counts, messages = mcap_contents(bag / "bag_0.mcap")
+    assert counts[resolve(topics.STATE)] == counts[resolve(topics.GRF)] == 3
+    assert [m.x for m in messages[resolve(topics.STATE)]] == [0.0, 1.0, 2.0]
+
+
 def test_a_malformed_batch_is_skipped_and_recording_goes_on(ros: RosGraph, tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     recorder = ros.start_recorder(bag, bag.parent / "recorder.log", record_clock=False)
@@ -177,10 +225,7 @@ def test_a_malformed_batch_is_skipped_and_recording_goes_on(ros: RosGraph, tmp_p
     ros.spin_until(lambda: batches.get_subscription_count() >= 1, "the recorder to subscribe")
     wait_for_matching(node, [batches], 5.0)
     batches.publish(HopperSamples(sec=[1, 2], nanosec=[0]))  # columns of unequal length
-    rows = [(tick, 0, 0, 0, *([float(tick)] * (len(SAMPLE_COLUMNS) - 4))) for tick in range(3)]
-    batches.publish(
-        HopperSamples(**{name: [row[i] for row in rows] for i, name in enumerate(SAMPLE_COLUMNS)})
-    )
+    batches.publish(samples_batch(3))
     assert wait_for_delivery(node)
     assert stop_process(recorder) == 0
     _, counts, messages = mcap_contents(bag / "bag_0.mcap")

@@ -212,6 +212,8 @@ class RecorderNode(ManagedNode):
             if name not in self._batched:
                 self._subscribe(name, topics.adapted_qos([]))
         self._stop_taking = threading.Event()
+        if self._autostarting:  # activate runs after the rest of configure: the taker's first take records
+            self._recording.set()
         self._taker = threading.Thread(target=self._take_loop, name=TAKER_THREAD, daemon=True)
         self._taker.start()
         self.create_timer(DISCOVERY_PERIOD, self._discover)
