@@ -659,13 +659,12 @@ def analyze_one_run(bags: list[Path], out: Path) -> dict[str, Any]:
     """:func:`analyze` of the first bag that holds one run: ``tdslip analyze`` refuses by name a recording in
     which the plant was reset (analysis/decoding.py, "several runs"), and the hostile controller resets it
     about once a minute."""
-    skipped: list[str] = []
-    for bag in bags:
+    for index, bag in enumerate(bags):
         analysis = analyze(bag, out)
-        if analysis["exit"] == 0 or not any("several runs" in line for line in analysis["error"]):
+        several_runs = analysis["exit"] != 0 and any("several runs" in line for line in analysis["error"])
+        if not several_runs or index == len(bags) - 1:  # (the last one's refusal is the figure)
             break
-        skipped.append(bag.name)
-    return analysis | {"bag": bag.name, "skipped_for_resets": skipped}
+    return analysis | {"bag": bag.name, "skipped_for_resets": [skipped.name for skipped in bags[:index]]}
 
 
 def bags_of(run_bag: Path) -> list[Path]:
