@@ -8,7 +8,9 @@ Three settings, interleaved round by round so that the machine's drift falls on 
 * ``diagnostics``: the nodes' default, /diagnostics at 1 Hz; nobody on joint_states or /tf (the plant then
   only looks at their subscription counts every 50 ticks);
 * ``diagnostics + viewer``: also a viewer process subscribed to joint_states and /tf (they go out at
-  ``marker_rate``, 60 Hz of simulated time).
+  ``marker_rate``, 60 Hz of simulated time). /tf needs tf2_msgs, which ``./run.sh`` builds only where
+  ``../shared/ros2-tools`` is; without it the plant publishes no /tf, the viewer takes joint_states alone, and
+  the bench says so.
 
 Lockstep: plant and controller in this process (one executor), strides per second of wall time from the
 plant's start to the end of its run (median and spread over the rounds); realtime: missed ticks in
@@ -19,6 +21,7 @@ are printed beside them. Target: diagnostics cost under 2 % of lockstep speed.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import subprocess
 import sys
@@ -41,15 +44,17 @@ from tdslip_ros.nodes.plant_node import PlantNode
 SETTINGS = ("off", "diagnostics", "diagnostics + viewer")
 COST_TARGET = 0.02  # of lockstep speed
 RUN_TIMEOUT = 120.0  # s a step of a run may take before the bench gives up
-VIEWER = """
+HAS_TF = importlib.util.find_spec("tf2_msgs") is not None
+VIEWER = f"""
 import rclpy
 from sensor_msgs.msg import JointState
-from tf2_msgs.msg import TFMessage
 from tdslip_ros.nodes import topics
 rclpy.init()
 node = rclpy.create_node("viewer")
 node.create_subscription(JointState, topics.JOINT_STATES, lambda message: None, topics.STREAM_QOS)
-node.create_subscription(TFMessage, topics.TF, lambda message: None, topics.TF_QOS)
+if {HAS_TF}:
+    from tf2_msgs.msg import TFMessage
+    node.create_subscription(TFMessage, topics.TF, lambda message: None, topics.TF_QOS)
 rclpy.spin(node)  # until the bench kills it
 """
 
@@ -97,7 +102,10 @@ def one_run(
 
         if viewer is not None:  # matched before the run starts, as RViz would be
             spin_until(
-                lambda: plant.count_subscribers(topics.JOINT_STATES) and plant.count_subscribers(topics.TF)
+                lambda: (
+                    plant.count_subscribers(topics.JOINT_STATES)
+                    and (not HAS_TF or plant.count_subscribers(topics.TF))
+                )
             )
         spin_until(plant.ready_to_start)
         plant.start()
@@ -126,6 +134,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--realtime-duration", type=float, default=20.0, help="s of each realtime run")
     arguments = parser.parse_args(argv)
     os.environ.update(isolation.process_settings())
+    if not HAS_TF:
+        print(
+            "no tf2_msgs here (./run.sh builds it from ../shared/ros2-tools): "
+            "the viewer takes joint_states alone"
+        )
     print(f"lockstep: {arguments.rounds} rounds of {arguments.strides} strides per setting ({load()})")
     speeds: dict[str, list[float]] = {setting: [] for setting in SETTINGS}
     stolen = dict.fromkeys(SETTINGS, 0.0)

@@ -23,7 +23,7 @@ from mcap_ros2.decoder import DecoderFactory
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
-from support.ros2_tools import ros2_command, ros2_environment
+from support.ros2_tools import ros2_command, ros2_environment, tf_message_type
 from support.ros_harness import RosGraph, overrides, stop_process
 from tdslip_msgs.msg import HopperState, Status
 
@@ -208,37 +208,42 @@ def check_against_state(transforms: list[Any], state: Any) -> None:
     assert toe_at == pytest.approx((state.toe_x, 0.0, state.toe_y), abs=1e-12)
 
 
-def test_joint_states_and_tf_agree_with_the_state_message_and_the_urdf_names_the_joints(
-    ros: RosGraph,
-) -> None:
-    from tf2_msgs.msg import TFMessage
-
+def probed_run(ros: RosGraph, tf_message: type | None = None) -> dict[str, list[Any]]:
+    """What a probe heard of a 2-stride run of the in-process plant and controller, by topic: the state,
+    joint_states, the force, robot_description (subscribed after the plant published it: transient-local
+    keeps it) and, given its message type, /tf."""
     probe = ros.node("robot_probe")
-    states: list[Any] = []
-    probe.create_subscription(HopperState, topics.STATE, states.append, topics.STREAM_QOS)
-    joints: list[Any] = []
-    probe.create_subscription(JointState, topics.JOINT_STATES, joints.append, topics.STREAM_QOS)
-    wrenches: list[Any] = []
-    probe.create_subscription(WrenchStamped, topics.GRF, wrenches.append, topics.STREAM_QOS)
-    frames: list[Any] = []
-    probe.create_subscription(TFMessage, topics.TF, frames.append, topics.TF_QOS)
+    heard: dict[str, list[Any]] = {}
+
+    def listen(message_type: type, topic: str, qos: Any) -> None:
+        heard[topic] = []
+        probe.create_subscription(message_type, topic, heard[topic].append, qos)
+
+    listen(HopperState, topics.STATE, topics.STREAM_QOS)
+    listen(JointState, topics.JOINT_STATES, topics.STREAM_QOS)
+    listen(WrenchStamped, topics.GRF, topics.STREAM_QOS)
+    if tf_message is not None:
+        listen(tf_message, topics.TF, topics.TF_QOS)
     plant = ros.add(PlantNode(context=ros.context, parameter_overrides=overrides(max_strides=2)))
     ros.add(ControllerNode(context=ros.context))
-    descriptions: list[Any] = []  # subscribed after the plant published it: transient-local keeps it
-    probe.create_subscription(
-        String, topics.ROBOT_DESCRIPTION, descriptions.append, topics.ROBOT_DESCRIPTION_QOS
-    )
+    listen(String, topics.ROBOT_DESCRIPTION, topics.ROBOT_DESCRIPTION_QOS)
+    descriptions, states = heard[topics.ROBOT_DESCRIPTION], heard[topics.STATE]
     ros.spin_until(lambda: plant.outcome is not None and descriptions, "the end of the run")
     ros.spin_until(lambda: len(states) == plant.published[topics.STATE], "every state")
+    return heard
 
-    robot = ET.fromstring(descriptions[0].data)
+
+def test_joint_states_agree_with_the_state_message_and_the_urdf_names_the_joints(ros: RosGraph) -> None:
+    heard = probed_run(ros)
+    states, joints = heard[topics.STATE], heard[topics.JOINT_STATES]
+    robot = ET.fromstring(heard[topics.ROBOT_DESCRIPTION][0].data)
     urdf_joints = {j.get("name"): (j.get("type"), j.find("axis").get("xyz")) for j in robot.iter("joint")}  # type: ignore[union-attr]
     assert urdf_joints == {"hip_angle": ("revolute", "0 -1 0"), "leg_length": ("prismatic", "0 0 -1")}
     assert {link.get("name") for link in robot.iter("link")} == {"body", "leg", "toe"}
 
     by_stamp = {stamp_ns(state): state for state in states}
-    forces = {stamp_ns(wrench): wrench.wrench.force for wrench in wrenches}
-    assert joints and frames and len(joints) < len(states) / 10  # decimated to marker_rate, 60 Hz
+    forces = {stamp_ns(wrench): wrench.wrench.force for wrench in heard[topics.GRF]}
+    assert joints and len(joints) < len(states) / 10  # decimated to marker_rate, 60 Hz
     stances = 0
     for joint in joints:
         state = by_stamp[stamp_ns(joint)]
@@ -256,6 +261,13 @@ def test_joint_states_and_tf_agree_with_the_state_message_and_the_urdf_names_the
         else:
             assert joint.effort[1] == 0.0
     assert stances
+
+
+def test_tf_agrees_with_the_state_message(ros: RosGraph) -> None:
+    heard = probed_run(ros, tf_message_type())
+    states, frames = heard[topics.STATE], heard[topics.TF]
+    by_stamp = {stamp_ns(state): state for state in states}
+    assert frames and len(frames) < len(states) / 10  # decimated to marker_rate, 60 Hz
     touchdown_seen = False
     for message in frames:
         (stamp,) = {stamp_ns(t) for t in message.transforms}

@@ -91,10 +91,10 @@ def test_two_hoppers_in_their_own_namespaces_share_a_domain_and_each_hops_like_o
         assert [(a.height, a.forward_speed) for a in received] == expected, ns
     for log, _ in plants.items():  # each plant names what it publishes and serves in its start-up line
         ns = "/" + log.stem.removeprefix("plant")
-        first = log.read_text().splitlines()[0]
+        (start_up,) = (line for line in log.read_text().splitlines() if " plant, max_strides " in line)
         assert (
-            f"publishing {ns}/tdslip/samples, {ns}/tdslip/state, {ns}/tdslip/grf" in first
-            and f"service {ns}/tdslip/reset" in first
+            f"publishing {ns}/tdslip/samples, {ns}/tdslip/state, {ns}/tdslip/grf" in start_up
+            and f"service {ns}/tdslip/reset" in start_up
         )
 
 

@@ -29,6 +29,18 @@ def ros2_command() -> Path:
     return executable
 
 
+def tf_message_type() -> type:
+    """tf2_msgs' TFMessage, which ``./run.sh`` builds with the tools; a one-line skip where
+    ``../shared/ros2-tools`` is absent (the plant then publishes no /tf, and says so)."""
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError:
+        if not SHARED_ROS2_TOOLS.is_dir():
+            pytest.skip(f"tf2_msgs comes from {SHARED_ROS2_TOOLS}, which is absent")
+        pytest.fail(f"{SHARED_ROS2_TOOLS} exists but tf2_msgs is not installed: run ./run.sh setup")
+    return TFMessage  # type: ignore[no-any-return]
+
+
 def ros2_environment(domain_id: int, log_dir: Path) -> dict[str, str]:
     """The environment of a ``ros2`` child on ``domain_id``, its logs in ``log_dir`` (never under HOME)."""
     environment = isolation.isolated_environment(domain_id)
