@@ -25,6 +25,8 @@ from launch.events.process import ProcessExited
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from tdslip_ros.nodes.entry import ANSWER_SUBSCRIBERS, PLANT_AND_RECORDER
+
 
 def plant_default(name: str) -> str:
     """A parameter's value in the installed config/plant.yaml, as a launch argument's default."""
@@ -46,7 +48,8 @@ def generate_launch_description() -> LaunchDescription:
         executable="controller_node",
         name="controller",
         output="screen",
-        parameters=[{**managed, "end_with_run": True}],
+        # Its answers reach the recorder too before it answers (entry.ANSWER_SUBSCRIBERS).
+        parameters=[{**managed, "end_with_run": True, ANSWER_SUBSCRIBERS.name: PLANT_AND_RECORDER}],
     )
     plant = Node(
         package="tdslip_ros",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from support.learned_policy import learned_file, malformed_file
-from support.ros_harness import RosGraph
+from support.ros_harness import RosGraph, overrides
 from tdslip_msgs.msg import ApexEvent, StanceCommand
 
 from tdslip_ros.model import units
@@ -253,3 +254,28 @@ def test_the_first_answer_waits_for_a_plant_whose_subscription_it_has_not_seen(
     finally:
         subscribe.cancel()
     assert (commands[0].epoch, commands[0].stride) == (0, 0) and controller.published == 1
+
+
+def test_with_min_subscribers_it_subscribes_to_the_apex_once_its_answers_reach_that_many(
+    ros: RosGraph,
+) -> None:
+    """What tdslip run and hop.launch.py set (2: the plant and the recorder). A recorder that has matched
+    the controller's publisher may not yet be matched by it (discovery is not symmetric), and a volatile
+    answer published then never reaches the recorder; a plant does not start on a controller that does not
+    subscribe to its apex. Here the first subscription matches, the controller waits; the second matches,
+    it subscribes, and its answer reaches both."""
+    answers_two = overrides(min_subscribers=2)
+    controller = ros.add(ControllerNode(context=ros.context, parameter_overrides=answers_two))
+    probe = ros.node("probe")
+    apex = probe.create_publisher(ApexEvent, topics.APEX, topics.STREAM_QOS)
+    plant_commands: list[StanceCommand] = ros.collect(StanceCommand, topics.COMMAND, probe)
+    ros.spin_until(lambda: controller.count_subscribers(topics.COMMAND) >= 1, "the plant's subscription")
+    waited = time.monotonic() + 0.5
+    ros.spin_until(lambda: time.monotonic() > waited, "half a second")
+    assert controller.count_subscribers(topics.COMMAND) == 1
+    assert (apex.get_subscription_count(), probe.count_subscribers(topics.APEX)) == (0, 0)
+    recorder_commands: list[StanceCommand] = ros.collect(StanceCommand, topics.COMMAND)
+    ros.spin_until(lambda: apex.get_subscription_count() >= 1, "the controller to subscribe to the apex")
+    apex.publish(apex_event(0, 1.0, 5.0))
+    ros.spin_until(lambda: len(plant_commands) == len(recorder_commands) == 1, "the answer at both")
+    assert controller.published == 1

@@ -40,7 +40,13 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
-from tdslip_ros.nodes.entry import ApexAnswers, run_node, wait_to_answer
+from tdslip_ros.nodes.entry import (
+    ANSWER_SUBSCRIBERS,
+    ApexAnswers,
+    QuestionsWhenHeard,
+    run_node,
+    wait_to_answer,
+)
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
 from tdslip_ros.nodes.node_status import PlanningTimes, controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
@@ -63,6 +69,7 @@ TUNABLE: tuple[ParameterSpec, ...] = (
 SPECS: tuple[ParameterSpec, ...] = (
     AUTOSTART,
     END_WITH_RUN,
+    ANSWER_SUBSCRIBERS,
     *parameters.HOPPER,
     *TUNABLE,
     *specs_of(CONTROLLER_THRESHOLDS),
@@ -80,6 +87,7 @@ class ControllerNode(ManagedNode):
         self._answering = False
         self._answers = ApexAnswers()
         self._configured = False
+        self._questions: QuestionsWhenHeard | None = None  # the apex subscription, once answers are heard
         super().__init__("controller", SPECS, **node_options)
         self.add_post_set_parameters_callback(self._parameters_changed)
 
@@ -95,9 +103,13 @@ class ControllerNode(ManagedNode):
         self.exact_plant_ready = False
         """energy_exact's compiled exact stride is loaded (see :meth:`_ready_exact_plant`)."""
         self._ready_exact_plant()
-        self._apex_topic = self.create_subscription(
-            ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS
-        ).topic_name
+        self._apex_topic = self.resolve_topic_name(topics.APEX)
+        self._questions = QuestionsWhenHeard(
+            self,
+            [self._publisher],
+            int(values[ANSWER_SUBSCRIBERS.name]),
+            lambda: self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS),
+        )
         self.diagnostics = controller_diagnostics(self, self)
         self._configured = True
 
@@ -109,6 +121,9 @@ class ControllerNode(ManagedNode):
 
     def cleanup(self) -> None:
         self._configured = False
+        if self._questions is not None:
+            self._questions.destroy()
+            self._questions = None
 
     def _parameters_changed(self, changed: object) -> None:
         self._policy = None

@@ -32,6 +32,8 @@ from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
+from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 
 from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
@@ -149,6 +151,58 @@ class ApexAnswers:
     def forget(self) -> None:
         """The settings changed: an equal apex (of a new run) is planned anew."""
         self._apex = self._answer = None
+
+
+ANSWER_SUBSCRIBERS = ParameterSpec(
+    "min_subscribers",
+    0,
+    "subscribe to tdslip/apex once each answer publisher has matched this many subscriptions "
+    "(the plant's and a recorder's: 2), so that no answer misses one of them",
+    0,
+    1000,
+    read_only=True,
+)
+"""A controller's parameter: discovery is not symmetric, and a recorder that has matched the controller's
+publisher (so the plant starts) may not yet be matched by it: a volatile answer published then is lost to
+the recorder. A controller not yet subscribed to the apex is one the plant does not start on."""
+PLANT_AND_RECORDER = 2
+"""The ``min_subscribers`` of a controller whose answers a recorder records (tdslip run, the launch files)."""
+MATCH_CHECK_PERIOD = 0.01  # s between two looks at the answer publishers' matches (QuestionsWhenHeard)
+
+
+class QuestionsWhenHeard:
+    """A controller's subscription to the questions (the apex), made once each of its answer publishers has
+    matched ``minimum`` subscriptions (:data:`ANSWER_SUBSCRIBERS`): at once if they have, else from a timer.
+    Made after configure, it is not among the entities the lifecycle destroys: :meth:`destroy` at cleanup."""
+
+    def __init__(
+        self,
+        node: Node,
+        answers: Sequence[Publisher[Any]],
+        minimum: int,
+        subscribe: Callable[[], Subscription[Any]],
+    ) -> None:
+        self._node, self._answers, self._minimum, self._subscribe = node, answers, minimum, subscribe
+        self.subscription: Subscription[Any] | None = None
+        self._timer: Timer | None = None
+        if not self._check():
+            self._timer = node.create_timer(MATCH_CHECK_PERIOD, self._check)
+
+    def _check(self) -> bool:
+        if self.subscription is None and all(
+            p.get_subscription_count() >= self._minimum for p in self._answers
+        ):
+            self.subscription = self._subscribe()
+            if self._timer is not None:
+                self._node.destroy_timer(self._timer)
+        return self.subscription is not None
+
+    def destroy(self) -> None:
+        """Destroy the timer and the subscription (either may be gone already: rclpy then does nothing)."""
+        if self._timer is not None:
+            self._node.destroy_timer(self._timer)
+        if self.subscription is not None:
+            self._node.destroy_subscription(self.subscription)
 
 
 def wait_for_delivery(node: Node, timeout: float = DELIVERY_TIMEOUT) -> bool:

@@ -48,6 +48,7 @@ from tdslip_ros.nodes import (
     stance_controller_node,
     topics,
 )
+from tdslip_ros.nodes.entry import PLANT_AND_RECORDER
 from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.reporting.output import OutputError, check_output_directory
 
@@ -171,6 +172,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
     if options.policy in STANCE_FEEDBACK_POLICIES:
         return {
             **model,
+            "min_subscribers": PLANT_AND_RECORDER,
             "policy": options.policy,  # stored with the run; the node's parameter is stance_policy
             "stance_policy": options.policy,
             "stance_touchdown_angle": options.stance_touchdown_angle,
@@ -180,6 +182,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
         }
     return {
         **model,
+        "min_subscribers": PLANT_AND_RECORDER,
         "policy": options.policy,
         "touchdown_angle": options.touchdown_angle,
         "target_energy": target_energy,

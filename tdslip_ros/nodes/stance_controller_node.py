@@ -47,7 +47,13 @@ from tdslip_ros.model.policies.registry import (
 from tdslip_ros.nodes import parameters, topics
 from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
 from tdslip_ros.nodes.diagnostics import specs_of
-from tdslip_ros.nodes.entry import ApexAnswers, run_node, wait_to_answer
+from tdslip_ros.nodes.entry import (
+    ANSWER_SUBSCRIBERS,
+    ApexAnswers,
+    QuestionsWhenHeard,
+    run_node,
+    wait_to_answer,
+)
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
 from tdslip_ros.nodes.node_status import stance_controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
@@ -65,6 +71,7 @@ SETTINGS = tuple(s for s in POLICY_SETTINGS if set(s.policies) & set(STANCE_FEED
 SPECS: tuple[ParameterSpec, ...] = (
     AUTOSTART,
     END_WITH_RUN,
+    ANSWER_SUBSCRIBERS,
     *parameters.HOPPER,
     STANCE_POLICY,
     *map(setting_parameter, SETTINGS),
@@ -82,6 +89,7 @@ class StanceControllerNode(ManagedNode):
         self.unanswered = 0
         self._answering = False
         self._answers = ApexAnswers()
+        self._questions: QuestionsWhenHeard | None = None  # the apex subscription, once answers are heard
         super().__init__("stance_controller", SPECS, **node_options)
         self.add_post_set_parameters_callback(lambda _: self._answers.forget())
 
@@ -100,9 +108,13 @@ class StanceControllerNode(ManagedNode):
         self._torque_encoder = fixed_layout_encoder(
             HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
         )
-        self._apex_topic = self.create_subscription(
-            ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS
-        ).topic_name
+        self._apex_topic = self.resolve_topic_name(topics.APEX)
+        self._questions = QuestionsWhenHeard(
+            self,
+            [self._command_publisher, self._torque_publisher],
+            int(values[ANSWER_SUBSCRIBERS.name]),
+            lambda: self.create_subscription(ApexEvent, topics.APEX, self._on_apex, topics.STREAM_QOS),
+        )
         self.create_subscription(ContactEvent, topics.CONTACT, self._on_contact, topics.STREAM_QOS)
         self.create_subscription(HopperState, topics.STATE, self._on_state, topics.STREAM_QOS)
         self.diagnostics = stance_controller_diagnostics(self, self)
@@ -113,6 +125,11 @@ class StanceControllerNode(ManagedNode):
     def deactivate(self) -> None:
         self._answering = False
         self._feedback = None  # no torque for a stance whose apex this node did not answer
+
+    def cleanup(self) -> None:
+        if self._questions is not None:
+            self._questions.destroy()
+            self._questions = None
 
     @property
     def policy(self) -> str:

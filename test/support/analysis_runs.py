@@ -89,8 +89,9 @@ class IncompleteRecording(AssertionError):
 
 def record(name: str, directory: Path) -> RunReport:
     """Run ``name`` (see RUNS and AGAIN) into ``directory``/``name``: its report. IncompleteRecording if the
-    recorder missed a message: the controller waits for the recorder's match before it exits, so a gap is a
-    defect of the recording (a return of the recorder race), which fails every test that uses the run."""
+    recorder missed a message: the controller answers only once its publisher has matched the recorder
+    (``min_subscribers``) and waits for the recorder's acknowledgement before it exits, so a gap is a defect
+    of the recording (a return of the recorder race), which fails every test that uses the run."""
     report = run(RunOptions(out=directory / name, **RUNS[AGAIN.get(name, name)]))
     if not report.recording_complete:
         missed = {
