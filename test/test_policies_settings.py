@@ -41,6 +41,7 @@ from tdslip_ros.model.policies.registry import (
 from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
 from tdslip_ros.nodes import controller_node, parameters, stance_controller_node
 from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
+from tdslip_ros.nodes.entry import ANSWER_SUBSCRIBERS
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN
 from tdslip_ros.studies import design, table
 
@@ -269,10 +270,12 @@ def test_the_controller_node_has_a_parameter_per_setting() -> None:
 
 
 def test_the_stance_controller_node_has_a_parameter_per_setting_of_its_policies() -> None:
-    """The stance-feedback policies run in a node of their own: the lifecycle's, the hopper, the policy, the
-    settings of its policies (each once, in the declaration's order), then its diagnostics."""
+    """The stance-feedback policies run in a node of their own: the lifecycle's, the answers' subscribers, the
+    hopper, the policy, the settings of its policies (each once, in the declaration's order), then its
+    diagnostics."""
     settings = [s for s in POLICY_SETTINGS if set(s.policies) & set(STANCE_FEEDBACK_POLICIES)]
-    ahead = (AUTOSTART, END_WITH_RUN, *parameters.HOPPER, stance_controller_node.STANCE_POLICY)
+    lifecycle = (AUTOSTART, END_WITH_RUN, ANSWER_SUBSCRIBERS)
+    ahead = (*lifecycle, *parameters.HOPPER, stance_controller_node.STANCE_POLICY)
     assert stance_controller_node.SPECS[: len(ahead)] == ahead
     assert stance_controller_node.STANCE_POLICY.choices == STANCE_FEEDBACK_POLICIES
     tunable = stance_controller_node.SPECS[len(ahead) : len(ahead) + len(settings)]
@@ -308,6 +311,7 @@ def test_controller_yaml_sets_each_setting_to_its_default_and_describes_it(repo_
     diagnostics = [spec.name for spec in specs_of(CONTROLLER_THRESHOLDS)]
     assert list(values) == [
         *lifecycle,
+        ANSWER_SUBSCRIBERS.name,
         *(spec.name for spec in parameters.HOPPER),
         "policy",
         stance_controller_node.STANCE_POLICY.name,
