@@ -30,7 +30,7 @@ from launch_ros.actions import Node
 
 from tdslip_ros.interfaces import config_file, installed_parameters, qualified_namespace
 from tdslip_ros.model.policies.registry import STANCE_FEEDBACK_POLICIES
-from tdslip_ros.nodes.entry import ANSWER_SUBSCRIBERS, PLANT_AND_RECORDER
+from tdslip_ros.nodes.answers import ANSWER_SUBSCRIBERS, PLANT_AND_RECORDER
 
 NO_CONTROLLER = "none"
 
@@ -110,7 +110,7 @@ def _nodes(context: LaunchContext) -> list[Any]:
     nodes = [recorder, plant]
     if configuration["controller"] != NO_CONTROLLER:
         policy = configuration["policy"] or _default("controller.yaml", "policy")
-        # Its answers reach the recorder too before it answers (entry.ANSWER_SUBSCRIBERS).
+        # Its answers reach the recorder too before it answers (answers.ANSWER_SUBSCRIBERS).
         answered = ["-p", f"{ANSWER_SUBSCRIBERS.name}:={PLANT_AND_RECORDER}", *sim_time]
         if policy in STANCE_FEEDBACK_POLICIES:  # the policy is that node's own
             nodes.append(node("stance_controller_node", "controller.yaml", answered))

@@ -25,7 +25,7 @@ from launch.events.process import ProcessExited
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from tdslip_ros.nodes.entry import ANSWER_SUBSCRIBERS, PLANT_AND_RECORDER
+from tdslip_ros.nodes.answers import ANSWER_SUBSCRIBERS, PLANT_AND_RECORDER
 
 
 def plant_default(name: str) -> str:
@@ -48,7 +48,7 @@ def generate_launch_description() -> LaunchDescription:
         executable="controller_node",
         name="controller",
         output="screen",
-        # Its answers reach the recorder too before it answers (entry.ANSWER_SUBSCRIBERS).
+        # Its answers reach the recorder too before it answers (answers.ANSWER_SUBSCRIBERS).
         parameters=[{**managed, "end_with_run": True, ANSWER_SUBSCRIBERS.name: PLANT_AND_RECORDER}],
     )
     plant = Node(

@@ -10,6 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from support.learned_policy import learned_file, malformed_file
@@ -279,3 +280,33 @@ def test_with_min_subscribers_it_subscribes_to_the_apex_once_its_answers_reach_t
     apex.publish(apex_event(0, 1.0, 5.0))
     ros.spin_until(lambda: len(plant_commands) == len(recorder_commands) == 1, "the answer at both")
     assert controller.published == 1
+
+
+def test_the_apex_subscription_made_after_configure_is_destroyed_by_cleanup(ros: RosGraph) -> None:
+    """The lifecycle destroys at cleanup what the node made from configure on, also the apex subscription
+    made later, once its answers were heard: configured again, the controller has one apex subscription
+    and answers an apex once."""
+    managed = overrides(autostart=False, min_subscribers=1)
+    controller = ros.add(ControllerNode(context=ros.context, parameter_overrides=managed))
+    probe = ros.node("probe")
+    apex = probe.create_publisher(ApexEvent, topics.APEX, topics.STREAM_QOS)
+
+    def configured_answers(height: float) -> list[StanceCommand]:
+        assert controller.trigger_configure() == TransitionCallbackReturn.SUCCESS
+        assert controller.trigger_activate() == TransitionCallbackReturn.SUCCESS
+        waited = time.monotonic() + 0.3
+        ros.spin_until(lambda: time.monotonic() > waited, "0.3 s")
+        assert apex.get_subscription_count() == 0  # nobody hears the answers yet
+        commands: list[StanceCommand] = ros.collect(StanceCommand, topics.COMMAND, probe)
+        ros.spin_until(lambda: apex.get_subscription_count() >= 1, "the controller to subscribe to the apex")
+        assert apex.get_subscription_count() == 1
+        apex.publish(apex_event(0, height, 5.0))
+        ros.spin_until(lambda: len(commands) >= 1, "the answer")
+        assert controller.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
+        assert controller.trigger_cleanup() == TransitionCallbackReturn.SUCCESS
+        ros.spin_until(lambda: apex.get_subscription_count() == 0, "the apex subscription to go")
+        probe.destroy_subscription(list(probe.subscriptions)[-1])
+        ros.spin_until(lambda: probe.count_subscribers(topics.COMMAND) == 0, "the answers' listener to go")
+        return commands
+
+    assert [len(configured_answers(height)) for height in (1.0, 0.99)] == [1, 1]

@@ -40,8 +40,8 @@ from tdslip_ros.model.policies.registry import (
 )
 from tdslip_ros.model.policies.stance_pd import StancePDSpeedEnergy
 from tdslip_ros.nodes import controller_node, parameters, stance_controller_node
+from tdslip_ros.nodes.answers import ANSWER_SUBSCRIBERS
 from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
-from tdslip_ros.nodes.entry import ANSWER_SUBSCRIBERS
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN
 from tdslip_ros.studies import design, table
 

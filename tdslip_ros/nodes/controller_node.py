@@ -39,20 +39,19 @@ from tdslip_ros.model.policies.registry import (
     PolicySpec,
 )
 from tdslip_ros.nodes import parameters, topics
-from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
-from tdslip_ros.nodes.entry import (
+from tdslip_ros.nodes.answers import (
     ANSWER_SUBSCRIBERS,
+    MATCH_TIMEOUT,
     ApexAnswers,
-    QuestionsWhenHeard,
-    run_node,
+    subscribe_when_heard,
     wait_to_answer,
 )
+from tdslip_ros.nodes.diagnostics import CONTROLLER_THRESHOLDS, specs_of
+from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
 from tdslip_ros.nodes.node_status import PlanningTimes, controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
 from tdslip_ros.nodes.wire import command_encoder
-
-MATCH_TIMEOUT = 1.0  # s an answer waits for its publisher to match a subscriber the graph already shows
 
 
 def setting_parameter(setting: PolicySetting) -> ParameterSpec:
@@ -87,7 +86,6 @@ class ControllerNode(ManagedNode):
         self._answering = False
         self._answers = ApexAnswers()
         self._configured = False
-        self._questions: QuestionsWhenHeard | None = None  # the apex subscription, once answers are heard
         super().__init__("controller", SPECS, **node_options)
         self.add_post_set_parameters_callback(self._parameters_changed)
 
@@ -104,7 +102,7 @@ class ControllerNode(ManagedNode):
         """energy_exact's compiled exact stride is loaded (see :meth:`_ready_exact_plant`)."""
         self._ready_exact_plant()
         self._apex_topic = self.resolve_topic_name(topics.APEX)
-        self._questions = QuestionsWhenHeard(
+        subscribe_when_heard(
             self,
             [self._publisher],
             int(values[ANSWER_SUBSCRIBERS.name]),
@@ -121,9 +119,6 @@ class ControllerNode(ManagedNode):
 
     def cleanup(self) -> None:
         self._configured = False
-        if self._questions is not None:
-            self._questions.destroy()
-            self._questions = None
 
     def _parameters_changed(self, changed: object) -> None:
         self._policy = None

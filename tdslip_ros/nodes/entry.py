@@ -32,8 +32,6 @@ from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
-from rclpy.subscription import Subscription
-from rclpy.timer import Timer
 
 from tdslip_ros.interfaces import config_file
 from tdslip_ros.model.params import ParameterError
@@ -83,7 +81,7 @@ def spin_until(executor: Executor, condition: Callable[[], bool], timeout: float
     return True
 
 
-def _wait_until(condition: Callable[[], bool], timeout: float) -> bool:
+def wait_until(condition: Callable[[], bool], timeout: float) -> bool:
     """Sleep in MATCH_POLL steps until ``condition()`` holds (True) or ``timeout`` s pass (False)."""
     deadline = time.monotonic() + timeout
     while not condition():
@@ -98,111 +96,10 @@ def wait_for_matching(node: Node, publishers: Sequence[Publisher[Any]], timeout:
     has matched every subscription the graph shows on its topic; False after ``timeout`` s.
     A volatile publisher sends nothing to a subscriber it has not matched yet, even one the graph
     already shows: this is how a node makes sure a recorder that started first hears it."""
-    return _wait_until(
+    return wait_until(
         lambda: all(p.get_subscription_count() >= node.count_subscribers(p.topic_name) for p in publishers),
         timeout,
     )
-
-
-def wait_to_answer(
-    node: Node, answers: Publisher[Any], question_topic: str, *, first: bool, timeout: float
-) -> None:
-    """Before an answer to a message of ``question_topic`` (an apex) goes out on ``answers`` (the commands):
-    :func:`wait_for_matching`, and at the ``first`` question of a run also until every node that asks (the
-    plant) subscribes to the answers in this node's view of the graph. Discovery is not symmetric: a plant
-    may have matched this publisher, started and asked before this node has discovered the plant's
-    subscription, and a volatile answer published then reaches everyone but the plant. A warning after
-    ``timeout`` s (a node that asks without listening, such as a replay, costs that at each run's start)."""
-
-    def askers_listen() -> bool:
-        askers = {(i.node_namespace, i.node_name) for i in node.get_publishers_info_by_topic(question_topic)}
-        listeners = {
-            (i.node_namespace, i.node_name) for i in node.get_subscriptions_info_by_topic(answers.topic_name)
-        }
-        return askers <= listeners
-
-    heard = not first or _wait_until(askers_listen, timeout)
-    if not wait_for_matching(node, [answers], timeout) or not heard:
-        node.get_logger().warning(f"{answers.topic_name}: not every subscriber matched in time")
-
-
-class ApexAnswers:
-    """A controller's answer to the latest apex, sent again, not planned anew, when that apex comes again: a
-    lockstep plant publishes an apex no command reached again (``PlantRun.repeat_apex``), and planning twice
-    would log a refusal twice or move a policy's memory (the PD's previous speed) on."""
-
-    def __init__(self) -> None:
-        self._apex: Any = None
-        self._answer: bytes | None = None
-
-    def repeated(self, apex: Any, publisher: Publisher[Any]) -> bool:
-        """Whether ``apex`` is the latest one again; if so, its answer (if it had one) is published again."""
-        if apex != self._apex:
-            self._apex, self._answer = apex, None
-            return False
-        if self._answer is not None:
-            publisher.publish(self._answer)
-        return True
-
-    def answered(self, data: bytes) -> None:
-        """``data`` (a serialised command) answers the latest apex."""
-        self._answer = data
-
-    def forget(self) -> None:
-        """The settings changed: an equal apex (of a new run) is planned anew."""
-        self._apex = self._answer = None
-
-
-ANSWER_SUBSCRIBERS = ParameterSpec(
-    "min_subscribers",
-    0,
-    "subscribe to tdslip/apex once each answer publisher has matched this many subscriptions "
-    "(the plant's and a recorder's: 2), so that no answer misses one of them",
-    0,
-    1000,
-    read_only=True,
-)
-"""A controller's parameter: discovery is not symmetric, and a recorder that has matched the controller's
-publisher (so the plant starts) may not yet be matched by it: a volatile answer published then is lost to
-the recorder. A controller not yet subscribed to the apex is one the plant does not start on."""
-PLANT_AND_RECORDER = 2
-"""The ``min_subscribers`` of a controller whose answers a recorder records (tdslip run, the launch files)."""
-MATCH_CHECK_PERIOD = 0.01  # s between two looks at the answer publishers' matches (QuestionsWhenHeard)
-
-
-class QuestionsWhenHeard:
-    """A controller's subscription to the questions (the apex), made once each of its answer publishers has
-    matched ``minimum`` subscriptions (:data:`ANSWER_SUBSCRIBERS`): at once if they have, else from a timer.
-    Made after configure, it is not among the entities the lifecycle destroys: :meth:`destroy` at cleanup."""
-
-    def __init__(
-        self,
-        node: Node,
-        answers: Sequence[Publisher[Any]],
-        minimum: int,
-        subscribe: Callable[[], Subscription[Any]],
-    ) -> None:
-        self._node, self._answers, self._minimum, self._subscribe = node, answers, minimum, subscribe
-        self.subscription: Subscription[Any] | None = None
-        self._timer: Timer | None = None
-        if not self._check():
-            self._timer = node.create_timer(MATCH_CHECK_PERIOD, self._check)
-
-    def _check(self) -> bool:
-        if self.subscription is None and all(
-            p.get_subscription_count() >= self._minimum for p in self._answers
-        ):
-            self.subscription = self._subscribe()
-            if self._timer is not None:
-                self._node.destroy_timer(self._timer)
-        return self.subscription is not None
-
-    def destroy(self) -> None:
-        """Destroy the timer and the subscription (either may be gone already: rclpy then does nothing)."""
-        if self._timer is not None:
-            self._node.destroy_timer(self._timer)
-        if self.subscription is not None:
-            self._node.destroy_subscription(self.subscription)
 
 
 def wait_for_delivery(node: Node, timeout: float = DELIVERY_TIMEOUT) -> bool:

@@ -6,8 +6,9 @@ lifecycle_py). Each declares what it does at each transition as a hook of :class
 :meth:`~ManagedNode.cleanup`); this base declares, once, how every transition behaves:
 
 * configure declares the node's parameters (so that a bad value fails the transition, not the process)
-  and runs the hook; whatever the hook created (publishers, subscriptions, timers, services) is destroyed
-  again by cleanup, or at once when configure fails;
+  and runs the hook; whatever the node created from then on (publishers, subscriptions, timers, services: in
+  the hook, or later, as a controller's apex subscription) is destroyed again by cleanup, or at once when
+  configure fails;
 * a transition that cannot succeed (a refused parameter, an unwritable output: :data:`REFUSED`) logs one
   line naming the transition and the reason, and leaves the node in the state it was in; anything else a
   hook raises is logged the same way and takes the node, through rclpy's error processing, back to
@@ -65,7 +66,7 @@ class ManagedNode(LifecycleNode):
         """Why the latest transition failed, if it did."""
         self.run_ended = False
         """end_with_run: the plant's run has ended (its fatal Status was heard)."""
-        self._configured_entities: list[Callable[[], None]] = []
+        self._before_configure: set[int] | None = None  # the entities before configure (_entities)
         self.add_on_set_parameters_callback(lambda changed: parameters.validate(self._specs, changed))
         values = parameters.declare(self, [spec for spec in specs if spec in (AUTOSTART, END_WITH_RUN)])
         if values.get("end_with_run"):
@@ -96,17 +97,14 @@ class ManagedNode(LifecycleNode):
     # --- the transitions ---------------------------------------------------------------------------
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        before = _entities(self)
+        self._before_configure = _entities(self)  # what is made from now on, cleanup destroys
 
         def configure() -> None:
-            try:
-                undeclared = [spec for spec in self._specs if not self.has_parameter(spec.name)]
-                parameters.declare(self, undeclared)
-                self.configure({spec.name: self.get_parameter(spec.name).value for spec in self._specs})
-                if self._autostarting:  # at once: nothing that arrives between the two transitions is missed
-                    self.activate()
-            finally:  # what a configure that failed part way made is destroyed too
-                self._configured_entities = _destroyers(self, before)
+            undeclared = [spec for spec in self._specs if not self.has_parameter(spec.name)]
+            parameters.declare(self, undeclared)
+            self.configure({spec.name: self.get_parameter(spec.name).value for spec in self._specs})
+            if self._autostarting:  # at once: nothing that arrives between the two transitions is missed
+                self.activate()
 
         result = self._transition("configure", configure)
         if result != TransitionCallbackReturn.SUCCESS:
@@ -140,9 +138,10 @@ class ManagedNode(LifecycleNode):
         try:
             self.cleanup()
         finally:
-            for destroy in self._configured_entities:
-                destroy()
-            self._configured_entities = []
+            if self._before_configure is not None:
+                for destroy in _destroyers(self, self._before_configure):
+                    destroy()
+                self._before_configure = None
 
     def _transition(self, name: str, hook: _Hook) -> TransitionCallbackReturn:
         """Run ``hook``; one log line and FAILURE (the node stays where it was) if it refuses, ERROR (rclpy's

@@ -48,7 +48,7 @@ from tdslip_ros.nodes import (
     stance_controller_node,
     topics,
 )
-from tdslip_ros.nodes.entry import PLANT_AND_RECORDER
+from tdslip_ros.nodes.answers import ANSWER_SUBSCRIBERS, PLANT_AND_RECORDER
 from tdslip_ros.nodes.plant_parameters import CLOCK_MODES
 from tdslip_ros.reporting.output import OutputError, check_output_directory
 
@@ -169,10 +169,11 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
         assert isinstance(planned, HopperParams)  # scalar factors
         check_hopper(planned)
         model = hopper_overrides(planned)
+    # Its answers reach the recorder before it hears the first apex (answers.ANSWER_SUBSCRIBERS).
+    common = {**model, ANSWER_SUBSCRIBERS.name: PLANT_AND_RECORDER}
     if options.policy in STANCE_FEEDBACK_POLICIES:
         return {
-            **model,
-            "min_subscribers": PLANT_AND_RECORDER,
+            **common,
             "policy": options.policy,  # stored with the run; the node's parameter is stance_policy
             "stance_policy": options.policy,
             "stance_touchdown_angle": options.stance_touchdown_angle,
@@ -181,8 +182,7 @@ def controller_overrides(options: RunOptions, params: HopperParams) -> dict[str,
             "target_speed": options.target_speed,
         }
     return {
-        **model,
-        "min_subscribers": PLANT_AND_RECORDER,
+        **common,
         "policy": options.policy,
         "touchdown_angle": options.touchdown_angle,
         "target_energy": target_energy,

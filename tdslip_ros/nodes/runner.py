@@ -18,7 +18,7 @@ and a Fast DDS profile with prompt acknowledgements):
 The children take the installed config/*.yaml plus the overrides of the run's options. The plant
 starts once the recorder and the controller have matched its topics; the controller subscribes to the apex
 only once its answers have matched the recorder too (``min_subscribers``,
-:data:`~tdslip_ros.nodes.entry.PLANT_AND_RECORDER`). When the run ends, the plant's
+:data:`~tdslip_ros.nodes.answers.PLANT_AND_RECORDER`). When the run ends, the plant's
 messages are acknowledged by every subscriber, the controller is stopped (it delivers its last
 command), then the recorder (it records what reached it and finalises the bag). Last, the message
 counts of the bag are compared with what was published: the plant's own counts, and for

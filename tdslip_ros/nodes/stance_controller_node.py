@@ -45,15 +45,16 @@ from tdslip_ros.model.policies.registry import (
     PolicySpec,
 )
 from tdslip_ros.nodes import parameters, topics
-from tdslip_ros.nodes.controller_node import MATCH_TIMEOUT, setting_parameter
-from tdslip_ros.nodes.diagnostics import specs_of
-from tdslip_ros.nodes.entry import (
+from tdslip_ros.nodes.answers import (
     ANSWER_SUBSCRIBERS,
+    MATCH_TIMEOUT,
     ApexAnswers,
-    QuestionsWhenHeard,
-    run_node,
+    subscribe_when_heard,
     wait_to_answer,
 )
+from tdslip_ros.nodes.controller_node import setting_parameter
+from tdslip_ros.nodes.diagnostics import specs_of
+from tdslip_ros.nodes.entry import run_node
 from tdslip_ros.nodes.lifecycle import AUTOSTART, END_WITH_RUN, ManagedNode
 from tdslip_ros.nodes.node_status import stance_controller_diagnostics
 from tdslip_ros.nodes.parameters import ParameterSpec, ParameterValue
@@ -89,7 +90,6 @@ class StanceControllerNode(ManagedNode):
         self.unanswered = 0
         self._answering = False
         self._answers = ApexAnswers()
-        self._questions: QuestionsWhenHeard | None = None  # the apex subscription, once answers are heard
         super().__init__("stance_controller", SPECS, **node_options)
         self.add_post_set_parameters_callback(lambda _: self._answers.forget())
 
@@ -109,7 +109,7 @@ class StanceControllerNode(ManagedNode):
             HipTorque, (*STAMP_FIELDS, "epoch", "stride", "tick", "torque")
         )
         self._apex_topic = self.resolve_topic_name(topics.APEX)
-        self._questions = QuestionsWhenHeard(
+        subscribe_when_heard(
             self,
             [self._command_publisher, self._torque_publisher],
             int(values[ANSWER_SUBSCRIBERS.name]),
@@ -125,11 +125,6 @@ class StanceControllerNode(ManagedNode):
     def deactivate(self) -> None:
         self._answering = False
         self._feedback = None  # no torque for a stance whose apex this node did not answer
-
-    def cleanup(self) -> None:
-        if self._questions is not None:
-            self._questions.destroy()
-            self._questions = None
 
     @property
     def policy(self) -> str:
