@@ -8,8 +8,6 @@ stream without a gap.
 from __future__ import annotations
 
 import signal
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +23,7 @@ from tdslip_msgs.msg import ApexEvent, HopperSamples
 from tdslip_ros.interfaces import resolve
 from tdslip_ros.nodes import topics
 from tdslip_ros.nodes.controller_node import ControllerNode
-from tdslip_ros.nodes.entry import wait_for_delivery, wait_for_matching
+from tdslip_ros.nodes.entry import wait_for_delivery, wait_for_matching, wait_until
 from tdslip_ros.nodes.plant_node import TICK_PERIOD, PlantNode
 from tdslip_ros.nodes.recorder_node import RecorderNode
 from tdslip_ros.nodes.wire import SAMPLE_COLUMNS
@@ -191,17 +189,11 @@ def test_an_autostarting_recorder_records_what_its_taker_takes_before_the_activa
     sent: list[bool] = []
 
     def discover_after_a_batch_was_taken(recorder: RecorderNode) -> None:
-        if not sent:
+        if not sent:  # (no spinning here: inside the recorder's constructor; DDS matches on its own threads)
             sent.append(True)
-            deadline = time.monotonic() + 20.0
-
-            def sleep_until(condition: Callable[[], object]) -> None:
-                while not condition() and time.monotonic() < deadline:
-                    time.sleep(0.01)
-
-            sleep_until(lambda: batches.get_subscription_count() >= 1)
+            wait_until(lambda: batches.get_subscription_count() >= 1, 20.0)
             batches.publish(samples_batch(3))
-            sleep_until(lambda: recorder.message_count or recorder.dropped_while_paused)
+            wait_until(lambda: bool(recorder.message_count or recorder.dropped_while_paused), 20.0)
         discover(recorder)
 
     monkeypatch.setattr(RecorderNode, "_discover", discover_after_a_batch_was_taken)
